@@ -1,0 +1,27 @@
+# make demo      set up .venv, render SPD balls at 512x512 to balls.png, print the statistics
+# make test      set up .venv, run the test suite (slow tests excluded)
+# make test-all  the whole suite, slow tests included
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test test-all bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/raykernel render ../shared/scenes/spd/balls-sf4.nff -o balls.png --resolution 512
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-all: $(STAMP)
+	$(PY) -m pytest -q -m ''
+
+clean:
+	rm -rf $(VENV) build src/*.egg-info
