@@ -1,0 +1,34 @@
+"""The counter layout shared by every kernel: one int64 row per tile or chunk.
+
+    counters = np.zeros((n_tiles, N_COUNTERS), np.int64)
+    counters[tile, TESTS + SPHERE] += 1
+    totals = counters.sum(axis=0)
+
+Names follow DESIGN.md (Glassner 1988, the SPD procedure, Havran 1999).
+"""
+
+RAYS_EYE, RAYS_EYE_HIT = 0, 1
+RAYS_REFLECT, RAYS_REFLECT_HIT = 2, 3
+RAYS_REFRACT, RAYS_REFRACT_HIT = 4, 5
+RAYS_SHADOW, RAYS_SHADOW_BLOCKED = 6, 7
+TESTS = 8                 # + primitive kind (sphere, polygon, patch, cone, triangle)
+BOUNDS_TESTS = 13
+CELLS_VISITED = 14        # traversal steps: nodes / cells visited (N_TS)
+CELLS_LEAVES = 15         # leaves visited (N_ETS)
+CELLS_EMPTY = 16          # empty leaves visited (N_EETS)
+MAILBOX_SAVED = 17
+SHADOW_CACHE_HITS = 18
+RAYS_CAST = 19            # rays given to the ray-casting API
+N_COUNTERS = 32           # spare columns for structures to come
+
+NAMES = {
+    RAYS_EYE: "rays.eye", RAYS_EYE_HIT: "rays.eye_hit",
+    RAYS_REFLECT: "rays.reflect", RAYS_REFLECT_HIT: "rays.reflect_hit",
+    RAYS_REFRACT: "rays.refract", RAYS_REFRACT_HIT: "rays.refract_hit",
+    RAYS_SHADOW: "rays.shadow", RAYS_SHADOW_BLOCKED: "rays.shadow_blocked",
+    TESTS + 0: "tests.sphere", TESTS + 1: "tests.polygon", TESTS + 2: "tests.patch",
+    TESTS + 3: "tests.cone", TESTS + 4: "tests.triangle",
+    BOUNDS_TESTS: "bounds.tests", CELLS_VISITED: "cells.visited", CELLS_LEAVES: "cells.leaves",
+    CELLS_EMPTY: "cells.empty", MAILBOX_SAVED: "mailbox.saved", SHADOW_CACHE_HITS: "shadow_cache.hits",
+    RAYS_CAST: "rays.cast",
+}

@@ -1,0 +1,371 @@
+"""From the scene model to flat arrays the kernels read, building every aggregate.
+
+    geo, build = flatten(scene, default_accel="bvh")
+    geo.root          # index of the top aggregate
+    build["build.nodes"], build["aggregates"]   # what the builds made
+
+Each Group becomes one aggregate over its primitives and children, built
+with the group's `accel` spec (or the default). A child Group with no spec
+of its own is merged into its parent; a child Group with a spec is a nested
+aggregate; an Instance refers to its group's aggregate through a matrix. A
+group instanced many times is built once.
+
+References are tagged integers (see primitives.make_ref): a leaf of any
+aggregate can hold a primitive, an aggregate or an instance.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from . import accel
+from .errors import SceneError
+from .primitives import AGGREGATE, CONE, INSTANCE, PATCH, POLYGON, SPHERE, TRIANGLE, make_ref
+from .scene import Group, Instance, Scene
+
+MAX_NESTING = 16          # aggregates along any path from the root (the kernel's frame stack)
+MAX_TREE_DEPTH = 96       # nodes along any path within one hierarchy (the kernel's node stack)
+STACK_SIZE = MAX_NESTING * (MAX_TREE_DEPTH + 2)
+
+LIST, BVH = 0, 1
+AGG_KIND_CODES = {"list": LIST, "bvh": BVH}
+
+
+class Geometry(NamedTuple):
+    """Flat arrays of a built scene, read by the kernels."""
+    sph_center: np.ndarray      # (S, 3)
+    sph_radius: np.ndarray      # (S,) signed: negative = inside only
+    sph_mat: np.ndarray         # (S,) int32 material index
+    cone_base: np.ndarray       # (C, 3)
+    cone_axis: np.ndarray       # (C, 3) unit vector base -> apex
+    cone_length: np.ndarray     # (C,)
+    cone_r0: np.ndarray         # (C,) signed radius at the base
+    cone_r1: np.ndarray         # (C,) signed radius at the apex
+    cone_mat: np.ndarray        # (C,)
+    poly_normal: np.ndarray     # (P, 3) unit plane normal from the first corner
+    poly_d: np.ndarray          # (P,) plane offset: normal . x = d
+    poly_start: np.ndarray      # (P,) first vertex in poly_verts
+    poly_count: np.ndarray      # (P,) vertex count
+    poly_axis: np.ndarray       # (P,) axis dropped for the 2D inside test
+    poly_mat: np.ndarray        # (P,)
+    poly_verts: np.ndarray      # (V, 3) vertices of polygons and patches
+    poly_vnormals: np.ndarray   # (V, 3) unit vertex normals (patches; zero for polygons)
+    tri_verts: np.ndarray       # (TV, 3) mesh vertices
+    tri_vnormals: np.ndarray    # (TV, 3) mesh vertex normals (zero where absent)
+    tri_faces: np.ndarray       # (T, 3) int64 vertex indices
+    tri_smooth: np.ndarray      # (T,) bool: interpolate tri_vnormals
+    tri_mat: np.ndarray         # (T,)
+    agg_kind: np.ndarray        # (A,) LIST or BVH
+    agg_bounds: np.ndarray      # (A, 6) xmin ymin zmin xmax ymax zmax
+    agg_start: np.ndarray       # (A,) list: first ref; bvh: root node
+    agg_count: np.ndarray       # (A,) list: number of refs; bvh: number of nodes
+    node_bounds: np.ndarray     # (N, 6) BVH node boxes
+    node_first: np.ndarray      # (N,) inner: left child (right = left + 1); leaf: first ref
+    node_count: np.ndarray      # (N,) 0 for inner nodes, else refs in the leaf
+    refs: np.ndarray            # (R,) tagged references of every list and leaf
+    inst_agg: np.ndarray        # (I,) aggregate an instance shows
+    inst_to_local: np.ndarray   # (I, 12) world-to-local affine map, row-major 3x4
+    root: int                   # the top aggregate
+
+
+def _box_of_points(points: np.ndarray) -> np.ndarray:
+    return np.concatenate([points.min(axis=0), points.max(axis=0)])
+
+
+def transform_box(box: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Bounds of the 8 corners of `box` mapped by the 4x4 matrix `m`."""
+    if not np.all(np.isfinite(box)):
+        return box.copy()
+    lo, hi = box[:3], box[3:]
+    corners = np.array([[lo[0] if i & 1 == 0 else hi[0], lo[1] if i & 2 == 0 else hi[1],
+                         lo[2] if i & 4 == 0 else hi[2]] for i in range(8)])
+    mapped = corners @ m[:3, :3].T + m[:3, 3]
+    return _box_of_points(mapped)
+
+
+class _Arrays:
+    """Growing global arrays while the groups are walked."""
+
+    def __init__(self):
+        self.sph = []      # (center, radius, mat)
+        self.cone = []
+        self.poly = []     # (Polygons set, is_patch)
+        self.mesh = []
+        self.n_sph = self.n_cone = self.n_poly = self.n_poly_verts = self.n_tri = self.n_tri_verts = 0
+        self.agg_kind, self.agg_bounds, self.agg_start, self.agg_count = [], [], [], []
+        self.node_bounds, self.node_first, self.node_count = [], [], []
+        self.n_nodes = 0
+        self.refs = []
+        self.n_refs = 0
+        self.inst_agg, self.inst_to_local = [], []
+
+
+def _sphere_refs(arr: _Arrays, s):
+    if np.any(s.radius == 0.0) or not np.all(np.isfinite(s.radius)) or not np.all(np.isfinite(s.center)):
+        bad = int(np.flatnonzero((s.radius == 0.0) | ~np.isfinite(s.radius))[0]) if np.any(
+            (s.radius == 0.0) | ~np.isfinite(s.radius)) else 0
+        raise SceneError(f"sphere {bad}: radius must be finite and non-zero, centre finite")
+    idx = np.arange(arr.n_sph, arr.n_sph + len(s))
+    arr.sph.append(s)
+    arr.n_sph += len(s)
+    r = np.abs(s.radius)[:, None]
+    return make_ref(SPHERE, idx), np.hstack([s.center - r, s.center + r])
+
+
+def _cone_refs(arr: _Arrays, c):
+    axis = c.apex - c.base
+    length = np.linalg.norm(axis, axis=1)
+    bad = (length == 0.0) | ((c.base_radius == 0.0) & (c.apex_radius == 0.0)) | \
+        (np.sign(c.base_radius) * np.sign(c.apex_radius) < 0)
+    if np.any(bad):
+        raise SceneError(f"cone {int(np.flatnonzero(bad)[0])}: base and apex must differ, radii must not both be "
+                         "zero and must have the same sign")
+    idx = np.arange(arr.n_cone, arr.n_cone + len(c))
+    arr.cone.append(c)
+    arr.n_cone += len(c)
+    unit = axis / length[:, None]
+    # a disc of radius r with unit normal a extends r*sqrt(1 - a_i^2) along axis i
+    spread = np.sqrt(np.clip(1.0 - unit ** 2, 0.0, 1.0))
+    e0 = np.abs(c.base_radius)[:, None] * spread
+    e1 = np.abs(c.apex_radius)[:, None] * spread
+    lo = np.minimum(c.base - e0, c.apex - e1)
+    hi = np.maximum(c.base + e0, c.apex + e1)
+    return make_ref(CONE, idx), np.hstack([lo, hi])
+
+
+def _polygon_refs(arr: _Arrays, p):
+    kind = PATCH if p.patches else POLYGON
+    idx = np.arange(arr.n_poly, arr.n_poly + len(p))
+    arr.poly.append(p)
+    arr.n_poly += len(p)
+    arr.n_poly_verts += len(p.vertices)
+    lo = np.minimum.reduceat(p.vertices, p.start, axis=0)
+    hi = np.maximum.reduceat(p.vertices, p.start, axis=0)
+    return make_ref(kind, idx), np.hstack([lo, hi])
+
+
+def _mesh_refs(arr: _Arrays, m):
+    idx = np.arange(arr.n_tri, arr.n_tri + len(m.faces))
+    arr.mesh.append((m, arr.n_tri_verts))
+    arr.n_tri += len(m.faces)
+    arr.n_tri_verts += len(m.vertices)
+    tri = m.vertices[m.faces]
+    return make_ref(TRIANGLE, idx), np.hstack([tri.min(axis=1), tri.max(axis=1)])
+
+
+class _Builder:
+    def __init__(self, default_accel: str):
+        self.arr = _Arrays()
+        self.default = accel.parse_spec(default_accel)
+        self.built: dict[int, tuple[int, int]] = {}   # id(group) -> (aggregate, depth)
+        self._active_groups: list[Group] = []           # the path being walked, to catch cycles
+        self.agg_stats: list[dict] = []
+
+    def build_group(self, group: Group) -> tuple[int, int]:
+        key = id(group)
+        if key in self.built:
+            return self.built[key]
+        if key in (id(g) for g in self._active_groups):
+            names = " -> ".join(g.name or "?" for g in self._active_groups) + f" -> {group.name or '?'}"
+            raise SceneError(f"group cycle: {names}")
+        self._active_groups.append(group)
+        refs, bounds = [], []
+        depth = self._collect(group, refs, bounds)
+        self._active_groups.pop()
+        if depth + 1 > MAX_NESTING:
+            raise SceneError(f"group {group.name or '(unnamed)'}: aggregates nest {depth + 1} deep; "
+                             f"the limit is {MAX_NESTING}")
+        spec = accel.parse_spec(group.accel) if group.accel else self.default
+        refs = np.concatenate(refs) if refs else np.zeros(0, np.int64)
+        bounds = np.vstack(bounds) if bounds else np.zeros((0, 6))
+        agg = self._build_aggregate(spec, refs, bounds, group.name)
+        self.built[key] = (agg, depth + 1)
+        return agg, depth + 1
+
+    def _collect(self, group: Group, refs: list, bounds: list) -> int:
+        """Gather refs and bounds of `group` (merging spec-less child groups);
+        returns the deepest nesting among its children."""
+        depth = 0
+        for s in group.primitive_sets():
+            if s.kind == "sphere":
+                r, b = _sphere_refs(self.arr, s)
+            elif s.kind == "cone":
+                r, b = _cone_refs(self.arr, s)
+            elif s.kind in ("polygon", "patch"):
+                r, b = _polygon_refs(self.arr, s)
+            else:
+                r, b = _mesh_refs(self.arr, s)
+            refs.append(r)
+            bounds.append(b)
+        for child in group.children:
+            if isinstance(child, Instance):
+                agg, d = self.build_group(child.group)
+                k = len(self.arr.inst_agg)
+                self.arr.inst_agg.append(agg)
+                self.arr.inst_to_local.append(np.linalg.inv(child.matrix)[:3, :].reshape(-1))
+                refs.append(make_ref(INSTANCE, [k]))
+                bounds.append(transform_box(self.arr.agg_bounds[agg], child.matrix)[None, :])
+                depth = max(depth, d)
+            elif isinstance(child, Group) and child.accel is None:
+                if id(child) in (id(g) for g in self._active_groups):
+                    raise SceneError(f"group cycle through {child.name or '(unnamed)'}")
+                self._active_groups.append(child)
+                depth = max(depth, self._collect(child, refs, bounds))
+                self._active_groups.pop()
+            elif isinstance(child, Group):
+                agg, d = self.build_group(child)
+                refs.append(make_ref(AGGREGATE, [agg]))
+                bounds.append(self.arr.agg_bounds[agg][None, :])
+                depth = max(depth, d)
+            else:
+                raise SceneError(f"group {group.name or '(unnamed)'} holds a {type(child).__name__}")
+        return depth
+
+    def _build_aggregate(self, spec, refs, bounds, name) -> int:
+        kind, params = spec
+        arr = self.arr
+        start = time.perf_counter()
+        box = _box_of_points(bounds.reshape(-1, 3)) if len(bounds) else np.array([np.inf] * 3 + [-np.inf] * 3)
+        agg = len(arr.agg_kind)
+        if kind == "list":
+            arr.agg_kind.append(LIST)
+            arr.agg_start.append(arr.n_refs)
+            arr.agg_count.append(len(refs))
+            arr.refs.append(refs)
+            arr.n_refs += len(refs)
+            stats = {"nodes": 0, "inner": 0, "leaves": 1, "empty_leaves": int(len(refs) == 0),
+                     "refs": len(refs), "bytes": refs.nbytes}
+        elif kind == "bvh":
+            from .aggregates.bvh import build_bvh
+            tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"])
+            if stats.get("max_depth", 0) > MAX_TREE_DEPTH:
+                raise SceneError(f"group {name or '(unnamed)'}: BVH depth {stats['max_depth']} exceeds "
+                                 f"{MAX_TREE_DEPTH}")
+            arr.agg_kind.append(BVH)
+            arr.agg_start.append(arr.n_nodes)
+            arr.agg_count.append(len(tree.count))
+            inner = tree.count == 0
+            first = np.where(inner, tree.first + arr.n_nodes, tree.first + arr.n_refs)
+            if len(refs) == 0:
+                first[:] = arr.n_refs
+            arr.node_bounds.append(tree.bounds)
+            arr.node_first.append(first)
+            arr.node_count.append(tree.count)
+            arr.n_nodes += len(tree.count)
+            arr.refs.append(refs[tree.order])
+            arr.n_refs += len(refs)
+            stats = dict(stats)
+        else:
+            raise SceneError(f"accelerator {kind!r} is not available in this build")
+        arr.agg_bounds.append(box)
+        stats.update(kind=accel.format_spec(kind, params), name=name, items=len(refs),
+                     seconds=time.perf_counter() - start)
+        self.agg_stats.append(stats)
+        return agg
+
+
+def _concat(parts, shape, dtype):
+    return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros(shape, dtype), dtype=dtype)
+
+
+def _polygon_planes(verts, start, count):
+    v0 = verts[start]
+    e1 = verts[start + 1] - v0
+    e2 = verts[start + 2] - v0
+    n = np.cross(e1, e2)
+    length = np.linalg.norm(n, axis=1)
+    size = np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1))
+    bad = ~(length > 1e-12 * size * size)
+    if np.any(bad):
+        raise SceneError(f"polygon {int(np.flatnonzero(bad)[0])}: its first three vertices do not form a corner "
+                         "(they are coincident or collinear), so it has no normal")
+    n = n / length[:, None]
+    return n, np.einsum("ij,ij->i", n, v0), np.argmax(np.abs(n), axis=1).astype(np.int64)
+
+
+def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
+    """Build every aggregate of `scene` and return the flat arrays and the build statistics."""
+    t0 = time.perf_counter()
+    b = _Builder(default_accel)
+    root, depth = b.build_group(scene.root)
+    arr = b.arr
+
+    sph = arr.sph
+    cone = arr.cone
+    cone_base = _concat([c.base for c in cone], (0, 3), np.float64)
+    cone_apex = _concat([c.apex for c in cone], (0, 3), np.float64)
+    axis = cone_apex - cone_base
+    length = np.linalg.norm(axis, axis=1)
+    axis = axis / np.where(length > 0, length, 1.0)[:, None]
+
+    verts_parts, vn_parts, start_parts, count_parts, mat_parts = [], [], [], [], []
+    offset = 0
+    for p in arr.poly:
+        verts_parts.append(p.vertices)
+        if p.patches:
+            nrm = p.normals / np.maximum(np.linalg.norm(p.normals, axis=1), 1e-300)[:, None]
+        else:
+            nrm = np.zeros_like(p.vertices)
+        vn_parts.append(nrm)
+        start_parts.append(p.start + offset)
+        count_parts.append(p.count)
+        mat_parts.append(p.material)
+        offset += len(p.vertices)
+    poly_verts = _concat(verts_parts, (0, 3), np.float64)
+    poly_start = _concat(start_parts, (0,), np.int64)
+    poly_count = _concat(count_parts, (0,), np.int64)
+    if len(poly_start):
+        normal, dist, paxis = _polygon_planes(poly_verts, poly_start, poly_count)
+    else:
+        normal, dist, paxis = np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64)
+
+    tri_faces = _concat([m.faces + off for m, off in arr.mesh], (0, 3), np.int64)
+    tri_verts = _concat([m.vertices for m, _ in arr.mesh], (0, 3), np.float64)
+    tri_vn = _concat([m.normals if m.normals is not None else np.zeros_like(m.vertices) for m, _ in arr.mesh],
+                     (0, 3), np.float64)
+    tri_smooth = _concat([np.full(len(m.faces), m.normals is not None) for m, _ in arr.mesh], (0,), np.bool_)
+
+    geo = Geometry(
+        sph_center=_concat([s.center for s in sph], (0, 3), np.float64),
+        sph_radius=_concat([s.radius for s in sph], (0,), np.float64),
+        sph_mat=_concat([s.material for s in sph], (0,), np.int32),
+        cone_base=cone_base, cone_axis=np.ascontiguousarray(axis), cone_length=length,
+        cone_r0=_concat([c.base_radius for c in cone], (0,), np.float64),
+        cone_r1=_concat([c.apex_radius for c in cone], (0,), np.float64),
+        cone_mat=_concat([c.material for c in cone], (0,), np.int32),
+        poly_normal=np.ascontiguousarray(normal), poly_d=dist, poly_start=poly_start, poly_count=poly_count,
+        poly_axis=paxis, poly_mat=_concat(mat_parts, (0,), np.int32), poly_verts=poly_verts,
+        poly_vnormals=_concat(vn_parts, (0, 3), np.float64),
+        tri_verts=tri_verts, tri_vnormals=tri_vn, tri_faces=tri_faces, tri_smooth=tri_smooth,
+        tri_mat=_concat([m.material for m, _ in arr.mesh], (0,), np.int32),
+        agg_kind=np.array(arr.agg_kind, np.int64), agg_bounds=np.array(arr.agg_bounds, np.float64).reshape(-1, 6),
+        agg_start=np.array(arr.agg_start, np.int64), agg_count=np.array(arr.agg_count, np.int64),
+        node_bounds=_concat(arr.node_bounds, (0, 6), np.float64),
+        node_first=_concat(arr.node_first, (0,), np.int64),
+        node_count=_concat(arr.node_count, (0,), np.int64),
+        refs=_concat(arr.refs, (0,), np.int64),
+        inst_agg=np.array(arr.inst_agg, np.int64),
+        inst_to_local=np.array(arr.inst_to_local, np.float64).reshape(-1, 12),
+        root=int(root),
+    )
+    n_materials = max(1, len(scene.materials))
+    for name in ("sph_mat", "cone_mat", "poly_mat", "tri_mat"):
+        mats = getattr(geo, name)
+        if len(mats) and (mats.min() < 0 or mats.max() >= n_materials):
+            raise SceneError(f"a primitive refers to material {int(mats.max())}, but the scene has "
+                             f"{len(scene.materials)} materials")
+    nbytes = sum(a.nbytes for a in geo if isinstance(a, np.ndarray))
+    stats = {
+        "build.nodes": int(sum(s.get("nodes", 0) for s in b.agg_stats)),
+        "build.empty_leaves": int(sum(s.get("empty_leaves", 0) for s in b.agg_stats)),
+        "build.refs": int(sum(s.get("refs", 0) for s in b.agg_stats)),
+        "build.bytes": int(nbytes),
+        "build.seconds": time.perf_counter() - t0,
+        "build.aggregates": len(b.agg_stats),
+        "build.nesting": int(depth),
+        "aggregates": b.agg_stats,
+    }
+    return geo, stats

@@ -1,0 +1,256 @@
+"""The one intersection routine that drives every aggregate, nested to any depth.
+
+    ws = Workspace()                                   # per thread: stacks and hit record
+    found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, False, ws..., cnt)
+    t = ws_hit_f[0]; kind, index, instance = ws_hit_i[0], ws_hit_i[1], ws_hit_i[2]
+
+An explicit stack replaces recursion. Its entries are either a BVH node or a
+range of references still to be tested. When a reference names an aggregate
+or an instance, the rest of the current range is pushed, a frame is opened
+for the child (the ray mapped into its space for an instance), and the
+child's first entry is pushed above. A frame ends when the stack falls to
+its base. Instance maps are affine and the direction is not renormalised,
+so t means the same in every frame and one closest t shrinks through all.
+"""
+
+import math
+
+import numpy as np
+
+from . import counters as C
+from .config import njit
+from .flatten import BVH, LIST, MAX_NESTING, STACK_SIZE
+from .primitives import (AGGREGATE, CONE, INDEX_MASK, INSTANCE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE,
+                         hit_cone, hit_polygon, hit_sphere, hit_triangle)
+
+INF = np.inf
+NODE = -1                    # stack entry tag: a BVH node rather than a ref range
+# Ize 2013: widen the exit distance by 2*gamma(3) so that rounding never
+# rejects a box the ray actually crosses.
+_CONSERVATIVE = 1.0 + 2.0 * (3 * 2.0 ** -53) / (1.0 - 3 * 2.0 ** -53)
+FRAME_F = 18                 # per frame: ray origin, direction, world-to-local 3x4
+HIT_F = 13                   # t, world-to-local 3x4 of the frame that was hit
+HIT_I = 3                    # kind, index, innermost instance (-1: none)
+
+
+def workspace():
+    """Scratch arrays for one thread: (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i)."""
+    return (np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
+            np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, 3), np.int64),
+            np.zeros(HIT_F), np.zeros(HIT_I, np.int64))
+
+
+@njit(inline="always")
+def _inverse(d):
+    # a huge finite reciprocal keeps 0 * (1/d) from becoming NaN at slab planes
+    if d == 0.0:
+        return 1e300
+    return 1.0 / d
+
+
+@njit(inline="always")
+def box_entry(b, i, ox, oy, oz, ix, iy, iz, tmin, tmax):
+    """Entry distance of the ray into box i of `b` within [tmin, tmax], or inf."""
+    t0 = (b[i, 0] - ox) * ix
+    t1 = (b[i, 3] - ox) * ix
+    if t0 > t1:
+        t0, t1 = t1, t0
+    t2 = (b[i, 1] - oy) * iy
+    t3 = (b[i, 4] - oy) * iy
+    if t2 > t3:
+        t2, t3 = t3, t2
+    t4 = (b[i, 2] - oz) * iz
+    t5 = (b[i, 5] - oz) * iz
+    if t4 > t5:
+        t4, t5 = t5, t4
+    tnear = max(max(t0, t2), max(t4, tmin))
+    tfar = min(min(t1, t3), min(t5, tmax)) * _CONSERVATIVE if min(min(t1, t3), t5) > 0.0 else \
+        min(min(t1, t3), min(t5, tmax))
+    if tnear <= tfar:
+        return tnear
+    return INF
+
+
+@njit(inline="always")
+def _push_aggregate(geo, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b, stack_t, sp, cnt):
+    """Test the aggregate's bounds and push its first entry; returns the new stack pointer."""
+    cnt[C.BOUNDS_TESTS] += 1
+    te = box_entry(geo.agg_bounds, a, ox, oy, oz, ix, iy, iz, tmin, tmax)
+    if te == INF:
+        return sp
+    if geo.agg_kind[a] == LIST:
+        stack_a[sp] = geo.agg_start[a]
+        stack_b[sp] = geo.agg_start[a] + geo.agg_count[a]
+    else:
+        stack_a[sp] = geo.agg_start[a]
+        stack_b[sp] = NODE
+    stack_t[sp] = te
+    return sp + 1
+
+
+@njit
+def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
+              stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, cnt):
+    """Closest hit (or, with any_hit, the first hit found) of the ray with
+    the scene in [tmin, tmax]. On a hit returns True and fills hit_f
+    (t, world-to-local map of the hit's frame) and hit_i (kind, index,
+    innermost instance). Counts tests, bounds tests and steps into cnt."""
+    best_t = tmax
+    found = False
+    best_ref = np.int64(-1)
+    best_inst = np.int64(-1)
+    ix, iy, iz = _inverse(dx), _inverse(dy), _inverse(dz)
+    # frame 0: the root aggregate in world space
+    f = 0
+    frame_f[0, 0], frame_f[0, 1], frame_f[0, 2] = ox, oy, oz
+    frame_f[0, 3], frame_f[0, 4], frame_f[0, 5] = dx, dy, dz
+    for k in range(12):
+        frame_f[0, 6 + k] = 0.0
+    frame_f[0, 6] = frame_f[0, 11] = frame_f[0, 16] = 1.0
+    frame_i[0, 0] = geo.root
+    frame_i[0, 1] = 0
+    frame_i[0, 2] = -1
+    base = 0
+    sp = _push_aggregate(geo, geo.root, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, 0, cnt)
+    while True:
+        if sp == base:
+            if f == 0:
+                break
+            # this frame is done: back to the parent's ray
+            f -= 1
+            base = frame_i[f, 1]
+            ox, oy, oz = frame_f[f, 0], frame_f[f, 1], frame_f[f, 2]
+            dx, dy, dz = frame_f[f, 3], frame_f[f, 4], frame_f[f, 5]
+            ix, iy, iz = _inverse(dx), _inverse(dy), _inverse(dz)
+            continue
+        sp -= 1
+        a = stack_a[sp]
+        b = stack_b[sp]
+        if stack_t[sp] > best_t:
+            continue            # entered beyond the closest hit so far
+        if b == NODE:
+            node = a
+            cnt[C.CELLS_VISITED] += 1
+            n_items = geo.node_count[node]
+            if n_items == 0:
+                # inner node: test both children, visit the nearer first
+                left = geo.node_first[node]
+                right = left + 1
+                cnt[C.BOUNDS_TESTS] += 2
+                tl = box_entry(geo.node_bounds, left, ox, oy, oz, ix, iy, iz, tmin, best_t)
+                tr = box_entry(geo.node_bounds, right, ox, oy, oz, ix, iy, iz, tmin, best_t)
+                if tl <= tr:
+                    if tr != INF:
+                        stack_a[sp], stack_b[sp], stack_t[sp] = right, NODE, tr
+                        sp += 1
+                    if tl != INF:
+                        stack_a[sp], stack_b[sp], stack_t[sp] = left, NODE, tl
+                        sp += 1
+                else:
+                    if tl != INF:
+                        stack_a[sp], stack_b[sp], stack_t[sp] = left, NODE, tl
+                        sp += 1
+                    stack_a[sp], stack_b[sp], stack_t[sp] = right, NODE, tr
+                    sp += 1
+                continue
+            cnt[C.CELLS_LEAVES] += 1
+            if n_items == 0:
+                cnt[C.CELLS_EMPTY] += 1
+                continue
+            s = geo.node_first[node]
+            e = s + n_items
+        else:
+            s = a
+            e = b
+        i = s
+        while i < e:
+            ref = geo.refs[i]
+            kind = ref >> KIND_SHIFT
+            idx = ref & INDEX_MASK
+            i += 1
+            if kind == SPHERE:
+                cnt[C.TESTS + SPHERE] += 1
+                t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
+                               geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, tmin, best_t)
+            elif kind == POLYGON or kind == PATCH:
+                cnt[C.TESTS + kind] += 1
+                t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
+                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, tmin, best_t)
+            elif kind == TRIANGLE:
+                cnt[C.TESTS + TRIANGLE] += 1
+                fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
+                v = geo.tri_verts
+                t = hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
+                                 v[fc, 0], v[fc, 1], v[fc, 2], ox, oy, oz, dx, dy, dz, tmin, best_t)
+            elif kind == CONE:
+                cnt[C.TESTS + CONE] += 1
+                t = hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
+                             geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
+                             geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx],
+                             ox, oy, oz, dx, dy, dz, tmin, best_t)
+            else:
+                # a child aggregate: keep the rest of this range, open a frame for the child
+                if i < e:
+                    stack_a[sp], stack_b[sp], stack_t[sp] = i, e, -INF
+                    sp += 1
+                if kind == AGGREGATE:
+                    child = idx
+                    inst = frame_i[f, 2]
+                    nox, noy, noz, ndx, ndy, ndz = ox, oy, oz, dx, dy, dz
+                else:
+                    child = geo.inst_agg[idx]
+                    inst = idx
+                    m = geo.inst_to_local[idx]
+                    nox = m[0] * ox + m[1] * oy + m[2] * oz + m[3]
+                    noy = m[4] * ox + m[5] * oy + m[6] * oz + m[7]
+                    noz = m[8] * ox + m[9] * oy + m[10] * oz + m[11]
+                    ndx = m[0] * dx + m[1] * dy + m[2] * dz
+                    ndy = m[4] * dx + m[5] * dy + m[6] * dz
+                    ndz = m[8] * dx + m[9] * dy + m[10] * dz
+                nix, niy, niz = _inverse(ndx), _inverse(ndy), _inverse(ndz)
+                nsp = _push_aggregate(geo, child, nox, noy, noz, nix, niy, niz, tmin, best_t,
+                                      stack_a, stack_b, stack_t, sp, cnt)
+                if nsp == sp:
+                    break       # missed the child's bounds
+                g = f + 1
+                frame_f[g, 0], frame_f[g, 1], frame_f[g, 2] = nox, noy, noz
+                frame_f[g, 3], frame_f[g, 4], frame_f[g, 5] = ndx, ndy, ndz
+                if kind == INSTANCE:
+                    # compose: child map after the parent's world-to-local map
+                    m = geo.inst_to_local[idx]
+                    for r in range(3):
+                        for c in range(4):
+                            acc = m[4 * r + 3] if c == 3 else 0.0
+                            for k in range(3):
+                                acc += m[4 * r + k] * frame_f[f, 6 + 4 * k + c]
+                            frame_f[g, 6 + 4 * r + c] = acc
+                else:
+                    for k in range(12):
+                        frame_f[g, 6 + k] = frame_f[f, 6 + k]
+                frame_i[g, 0] = child
+                frame_i[g, 1] = sp
+                frame_i[g, 2] = inst
+                f = g
+                base = sp
+                sp = nsp
+                ox, oy, oz, dx, dy, dz = nox, noy, noz, ndx, ndy, ndz
+                ix, iy, iz = nix, niy, niz
+                break
+            if t != INF:
+                inst = frame_i[f, 2]
+                # t <= best_t here; ties at equal t go to the smaller
+                # (ref, instance), so every traversal order reports the same primitive
+                if not found or t < best_t or ref < best_ref or (ref == best_ref and inst < best_inst):
+                    found = True
+                    best_t = t
+                    best_ref = ref
+                    best_inst = inst
+                    hit_f[0] = t
+                    for k in range(12):
+                        hit_f[1 + k] = frame_f[f, 6 + k]
+                    hit_i[0] = kind
+                    hit_i[1] = idx
+                    hit_i[2] = inst
+                    if any_hit:
+                        return True
+    return found
