@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/raykernel render ../shared/scenes/spd/balls-sf4.nff -o balls.png --resolution 512
+	$(VENV)/bin/raykernel render spd:balls -o balls.png --resolution 512
 
 test: $(STAMP)
 	$(PY) -m pytest -q

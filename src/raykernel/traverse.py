@@ -16,6 +16,7 @@ so t means the same in every frame and one closest t shrinks through all.
 import math
 
 import numpy as np
+from numba import prange
 
 from . import counters as C
 from .config import njit
@@ -254,3 +255,62 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                     if any_hit:
                         return True
     return found
+
+
+@njit(parallel=True)
+def _cast_chunks(geo, origins, directions, tmin, tmax, any_hit, chunk, t_out, kind_out, index_out, inst_out,
+                 counters):
+    n = origins.shape[0]
+    n_chunks = (n + chunk - 1) // chunk
+    for ci in prange(n_chunks):
+        c = np.int64(ci)
+        stack_a = np.zeros(STACK_SIZE, np.int64)
+        stack_b = np.zeros(STACK_SIZE, np.int64)
+        stack_t = np.zeros(STACK_SIZE)
+        frame_f = np.zeros((MAX_NESTING + 1, FRAME_F))
+        frame_i = np.zeros((MAX_NESTING + 1, 3), np.int64)
+        hit_f = np.zeros(HIT_F)
+        hit_i = np.zeros(HIT_I, np.int64)
+        cnt = np.zeros(C.N_COUNTERS, np.int64)
+        for r in range(c * chunk, min(n, (c + 1) * chunk)):
+            cnt[C.RAYS_CAST] += 1
+            if intersect(geo, origins[r, 0], origins[r, 1], origins[r, 2], directions[r, 0], directions[r, 1],
+                         directions[r, 2], tmin[r], tmax[r], any_hit,
+                         stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, cnt):
+                t_out[r] = hit_f[0]
+                kind_out[r] = hit_i[0]
+                index_out[r] = hit_i[1]
+                inst_out[r] = hit_i[2]
+            else:
+                t_out[r] = np.inf
+                kind_out[r] = -1
+                index_out[r] = -1
+                inst_out[r] = -1
+        for k in range(C.N_COUNTERS):
+            counters[c, k] = cnt[k]
+
+
+CHUNK = 1024
+
+
+def cast_rays(geo, origins, directions, tmin=0.0, tmax=np.inf, any_hit=False):
+    """Cast a batch of rays against built geometry (see flatten.flatten).
+
+    Returns (t, kind, index, instance, counter totals); misses have t = inf
+    and kind = index = -1. Results do not depend on the thread count.
+    """
+    origins = np.ascontiguousarray(origins, np.float64).reshape(-1, 3)
+    directions = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
+    n = len(origins)
+    if directions.shape != origins.shape:
+        raise ValueError(f"origins and directions differ in shape: {origins.shape} vs {directions.shape}")
+    tmin = np.ascontiguousarray(np.broadcast_to(np.asarray(tmin, np.float64), (n,)))
+    tmax = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, np.float64), (n,)))
+    t = np.empty(n)
+    kind = np.empty(n, np.int64)
+    index = np.empty(n, np.int64)
+    inst = np.empty(n, np.int64)
+    counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
+    if n:
+        _cast_chunks(geo, origins, directions, tmin, tmax, bool(any_hit), CHUNK, t, kind, index, inst, counters)
+    return t, kind, index, inst, counters.sum(axis=0)
