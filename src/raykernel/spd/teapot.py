@@ -4,18 +4,20 @@ triangles, sitting on a reflective checkerboard; two lights.
     from raykernel import spd
     text = spd.generate("teapot", 6)          # NFF text, same as `teapot -s 6`
     from raykernel.spd import teapot
-    text = teapot.generate(1, force=True)     # what `teapot -s 1` writes anyway
+    text = teapot.generate(1)                 # what `teapot -s 1` writes (with the SPD's warning)
 
 Size factor n (default 6, the SPD statistics use 12): each of the 32 bicubic
 Bezier patches is cut into an n x n grid, every cell split into two triangle
 patches (pp, with the surface normal at each vertex). Triangles that collapse
 onto the lid or bottom cusp are dropped, leaving 64 n^2 - 8 n of them, plus an
-n x n checkerboard of quads (white squares first, then grey). The SPD does not
-support n = 1 ("a size of 1 is not supported"); `generate(1)` raises
-OptionError unless `force=True`.
+n x n checkerboard of quads (white squares first, then grey). The SPD warns
+that "a size of 1 is not supported" and writes the scene anyway; so do we
+(a RuntimeWarning), since teapot-sf1.nff is such a file.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
@@ -243,10 +245,11 @@ def _checkerboard(w: NffWriter, n: int):
                     w.polygon([(x0, y0, 0.0), (x1, y0, 0.0), (x1, y1, 0.0), (x0, y1, 0.0)])
 
 
-def generate(size: int = DEFAULT_SIZE, *, force: bool = False) -> str:
-    """NFF text of the teapot scene at size factor `size` (n >= 2; n = 1 only with `force`)."""
-    if size == 1 and not force:
-        raise OptionError("teapot: a size of 1 is not supported (the SPD only warns; use force=True)")
+def generate(size: int = DEFAULT_SIZE) -> str:
+    """NFF text of the teapot scene at size factor `size` (n = 1 warns, as the SPD does)."""
+    if size == 1:
+        warnings.warn("teapot: a size of 1 is not supported by the SPD; writing it anyway", RuntimeWarning,
+                      stacklevel=2)
     if size < 1:
         raise OptionError(f"teapot size factor must be a positive integer, got {size!r}")
     w = NffWriter()
