@@ -272,17 +272,23 @@ def _concat(parts, shape, dtype):
 
 
 def _polygon_planes(verts, start, count):
+    """Unit normal from the first corner (NFF's rule), plane offset, and the
+    axis to drop for the 2D inside test. Where the first corner is degenerate
+    the polygon's area vector (Newell) gives the normal; a polygon with no
+    area at all gets a zero normal, which no ray can hit."""
     v0 = verts[start]
     e1 = verts[start + 1] - v0
     e2 = verts[start + 2] - v0
     n = np.cross(e1, e2)
     length = np.linalg.norm(n, axis=1)
     size = np.maximum(np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1))
-    bad = ~(length > 1e-12 * size * size)
-    if np.any(bad):
-        raise SceneError(f"polygon {int(np.flatnonzero(bad)[0])}: its first three vertices do not form a corner "
-                         "(they are coincident or collinear), so it has no normal")
-    n = n / length[:, None]
+    bad = np.flatnonzero(~(length > 1e-12 * size * size))
+    for i in bad:
+        poly = verts[start[i]:start[i] + count[i]]
+        area = 0.5 * np.cross(poly, np.roll(poly, -1, axis=0)).sum(axis=0)
+        n[i] = area if np.linalg.norm(area) > 1e-12 * np.ptp(poly, axis=0).max() ** 2 else 0.0
+        length[i] = np.linalg.norm(n[i])
+    n = n / np.where(length > 0.0, length, 1.0)[:, None]
     return n, np.einsum("ij,ij->i", n, v0), np.argmax(np.abs(n), axis=1).astype(np.int64)
 
 

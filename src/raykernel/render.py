@@ -180,7 +180,10 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
         entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
         if not entering:
             # two-sided: shade the side the ray sees
-            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+            gx, gy, gz = -gx, -gy, -gz
+        if _dot(sx, sy, sz, gx, gy, gz) < 0.0:
+            # vertex normals may disagree with the winding; keep them on the seen side
+            sx, sy, sz = -sx, -sy, -sz
         eps = OFFSET * max(max(abs(px), abs(py)), max(abs(pz), max(max(abs(ox), abs(oy)), abs(oz))))
         ax, ay, az = px + eps * gx, py + eps * gy, pz + eps * gz     # on the side the ray came from
         cr, cg, cb = mats[mat, 0], mats[mat, 1], mats[mat, 2]
