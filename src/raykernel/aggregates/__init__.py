@@ -1,0 +1,1 @@
+"""Acceleration structures: each module builds one kind of aggregate as flat arrays."""

@@ -1,0 +1,479 @@
+"""Binned-SAH BVH builder: structure, degenerate inputs, refit, quality, traversal."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from raykernel.aggregates.bvh import BVHArrays, build_bvh, is_leaf, refit
+from raykernel.errors import OptionError
+
+EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def random_boxes(rng, n, size=0.01, span=1.0):
+    lo = rng.random((n, 3)) * span
+    return np.hstack([lo, lo + rng.random((n, 3)) * size])
+
+
+def leaf_mask(bvh):
+    """Leaves by the documented rule, computed here independently of is_leaf."""
+    idx = np.arange(bvh.count.size)
+    return (bvh.count > 0) | (bvh.first <= idx)
+
+
+def node_depths(bvh):
+    depth = np.zeros(bvh.count.size, dtype=np.int64)
+    leaf = leaf_mask(bvh)
+    for i in range(bvh.count.size):  # parents come before their children
+        if not leaf[i]:
+            depth[bvh.first[i]] = depth[bvh.first[i] + 1] = depth[i] + 1
+    return depth
+
+
+def check_tree(bvh, stats, items, leaf_size):
+    """Every structural invariant of the layout; items are the boxes the node boxes must fit."""
+    items = np.asarray(items, dtype=np.float64).reshape(-1, 6)
+    n = items.shape[0]
+    bounds, first, count, order = bvh
+    n_nodes = count.size
+    assert isinstance(bvh, BVHArrays)
+    assert bounds.dtype == np.float64 and bounds.shape == (n_nodes, 6)
+    assert first.dtype == np.int64 and first.shape == (n_nodes,)
+    assert count.dtype == np.int64 and order.dtype == np.int64
+    assert all(a.flags.c_contiguous for a in bvh)
+    assert np.all(count >= 0)
+
+    # each item exactly once
+    assert order.shape == (n,)
+    assert np.array_equal(np.sort(order), np.arange(n))
+
+    leaf = leaf_mask(bvh)
+    assert np.array_equal(is_leaf(bvh), leaf)
+    inner = np.nonzero(~leaf)[0]
+    leaves = np.nonzero(leaf)[0]
+
+    # inner nodes: adjacent children after the parent, every non-root node has one parent
+    left = first[inner]
+    assert np.all(count[inner] == 0)
+    assert np.all(left > inner)
+    assert np.all(left + 1 < n_nodes)
+    assert np.array_equal(np.sort(np.concatenate([left, left + 1])), np.arange(1, n_nodes))
+    lb, rb = bounds[left], bounds[left + 1]
+    union = np.hstack([np.minimum(lb[:, :3], rb[:, :3]), np.maximum(lb[:, 3:], rb[:, 3:])])
+    assert np.array_equal(bounds[inner], union)
+
+    if n == 0:
+        assert n_nodes == 1 and leaf[0] and count[0] == 0 and first[0] == 0
+        assert np.array_equal(bounds[0], EMPTY_BOX)
+    else:
+        # leaves hold 1..leaf_size items and their ranges tile order exactly
+        assert np.all(count[leaves] >= 1)
+        assert np.all(count[leaves] <= leaf_size)
+        by_start = leaves[np.argsort(first[leaves], kind="stable")]
+        starts = first[by_start]
+        ends = starts + count[by_start]
+        assert starts[0] == 0 and ends[-1] == n
+        assert np.array_equal(starts[1:], ends[:-1])
+        # leaf boxes contain their items and are their exact union
+        item_boxes = items[order]
+        owner = np.repeat(by_start, count[by_start])
+        assert np.all(bounds[owner, :3] <= item_boxes[:, :3])
+        assert np.all(bounds[owner, 3:] >= item_boxes[:, 3:])
+        assert np.array_equal(bounds[by_start, :3], np.minimum.reduceat(item_boxes[:, :3], starts))
+        assert np.array_equal(bounds[by_start, 3:], np.maximum.reduceat(item_boxes[:, 3:], starts))
+
+    if stats is not None:
+        assert stats["nodes"] == n_nodes
+        assert stats["inner"] == inner.size
+        assert stats["leaves"] == leaves.size
+        assert stats["empty_leaves"] == int(np.count_nonzero(count[leaves] == 0))
+        assert stats["refs"] == int(count[leaves].sum()) == n
+        assert stats["bytes"] == sum(a.nbytes for a in bvh)
+        assert stats["max_depth"] == int(node_depths(bvh).max())
+        assert stats["seconds"] >= 0.0
+
+
+def same_arrays(a, b):
+    return all(x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes() for x, y in zip(a, b))
+
+
+def box_area(b):
+    e = b[..., 3:] - b[..., :3]
+    return 2.0 * (e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0])
+
+
+def tree_sah_cost(bvh, ct=1.0, ci=1.0):
+    area = box_area(bvh.bounds)
+    cost = np.where(leaf_mask(bvh), bvh.count * ci, ct)
+    return float((area * cost).sum() / area[0])
+
+
+def median_split_sah_cost(items, leaf_size, axis=0, ct=1.0, ci=1.0):
+    """SAH cost of a tree that always splits at the centroid median along one fixed axis."""
+
+    def union_area(idx):
+        b = items[idx]
+        return float(box_area(np.concatenate([b[:, :3].min(0), b[:, 3:].max(0)])))
+
+    root_area = union_area(np.arange(len(items)))
+    total = 0.0
+    stack = [np.arange(len(items))]
+    while stack:
+        idx = stack.pop()
+        area = union_area(idx)
+        if idx.size <= leaf_size:
+            total += area * idx.size * ci
+            continue
+        total += area * ct
+        srt = idx[np.argsort(items[idx, axis] + items[idx, axis + 3], kind="stable")]
+        half = srt.size // 2
+        stack += [srt[:half], srt[half:]]
+    return total / root_area
+
+
+def ray_hits_box(o, d, box):
+    t0, t1 = 0.0, math.inf
+    for k in range(3):
+        lo, hi = box[k], box[k + 3]
+        if d[k] == 0.0:
+            if o[k] < lo or o[k] > hi:
+                return False
+            continue
+        inv = 1.0 / d[k]
+        tn, tf = (lo - o[k]) * inv, (hi - o[k]) * inv
+        if inv < 0.0:
+            tn, tf = tf, tn
+        t0, t1 = max(t0, tn), min(t1, tf)
+        if t0 > t1:
+            return False
+    return True
+
+
+def walk(bvh, items, o, d):
+    """Items whose boxes the ray hits, visiting a child only when the ray hits its box."""
+    boxes = np.asarray(items, dtype=np.float64).reshape(-1, 6).tolist()
+    found, stack = set(), [0]
+    bounds, first, count, order = (a.tolist() for a in bvh)
+    while stack:
+        node = stack.pop()
+        if not ray_hits_box(o, d, bounds[node]):
+            continue
+        if count[node] > 0 or first[node] <= node:
+            found.update(i for i in order[first[node]:first[node] + count[node]] if ray_hits_box(o, d, boxes[i]))
+        else:
+            stack += [first[node], first[node] + 1]
+    return found
+
+
+# ---------------------------------------------------------------- property tests
+
+lattice_rows = st.lists(
+    st.tuples(*[st.integers(-3, 3)] * 3, *[st.sampled_from([0, 0, 1, 2, 5])] * 3), max_size=60
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    rows=lattice_rows,
+    scale=st.sampled_from([1.0, 0.37, 1e-12, 1e12]),
+    leaf_size=st.integers(1, 6),
+    bins=st.integers(2, 24),
+)
+def test_lattice_boxes_property(rows, scale, leaf_size, bins):
+    """Integer lattices give many coincident centroids, flat boxes and points."""
+    arr = np.array(rows, dtype=np.float64).reshape(-1, 6)
+    items = np.hstack([arr[:, :3] * scale, arr[:, :3] * scale + arr[:, 3:] * (0.5 * scale)])
+    bvh, stats = build_bvh(items, leaf_size=leaf_size, bins=bins)
+    check_tree(bvh, stats, items, leaf_size)
+    moved = items[::-1].copy()
+    refit(bvh, moved)
+    check_tree(bvh, None, moved, leaf_size)
+
+
+finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+extent = st.one_of(st.just(0.0), st.floats(0.0, 1e4, allow_nan=False, allow_infinity=False))
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    rows=st.lists(st.tuples(finite, finite, finite, extent, extent, extent), min_size=0, max_size=50),
+    leaf_size=st.integers(1, 5),
+    traversal_cost=st.sampled_from([0.0, 0.125, 1.0, 10.0]),
+)
+def test_float_boxes_property(rows, leaf_size, traversal_cost):
+    arr = np.array(rows, dtype=np.float64).reshape(-1, 6)
+    items = np.hstack([arr[:, :3], arr[:, :3] + arr[:, 3:]])
+    bvh, stats = build_bvh(items, leaf_size=leaf_size, traversal_cost=traversal_cost)
+    check_tree(bvh, stats, items, leaf_size)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("kind", ["uniform", "clustered", "slivers", "mixed_sizes"])
+def test_random_scenes_fixed_seeds(seed, kind):
+    rng = np.random.default_rng(seed)
+    n = 3000
+    if kind == "uniform":
+        items = random_boxes(rng, n)
+    elif kind == "clustered":
+        centres = rng.random((8, 3)) * 100
+        c = centres[rng.integers(0, 8, n)] + rng.normal(0, 0.5, (n, 3))
+        items = np.hstack([c - 0.01, c + 0.01])
+    elif kind == "slivers":
+        lo = rng.random((n, 3))
+        ext = np.zeros((n, 3))
+        ext[np.arange(n), rng.integers(0, 3, n)] = rng.random(n) * 10
+        items = np.hstack([lo, lo + ext])
+    else:
+        items = random_boxes(rng, n, size=1.0) * rng.choice([1e-3, 1.0, 1e3], (n, 1))
+    leaf_size = int(rng.integers(1, 9))
+    bvh, stats = build_bvh(items, leaf_size=leaf_size, bins=int(rng.choice([2, 8, 16, 64])))
+    check_tree(bvh, stats, items, leaf_size)
+    assert stats["max_depth"] <= 4 * math.log2(n)
+
+
+# ---------------------------------------------------------------- edge cases
+
+
+@pytest.mark.parametrize("empty", [np.empty((0, 6)), [], np.empty((0, 6), dtype=np.float32)])
+def test_no_items_is_one_empty_leaf(empty):
+    bvh, stats = build_bvh(empty)
+    check_tree(bvh, stats, np.empty((0, 6)), 4)
+    assert stats == dict(stats, nodes=1, inner=0, leaves=1, empty_leaves=1, refs=0, max_depth=0)
+    assert bvh.order.shape == (0,)
+    # the empty box is missed by every ray, including axis-parallel ones
+    rng = np.random.default_rng(5)
+    for d in [*rng.normal(size=(20, 3)), (1.0, 0.0, 0.0), (0.0, 0.0, -1.0)]:
+        assert not ray_hits_box(rng.normal(size=3), d, bvh.bounds[0])
+    assert walk(bvh, np.empty((0, 6)), (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)) == set()
+    refit(bvh, np.empty((0, 6)))
+    assert np.array_equal(bvh.bounds[0], EMPTY_BOX)
+
+
+def test_one_item():
+    item = [[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]]
+    bvh, stats = build_bvh(item)
+    check_tree(bvh, stats, item, 4)
+    assert stats["nodes"] == 1 and bvh.count[0] == 1 and bvh.first[0] == 0
+    assert bvh.bounds[0].tolist() == item[0]
+
+
+def test_two_items():
+    far = [[0, 0, 0, 1, 1, 1], [100, 0, 0, 101, 1, 1]]
+    bvh, stats = build_bvh(far)
+    check_tree(bvh, stats, far, 4)
+    assert stats["nodes"] == 3 and bvh.first[0] == 1  # splitting two distant boxes is cheaper
+    assert sorted(bvh.count[1:].tolist()) == [1, 1]
+    same = [[0, 0, 0, 1, 1, 1]] * 2
+    bvh, stats = build_bvh(same)
+    check_tree(bvh, stats, same, 4)
+    assert stats["nodes"] == 1 and bvh.count[0] == 2
+
+
+@pytest.mark.parametrize("leaf_size", [1, 4, 7])
+def test_identical_boxes_still_give_small_leaves(leaf_size):
+    items = np.tile([[1.0, 2.0, 3.0, 1.5, 2.5, 3.0]], (1000, 1))
+    bvh, stats = build_bvh(items, leaf_size=leaf_size)
+    check_tree(bvh, stats, items, leaf_size)
+    assert bvh.count[leaf_mask(bvh)].max() <= leaf_size
+    assert stats["max_depth"] <= math.ceil(math.log2(1000 / leaf_size)) + 1  # middle splits: balanced
+
+
+def test_nested_boxes_with_one_centre():
+    r = np.arange(1, 101, dtype=np.float64)[:, None]
+    items = np.hstack([-r * np.ones(3), r * np.ones(3)])
+    bvh, stats = build_bvh(items, leaf_size=3)
+    check_tree(bvh, stats, items, 3)
+
+
+def test_flat_boxes():
+    rng = np.random.default_rng(7)
+    xy = rng.random((2000, 2))
+    one_plane = np.column_stack([xy, np.zeros(2000), xy + rng.random((2000, 2)) * 0.01, np.zeros(2000)])
+    z = rng.integers(0, 5, 2000).astype(float)
+    many_planes = one_plane.copy()
+    many_planes[:, 2] = many_planes[:, 5] = z
+    for items in (one_plane, many_planes):
+        bvh, stats = build_bvh(items)
+        check_tree(bvh, stats, items, 4)
+        assert stats["max_depth"] <= 3 * math.log2(2000)
+        assert tree_sah_cost(bvh) < median_split_sah_cost(items, 4)
+
+
+def test_points():
+    rng = np.random.default_rng(8)
+    p = rng.random((2000, 3))
+    items = np.hstack([p, p])
+    bvh, stats = build_bvh(items)
+    check_tree(bvh, stats, items, 4)
+    assert stats["max_depth"] <= 3 * math.log2(2000)
+
+
+def test_collinear_points_split_in_balance():
+    """Zero-area parents fall back to the half-perimeter, which favours balanced splits."""
+    x = np.arange(1024, dtype=np.float64)
+    items = np.column_stack([x, np.zeros(1024), np.zeros(1024), x, np.zeros(1024), np.zeros(1024)])
+    bvh, stats = build_bvh(items, leaf_size=4)
+    check_tree(bvh, stats, items, 4)
+    assert stats["max_depth"] <= 12
+
+
+def test_mixed_scales():
+    rng = np.random.default_rng(9)
+    tiny = random_boxes(rng, 500, size=1e-12, span=1e-9)
+    huge = random_boxes(rng, 500, size=1e12, span=1e13)
+    tiny_far = random_boxes(rng, 200, size=1e-12, span=1.0) + 1e12
+    items = np.vstack([tiny, huge, tiny_far])
+    rng.shuffle(items)
+    bvh, stats = build_bvh(items, leaf_size=2)
+    check_tree(bvh, stats, items, 2)
+    assert stats["max_depth"] <= 4 * math.log2(items.shape[0])
+
+
+@pytest.mark.parametrize("magnitude", [1e307, 1.5e308, 1e-310])
+def test_extreme_magnitudes(magnitude):
+    """Centroid extents that overflow (inf) or whose bin scale overflows fall back to middle splits."""
+    rng = np.random.default_rng(10)
+    c = (rng.random((300, 3)) * 2 - 1) * magnitude
+    items = np.hstack([c, c + np.abs(c) * rng.choice([0.0, 0.1], (300, 1))])
+    bvh, stats = build_bvh(items, leaf_size=3)
+    check_tree(bvh, stats, items, 3)
+
+
+def test_float32_and_integer_input():
+    rng = np.random.default_rng(11)
+    items32 = random_boxes(rng, 1000).astype(np.float32)
+    bvh32, stats = build_bvh(items32)
+    assert bvh32.bounds.dtype == np.float64
+    check_tree(bvh32, stats, items32.astype(np.float64), 4)
+    bvh64, _ = build_bvh(items32.astype(np.float64))
+    assert same_arrays(bvh32, bvh64)
+    ints = rng.integers(0, 50, (300, 3))
+    bvh, stats = build_bvh(np.hstack([ints, ints + 1]))
+    check_tree(bvh, stats, np.hstack([ints, ints + 1]), 4)
+
+
+def test_deterministic_and_input_untouched():
+    rng = np.random.default_rng(12)
+    items = random_boxes(rng, 5000)
+    copy = items.copy()
+    a, _ = build_bvh(items)
+    b, _ = build_bvh(items)
+    assert same_arrays(a, b)
+    assert np.array_equal(items, copy)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        np.zeros((3, 5)),
+        np.zeros(6),
+        np.array([[0, 0, 0, 1, 1, np.nan]]),
+        np.array([[0, 0, 0, 1, 1, np.inf]]),
+        np.array([[0, 0, 2, 1, 1, 1.0]]),
+        np.array([["a"] * 6]),
+    ],
+)
+def test_rejects_bad_bounds(bad):
+    with pytest.raises(ValueError):
+        build_bvh(bad)
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        dict(leaf_size=0),
+        dict(leaf_size=2.5),
+        dict(leaf_size=True),
+        dict(bins=1),
+        dict(bins=100000),
+        dict(traversal_cost=-1.0),
+        dict(intersection_cost=0.0),
+        dict(intersection_cost=float("nan")),
+        dict(traversal_cost="x"),
+    ],
+)
+def test_rejects_bad_options(options):
+    with pytest.raises(OptionError):
+        build_bvh(np.zeros((2, 6)), **options)
+
+
+# ---------------------------------------------------------------- refit
+
+
+def test_refit_after_moving_items():
+    rng = np.random.default_rng(13)
+    items = random_boxes(rng, 4000, size=0.02)
+    bvh, stats = build_bvh(items, leaf_size=3)
+    original = bvh.bounds.copy()
+    inner = ~leaf_mask(bvh)
+    assert np.all(bvh.first[inner] > np.nonzero(inner)[0])  # the reverse-loop layout property
+
+    moved = items + rng.normal(0, 0.2, (4000, 1)) * np.array([1, 1, 1, 1, 1, 1])
+    moved[:, 3:] += rng.random((4000, 3)) * 0.3  # items also grow
+    topology = (bvh.first.copy(), bvh.count.copy(), bvh.order.copy())
+    refit(bvh, moved)
+    check_tree(bvh, None, moved, 3)
+    assert not np.array_equal(bvh.bounds, original)
+    assert all(np.array_equal(x, y) for x, y in zip(topology, bvh[1:]))
+
+    refit(bvh, items.astype(np.float64))
+    assert np.array_equal(bvh.bounds, original)
+
+
+def test_refit_rejects_mismatched_items():
+    bvh, _ = build_bvh(random_boxes(np.random.default_rng(14), 10))
+    with pytest.raises(ValueError):
+        refit(bvh, np.zeros((9, 6)))
+
+
+# ---------------------------------------------------------------- quality and usability
+
+
+def test_sah_beats_median_split():
+    rng = np.random.default_rng(15)
+    items = random_boxes(rng, 10000, size=0.02)
+    bvh, stats = build_bvh(items, leaf_size=4)
+    sah = tree_sah_cost(bvh)
+    fixed_axis = median_split_sah_cost(items, 4, axis=0)
+    assert sah < 0.5 * fixed_axis
+    assert sah < min(median_split_sah_cost(items, 4, axis=a) for a in (1, 2))
+
+
+def test_traversal_finds_exactly_the_boxes_a_ray_hits():
+    rng = np.random.default_rng(16)
+    items = random_boxes(rng, 500, size=0.15)
+    items[:50, 5] = items[:50, 2]  # some flat boxes
+    bvh, stats = build_bvh(items, leaf_size=3)
+    check_tree(bvh, stats, items, 3)
+    boxes = items.tolist()
+    origins = rng.random((200, 3)) * 3 - 1
+    targets = rng.random((200, 3))
+    origins[:20, 1:] = targets[:20, 1:]  # rays parallel to the x axis
+    origins[20:40, 2] = targets[20:40, 2]  # rays parallel to the xy plane
+    dirs = targets - origins
+    dirs[40:50] *= -1.0  # rays pointing away: hits only when the origin is inside a box
+    total = 0
+    for o, d in zip(origins.tolist(), dirs.tolist()):
+        brute = {i for i, b in enumerate(boxes) if ray_hits_box(o, d, b)}
+        assert walk(bvh, items, o, d) == brute
+        total += len(brute)
+    assert total > 400
+
+
+@pytest.mark.slow
+def test_million_items_build_time():
+    items = random_boxes(np.random.default_rng(17), 1_000_000)
+    build_bvh(items[:1000])
+    t = time.perf_counter()
+    bvh, stats = build_bvh(items)
+    assert time.perf_counter() - t < 15.0
+    assert stats["refs"] == 1_000_000 and np.array_equal(np.sort(bvh.order), np.arange(1_000_000))
