@@ -230,7 +230,8 @@ class _Builder:
         start = time.perf_counter()
         box = _box_of_points(bounds.reshape(-1, 3)) if len(bounds) else np.array([np.inf] * 3 + [-np.inf] * 3)
         agg = len(arr.agg_kind)
-        if kind == "list":
+        if kind == "list" or len(refs) == 0:
+            # an empty aggregate of any kind is an empty list: nothing to traverse
             arr.agg_kind.append(LIST)
             arr.agg_start.append(arr.n_refs)
             arr.agg_count.append(len(refs))
@@ -249,8 +250,6 @@ class _Builder:
             arr.agg_count.append(len(tree.count))
             inner = tree.count == 0
             first = np.where(inner, tree.first + arr.n_nodes, tree.first + arr.n_refs)
-            if len(refs) == 0:
-                first[:] = arr.n_refs
             arr.node_bounds.append(tree.bounds)
             arr.node_first.append(first)
             arr.node_count.append(tree.count)
