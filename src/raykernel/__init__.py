@@ -7,7 +7,9 @@
 """
 
 from .errors import OptionError, RayKernelError, SceneError
+from .jsonscene import read_json, write_json
 from .loading import load
+from .nff import parse_nff, read_nff, write_nff
 from .render import RenderResult, render
 from .scene import Camera, Cones, Group, Instance, Light, Material, Polygons, Scene, Spheres, TriangleMesh
 
@@ -16,4 +18,5 @@ __version__ = "0.1.0"
 __all__ = [
     "Camera", "Cones", "Group", "Instance", "Light", "Material", "Polygons", "Scene", "Spheres",
     "TriangleMesh", "OptionError", "RayKernelError", "SceneError", "load", "render", "RenderResult",
+    "read_nff", "parse_nff", "write_nff", "read_json", "write_json",
 ]
