@@ -106,6 +106,46 @@ def cmd_spd(args, console) -> int:
     return 0
 
 
+def cmd_scene(args, console) -> int:
+    from . import pathological
+    from .errors import OptionError
+    if args.list or args.name == "list":
+        console.print(pathological.describe(), markup=False, highlight=False, soft_wrap=True)
+        return 0
+    if args.name is None:
+        raise OptionError("name a scene (" + ", ".join(pathological.NAMES) + ") or use --list")
+    if not args.output:
+        raise OptionError("give the output file with -o FILE.json (groups kept) or -o FILE.nff (flattened)")
+    suffix = Path(args.output).suffix.lower()
+    if suffix not in (".json", ".nff"):
+        raise OptionError(f"{args.output}: unknown output format {suffix or '(no suffix)'!r}; "
+                          "use .json (groups kept) or .nff (flattened)")
+    from .convert import check_output_directory, convert
+    check_output_directory(args.output)
+    params = {}
+    for item in args.param:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise OptionError(f"--param expects KEY=VALUE, got {item!r}")
+        if key in params:
+            raise OptionError(f"--param {key} is given twice")
+        params[key] = value.strip()
+    scene = pathological.load(args.name, **params)
+    convert(scene, args.output)
+    console.print(f"{scene.source}: {scene.count_primitives():,} primitives -> {args.output}",
+                  markup=False, highlight=False, emoji=False)
+    return 0
+
+
+def cmd_convert(args, console) -> int:
+    from .convert import convert
+    written = convert(args.scene, args.output, segments=args.segments)
+    console.print(f"{args.scene} -> " + ", ".join(str(p) for p in written), markup=False, highlight=False,
+                  emoji=False)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="raykernel", description="Ray tracing with nestable acceleration "
                                      "structures and exact statistics.")
@@ -132,6 +172,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--size", type=_positive_int, help="size factor (default: the generator's)")
     s.add_argument("-o", "--output", help="output file (default: standard output)")
     s.set_defaults(func=cmd_spd)
+
+    sc = sub.add_parser("scene", help="write a pathological scene of Ray Tracing News 2(1) as JSON or NFF")
+    sc.add_argument("name", nargs="?", help="stadium, satellite, sun, teapot-room or diamond; `list` lists them")
+    sc.add_argument("--list", action="store_true", help="list the scenes with their parameters and defaults")
+    sc.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
+                    help="set a scene parameter (repeatable), e.g. --param ratio=1e6")
+    sc.add_argument("-o", "--output", help="output file: .json (groups kept) or .nff (flattened)")
+    sc.set_defaults(func=cmd_scene)
+
+    cv = sub.add_parser("convert", help="convert a scene to NFF, JSON, Wavefront OBJ (+ .mtl) or POV-Ray 3.7")
+    cv.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
+    cv.add_argument("-o", "--output", required=True, help="output file; its suffix picks the format: "
+                    ".nff, .json, .obj or .pov")
+    cv.add_argument("--segments", type=_positive_int, default=16,
+                    help="OBJ only: slices around spheres and cones (default 16; spheres get half as many rings)")
+    cv.set_defaults(func=cmd_convert)
     return parser
 
 
