@@ -140,3 +140,10 @@ register(Kind("bvh", "bounding volume hierarchy, binned surface-area heuristic",
     Param("leaf", 4, "maximum items in a leaf the SAH may keep", int, 1, 64),
     Param("bins", 16, "SAH bins per axis", int, 2, 256),
 )))
+register(Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatides-Woo)", (
+    Param("res", "regular", "resolution rule: regular (about density*N cubic cells) or woo "
+          "(longest side density*N^(1/3) cells)", str, choices=("regular", "woo")),
+    Param("density", 2.0, "cells per item (regular) or per cube root of the item count (woo)", float, 0.001, 1000.0),
+    Param("max_res", 256, "most cells along any axis", int, 1, 4096),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier cell", bool),
+)))

@@ -30,8 +30,8 @@ MAX_NESTING = 16          # aggregates along any path from the root (the kernel'
 MAX_TREE_DEPTH = 96       # nodes along any path within one hierarchy (the kernel's node stack)
 STACK_SIZE = MAX_NESTING * (MAX_TREE_DEPTH + 2)
 
-LIST, BVH = 0, 1
-AGG_KIND_CODES = {"list": LIST, "bvh": BVH}
+LIST, BVH, GRID = 0, 1, 2
+AGG_KIND_CODES = {"list": LIST, "bvh": BVH, "grid": GRID}
 
 
 class Geometry(NamedTuple):
@@ -58,16 +58,24 @@ class Geometry(NamedTuple):
     tri_faces: np.ndarray       # (T, 3) int64 vertex indices
     tri_smooth: np.ndarray      # (T,) bool: interpolate tri_vnormals
     tri_mat: np.ndarray         # (T,)
-    agg_kind: np.ndarray        # (A,) LIST or BVH
+    agg_kind: np.ndarray        # (A,) LIST, BVH or GRID
     agg_bounds: np.ndarray      # (A, 6) xmin ymin zmin xmax ymax zmax
-    agg_start: np.ndarray       # (A,) list: first ref; bvh: root node
-    agg_count: np.ndarray       # (A,) list: number of refs; bvh: number of nodes
+    agg_start: np.ndarray       # (A,) list: first ref; bvh: root node; grid: grid index
+    agg_count: np.ndarray       # (A,) list: number of refs; bvh: number of nodes; grid: number of cells
     node_bounds: np.ndarray     # (N, 6) BVH node boxes
     node_first: np.ndarray      # (N,) inner: left child (right = left + 1); leaf: first ref
     node_count: np.ndarray      # (N,) 0 for inner nodes, else refs in the leaf
     refs: np.ndarray            # (R,) tagged references of every list and leaf
     inst_agg: np.ndarray        # (I,) aggregate an instance shows
     inst_to_local: np.ndarray   # (I, 12) world-to-local affine map, row-major 3x4
+    grid_origin: np.ndarray     # (G, 3) lower corner of each grid
+    grid_cell_size: np.ndarray  # (G, 3) cell side per axis
+    grid_inv_cell: np.ndarray   # (G, 3) 1 / cell side
+    grid_res: np.ndarray        # (G, 3) int64 cells per axis
+    grid_cell_offset: np.ndarray  # (G,) first entry of the grid's cells in grid_cells
+    grid_mailbox: np.ndarray    # (G,) int64 1: skip refs already tested in an earlier cell
+    grid_cells: np.ndarray      # (sum of ncells + 1,) cell c of grid g holds refs
+    #                             grid_cells[o + c] .. grid_cells[o + c + 1], o = grid_cell_offset[g]
     root: int                   # the top aggregate
 
 
@@ -101,6 +109,9 @@ class _Arrays:
         self.refs = []
         self.n_refs = 0
         self.inst_agg, self.inst_to_local = [], []
+        self.grid_origin, self.grid_cell_size, self.grid_res, self.grid_cell_offset = [], [], [], []
+        self.grid_mailbox, self.grid_cells = [], []
+        self.n_grid_cells = 0
 
 
 def _sphere_refs(arr: _Arrays, s):
@@ -228,7 +239,10 @@ class _Builder:
         kind, params = spec
         arr = self.arr
         start = time.perf_counter()
-        box = _box_of_points(bounds.reshape(-1, 3)) if len(bounds) else np.array([np.inf] * 3 + [-np.inf] * 3)
+        # empty children (an empty group's box is +inf..-inf) add nothing to the box
+        solid = np.all(bounds[:, :3] <= bounds[:, 3:], axis=1) if len(bounds) else np.zeros(0, bool)
+        box = np.concatenate([bounds[solid, :3].min(axis=0), bounds[solid, 3:].max(axis=0)]) if solid.any() \
+            else np.array([np.inf] * 3 + [-np.inf] * 3)
         agg = len(arr.agg_kind)
         if kind == "list" or len(refs) == 0:
             # an empty aggregate of any kind is an empty list: nothing to traverse
@@ -256,6 +270,24 @@ class _Builder:
             arr.n_nodes += len(tree.count)
             arr.refs.append(refs[tree.order])
             arr.n_refs += len(refs)
+            stats = dict(stats)
+        elif kind == "grid":
+            from .aggregates.grid import build_grid
+            grid, stats = build_grid(bounds, res_rule=params["res"], density=params["density"],
+                                     max_res=params["max_res"], name=name or "(unnamed)")
+            ncells = len(grid.cell_start) - 1
+            arr.agg_kind.append(GRID)
+            arr.agg_start.append(len(arr.grid_res))
+            arr.agg_count.append(ncells)
+            arr.grid_origin.append(grid.origin)
+            arr.grid_cell_size.append(grid.cell_size)
+            arr.grid_res.append(grid.res)
+            arr.grid_cell_offset.append(arr.n_grid_cells)
+            arr.grid_mailbox.append(int(params["mailbox"]))
+            arr.grid_cells.append(grid.cell_start + arr.n_refs)
+            arr.n_grid_cells += ncells + 1
+            arr.refs.append(refs[grid.items])
+            arr.n_refs += len(grid.items)
             stats = dict(stats)
         else:
             raise SceneError(f"accelerator {kind!r} is not available in this build")
@@ -354,6 +386,13 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         refs=_concat(arr.refs, (0,), np.int64),
         inst_agg=np.array(arr.inst_agg, np.int64),
         inst_to_local=np.array(arr.inst_to_local, np.float64).reshape(-1, 12),
+        grid_origin=np.array(arr.grid_origin, np.float64).reshape(-1, 3),
+        grid_cell_size=np.array(arr.grid_cell_size, np.float64).reshape(-1, 3),
+        grid_inv_cell=1.0 / np.array(arr.grid_cell_size, np.float64).reshape(-1, 3),
+        grid_res=np.array(arr.grid_res, np.int64).reshape(-1, 3),
+        grid_cell_offset=np.array(arr.grid_cell_offset, np.int64),
+        grid_mailbox=np.array(arr.grid_mailbox, np.int64),
+        grid_cells=_concat(arr.grid_cells, (0,), np.int64),
         root=int(root),
     )
     n_materials = max(1, len(scene.materials))

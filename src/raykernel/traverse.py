@@ -4,13 +4,24 @@
     found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, False, ws..., cnt)
     t = ws_hit_f[0]; kind, index, instance = ws_hit_i[0], ws_hit_i[1], ws_hit_i[2]
 
-An explicit stack replaces recursion. Its entries are either a BVH node or a
-range of references still to be tested. When a reference names an aggregate
+An explicit stack replaces recursion. Its entries are a BVH node, a grid
+to start or to continue, or a range of references still to be tested. When a reference names an aggregate
 or an instance, the rest of the current range is pushed, a frame is opened
 for the child (the ray mapped into its space for an instance), and the
 child's first entry is pushed above. A frame ends when the stack falls to
 its base. Instance maps are affine and the direction is not renormalised,
 so t means the same in every frame and one closest t shrinks through all.
+
+A uniform grid is walked with the 3D-DDA (Amanatides and Woo 1987). Its
+state (cell, next boundary crossings) lives in the frame's row of frame_f, so
+a child aggregate found in a cell can open frames above it. A GRID entry on
+the stack means "visit the grid's next cell"; its t is that cell's entry
+distance, so once the closest hit lies before it the entry is dropped and
+the walk stops. Empty cells are stepped over in one go; a non-empty cell
+puts the GRID entry back and then tests the cell's references. With the
+mailbox on, each frame of a grid keeps a direct-mapped cache of 64 tagged
+references already tested (primitives and child aggregates alike) and skips
+them in later cells: their result for this ray is already in best_t.
 """
 
 import math
@@ -20,16 +31,23 @@ from numba import prange
 
 from . import counters as C
 from .config import njit
-from .flatten import BVH, LIST, MAX_NESTING, STACK_SIZE
+from .flatten import GRID, LIST, MAX_NESTING, STACK_SIZE
 from .primitives import (AGGREGATE, CONE, INDEX_MASK, INSTANCE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE,
                          hit_cone, hit_polygon, hit_sphere, hit_triangle)
 
 INF = np.inf
 NODE = -1                    # stack entry tag: a BVH node rather than a ref range
+GRID_NEXT = -2               # stack entry tag: continue the frame's grid walk (stack_a: grid index)
+GRID_START = -3              # stack entry tag: start a grid walk at the entry distance stack_t
 # Ize 2013: widen the exit distance by 2*gamma(3) so that rounding never
 # rejects a box the ray actually crosses.
 _CONSERVATIVE = 1.0 + 2.0 * (3 * 2.0 ** -53) / (1.0 - 3 * 2.0 ** -53)
-FRAME_F = 18                 # per frame: ray origin, direction, world-to-local 3x4
+GF_CELL = 18                 # per frame: current grid cell x, y, z
+GF_TNEXT = 21                # per frame: t of the next cell boundary along x, y, z
+GF_MBOX_ON = 24              # per frame: 1.0 when the frame's grid uses the mailbox
+GF_MBOX = 25                 # per frame: MBOX_SLOTS tagged refs already tested (-1: free)
+MBOX_SLOTS = 64
+FRAME_F = GF_MBOX + MBOX_SLOTS  # per frame: ray origin, direction, world-to-local 3x4, grid state
 HIT_F = 13                   # t, world-to-local 3x4 of the frame that was hit
 HIT_I = 3                    # kind, index, innermost instance (-1: none)
 
@@ -79,9 +97,13 @@ def _push_aggregate(geo, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b
     te = box_entry(geo.agg_bounds, a, ox, oy, oz, ix, iy, iz, tmin, tmax)
     if te == INF:
         return sp
-    if geo.agg_kind[a] == LIST:
+    kind = geo.agg_kind[a]
+    if kind == LIST:
         stack_a[sp] = geo.agg_start[a]
         stack_b[sp] = geo.agg_start[a] + geo.agg_count[a]
+    elif kind == GRID:
+        stack_a[sp] = geo.agg_start[a]
+        stack_b[sp] = GRID_START
     else:
         stack_a[sp] = geo.agg_start[a]
         stack_b[sp] = NODE
@@ -111,6 +133,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
     frame_i[0, 0] = geo.root
     frame_i[0, 1] = 0
     frame_i[0, 2] = -1
+    frame_f[0, GF_MBOX_ON] = 0.0
+    mbox = False
     base = 0
     sp = _push_aggregate(geo, geo.root, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, 0, cnt)
     while True:
@@ -123,6 +147,7 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
             ox, oy, oz = frame_f[f, 0], frame_f[f, 1], frame_f[f, 2]
             dx, dy, dz = frame_f[f, 3], frame_f[f, 4], frame_f[f, 5]
             ix, iy, iz = _inverse(dx), _inverse(dy), _inverse(dz)
+            mbox = frame_f[f, GF_MBOX_ON] != 0.0
             continue
         sp -= 1
         a = stack_a[sp]
@@ -160,6 +185,79 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                 continue
             s = geo.node_first[node]
             e = s + n_items
+        elif b < NODE:
+            # grid: step the 3D-DDA to the next non-empty cell
+            gi = a
+            gt = stack_t[sp]
+            rx, ry, rz = geo.grid_res[gi, 0], geo.grid_res[gi, 1], geo.grid_res[gi, 2]
+            gox, goy, goz = geo.grid_origin[gi, 0], geo.grid_origin[gi, 1], geo.grid_origin[gi, 2]
+            csx, csy, csz = geo.grid_cell_size[gi, 0], geo.grid_cell_size[gi, 1], geo.grid_cell_size[gi, 2]
+            sx = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
+            sy = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
+            sz = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
+            if b == GRID_START:
+                # the cell holding the entry point, clamped into the grid
+                u = (ox + gt * dx - gox) * geo.grid_inv_cell[gi, 0]
+                cx = np.int64(u) if u >= 0.0 and u < rx else (rx - 1 if u >= rx else 0)
+                u = (oy + gt * dy - goy) * geo.grid_inv_cell[gi, 1]
+                cy = np.int64(u) if u >= 0.0 and u < ry else (ry - 1 if u >= ry else 0)
+                u = (oz + gt * dz - goz) * geo.grid_inv_cell[gi, 2]
+                cz = np.int64(u) if u >= 0.0 and u < rz else (rz - 1 if u >= rz else 0)
+                # crossings are computed from the boundary planes, so they never drift
+                tx = (gox + (cx + (sx > 0)) * csx - ox) * ix if sx != 0 else INF
+                ty = (goy + (cy + (sy > 0)) * csy - oy) * iy if sy != 0 else INF
+                tz = (goz + (cz + (sz > 0)) * csz - oz) * iz if sz != 0 else INF
+                if geo.grid_mailbox[gi] != 0:
+                    mbox = True
+                    frame_f[f, GF_MBOX_ON] = 1.0
+                    for k in range(MBOX_SLOTS):
+                        frame_f[f, GF_MBOX + k] = -1.0
+            else:
+                cx = np.int64(frame_f[f, GF_CELL])
+                cy = np.int64(frame_f[f, GF_CELL + 1])
+                cz = np.int64(frame_f[f, GF_CELL + 2])
+                tx, ty, tz = frame_f[f, GF_TNEXT], frame_f[f, GF_TNEXT + 1], frame_f[f, GF_TNEXT + 2]
+            off = geo.grid_cell_offset[gi]
+            s = e = 0
+            while True:
+                cnt[C.CELLS_VISITED] += 1
+                cnt[C.CELLS_LEAVES] += 1
+                cell = off + (cz * ry + cy) * rx + cx
+                s = geo.grid_cells[cell]
+                e = geo.grid_cells[cell + 1]
+                # leave the cell across its nearest boundary
+                if tx <= ty and tx <= tz:
+                    texit = tx
+                    cx += sx
+                    out = cx < 0 or cx >= rx
+                    tx = (gox + (cx + (sx > 0)) * csx - ox) * ix
+                elif ty <= tz:
+                    texit = ty
+                    cy += sy
+                    out = cy < 0 or cy >= ry
+                    ty = (goy + (cy + (sy > 0)) * csy - oy) * iy
+                else:
+                    texit = tz
+                    cz += sz
+                    out = cz < 0 or cz >= rz
+                    tz = (goz + (cz + (sz > 0)) * csz - oz) * iz
+                if texit == INF:
+                    out = True
+                if s == e:
+                    cnt[C.CELLS_EMPTY] += 1
+                    if out or texit > best_t:
+                        break
+                    gt = texit
+                    continue
+                if not out:
+                    # come back for the next cell after this one's references
+                    frame_f[f, GF_CELL], frame_f[f, GF_CELL + 1], frame_f[f, GF_CELL + 2] = cx, cy, cz
+                    frame_f[f, GF_TNEXT], frame_f[f, GF_TNEXT + 1], frame_f[f, GF_TNEXT + 2] = tx, ty, tz
+                    stack_a[sp], stack_b[sp], stack_t[sp] = gi, GRID_NEXT, texit
+                    sp += 1
+                break
+            if s == e:
+                continue
         else:
             s = a
             e = b
@@ -169,6 +267,13 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
             kind = ref >> KIND_SHIFT
             idx = ref & INDEX_MASK
             i += 1
+            if mbox:
+                slot = GF_MBOX + ((idx + 37 * kind) & (MBOX_SLOTS - 1))
+                tag = np.float64(ref)
+                if frame_f[f, slot] == tag:
+                    cnt[C.MAILBOX_SAVED] += 1
+                    continue
+                frame_f[f, slot] = tag
             if kind == SPHERE:
                 cnt[C.TESTS + SPHERE] += 1
                 t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
@@ -231,6 +336,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                 frame_i[g, 0] = child
                 frame_i[g, 1] = sp
                 frame_i[g, 2] = inst
+                frame_f[g, GF_MBOX_ON] = 0.0
+                mbox = False
                 f = g
                 base = sp
                 sp = nsp

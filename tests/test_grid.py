@@ -1,0 +1,419 @@
+"""Uniform grid aggregate: builder, 3D-DDA traversal, mailbox, nesting and renders."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import raykernel
+from raykernel import counters as C
+from raykernel.accel import parse_spec
+from raykernel.aggregates.grid import build_grid, grid_resolution
+from raykernel.errors import OptionError, SceneError
+from raykernel.flatten import GRID, flatten
+from raykernel.scene import Group, Instance, Scene, TriangleMesh
+from raykernel.traverse import cast_rays
+
+GRID_SPECS = ["grid", "grid(mailbox=off)", "grid(res=woo)", "grid(res=woo, mailbox=off)",
+              "grid(density=0.25)", "grid(density=8, max_res=7)"]
+
+
+# ---------------------------------------------------------------- scenes
+
+def fill_group(group: Group, rng, n=12, spread=4.0, big=False):
+    """Spheres, cones, polygons, patches and a triangle mesh at random."""
+    size = 3.0 if big else 0.6
+    for _ in range(n):
+        group.spheres.add(rng.uniform(-spread, spread, 3), rng.uniform(0.1, size), 0)
+    for _ in range(max(1, n // 3)):
+        base = rng.uniform(-spread, spread, 3)
+        group.cones.add(base, rng.uniform(0.05, 0.5), base + rng.normal(0, 1.0, 3), rng.uniform(0.05, 0.5), 0)
+    for _ in range(max(1, n // 3)):
+        c = rng.uniform(-spread, spread, 3)
+        u, v = rng.normal(0, size, 3), rng.normal(0, size, 3)
+        angles = np.linspace(0, 2 * np.pi, rng.integers(3, 7), endpoint=False)
+        group.polygons.add(c + np.outer(np.cos(angles), u) + np.outer(np.sin(angles), v), 0)
+    for _ in range(max(1, n // 4)):
+        c = rng.uniform(-spread, spread, 3)
+        u, v = rng.normal(0, size, 3), rng.normal(0, size, 3)
+        verts = np.array([c, c + u, c + u + v, c + v])
+        group.patches.add(verts, 0, normals=rng.normal(0, 1, (4, 3)) + np.cross(u, v))
+    c = rng.uniform(-spread, spread, 3)
+    verts = c + rng.normal(0, size, (10, 3))
+    faces = rng.integers(0, 10, (8, 3))
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    if len(faces):
+        group.add(TriangleMesh(verts, faces, 0))
+    return group
+
+
+def new_scene() -> Scene:
+    scene = Scene()
+    scene.add_material(raykernel.scene.Material())
+    return scene
+
+
+def random_rays(rng, n, spread=6.0, inside=False):
+    if inside:
+        origins = rng.uniform(-spread * 0.6, spread * 0.6, (n, 3))
+    else:
+        origins = rng.normal(0, 1, (n, 3))
+        origins *= 2.5 * spread / np.linalg.norm(origins, axis=1)[:, None]
+    targets = rng.uniform(-spread * 0.7, spread * 0.7, (n, 3))
+    return origins, targets - origins
+
+
+def cast(scene, accel, origins, directions, **kw):
+    geo, _ = flatten(scene, default_accel=accel)
+    return cast_rays(geo, origins, directions, **kw)
+
+
+def assert_same_hits(a, b):
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+    np.testing.assert_array_equal(a[2], b[2])
+    np.testing.assert_array_equal(a[3], b[3])
+
+
+def rotation_scale(rng):
+    q, _ = np.linalg.qr(rng.normal(0, 1, (3, 3)))
+    m = np.eye(4)
+    m[:3, :3] = q @ np.diag(rng.uniform(0.3, 2.5, 3))
+    m[:3, 3] = rng.uniform(-3, 3, 3)
+    return m
+
+
+# ---------------------------------------------------------------- builder
+
+def test_build_grid_cells_hold_exactly_the_overlapping_items():
+    rng = np.random.default_rng(1)
+    lo = rng.uniform(-5, 5, (60, 3))
+    boxes = np.hstack([lo, lo + rng.uniform(0, 2, (60, 3))])
+    grid, stats = build_grid(boxes, res_rule="regular", density=2.0, max_res=256)
+    res = grid.res
+    assert stats["nodes"] == np.prod(res) == len(grid.cell_start) - 1
+    assert stats["refs"] == len(grid.items)
+    assert stats["empty_leaves"] == int(np.sum(np.diff(grid.cell_start) == 0))
+    assert np.all(np.diff(grid.cell_start) >= 0)
+    for c in range(np.prod(res)):
+        x, y, z = c % res[0], (c // res[0]) % res[1], c // (res[0] * res[1])
+        cell_lo = grid.origin + np.array([x, y, z]) * grid.cell_size
+        cell_hi = cell_lo + grid.cell_size
+        overlap = np.all((boxes[:, :3] <= cell_hi) & (boxes[:, 3:] >= cell_lo), axis=1)
+        held = set(grid.items[grid.cell_start[c]:grid.cell_start[c + 1]].tolist())
+        # every overlapping item is held; anything else only touches within the tiny margin
+        assert set(np.flatnonzero(overlap).tolist()) <= held
+        for i in held - set(np.flatnonzero(overlap).tolist()):
+            gap = np.maximum(boxes[i, :3] - cell_hi, cell_lo - boxes[i, 3:]).max()
+            assert gap < 1e-6
+
+
+def test_resolution_rules():
+    ext = np.array([8.0, 4.0, 2.0])
+    reg = grid_resolution(ext, 1000, "regular", 2.0, 256)
+    assert 0.6 * 2000 < np.prod(reg) < 1.6 * 2000
+    assert reg[0] / reg[2] == pytest.approx(4.0, rel=0.25)
+    woo = grid_resolution(ext, 1000, "woo", 3.0, 256)
+    assert woo[0] == 30 and woo[1] == 15 and woo[2] in (7, 8)
+    assert grid_resolution(ext, 10 ** 9, "woo", 3.0, 64).tolist() == [64, 64, 64]
+    flat = grid_resolution(np.array([4.0, 4.0, 0.0]), 50, "regular", 2.0, 256)
+    assert flat[2] == 1 and flat[0] == flat[1] == 10
+
+
+def test_flat_scene_is_padded_and_single_item_works():
+    boxes = np.array([[0, 0, 1, 2, 2, 1], [1, 1, 1, 3, 3, 1.0]])
+    grid, _ = build_grid(boxes)
+    assert grid.res[2] == 1 and grid.cell_size[2] > 0
+    one, stats = build_grid(np.array([[0, 0, 0, 1, 1, 1.0]]))
+    assert stats["refs"] >= 1 and len(one.items) == np.prod(one.res)
+
+
+def test_too_many_cells_is_a_scene_error():
+    boxes = np.random.default_rng(0).uniform(0, 1, (1000, 6))
+    boxes = np.hstack([np.minimum(boxes[:, :3], boxes[:, 3:]), np.maximum(boxes[:, :3], boxes[:, 3:])])
+    with pytest.raises(SceneError, match="limit"):
+        build_grid(boxes, density=1000.0, max_res=256, max_cells=100_000)
+    with pytest.raises(SceneError, match="references"):
+        build_grid(boxes, density=50.0, max_refs=1000)
+
+
+@pytest.mark.parametrize("spec, allowed", [("grid(res=foo)", "regular, woo"),
+                                           ("grid(density=-1)", "density"),
+                                           ("grid(mailbox=maybe)", "on or off"),
+                                           ("grid(max_res=0)", "max_res"),
+                                           ("grid(cells=3)", "res, density, max_res, mailbox")])
+def test_bad_parameters_are_option_errors(spec, allowed):
+    with pytest.raises(OptionError, match=allowed):
+        parse_spec(spec)
+
+
+def test_flatten_stores_grids():
+    scene = new_scene()
+    fill_group(scene.root, np.random.default_rng(2))
+    geo, stats = flatten(scene, default_accel="grid")
+    assert geo.agg_kind[geo.root] == GRID
+    g = geo.agg_start[geo.root]
+    ncells = int(np.prod(geo.grid_res[g]))
+    assert geo.agg_count[geo.root] == ncells
+    assert len(geo.grid_cells) == ncells + 1
+    assert geo.grid_cells[-1] == len(geo.refs)
+    assert stats["build.nodes"] == ncells
+    assert stats["aggregates"][0]["kind"] == "grid"
+
+
+# ---------------------------------------------------------------- traversal against bvh and list
+
+@pytest.mark.parametrize("spec", GRID_SPECS)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_random_scenes_match_bvh_and_list(spec, seed):
+    rng = np.random.default_rng(seed)
+    scene = new_scene()
+    fill_group(scene.root, rng, n=25, big=seed == 1)
+    o, d = random_rays(rng, 1500)
+    oi, di = random_rays(rng, 500, inside=True)
+    o, d = np.vstack([o, oi]), np.vstack([d, di])
+    ref = cast(scene, "list", o, d)
+    assert np.isfinite(ref[0]).sum() > 200
+    assert_same_hits(cast(scene, "bvh", o, d), ref)
+    got = cast(scene, spec, o, d)
+    assert_same_hits(got, ref)
+    assert got[4][C.CELLS_VISITED] > 0
+    shadow = cast(scene, spec, o, d, tmax=0.5, any_hit=True)
+    np.testing.assert_array_equal(np.isfinite(shadow[0]), np.isfinite(cast(scene, "list", o, d, tmax=0.5)[0]))
+
+
+def axis_and_boundary_rays():
+    """Rays along the axes and exactly along dyadic cell boundaries of a [0, 8]^3 grid."""
+    origins, dirs = [], []
+    for a in range(3):
+        for u in (0.0, 1.0, 2.0, 4.0, 0.5, 3.25, 8.0):
+            for v in (0.0, 2.0, 4.0, 6.5, 8.0):
+                for sign in (1.0, -1.0):
+                    o = np.zeros(3)
+                    o[a] = -3.0 if sign > 0 else 11.0
+                    o[(a + 1) % 3] = u
+                    o[(a + 2) % 3] = v
+                    d = np.zeros(3)
+                    d[a] = sign
+                    origins.append(o)
+                    dirs.append(d)
+    # diagonals through cell corners and rays from inside the grid
+    for k in range(9):
+        origins.append([k * 0.5, 0.0, -2.0])
+        dirs.append([0.0, 1.0, 1.0])
+        origins.append([4.0, 4.0, 4.0])
+        dirs.append([np.cos(k), np.sin(k), 0.0])
+    origins.append([-1.0, -1.0, -1.0])
+    dirs.append([1.0, 1.0, 1.0])
+    return np.array(origins), np.array(dirs)
+
+
+def lattice_scene():
+    """Unit spheres and axis-aligned squares on dyadic positions: edges fall on cell boundaries."""
+    scene = new_scene()
+    for x in range(1, 8, 2):
+        for y in range(1, 8, 3):
+            for z in range(1, 8, 2):
+                scene.root.spheres.add((x, y, z), 0.5, 0)
+    for x in range(4):
+        scene.root.polygons.add([(2 * x, 0, 2), (2 * x + 2, 0, 2), (2 * x + 2, 8, 2), (2 * x, 8, 2)], 0)
+    scene.root.polygons.add([(0, 4, 0), (8, 4, 0), (8, 4, 8), (0, 4, 8)], 0)
+    return scene
+
+
+@pytest.mark.parametrize("spec, res", [("grid(density=64, max_res=8)", 8), ("grid(density=64, max_res=4)", 4),
+                                       ("grid(density=64, max_res=8, mailbox=off)", 8),
+                                       ("grid", None), ("grid(res=woo)", None), ("grid(density=0.1)", None)])
+def test_axis_parallel_and_cell_boundary_rays(spec, res):
+    scene = lattice_scene()
+    o, d = axis_and_boundary_rays()
+    ref = cast(scene, "list", o, d)
+    assert np.isfinite(ref[0]).sum() > 50
+    geo, _ = flatten(scene, default_accel=spec)
+    assert np.all(geo.grid_origin == 0.0)
+    if res is not None:
+        # cell boundaries fall exactly on the rays and polygon edges
+        assert np.all(geo.grid_res == res) and np.all(geo.grid_cell_size == 8.0 / res)
+    got = cast_rays(geo, o, d)
+    assert_same_hits(got, ref)
+    assert got[4][C.CELLS_LEAVES] == got[4][C.CELLS_VISITED] >= got[4][C.CELLS_EMPTY]
+    if res == 8:
+        assert got[4][C.CELLS_EMPTY] > 0
+
+
+def test_rays_that_miss_count_no_cells_and_cost_one_bounds_test():
+    scene = lattice_scene()
+    o = np.array([[-5.0, -5.0, -5.0], [20.0, 0.0, 0.0]])
+    d = np.array([[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    t, kind, *_, cnt = cast(scene, "grid", o, d)
+    assert np.all(np.isinf(t)) and np.all(kind == -1)
+    assert cnt[C.CELLS_VISITED] == 0 and cnt[C.BOUNDS_TESTS] == 2
+
+
+def test_ray_inside_grid_stops_at_the_first_hit():
+    scene = new_scene()
+    for x in range(20):
+        scene.root.spheres.add((x, 0, 0), 0.3, 0)
+    geo, _ = flatten(scene, default_accel="grid(mailbox=off)")
+    t, kind, index, _, cnt = cast_rays(geo, [[4.5, 0, 0]], [[1.0, 0, 0]])
+    assert index[0] == 5 and t[0] == pytest.approx(0.2)
+    assert cnt[C.TESTS + 0] <= 3
+    assert cnt[C.CELLS_VISITED] < 10
+
+
+# ---------------------------------------------------------------- nesting
+
+def nested_scene(rng, outer, inner, instanced=False):
+    scene = new_scene()
+    scene.root.accel = outer
+    fill_group(scene.root, rng, n=6)
+    for k in range(4):
+        child = fill_group(Group(name=f"child{k}", accel=inner), rng, n=8, spread=1.5)
+        if instanced:
+            scene.root.add(Instance(child, rotation_scale(rng)))
+            scene.root.add(Instance(child, rotation_scale(rng)))
+        else:
+            shift = Group(name=f"moved{k}", accel=inner)
+            fill_group(shift, rng, n=5, spread=3.0)
+            child.add(shift)
+            scene.root.add(child)
+    return scene
+
+
+@pytest.mark.parametrize("outer, inner, instanced", [
+    ("grid", "bvh", False), ("bvh", "grid", False), ("grid", "grid", False),
+    ("grid(mailbox=off)", "grid(res=woo)", False), ("list", "grid", False),
+    ("grid", "grid", True), ("bvh", "grid(mailbox=off)", True), ("grid", "list", True)])
+def test_nested_grids_match_list(outer, inner, instanced):
+    rng = np.random.default_rng(7)
+    scene = nested_scene(rng, outer, inner, instanced)
+    o, d = random_rays(rng, 1500)
+    oi, di = random_rays(rng, 300, inside=True)
+    o, d = np.vstack([o, oi]), np.vstack([d, di])
+    got = cast(scene, "bvh", o, d)
+    plain = nested_scene(np.random.default_rng(7), "list", "list", instanced)
+    ref = cast(plain, "list", o, d)
+    assert np.isfinite(ref[0]).sum() > 300
+    assert_same_hits(got, ref)
+    if instanced:
+        assert np.any(ref[3] >= 0)
+
+
+def test_grid_inside_instance_inside_grid_deep():
+    rng = np.random.default_rng(11)
+    leaf = fill_group(Group(name="leaf", accel="grid"), rng, n=10, spread=1.0)
+    level = leaf
+    for k in range(5):
+        up = Group(name=f"l{k}", accel="grid" if k % 2 else "bvh")
+        up.add(Instance(level, rotation_scale(rng)))
+        up.add(Instance(level, rotation_scale(rng)))
+        level = up
+    scene = new_scene()
+    scene.root.accel = "grid"
+    scene.root.add(level)
+    o, d = random_rays(rng, 2000, spread=12.0)
+    got = cast(scene, "grid", o, d)
+    ref = cast(scene, "list", o, d)
+    assert np.isfinite(ref[0]).sum() > 50
+    assert_same_hits(got, ref)
+
+
+# ---------------------------------------------------------------- degenerate scenes
+
+def test_planar_scene_has_zero_thickness_padded():
+    scene = new_scene()
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        c = np.append(rng.uniform(-4, 4, 2), 1.0)
+        scene.root.polygons.add([c, c + [1, 0, 0], c + [0.5, 1, 0]], 0)
+    o, d = random_rays(rng, 1000, spread=4.0)
+    geo, stats = flatten(scene, default_accel="grid")
+    assert geo.grid_res[0, 2] == 1 and geo.grid_res[0, 0] > 1
+    got = cast_rays(geo, o, d)
+    ref = cast(scene, "list", o, d)
+    assert np.isfinite(ref[0]).sum() > 20
+    assert_same_hits(got, ref)
+
+
+def test_one_item_and_empty_groups():
+    scene = new_scene()
+    scene.root.spheres.add((1, 2, 3), 1.0, 0)
+    scene.root.add(Group(name="empty", accel="grid"))
+    o = np.array([[1, 2, -5.0], [1, 2, 3.0], [5, 5, 5.0]])
+    d = np.array([[0, 0, 1.0], [0, 1, 0.0], [1, 0, 0.0]])
+    got = cast(scene, "grid", o, d)
+    assert got[0][0] == pytest.approx(7.0) and got[0][1] == pytest.approx(1.0) and np.isinf(got[0][2])
+    empty = new_scene()
+    empty.root.accel = "grid"
+    t, *_ = cast(empty, "grid", o, d)
+    assert np.all(np.isinf(t))
+
+
+def test_huge_extent_scene():
+    rng = np.random.default_rng(5)
+    scene = new_scene()
+    fill_group(scene.root, rng, n=20, spread=2.0)
+    scene.root.spheres.add((1e9, 3e8, -2e8), 1e7, 0)
+    o, d = random_rays(rng, 1500, spread=2.0)
+    far = np.array([[0.0, 0.0, 0.0]] * 3)
+    fd = np.array([[1e9, 3e8, -2e8], [1e9, 3e8 + 5e6, -2e8], [-1.0, 0.0, 0.0]])
+    o, d = np.vstack([o, far]), np.vstack([d, fd])
+    ref = cast(scene, "list", o, d)
+    assert np.isfinite(ref[0][-3:-1]).all()
+    for spec in ("grid", "grid(res=woo)", "grid(mailbox=off)"):
+        assert_same_hits(cast(scene, spec, o, d), ref)
+
+
+# ---------------------------------------------------------------- mailbox and counters
+
+def big_objects_scene():
+    scene = new_scene()
+    rng = np.random.default_rng(9)
+    for _ in range(200):
+        scene.root.spheres.add(rng.uniform(-8, 8, 3), 0.1, 0)
+    scene.root.polygons.add([(-9, -9, -1), (9, -9, -1), (9, 9, -1), (-9, 9, -1)], 0)
+    scene.root.spheres.add((0, 0, 0), 6.0, 0)
+    scene.root.cones.add((-8, -8, -8), 1.0, (8, 8, 8), 1.0, 0)
+    return scene
+
+
+def test_mailbox_saves_tests_without_changing_hits():
+    scene = big_objects_scene()
+    rng = np.random.default_rng(4)
+    o, d = random_rays(rng, 2000, spread=9.0)
+    on = cast(scene, "grid(density=4)", o, d)
+    off = cast(scene, "grid(density=4, mailbox=off)", o, d)
+    assert_same_hits(on, off)
+    assert on[4][C.MAILBOX_SAVED] > 0
+    assert off[4][C.MAILBOX_SAVED] == 0
+    tests = slice(C.TESTS, C.TESTS + 5)
+    assert on[4][tests].sum() + on[4][C.MAILBOX_SAVED] == off[4][tests].sum()
+    assert on[4][C.CELLS_VISITED] == off[4][C.CELLS_VISITED]
+    # the cells counters are consistent: every cell visited is a leaf
+    assert on[4][C.CELLS_LEAVES] == on[4][C.CELLS_VISITED] >= on[4][C.CELLS_EMPTY]
+
+
+def test_counters_identical_across_runs_and_chunkings():
+    scene = big_objects_scene()
+    rng = np.random.default_rng(6)
+    o, d = random_rays(rng, 3000, spread=9.0)
+    geo, _ = flatten(scene, default_accel="grid")
+    a = cast_rays(geo, o, d)
+    b = cast_rays(geo, o, d)
+    np.testing.assert_array_equal(a[4], b[4])
+    # ray by ray, the counts add up to the batch's
+    parts = [cast_rays(geo, o[k:k + 700], d[k:k + 700])[4] for k in range(0, 3000, 700)]
+    np.testing.assert_array_equal(np.sum(parts, axis=0)[:C.RAYS_CAST], a[4][:C.RAYS_CAST])
+
+
+# ---------------------------------------------------------------- renders
+
+@pytest.mark.parametrize("name", ["spd:balls:1", "spd:gears:1"])
+def test_spd_render_matches_bvh(name):
+    scene = raykernel.load(name)
+    bvh = raykernel.render(scene, accel="bvh", resolution=32, spd=True)
+    grid = raykernel.render(scene, accel="grid", resolution=32, spd=True)
+    np.testing.assert_array_equal(grid.image, bvh.image)
+    rays = {k: v for k, v in bvh.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
+    assert rays and {k: grid.stats[k] for k in rays} == rays
+    assert grid.stats["cells.visited"] > 0
