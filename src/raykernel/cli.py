@@ -198,10 +198,10 @@ def main(argv=None) -> int:
     try:
         return args.func(args, console)
     except RayKernelError as err:
-        Console(stderr=True).print(f"raykernel: error: {err}", markup=False, highlight=False)
+        sys.stderr.write(f"raykernel: error: {err}\n")     # one line, never wrapped
         return 2
     except KeyboardInterrupt:
-        Console(stderr=True).print("raykernel: interrupted; no output was written", markup=False)
+        sys.stderr.write("raykernel: interrupted; unfinished output files were removed\n")
         return 130
 
 
