@@ -55,7 +55,8 @@ def cross(a, b):
 
 
 def unit(v):
-    return v / np.sqrt(dot(v, v))
+    """v scaled to length 1 (each row, for an array of vectors)."""
+    return v / np.sqrt(dot(v, v))[..., None]
 
 
 def first_in_interval(candidates, tmin, tmax):
