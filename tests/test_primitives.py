@@ -20,7 +20,8 @@ from hypothesis import strategies as st
 import reference as ref
 from raykernel import Scene, TriangleMesh
 from raykernel.flatten import flatten
-from raykernel.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE, hit_polygon
+from raykernel.primitives import (CONE, PATCH, POLYGON, SPHERE, TRIANGLE, hit_cone, hit_polygon, hit_sphere,
+                                  hit_triangle)
 from raykernel.traverse import cast_rays
 
 RTOL = 1e-9          # t agreement on stable rays
@@ -482,6 +483,41 @@ def test_mixed_single_primitives_tmin_tmax():
         tmax = tmin + rng.exponential(2.0, 800)
         stable, rt = compare_with_reference(scene, o, d, tmin, tmax)
         assert stable.mean() > 0.9
+
+
+def test_cast_rays_matches_the_primitive_functions():
+    """cast_rays inlines the primitive functions: on a one-primitive scene it reports the very t
+    the function returns when called on its own (a stale compiled kernel would not)."""
+    rng = np.random.default_rng(15)
+    cases = [sphere_scene((0.1, 0.2, 0.3), 0.8), sphere_scene((0.1, 0.2, 0.3), -0.8), cone_scene(*CONES["tilted"]),
+             polygon_scene(POLYGONS["star"]), polygon_scene(*split_square(True, False)),
+             triangle_scene(POLYGONS["triangle"], [(0, 1, 2)])]
+    for scene in cases:
+        geo, _ = flatten(scene, "list")
+        o, d = rays_around(rng, 200, (0.3, 0.3, 0.5), 1.0, inside=0.2)
+        if len(geo.poly_count) == 2:
+            o[:50] = np.array([0.25, 0.25, 3.0]) + np.arange(50)[:, None] * np.array([0.0078125, 0.0078125, 0.0])
+            d[:50] = (0.0, 0.0, -1.0)
+        got = cast_rays(geo, o, d)[0]
+        want = np.full(len(o), np.inf)
+        for r, (ray_o, ray_d) in enumerate(zip(o, d)):
+            for i in range(len(geo.sph_radius)):
+                t = hit_sphere(*geo.sph_center[i], geo.sph_radius[i], *ray_o, *ray_d, 0.0, want[r])
+                want[r] = min(want[r], t)
+            for i in range(len(geo.cone_r0)):
+                t = hit_cone(*geo.cone_base[i], *geo.cone_axis[i], geo.cone_length[i], geo.cone_r0[i],
+                             geo.cone_r1[i], *ray_o, *ray_d, 0.0, want[r])
+                want[r] = min(want[r], t)
+            for i in range(len(geo.poly_count)):
+                t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
+                                geo.poly_verts, i, *ray_o, *ray_d, 0.0, want[r])
+                want[r] = min(want[r], t)
+            for f in geo.tri_faces:
+                v = geo.tri_verts[f]
+                t = hit_triangle(*v[0], *v[1], *v[2], *ray_o, *ray_d, 0.0, want[r])
+                want[r] = min(want[r], t)
+        assert np.isfinite(want).sum() >= 10
+        assert np.array_equal(got, want), f"{np.sum(got != want)} rays differ: stale compiled kernels?"
 
 
 # ----------------------------------------------------------------- shared edges and vertices
