@@ -568,14 +568,6 @@ def test_shared_horizontal_edge_hits_exactly_one_polygon():
             assert count_polygon_hits(pieces, points, direction).tolist() == [1] * len(points)
 
 
-SHARED_EDGE_REASON = (
-    "point_in_polygon's half-open rule depends on the edge direction: on an edge that is not parallel "
-    "to the projection's u axis (num == 0) the crossing counts only when vj < vi, so two coplanar "
-    "polygons wound the same way both contain a point of their shared edge (counter-clockwise in the "
-    "projection) or neither does (clockwise); the same at shared vertices")
-
-
-@pytest.mark.xfail(strict=True, reason=SHARED_EDGE_REASON)
 @pytest.mark.parametrize("ccw", [True, False], ids=["ccw", "cw"])
 @pytest.mark.parametrize("diagonal", [True, False], ids=["diagonal", "vertical"])
 def test_shared_edge_hits_exactly_one_polygon(diagonal, ccw):
@@ -585,7 +577,6 @@ def test_shared_edge_hits_exactly_one_polygon(diagonal, ccw):
         assert count_polygon_hits(pieces, points, direction).tolist() == [1] * len(points)
 
 
-@pytest.mark.xfail(strict=True, reason=SHARED_EDGE_REASON)
 @pytest.mark.parametrize("ccw", [True, False], ids=["ccw", "cw"])
 def test_fan_vertex_hits_exactly_one_polygon(ccw):
     triangles = fan(6, ccw)
@@ -593,7 +584,6 @@ def test_fan_vertex_hits_exactly_one_polygon(ccw):
     assert count_polygon_hits(triangles, [(0.0, 0.0, 0.0)], (0.25, 0.125, -1)).tolist() == [1]
 
 
-@pytest.mark.xfail(strict=True, reason=SHARED_EDGE_REASON)
 def test_ray_through_shared_edge_of_clockwise_polygons_is_not_lost():
     """The visible symptom: a ray aimed at the diagonal of a square made of two
     triangles wound clockwise (normal -z) passes through the square."""
@@ -702,14 +692,6 @@ def test_tiny_primitive_far_away_seen_from_origin(kind):
     assert stable.mean() > 0.3 and np.isfinite(rt[stable]).sum() > 20
 
 
-CONE_FAR_REASON = (
-    "hit_cone solves its quadratic from the ray origin: c = |qw|^2 - rw^2 and half_b^2 - a*c cancel about "
-    "2*log10(distance/size) digits, so t is off by ~2e-9 relative at 1e6 sizes away, and hit or miss is "
-    "wrong for rays 10% inside the silhouette at 1e8 (hit_sphere avoids this with its closest-point "
-    "discriminant)")
-
-
-@pytest.mark.xfail(strict=True, reason=CONE_FAR_REASON)
 @pytest.mark.parametrize("distance,size", [(1e8, 1e-6), (1e6, 1e-2), (1e4, 1e-2)])
 def test_tiny_cone_far_away_seen_from_origin(distance, size):
     scene, o, d = _far_view("cone", distance, size)

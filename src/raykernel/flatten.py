@@ -214,6 +214,9 @@ class _Builder:
         for child in group.children:
             if isinstance(child, Instance):
                 agg, d = self.build_group(child.group)
+                depth = max(depth, d)
+                if not np.all(np.isfinite(self.arr.agg_bounds[agg])):
+                    continue        # an empty group shows nothing: no reference to it
                 k = len(self.arr.inst_agg)
                 self.arr.inst_agg.append(agg)
                 self.arr.inst_to_local.append(np.linalg.inv(child.matrix)[:3, :].reshape(-1))
@@ -228,6 +231,9 @@ class _Builder:
                 self._active_groups.pop()
             elif isinstance(child, Group):
                 agg, d = self.build_group(child)
+                depth = max(depth, d)
+                if not np.all(np.isfinite(self.arr.agg_bounds[agg])):
+                    continue
                 refs.append(make_ref(AGGREGATE, [agg]))
                 bounds.append(self.arr.agg_bounds[agg][None, :])
                 depth = max(depth, d)

@@ -95,18 +95,11 @@ def hit_sphere(cx, cy, cz, r, ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 
 @njit(inline="always")
-def hit_plane(nx, ny, nz, d, ox, oy, oz, dx, dy, dz):
-    den = nx * dx + ny * dy + nz * dz
-    if den == 0.0:
-        return INF
-    return (d - (nx * ox + ny * oy + nz * oz)) / den
-
-
-@njit(inline="always")
 def point_in_polygon(verts, start, count, axis, px, py, pz):
     """Crossing-number test in the plane that drops `axis`, with half-open
     edge rules so that a point on an edge shared by two coplanar polygons
-    lies in exactly one of them. Concave polygons work."""
+    lies in exactly one of them. Concave polygons work. Coordinates stay
+    world coordinates, so both polygons of a shared edge round it alike."""
     if axis == 0:
         u0, v0 = py, pz
         iu, iv = 1, 2
@@ -122,9 +115,12 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
         ui, vi = verts[i, iu] - u0, verts[i, iv] - v0
         uj, vj = verts[j, iu] - u0, verts[j, iv] - v0
         if (vi > 0.0) != (vj > 0.0):
-            # the edge crosses the u axis; where?  (sign test avoids division)
+            # the edge crosses the line v = 0 at u = num / (vj - vi); count it
+            # when that is strictly right of the point. num is negated exactly
+            # when the edge is walked the other way, so two polygons sharing an
+            # edge agree: a point on it lies in exactly one of them.
             num = ui * vj - uj * vi
-            if (vj > vi) == (num > 0.0):
+            if num != 0.0 and (vj > vi) == (num > 0.0):
                 inside = not inside
         j = i
     return inside
@@ -132,10 +128,18 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
 
 @njit(inline="always")
 def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    t = hit_plane(normals[i, 0], normals[i, 1], normals[i, 2], dists[i], ox, oy, oz, dx, dy, dz)
+    # t from the first vertex, not the stored plane offset: (v0 - o) keeps its
+    # digits when the polygon is far from the world origin but near the ray
+    nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
+    den = nx * dx + ny * dy + nz * dz
+    if den == 0.0:
+        return INF
+    v0 = starts[i]
+    wx, wy, wz = ox - verts[v0, 0], oy - verts[v0, 1], oz - verts[v0, 2]
+    t = -(nx * wx + ny * wy + nz * wz) / den
     if not (tmin <= t <= tmax):
         return INF
-    if point_in_polygon(verts, starts[i], counts[i], axes[i], ox + t * dx, oy + t * dy, oz + t * dz):
+    if point_in_polygon(verts, v0, counts[i], axes[i], ox + t * dx, oy + t * dy, oz + t * dz):
         return t
     return INF
 
@@ -174,7 +178,11 @@ def hit_cone(bx, by, bz, ax, ay, az, length, r0, r1, ox, oy, oz, dx, dy, dz, tmi
     r0 = abs(r0)
     r1 = abs(r1)
     slope = (r1 - r0) / length
+    # work relative to the base, from the point of the ray nearest to it, so
+    # that a small cone far from the ray origin keeps its digits
     wx, wy, wz = ox - bx, oy - by, oz - bz
+    shift = -(wx * dx + wy * dy + wz * dz) / (dx * dx + dy * dy + dz * dz)
+    wx, wy, wz = wx + shift * dx, wy + shift * dy, wz + shift * dz
     wa = wx * ax + wy * ay + wz * az
     da = dx * ax + dy * ay + dz * az
     qwx, qwy, qwz = wx - wa * ax, wy - wa * ay, wz - wa * az
@@ -186,17 +194,17 @@ def hit_cone(bx, by, bz, ax, ay, az, length, r0, r1, ox, oy, oz, dx, dy, dz, tmi
     t0, t1 = _quadratic_roots(a, half_b, c)
     for k in range(2):
         t = t0 if k == 0 else t1
-        if not (tmin <= t <= tmax):
+        if not (tmin <= t + shift <= tmax):
             continue
         s = wa + t * da
         if s < 0.0 or s > length or r0 + slope * s < 0.0:
             continue
         if inside_only:
             # keep only hits where the ray meets the inner face
-            nx, ny, nz = cone_normal(bx, by, bz, ax, ay, az, r0, slope, ox + t * dx, oy + t * dy, oz + t * dz)
+            nx, ny, nz = cone_normal(0.0, 0.0, 0.0, ax, ay, az, r0, slope, wx + t * dx, wy + t * dy, wz + t * dz)
             if nx * dx + ny * dy + nz * dz < 0.0:
                 continue
-        return t
+        return t + shift
     return INF
 
 
