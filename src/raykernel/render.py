@@ -30,11 +30,11 @@ from numba import prange
 from . import counters as C
 from .config import njit
 from .errors import OptionError
-from .flatten import MAX_NESTING, STACK_SIZE, flatten
+from .flatten import flatten
 from .primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE, cone_normal
 from .scene import Scene
 from .stats import Stats
-from .traverse import FRAME_F, HIT_F, HIT_I, intersect
+from .traverse import intersect, workspace
 
 TILE = 16
 CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change an 8-bit pixel
@@ -138,7 +138,7 @@ def surface(geo, kind, idx, px, py, pz):
 
 @njit
 def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff,
-           rays, ws_a, ws_b, ws_t, frame_f, frame_i, hit_f, hit_i, cnt):
+           rays, ws, cnt):
     """Colour of one eye ray: the whole ray tree, depth first, on an explicit stack.
     rays[k] = origin(3), direction(3), weight(3), depth, kind (0 eye, 1 reflect, 2 refract)."""
     r_out, g_out, b_out = 0.0, 0.0, 0.0
@@ -157,12 +157,13 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
         ray_kind = int(rays[top, 10])
         cnt[C.RAYS_EYE + 2 * ray_kind] += 1
         if not intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, False,
-                         ws_a, ws_b, ws_t, frame_f, frame_i, hit_f, hit_i, cnt):
+                         ws, cnt):
             r_out += wr * background[0]
             g_out += wg * background[1]
             b_out += wb * background[2]
             continue
         cnt[C.RAYS_EYE_HIT + 2 * ray_kind] += 1
+        hit_f, hit_i = ws[5], ws[6]
         t = hit_f[0]
         kind = hit_i[0]
         idx = hit_i[1]
@@ -202,7 +203,7 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
                 continue        # the surface faces away from this light: no shadow ray
             cnt[C.RAYS_SHADOW] += 1
             if intersect(geo, ax, ay, az, tlx, tly, tlz, 0.0, 1.0, True,
-                         ws_a, ws_b, ws_t, frame_f, frame_i, hit_f, hit_i, cnt):
+                         ws, cnt):
                 cnt[C.RAYS_SHADOW_BLOCKED] += 1
                 continue
             dr += n_dot_l * lights[li, 3]
@@ -258,13 +259,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3)."""
     for ti in prange(last - first):
         tile = np.int64(ti) + first
-        ws_a = np.zeros(STACK_SIZE, np.int64)
-        ws_b = np.zeros(STACK_SIZE, np.int64)
-        ws_t = np.zeros(STACK_SIZE)
-        frame_f = np.zeros((MAX_NESTING + 1, FRAME_F))
-        frame_i = np.zeros((MAX_NESTING + 1, 3), np.int64)
-        hit_f = np.zeros(HIT_F)
-        hit_i = np.zeros(HIT_I, np.int64)
+        ws = workspace()
         rays = np.zeros((RAY_STACK, 11))
         cnt = np.zeros(C.N_COUNTERS, np.int64)
         x0 = tile_x[tile]
@@ -276,7 +271,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
                 dz = cam[5] + i * cam[8] + j * cam[11]
                 dx, dy, dz = _normalize(dx, dy, dz)
                 r, g, b = _trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz,
-                                 max_depth, cutoff, rays, ws_a, ws_b, ws_t, frame_f, frame_i, hit_f, hit_i, cnt)
+                                 max_depth, cutoff, rays, ws, cnt)
                 out[j, i, 0] = r
                 out[j, i, 1] = g
                 out[j, i, 2] = b

@@ -52,8 +52,10 @@ HIT_F = 13                   # t, world-to-local 3x4 of the frame that was hit
 HIT_I = 3                    # kind, index, innermost instance (-1: none)
 
 
+@njit
 def workspace():
-    """Scratch arrays for one thread: (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i)."""
+    """Scratch arrays for one thread, allocated once per tile or chunk:
+    (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i)."""
     return (np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
             np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, 3), np.int64),
             np.zeros(HIT_F), np.zeros(HIT_I, np.int64))
@@ -113,11 +115,12 @@ def _push_aggregate(geo, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b
 
 @njit
 def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
-              stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, cnt):
+              ws, cnt):
     """Closest hit (or, with any_hit, the first hit found) of the ray with
     the scene in [tmin, tmax]. On a hit returns True and fills hit_f
     (t, world-to-local map of the hit's frame) and hit_i (kind, index,
     innermost instance). Counts tests, bounds tests and steps into cnt."""
+    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i = ws
     best_t = tmax
     found = False
     best_ref = np.int64(-1)
@@ -371,19 +374,14 @@ def _cast_chunks(geo, origins, directions, tmin, tmax, any_hit, chunk, t_out, ki
     n_chunks = (n + chunk - 1) // chunk
     for ci in prange(n_chunks):
         c = np.int64(ci)
-        stack_a = np.zeros(STACK_SIZE, np.int64)
-        stack_b = np.zeros(STACK_SIZE, np.int64)
-        stack_t = np.zeros(STACK_SIZE)
-        frame_f = np.zeros((MAX_NESTING + 1, FRAME_F))
-        frame_i = np.zeros((MAX_NESTING + 1, 3), np.int64)
-        hit_f = np.zeros(HIT_F)
-        hit_i = np.zeros(HIT_I, np.int64)
+        ws = workspace()
+        hit_f, hit_i = ws[5], ws[6]
         cnt = np.zeros(C.N_COUNTERS, np.int64)
         for r in range(c * chunk, min(n, (c + 1) * chunk)):
             cnt[C.RAYS_CAST] += 1
             if intersect(geo, origins[r, 0], origins[r, 1], origins[r, 2], directions[r, 0], directions[r, 1],
                          directions[r, 2], tmin[r], tmax[r], any_hit,
-                         stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, cnt):
+                         ws, cnt):
                 t_out[r] = hit_f[0]
                 kind_out[r] = hit_i[0]
                 index_out[r] = hit_i[1]
