@@ -31,7 +31,7 @@ from . import counters as C
 from .config import njit
 from .errors import OptionError
 from .flatten import flatten
-from .primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE, cone_normal
+from .primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal
 from .scene import Scene
 from .stats import Stats
 from .traverse import intersect, workspace

@@ -24,7 +24,6 @@ references already tested (primitives and child aggregates alike) and skips
 them in later cells: their result for this ray is already in best_t.
 """
 
-import math
 
 import numpy as np
 from numba import prange
