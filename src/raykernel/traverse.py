@@ -1,12 +1,12 @@
 """The one intersection routine that drives every aggregate, nested to any depth.
 
-    ws = Workspace()                                   # per thread: stacks and hit record
-    found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, False, ws..., cnt)
-    t = ws_hit_f[0]; kind, index, instance = ws_hit_i[0], ws_hit_i[1], ws_hit_i[2]
+    ws = workspace()                    # per thread: stacks, frames, hit record
+    found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, False, ws, cnt)
+    t = ws[5][0]; kind, index, instance = ws[6]
 
 An explicit stack replaces recursion. Its entries are a BVH node, a grid
-to start or to continue, or a range of references still to be tested. When a reference names an aggregate
-or an instance, the rest of the current range is pushed, a frame is opened
+to start or to continue, or a range of references still to be tested. When
+a reference names an aggregate or an instance, the rest of the current range is pushed, a frame is opened
 for the child (the ray mapped into its space for an instance), and the
 child's first entry is pushed above. A frame ends when the stack falls to
 its base. Instance maps are affine and the direction is not renormalised,
