@@ -96,7 +96,7 @@ def cmd_accels(args, console) -> int:
 
 def cmd_spd(args, console) -> int:
     from . import spd
-    from .imageio import atomic_write
+    from .atomicfile import atomic_write
     text = spd.generate(args.name, args.size)
     if args.output:
         with atomic_write(args.output) as f:
@@ -120,7 +120,8 @@ def cmd_scene(args, console) -> int:
     if suffix not in (".json", ".nff"):
         raise OptionError(f"{args.output}: unknown output format {suffix or '(no suffix)'!r}; "
                           "use .json (groups kept) or .nff (flattened)")
-    from .convert import check_output_directory, convert
+    from .atomicfile import check_output_directory
+    from .convert import convert
     check_output_directory(args.output)
     params = {}
     for item in args.param:

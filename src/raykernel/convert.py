@@ -49,12 +49,11 @@ directory that does not exist or cannot be written is a `SceneError`.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .atomicfile import check_output_directory, write_text
 from .errors import OptionError, SceneError
 from .scene import Group, Instance, Material, Scene
 
@@ -82,51 +81,6 @@ def _format_of(path) -> str:
         raise OptionError(f"{path}: unknown output format {suffix or '(no suffix)'!r}; "
                           f"use one of {', '.join(FORMATS)}")
     return suffix
-
-
-def check_output_directory(path) -> Path:
-    """`path` as a Path whose directory exists; otherwise a SceneError naming it."""
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.exists():
-        raise SceneError(f"cannot write: directory {directory} does not exist", path=str(path))
-    if not directory.is_dir():
-        raise SceneError(f"cannot write: {directory} is not a directory", path=str(path))
-    if path.is_dir():
-        raise SceneError("cannot write: it is a directory", path=str(path))
-    return path
-
-
-def _write_text(path, text: str) -> Path:
-    """Write `text` to `path` atomically; problems are SceneErrors naming the path."""
-    path = check_output_directory(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    try:
-        if path.exists():
-            mode = path.stat().st_mode & 0o7777
-        else:
-            umask = os.umask(0)
-            os.umask(umask)
-            mode = 0o666 & ~umask
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    except OSError as e:
-        raise SceneError(f"cannot write: {e.strerror or e}", path=str(path)) from None
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(e, OSError):
-            raise SceneError(f"cannot write: {e.strerror or e}", path=str(path)) from None
-        raise
-    return path
 
 
 def walk(scene: Scene):
@@ -383,8 +337,8 @@ def write_obj(scene: Scene, path, segments: int = DEFAULT_SEGMENTS) -> list[Path
     path = Path(path)
     mtl_path = path.with_suffix(".mtl")
     obj, mtl = scene_to_obj(scene, segments, mtl_path.name)
-    _write_text(mtl_path, mtl)
-    _write_text(path, obj)
+    write_text(mtl_path, mtl)
+    write_text(path, obj)
     return [path, mtl_path]
 
 
@@ -567,7 +521,7 @@ def scene_to_pov(scene: Scene) -> str:
 
 
 def write_pov(scene: Scene, path) -> Path:
-    return _write_text(path, scene_to_pov(scene))
+    return write_text(path, scene_to_pov(scene))
 
 
 # ---- dispatch -----------------------------------------------------------------------------------

@@ -151,11 +151,11 @@ import difflib
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from .atomicfile import write_text
 from .errors import SceneError
 from .scene import Camera, Group, Instance, Light, Material, Scene, TriangleMesh
 
@@ -1018,32 +1018,4 @@ def _dumps(value, indent: int = 0) -> str:
 def write_json(scene: Scene, path) -> Path:
     """Write the scene as JSON, atomically (a temporary file in the same
     directory replaces `path` only once it is complete)."""
-    path = Path(path)
-    text = _dumps(scene_to_json(scene)) + "\n"
-    directory = path.parent if str(path.parent) else Path(".")
-    try:
-        if path.exists():
-            mode = path.stat().st_mode & 0o7777
-        else:
-            umask = os.umask(0)
-            os.umask(umask)
-            mode = 0o666 & ~umask
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    except OSError as e:
-        raise SceneError(f"cannot write: {e.strerror or e}", path=str(path)) from None
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(e, OSError):
-            raise SceneError(f"cannot write: {e.strerror or e}", path=str(path)) from None
-        raise
-    return path
+    return write_text(path, _dumps(scene_to_json(scene)) + "\n")

@@ -57,10 +57,10 @@ from __future__ import annotations
 import math
 import os
 import re
-import uuid
 
 import numpy as np
 
+from .atomicfile import write_text
 from .errors import SceneError
 from .nffwriter import NffWriter
 from .scene import Camera, Group, Instance, Light, Material, Scene, TriangleMesh
@@ -655,23 +655,4 @@ def scene_to_nff(scene: Scene) -> str:
 def write_nff(scene: Scene, path) -> None:
     """Write `scene` as NFF to `path`, replacing the file atomically: the text
     goes to a temporary file in the same directory, then takes the name."""
-    name = os.fspath(path)
-    data = scene_to_nff(scene).encode("utf-8")
-    directory = os.path.dirname(os.path.abspath(name))
-    tmp = os.path.join(directory, f".{os.path.basename(name)}.{uuid.uuid4().hex[:12]}.tmp")
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(data)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, name)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
-    except OSError as exc:
-        raise SceneError(f"cannot write the file: {exc.strerror or exc}", path=name) from None
+    write_text(path, scene_to_nff(scene))

@@ -53,7 +53,7 @@ class Stats(dict):
         return {"counters": dict(self), "aggregates": self.aggregates, "info": self.info}
 
     def to_json(self, path) -> None:
-        from .imageio import atomic_write
+        from .atomicfile import atomic_write
         with atomic_write(path) as f:
             json.dump(self.to_dict(), f, indent=2, default=_plain)
             f.write("\n")
