@@ -1,0 +1,52 @@
+"""The kernel cache is keyed on the kernel sources, so no stale kernel runs."""
+
+import shutil
+
+import numba
+
+from raykernel import config
+
+
+def _copy_package(tmp_path):
+    dest = tmp_path / "pkg"
+    shutil.copytree(config.PACKAGE, dest, ignore=shutil.ignore_patterns("__pycache__"))
+    return dest
+
+
+def test_hash_changes_with_a_kernel_source(tmp_path):
+    pkg = _copy_package(tmp_path)
+    before = config.kernel_source_hash(pkg)
+    assert before == config.kernel_source_hash(config.PACKAGE)
+    prims = pkg / "primitives.py"
+    prims.write_text(prims.read_text() + "\n# changed\n")
+    assert config.kernel_source_hash(pkg) != before
+
+
+def test_hash_ignores_files_without_kernels(tmp_path):
+    pkg = _copy_package(tmp_path)
+    before = config.kernel_source_hash(pkg)
+    cli = pkg / "cli.py"
+    assert b"njit" not in cli.read_bytes()
+    cli.write_text(cli.read_text() + "\n# changed\n")
+    assert config.kernel_source_hash(pkg) == before
+
+
+def test_cache_dir_is_keyed_and_restored():
+    assert config.kernel_source_hash() in config.CACHE_DIR
+    saved = numba.config.CACHE_DIR
+
+    @config.njit
+    def twice(x):
+        return 2 * x
+
+    assert twice(21) == 42
+    assert numba.config.CACHE_DIR == saved
+    assert twice._cache._cache_path.startswith(config.CACHE_DIR)
+
+
+def test_factory_form_takes_options():
+    @config.njit(parallel=False, cache=False)
+    def add(a, b):
+        return a + b
+
+    assert add(1, 2) == 3
