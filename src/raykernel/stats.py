@@ -101,10 +101,12 @@ class Stats(dict):
         return table
 
     def table_text(self) -> str:
+        import io
+
         from rich.console import Console
-        console = Console(width=100, record=True, file=open("/dev/null", "w"))
+        console = Console(width=100, file=io.StringIO())
         console.print(self.table())
-        return console.export_text()
+        return console.file.getvalue()
 
     def _repr_html_(self) -> str:
         cells = "".join(f"<tr><td>{s}</td><td>{n}</td><td style='text-align:right'>{v}</td><td>{note}</td></tr>"
