@@ -1,0 +1,85 @@
+"""Compare the acceleration structures on the SPD default scenes and the stadium.
+
+    .venv/bin/python bench/structures.py [--resolution 128] [--scenes balls,gears] [--kinds bvh,grid]
+
+For each scene and each kind (default parameters) it renders in SPD mode and
+records N_IT (tests per ray), N_TS (traversal steps per ray), N_ETS, N_EETS,
+build nodes, bytes, build and trace seconds; a second table compares the
+octree's subdivision criteria and traversals on a few scenes. Writes the
+`structures` section of BENCHMARKS.md. Ray counts must agree across kinds;
+a disagreement aborts the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import raykernel
+from raykernel import accel, spd
+
+from _report import machine, replace_section
+
+RAY_KEYS = ("rays.eye", "rays.eye_hit", "rays.reflect", "rays.reflect_hit", "rays.refract", "rays.refract_hit",
+            "rays.shadow", "rays.shadow_blocked")
+OCTREE_VARIANTS = ("octree(walk=point)", "octree(walk=neighbor)", "octree(walk=parametric)",
+                   "octree(rule60=off)", "octree(collapse=off)", "octree(density=0.3)", "octree(mailbox=off)")
+
+
+def run(scenes, specs, resolution):
+    rows = []
+    for name, scene in scenes:
+        reference = None
+        for spec in specs:
+            s = raykernel.render(scene, accel=spec, resolution=resolution, spd=True).stats
+            counts = tuple(s[k] for k in RAY_KEYS)
+            if reference is None:
+                reference = (spec, counts)
+            elif counts != reference[1]:
+                sys.exit(f"{name}: ray counts of {spec} differ from {reference[0]}: {counts} vs {reference[1]}")
+            rows.append((name, spec, s))
+            print(f"{name:10s} {spec:28s} N_IT {s['tests.per_ray']:7.2f} N_TS {s['cells.visited_per_ray']:7.2f} "
+                  f"trace {s['time.trace']:6.2f}s", file=sys.stderr)
+    return rows
+
+
+def table(rows):
+    lines = ["| scene | structure | N_IT | N_TS | N_ETS | N_EETS | mailbox saved | nodes | bytes | build s | trace s |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for name, spec, s in rows:
+        lines.append(f"| {name} | `{spec}` | {s['tests.per_ray']:.2f} | {s['cells.visited_per_ray']:.2f} | "
+                     f"{s['cells.leaves_per_ray']:.2f} | {s['cells.empty_per_ray']:.2f} | {s['mailbox.saved']:,} | "
+                     f"{s['build.nodes']:,} | {s['build.bytes']:,} | {s['time.preprocess']:.3f} | "
+                     f"{s['time.trace']:.2f} |")
+    return lines
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--resolution", type=int, default=128)
+    parser.add_argument("--scenes", default=",".join(spd.NAMES) + ",stadium")
+    parser.add_argument("--kinds", default=",".join(k for k in accel.KINDS if k != "list"))
+    parser.add_argument("--octree-scenes", default="balls,teapot,stadium")
+    args = parser.parse_args()
+
+    def load(name):
+        return raykernel.load("scene:stadium" if name == "stadium" else f"spd:{name}")
+
+    raykernel.render(raykernel.load("spd:balls:1"), resolution=8, spd=True)   # compile or load the cache
+    scenes = [(n, load(n)) for n in args.scenes.split(",")]
+    kinds = args.kinds.split(",")
+    rows = run(scenes, kinds, args.resolution)
+    lines = ["## Acceleration structures side by side", "",
+             f"`{('python bench/structures.py ' + ' '.join(sys.argv[1:])).strip()}`: SPD mode at {args.resolution}x{args.resolution}, each kind with its default parameters; "
+             "per-ray figures divide by all rays (eye, reflect, refract, shadow). Ray counts agree across kinds "
+             "(checked by the script).", "", f"Machine: {machine()}.", ""] + table(rows)
+    if "octree" in accel.KINDS:
+        oct_scenes = [(n, s) for n, s in scenes if n in args.octree_scenes.split(",")] or \
+            [(n, load(n)) for n in args.octree_scenes.split(",")]
+        lines += ["", "### Octree criteria and traversals", ""] + table(run(oct_scenes, OCTREE_VARIANTS,
+                                                                          args.resolution))
+    replace_section("structures", "\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
