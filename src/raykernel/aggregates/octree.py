@@ -1,0 +1,350 @@
+"""Octree (Glassner 1984) over axis-aligned item boxes, as flat arrays.
+
+    tree, stats = build_octree(item_bounds, depth=8, leaf=3)
+    # tree.first, tree.count, tree.loc, tree.level, tree.slot, tree.nbr, tree.bounds, tree.order
+    items_of_leaf = tree.order[tree.first[n]:tree.first[n] + tree.count[n]]
+
+Root box and addresses
+----------------------
+The root box is the union of the item boxes, with flat axes padded as the
+uniform grid pads them (grid.grid_box). It is not made cubic: every cell is a
+scaled copy of the root box, so a flat or long scene is not wrapped in mostly
+empty space, and Lathrop's integer addressing works per axis anyway. Each
+axis of the root box is mapped to integer addresses [0, 2**28); a node at
+level L spans 2**(28 - L) addresses per axis, and bit 27 - L of a point's
+address picks the child octant (bit 0 of the octant: x, bit 1: y, bit 2: z).
+Every box coordinate is computed as ``origin + unit * address`` (unit =
+side / 2**28), so neighbouring cells share bit-identical walls.
+
+Subdivision (centre split, objects go into every child their box overlaps,
+closed intervals, boxes widened by a tiny margin as in the grid)
+------------------------------------------------------------------------------
+A node is a leaf when any of these holds:
+  * its level is ``depth``;
+  * it holds at most ``leaf`` items, counting polygon/patch vertices and 3 per
+    triangle instead of 1 when ``vertexcount`` is on (Glassner's measure);
+  * ``density`` > 0 and the summed volume of its items' boxes clipped to the
+    cell, over the cell volume, is at least ``density`` (Glassner's criterion:
+    subdivide only while the cell is sparsely filled);
+  * ``rule60`` is on and the largest child list would still hold at least 60%
+    of the node's items (Haines's problem-voxel rule), unless that child is
+    the only occupied one: items that all fall into one octant are separated
+    by splitting further (a small cluster in a big box, the teapot in a
+    stadium), and collapse removes the chain this makes.
+
+Collapse
+--------
+With ``collapse`` on, an inner node with exactly one non-empty child takes
+that child's subtree, and its box shrinks to the child's box; repeated, this
+removes whole chains. Each node keeps its *slot* (the octant of its parent
+it occupies, level ``slot``) next to its own box (level ``level``, lower
+address ``loc``). A point inside a slot but outside the node's box lies in an
+empty octant the collapse removed: the walks find it from the address bits
+and step through it as an empty leaf (see traverse.py).
+
+Neighbours
+----------
+``nbr[n, 2 * axis + (1 if towards +axis else 0)]`` is the node whose slot is
+adjacent to n's slot across that wall and of equal or larger size (the
+deepest such node), or -1 on the root's boundary.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+
+from ..config import njit
+from ..errors import OptionError, SceneError
+from .grid import grid_box
+
+__all__ = ["OctreeArrays", "build_octree", "ADDRESS_BITS", "MAX_DEPTH"]
+
+ADDRESS_BITS = 28
+WALKS = ("point", "neighbor", "parametric")   # oct_walk codes 0, 1, 2
+MAX_DEPTH = 24             # the parametric walk keeps up to 3 siblings per level on the kernel's stack
+MAX_NODES = 20_000_000
+
+
+class OctreeArrays(NamedTuple):
+    """An octree as flat arrays; see the module docstring. Node 0 is the root;
+    the 8 children of an inner node are stored together in octant order."""
+
+    origin: np.ndarray   # (3,) float64 lower corner of the root box
+    unit: np.ndarray     # (3,) float64 side of one address unit (root side / 2**28)
+    first: np.ndarray    # (N,) int64 inner: first child; leaf: first position in order
+    count: np.ndarray    # (N,) int64 items in a leaf; -1 for an inner node
+    loc: np.ndarray      # (N, 3) int64 lower address of the node's box
+    level: np.ndarray    # (N,) int64 level of the node's box (its side is 2**(28 - level) units)
+    slot: np.ndarray     # (N,) int64 level of the octant the node occupies in its parent (root: 0)
+    nbr: np.ndarray      # (N, 6) int64 neighbour across each wall (-x, +x, -y, +y, -z, +z), -1: none
+    bounds: np.ndarray   # (N, 6) float64 node boxes, origin + unit * address
+    order: np.ndarray    # (R,) int64 item indices, leaf after leaf
+
+
+@njit
+def _subdivide(items, vols, weights, origin, unit, depth, leaf, rule60, density):
+    """Top-down centre subdivision with an explicit stack; returns the raw tree."""
+    n = items.shape[0]
+    cap = 1024
+    first = np.empty(cap, np.int64)
+    count = np.empty(cap, np.int64)
+    loc = np.empty((cap, 3), np.int64)
+    level = np.empty(cap, np.int64)
+    lists = np.empty(max(16, 4 * n), np.int64)
+    top_list = n
+    for i in range(n):
+        lists[i] = i
+    # node 0: the root over every item
+    first[0] = 0
+    count[0] = n
+    loc[0, 0] = loc[0, 1] = loc[0, 2] = 0
+    level[0] = 0
+    n_nodes = 1
+    st_node = np.empty(8 * (depth + 2), np.int64)
+    st_node[0] = 0
+    sp = 1
+    child_n = np.zeros(8, np.int64)
+    clo = np.empty((8, 3))
+    chi = np.empty((8, 3))
+    while sp > 0:
+        sp -= 1
+        node = st_node[sp]
+        s = first[node]
+        m = count[node]
+        lv = level[node]
+        if lv >= depth:
+            continue
+        w = 0
+        for p in range(s, s + m):
+            w += weights[lists[p]]
+        if w <= leaf:
+            continue
+        half = np.int64(1) << (ADDRESS_BITS - 1 - lv)
+        if density > 0.0:
+            cell_vol = 1.0
+            lo3 = np.empty(3)
+            hi3 = np.empty(3)
+            for a in range(3):
+                lo3[a] = origin[a] + unit[a] * loc[node, a]
+                hi3[a] = origin[a] + unit[a] * (loc[node, a] + 2 * half)
+                cell_vol *= hi3[a] - lo3[a]
+            filled = 0.0
+            for p in range(s, s + m):
+                it = lists[p]
+                v = 1.0
+                for a in range(3):
+                    v *= max(0.0, min(hi3[a], vols[it, a + 3]) - max(lo3[a], vols[it, a]))
+                filled += v
+            if filled >= density * cell_vol:
+                continue
+        for c in range(8):
+            for a in range(3):
+                bit = (c >> a) & 1
+                lo = loc[node, a] + bit * half
+                clo[c, a] = origin[a] + unit[a] * lo
+                chi[c, a] = origin[a] + unit[a] * (lo + half)
+        # child lists after the used part of the list buffer
+        while top_list + 8 * m > lists.shape[0]:
+            bigger = np.empty(2 * lists.shape[0], np.int64)
+            bigger[:top_list] = lists[:top_list]
+            lists = bigger
+        for c in range(8):
+            child_n[c] = 0
+        for p in range(s, s + m):
+            it = lists[p]
+            for c in range(8):
+                inside = True
+                for a in range(3):
+                    if items[it, a] > chi[c, a] or items[it, a + 3] < clo[c, a]:
+                        inside = False
+                        break
+                if inside:
+                    lists[top_list + c * m + child_n[c]] = it
+                    child_n[c] += 1
+        if rule60:
+            biggest = 0
+            occupied = 0
+            for c in range(8):
+                biggest = max(biggest, child_n[c])
+                occupied += child_n[c] > 0
+            if biggest * 10 >= 6 * m and occupied > 1:
+                continue
+        if n_nodes + 8 > first.shape[0]:
+            new_cap = 2 * first.shape[0]
+            f2 = np.empty(new_cap, np.int64)
+            c2 = np.empty(new_cap, np.int64)
+            l2 = np.empty((new_cap, 3), np.int64)
+            v2 = np.empty(new_cap, np.int64)
+            f2[:n_nodes] = first[:n_nodes]
+            c2[:n_nodes] = count[:n_nodes]
+            l2[:n_nodes] = loc[:n_nodes]
+            v2[:n_nodes] = level[:n_nodes]
+            first, count, loc, level = f2, c2, l2, v2
+        base = n_nodes
+        n_nodes += 8
+        for c in range(8):
+            k = base + c
+            first[k] = top_list + c * m
+            count[k] = child_n[c]
+            for a in range(3):
+                loc[k, a] = loc[node, a] + ((c >> a) & 1) * half
+            level[k] = lv + 1
+        top_list += 8 * m
+        first[node] = base
+        count[node] = -1
+        for c in range(7, -1, -1):
+            st_node[sp] = base + c
+            sp += 1
+    return first[:n_nodes], count[:n_nodes], loc[:n_nodes], level[:n_nodes], lists
+
+
+@njit
+def _finish(first, count, loc, level, lists, collapse, origin, unit):
+    """Collapse single-child chains, renumber the reachable nodes breadth first
+    (children of a node together), gather the leaf lists, find the neighbours."""
+    n = first.shape[0]
+    if collapse:
+        for node in range(n):
+            while count[node] < 0:
+                only = -1
+                solid = 0
+                for c in range(8):
+                    k = first[node] + c
+                    if count[k] != 0:
+                        solid += 1
+                        only = k
+                if solid != 1:
+                    break
+                first[node] = first[only]
+                count[node] = count[only]
+                level[node] = level[only]
+                for a in range(3):
+                    loc[node, a] = loc[only, a]
+    new_id = np.full(n, -1, np.int64)
+    old = np.empty(n, np.int64)
+    slot = np.zeros(n, np.int64)
+    old[0] = 0
+    new_id[0] = 0
+    m = 1
+    q = 0
+    while q < m:
+        node = old[q]
+        q += 1
+        if count[node] < 0:
+            for c in range(8):
+                k = first[node] + c
+                new_id[k] = m
+                old[m] = k
+                slot[m] = level[node] + 1
+                m += 1
+    n_first = np.empty(m, np.int64)
+    n_count = np.empty(m, np.int64)
+    n_loc = np.empty((m, 3), np.int64)
+    n_level = np.empty(m, np.int64)
+    n_slot = slot[:m].copy()
+    n_refs = 0
+    for j in range(m):
+        if count[old[j]] > 0:
+            n_refs += count[old[j]]
+    order = np.empty(n_refs, np.int64)
+    r = 0
+    for j in range(m):
+        node = old[j]
+        n_level[j] = level[node]
+        for a in range(3):
+            n_loc[j, a] = loc[node, a]
+        if count[node] < 0:
+            n_first[j] = new_id[first[node]]
+            n_count[j] = -1
+        else:
+            n_first[j] = r
+            n_count[j] = count[node]
+            for p in range(first[node], first[node] + count[node]):
+                order[r] = lists[p]
+                r += 1
+    bounds = np.empty((m, 6))
+    for j in range(m):
+        side = np.int64(1) << (ADDRESS_BITS - n_level[j])
+        for a in range(3):
+            bounds[j, a] = origin[a] + unit[a] * n_loc[j, a]
+            bounds[j, a + 3] = origin[a] + unit[a] * (n_loc[j, a] + side)
+    # neighbours: descend from the root to the adjacent slot of the same size
+    nbr = np.full((m, 6), -1, np.int64)
+    full = np.int64(1) << ADDRESS_BITS
+    q3 = np.empty(3, np.int64)
+    for j in range(1, m):
+        sh = ADDRESS_BITS - n_slot[j]
+        side = np.int64(1) << sh
+        for wall in range(6):
+            a = wall >> 1
+            for k in range(3):
+                q3[k] = (n_loc[j, k] >> sh) << sh
+            q3[a] += side if wall & 1 else -side
+            if q3[a] < 0 or q3[a] >= full:
+                continue
+            node = 0
+            while n_count[node] < 0 and n_level[node] < n_slot[j]:
+                bsh = ADDRESS_BITS - n_level[node]
+                if ((q3[0] ^ n_loc[node, 0]) | (q3[1] ^ n_loc[node, 1]) | (q3[2] ^ n_loc[node, 2])) >> bsh != 0:
+                    break
+                bit = bsh - 1
+                node = n_first[node] + ((q3[0] >> bit) & 1) + 2 * ((q3[1] >> bit) & 1) + 4 * ((q3[2] >> bit) & 1)
+            nbr[j, wall] = node
+    return n_first, n_count, n_loc, n_level, n_slot, nbr, bounds, order
+
+
+def _check(value, name, lo, hi, kind):
+    if isinstance(value, bool) or not isinstance(value, kind) or not lo <= value <= hi:
+        raise OptionError(f"octree {name} must be {'an integer' if kind is int else 'a number'} in "
+                          f"[{lo}, {hi}], got {value!r}")
+
+
+def build_octree(bounds, *, depth=8, leaf=3, rule60=False, density=0.0, vertexcount=False, weights=None,
+                 collapse=True, name=None):
+    """Build an octree over item boxes (n >= 1 finite boxes; the empty box
+    +inf..-inf is in no leaf). weights: per-item vertex counts, used against
+    `leaf` when vertexcount is on. Returns (OctreeArrays, stats) with stats =
+    {"nodes", "inner", "leaves", "empty_leaves", "refs", "bytes", "seconds", "max_depth"}."""
+    t0 = time.perf_counter()
+    _check(depth, "depth", 0, MAX_DEPTH, int)
+    _check(leaf, "leaf", 1, 1 << 30, int)
+    _check(float(density), "density", 0.0, 1e6, float)
+    items = np.ascontiguousarray(np.asarray(bounds, np.float64)).reshape(-1, 6)
+    solid = np.all(items[:, :3] <= items[:, 3:], axis=1) & np.all(np.isfinite(items), axis=1)
+    if not solid.any():
+        raise ValueError("an octree needs at least one item with a box")
+    origin, extent = grid_box(items[solid])
+    unit = extent / float(1 << ADDRESS_BITS)
+    finest = extent / float(1 << depth)
+    margin = 1e-9 * max(float(extent.max()), float(np.abs(origin).max())) + 1e-7 * finest
+    widened = np.hstack([items[:, :3] - margin, items[:, 3:] + margin])
+    # an item without a box overlaps nothing
+    widened[~solid] = np.array([np.inf] * 3 + [-np.inf] * 3)
+    vols = np.where(solid[:, None], items, 0.0)
+    if vertexcount and weights is not None:
+        w = np.asarray(weights, np.int64)
+    else:
+        w = np.ones(len(items), np.int64)
+    first, count, loc, level, lists = _subdivide(widened, vols, w, origin, unit, int(depth), int(leaf),
+                                                 bool(rule60), float(density))
+    if len(first) > MAX_NODES:
+        raise SceneError(f"group {name or '(unnamed)'}: the octree has {len(first)} nodes, more than the limit "
+                         f"of {MAX_NODES}; lower depth or raise leaf")
+    first, count, loc, level, slot, nbr, nb, order = _finish(first, count, loc, level, lists, bool(collapse),
+                                                             origin, unit)
+    tree = OctreeArrays(origin, unit, first, count, loc, level, slot, nbr, nb, order)
+    leaves = count >= 0
+    stats = {
+        "nodes": int(len(count)),
+        "inner": int(np.count_nonzero(~leaves)),
+        "leaves": int(np.count_nonzero(leaves)),
+        "empty_leaves": int(np.count_nonzero(count == 0)),
+        "refs": int(len(order)),
+        "bytes": int(sum(a.nbytes for a in tree)),
+        "seconds": time.perf_counter() - t0,
+        "max_depth": int(level.max()),
+    }
+    return tree, stats
