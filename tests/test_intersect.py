@@ -270,11 +270,6 @@ def test_exact_ties_go_to_the_smaller_reference():
         assert_same(cast(scene, o, d, tmin, tmax, accel), listed, what=accel)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "box_entry uses 1e300 for 1/0: a ray with a zero direction component lying exactly on a box's "
-    "upper face gets the slab [-huge, 0] and misses the box, but a ray on a lower face gets [0, huge] and "
-    "enters it; the BVH then skips the triangle whose box ends at the ray's plane, and an exact tie on a "
-    "shared edge goes to a larger reference than the list reports"))
 def test_grid_aligned_rays_on_shared_mesh_edges_tie_like_list():
     n = 8
     xs = np.arange(n + 1) / n

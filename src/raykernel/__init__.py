@@ -10,6 +10,7 @@ from .errors import OptionError, RayKernelError, SceneError
 from .jsonscene import read_json, write_json
 from .loading import load
 from .nff import parse_nff, read_nff, write_nff
+from .rayscene import Hits, RayInputError, RayScene
 from .render import RenderResult, render
 from .scene import Camera, Cones, Group, Instance, Light, Material, Polygons, Scene, Spheres, TriangleMesh
 
@@ -18,5 +19,5 @@ __version__ = "0.1.0"
 __all__ = [
     "Camera", "Cones", "Group", "Instance", "Light", "Material", "Polygons", "Scene", "Spheres",
     "TriangleMesh", "OptionError", "RayKernelError", "SceneError", "load", "render", "RenderResult",
-    "read_nff", "parse_nff", "write_nff", "read_json", "write_json",
+    "read_nff", "parse_nff", "write_nff", "read_json", "write_json", "RayScene", "Hits", "RayInputError",
 ]

@@ -145,25 +145,74 @@ def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, 
 
 
 @njit(inline="always")
+def _edge_sign(px, py, qx, qy):
+    """Side of the ray (the origin of the sheared plane) relative to the
+    directed edge p -> q: the sign of p x q, and where that is exactly 0 the
+    sign it takes for the origin nudged to (eps, eps^2). The rule is
+    antisymmetric (q -> p gives the opposite sign, bit for bit), so the two
+    triangles of a shared edge never both claim, nor both drop, a ray
+    through it; at a shared vertex exactly one triangle of the fan claims it."""
+    e = px * qy - py * qx
+    if e != 0.0:
+        return e, (1 if e > 0.0 else -1)
+    if py != qy:
+        return e, (1 if py > qy else -1)
+    if qx != px:
+        return e, (1 if qx > px else -1)
+    return e, 0
+
+
+@njit(inline="always")
 def hit_triangle(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Moller-Trumbore in double precision; edges shared by two triangles
-    may be reported by either (the closest-hit tie rule picks one)."""
-    e1x, e1y, e1z = v1x - v0x, v1y - v0y, v1z - v0z
-    e2x, e2y, e2z = v2x - v0x, v2y - v0y, v2z - v0z
-    px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
-    det = e1x * px + e1y * py + e1z * pz
+    """Watertight ray/triangle test (Woop, Benthin and Wald 2013) in double
+    precision, two-sided. The vertices are moved to the ray origin, permuted
+    so that the ray's dominant axis is z, and sheared so that the ray runs
+    along +z; the 2D edge functions of a shared edge are then computed from
+    the same numbers in both triangles. An edge function that is exactly 0
+    is resolved by a consistent tie rule (_edge_sign) instead of the paper's
+    fallback to higher precision, so a ray through a shared edge or vertex of
+    a closed mesh hits exactly one of the triangles there."""
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    # permute: kz the dominant axis, (kx, ky) keeps the winding for dz > 0
+    if ax >= ay and ax >= az:
+        rz, rx, ry = dx, dy, dz
+        pz0, px0, py0 = v0x - ox, v0y - oy, v0z - oz
+        pz1, px1, py1 = v1x - ox, v1y - oy, v1z - oz
+        pz2, px2, py2 = v2x - ox, v2y - oy, v2z - oz
+    elif ay >= az:
+        rz, rx, ry = dy, dz, dx
+        pz0, px0, py0 = v0y - oy, v0z - oz, v0x - ox
+        pz1, px1, py1 = v1y - oy, v1z - oz, v1x - ox
+        pz2, px2, py2 = v2y - oy, v2z - oz, v2x - ox
+    else:
+        rz, rx, ry = dz, dx, dy
+        pz0, px0, py0 = v0z - oz, v0x - ox, v0y - oy
+        pz1, px1, py1 = v1z - oz, v1x - ox, v1y - oy
+        pz2, px2, py2 = v2z - oz, v2x - ox, v2y - oy
+    if rz == 0.0:
+        return INF
+    if rz < 0.0:
+        rx, ry = ry, rx
+        px0, py0 = py0, px0
+        px1, py1 = py1, px1
+        px2, py2 = py2, px2
+    sx = rx / rz
+    sy = ry / rz
+    sz = 1.0 / rz
+    # shear: the ray becomes the +z axis through the origin
+    ax0, ay0 = px0 - sx * pz0, py0 - sy * pz0
+    ax1, ay1 = px1 - sx * pz1, py1 - sy * pz1
+    ax2, ay2 = px2 - sx * pz2, py2 - sy * pz2
+    # edge functions: u weighs v0 (edge v1 -> v2), v weighs v1, w weighs v2
+    u, su = _edge_sign(ax1, ay1, ax2, ay2)
+    v, sv = _edge_sign(ax2, ay2, ax0, ay0)
+    w, sw = _edge_sign(ax0, ay0, ax1, ay1)
+    if su == 0 or su != sv or su != sw:
+        return INF
+    det = u + v + w
     if det == 0.0:
         return INF
-    inv = 1.0 / det
-    sx, sy, sz = ox - v0x, oy - v0y, oz - v0z
-    u = (sx * px + sy * py + sz * pz) * inv
-    if u < 0.0 or u > 1.0:
-        return INF
-    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
-    v = (dx * qx + dy * qy + dz * qz) * inv
-    if v < 0.0 or u + v > 1.0:
-        return INF
-    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    t = (u * pz0 + v * pz1 + w * pz2) * sz / det
     if tmin <= t <= tmax:
         return t
     return INF

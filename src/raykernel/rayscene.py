@@ -1,0 +1,437 @@
+"""Ray casting against your own geometry: numpy arrays in, numpy arrays out.
+
+    scene = RayScene.from_mesh(vertices, faces)          # built once
+    hits = scene.intersect(origins, directions)          # closest hits: hits.t, hits.prim_id, hits.normal ...
+    blocked = scene.occluded(origins, directions, tmax=1.0)
+    ray, t, prim = scene.intersect_all(origins, directions)
+
+Rays are rows of (N, 3) arrays (a single (3,) row is broadcast against the
+other argument); directions need not be unit length, t is measured in units
+of the direction given. Every query runs the one traversal of traverse.py,
+in parallel over chunks of rays, with watertight ray/triangle tests.
+
+Identities of a hit:
+
+* `geom_id`: the primitive kind (SPHERE 0, POLYGON 1, PATCH 2, CONE 3,
+  TRIANGLE 4), -1 on a miss. A RayScene from one mesh has geom_id 4 on
+  every hit, one from spheres 0.
+* `prim_id`: the index within that kind's global numbering, in the order
+  flatten() builds the arrays; for a RayScene from one mesh it is the face
+  index, for spheres the sphere index. -1 on a miss.
+* `inst_id`: the innermost Instance the primitive was reached through
+  (instances numbered in flatten order), -1 outside instances.
+
+Geometry is stored in float64 whatever the input dtype: float32 vertices are
+widened exactly, and the intersection and traversal arithmetic stays in
+double precision, so that hits stay exact (watertight, t to ~1e-16
+relative) on scenes spanning 1e7 in scale, where float32 (7 digits) would
+already round a vertex by more than the smallest feature.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import prange
+
+from . import counters as C
+from .config import njit
+from .errors import RayKernelError
+from .flatten import GRID, flatten
+from .primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
+from .render import surface
+from .scene import Scene, TriangleMesh
+from .traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
+
+CHUNK = 1024
+CLOSEST, ANY = 0, 1
+
+
+class RayInputError(RayKernelError, ValueError):
+    """Rays or geometry given to RayScene are not valid; the message names the argument."""
+
+
+@dataclass
+class Hits:
+    """Closest hits of a batch of N rays (one row per ray)."""
+
+    t: np.ndarray               # (N,) ray parameter of the hit, inf on a miss
+    prim_id: np.ndarray         # (N,) index within the primitive kind (face index for a mesh), -1 on a miss
+    geom_id: np.ndarray         # (N,) primitive kind (0 sphere, 1 polygon, 2 patch, 3 cone, 4 triangle), -1
+    inst_id: np.ndarray         # (N,) innermost instance, -1 outside instances or on a miss
+    uv: np.ndarray              # (N, 2) triangles: barycentric (p = (1-u-v) v0 + u v1 + v v2);
+    #                             spheres: (longitude / 2pi, colatitude / pi) in the sphere's frame;
+    #                             cones: (angle around the axis / 2pi, height / length); NaN otherwise
+    normal: np.ndarray          # (N, 3) unit geometric normal in world space (winding / outward), NaN on a miss
+    shading_normal: np.ndarray  # (N, 3) unit interpolated normal (vertex normals, patches), else = normal
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def hit(self) -> np.ndarray:
+        return np.isfinite(self.t)
+
+
+# ----------------------------------------------------------------- kernel
+
+@njit(inline="always")
+def _unit(x, y, z):
+    n = math.sqrt(x * x + y * y + z * z)
+    if n == 0.0:
+        return 0.0, 0.0, 0.0
+    return x / n, y / n, z / n
+
+
+@njit(inline="always")
+def _surface_uv(geo, kind, idx, px, py, pz):
+    """(u, v) of local point p on primitive (kind, idx)."""
+    if kind == TRIANGLE:
+        f = geo.tri_faces
+        v = geo.tri_verts
+        a, b, c = f[idx, 0], f[idx, 1], f[idx, 2]
+        e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        area = gx * gx + gy * gy + gz * gz
+        wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
+        cx, cy, cz = wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x
+        dx, dy, dz = e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx
+        return (cx * gx + cy * gy + cz * gz) / area, (dx * gx + dy * gy + dz * gz) / area
+    if kind == SPHERE:
+        x, y, z = _unit(px - geo.sph_center[idx, 0], py - geo.sph_center[idx, 1], pz - geo.sph_center[idx, 2])
+        u = math.atan2(y, x) / (2.0 * math.pi)
+        if u < 0.0:
+            u += 1.0
+        return u, math.acos(min(1.0, max(-1.0, z))) / math.pi
+    if kind == CONE:
+        ax, ay, az = geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2]
+        wx, wy, wz = px - geo.cone_base[idx, 0], py - geo.cone_base[idx, 1], pz - geo.cone_base[idx, 2]
+        s = wx * ax + wy * ay + wz * az
+        # a frame across the axis: e1 = axis x (the coordinate axis least aligned with it)
+        if abs(ax) <= abs(ay) and abs(ax) <= abs(az):
+            e1x, e1y, e1z = _unit(0.0, az, -ay)
+        elif abs(ay) <= abs(az):
+            e1x, e1y, e1z = _unit(-az, 0.0, ax)
+        else:
+            e1x, e1y, e1z = _unit(ay, -ax, 0.0)
+        e2x, e2y, e2z = ay * e1z - az * e1y, az * e1x - ax * e1z, ax * e1y - ay * e1x
+        u = math.atan2(wx * e2x + wy * e2y + wz * e2z, wx * e1x + wy * e1y + wz * e1z) / (2.0 * math.pi)
+        if u < 0.0:
+            u += 1.0
+        return u, s / geo.cone_length[idx]
+    return np.nan, np.nan
+
+
+@njit(parallel=True)
+def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, idx_out, inst_out,
+           uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters):
+    """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray.
+    Closest/any fill t/kind/idx/inst (and uv, normals when with_surface).
+    All hits: with len(offsets) == 0 only counts them into idx_out; else
+    writes ray r's hits to rows offsets[r] .. offsets[r + 1] of all_t/all_i."""
+    n = origins.shape[0]
+    n_chunks = (n + chunk - 1) // chunk
+    store = offsets.shape[0] > 0
+    for ci in prange(n_chunks):
+        c = np.int64(ci)
+        r0 = c * chunk
+        r1 = min(n, (c + 1) * chunk)
+        ws0 = workspace()
+        cap = 0
+        if mode == ALL_HITS and store:
+            for r in range(r0, r1):
+                cap = max(cap, offsets[r + 1] - offsets[r])
+        hit_f = np.zeros(HIT_F + cap)
+        hit_i = np.zeros(HIT_I + 3 * cap, np.int64)
+        ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i)
+        cnt = np.zeros(C.N_COUNTERS, np.int64)
+        for r in range(r0, r1):
+            cnt[C.RAYS_CAST] += 1
+            ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+            dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+            if mode == ALL_HITS:
+                hit_i[0] = 0
+                intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt)
+                k = hit_i[0]
+                if store:
+                    base = offsets[r]
+                    for j in range(min(k, offsets[r + 1] - base)):
+                        all_t[base + j] = hit_f[HIT_F + j]
+                        all_i[base + j, 0] = hit_i[HIT_I + 3 * j]
+                        all_i[base + j, 1] = hit_i[HIT_I + 3 * j + 1]
+                        all_i[base + j, 2] = hit_i[HIT_I + 3 * j + 2]
+                else:
+                    idx_out[r] = k
+                continue
+            if not intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt):
+                t_out[r] = np.inf
+                kind_out[r] = -1
+                idx_out[r] = -1
+                inst_out[r] = -1
+                if with_surface:
+                    uv_out[r, 0] = uv_out[r, 1] = np.nan
+                    for k in range(3):
+                        gn_out[r, k] = np.nan
+                        sn_out[r, k] = np.nan
+                continue
+            t = hit_f[0]
+            kind = hit_i[0]
+            idx = hit_i[1]
+            t_out[r] = t
+            kind_out[r] = kind
+            idx_out[r] = idx
+            inst_out[r] = hit_i[2]
+            if not with_surface:
+                continue
+            # the hit point in the primitive's own frame; normals back by the transpose
+            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+            m = hit_f[1:13]
+            lx = m[0] * px + m[1] * py + m[2] * pz + m[3]
+            ly = m[4] * px + m[5] * py + m[6] * pz + m[7]
+            lz = m[8] * px + m[9] * py + m[10] * pz + m[11]
+            gx, gy, gz, sx, sy, sz, _ = surface(geo, kind, idx, lx, ly, lz)
+            gx, gy, gz = _unit(m[0] * gx + m[4] * gy + m[8] * gz, m[1] * gx + m[5] * gy + m[9] * gz,
+                               m[2] * gx + m[6] * gy + m[10] * gz)
+            sx, sy, sz = _unit(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
+                               m[2] * sx + m[6] * sy + m[10] * sz)
+            if sx == 0.0 and sy == 0.0 and sz == 0.0:
+                sx, sy, sz = gx, gy, gz
+            gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz
+            sn_out[r, 0], sn_out[r, 1], sn_out[r, 2] = sx, sy, sz
+            u, v = _surface_uv(geo, kind, idx, lx, ly, lz)
+            uv_out[r, 0] = u
+            uv_out[r, 1] = v
+        for k in range(C.N_COUNTERS):
+            counters[c, k] = cnt[k]
+
+
+# ----------------------------------------------------------------- input checks
+
+def _real_array(value, name: str) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise RayInputError(f"{name} must be an array of real numbers, got dtype {arr.dtype}")
+    return arr.astype(np.float64, copy=False)
+
+
+def _vectors(value, name: str) -> np.ndarray:
+    arr = _real_array(value, name)
+    if arr.ndim == 1 and arr.shape[0] == 3:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise RayInputError(f"{name} must have shape (N, 3) or (3,), got {arr.shape}")
+    bad = ~np.all(np.isfinite(arr), axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise RayInputError(f"{name}[{i}] is not finite: {arr[i].tolist()}")
+    return arr
+
+
+def _interval(value, name: str, n: int) -> np.ndarray:
+    arr = _real_array(value, name)
+    if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != n):
+        raise RayInputError(f"{name} must be a number or have shape ({n},), got {arr.shape}")
+    if np.isnan(arr).any():
+        i = int(np.flatnonzero(np.isnan(np.atleast_1d(arr)))[0])
+        raise RayInputError(f"{name}[{i}] is NaN")
+    return np.ascontiguousarray(np.broadcast_to(arr, (n,)))
+
+
+def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
+    """Validated float64 copies: origins (N, 3), directions (N, 3), tmin (N,), tmax (N,)."""
+    o = _vectors(origins, "origins")
+    d = _vectors(directions, "directions")
+    if len(o) != len(d):
+        if len(o) == 1:
+            o = np.broadcast_to(o, d.shape)
+        elif len(d) == 1:
+            d = np.broadcast_to(d, o.shape)
+        else:
+            raise RayInputError(f"origins and directions differ in length: {len(o)} vs {len(d)}")
+    zero = ~np.any(d != 0.0, axis=1)
+    if zero.any():
+        raise RayInputError(f"directions[{int(np.flatnonzero(zero)[0])}] has zero length")
+    n = len(o)
+    lo = _interval(tmin, "tmin", n)
+    hi = _interval(tmax, "tmax", n)
+    bad = lo > hi
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise RayInputError(f"tmin > tmax for ray {i}: {lo[i]} > {hi[i]}")
+    return np.ascontiguousarray(o), np.ascontiguousarray(d), lo, hi
+
+
+# ----------------------------------------------------------------- the scene
+
+class RayScene:
+    """Geometry built once into flat arrays and aggregates, queried with batches of rays.
+
+    Build with from_mesh, from_spheres or from_scene. Queries take origins and
+    directions ((N, 3) or (3,), any real dtype) and optional tmin/tmax (numbers
+    or (N,) arrays); a hit counts when tmin <= t <= tmax. Invalid input raises
+    RayInputError (a ValueError) naming the argument. After each query,
+    `last_stats` holds the counters of that query (rays.cast, tests.triangle,
+    bounds.tests, cells.visited, ...) and its time.trace in seconds.
+    """
+
+    SPHERE, POLYGON, PATCH, CONE, TRIANGLE = SPHERE, POLYGON, PATCH, CONE, TRIANGLE
+
+    def __init__(self, scene: Scene, accel: str = "bvh"):
+        if not isinstance(scene, Scene):
+            raise RayInputError(f"scene must be a raykernel Scene, got {type(scene).__name__}")
+        self.scene = scene
+        self.geo, self.build_stats = flatten(scene, accel)
+        # a primitive can be met twice along a ray only through grid cells or a group nested twice
+        self._may_repeat = bool(np.any(self.geo.agg_kind == GRID)) or len(self.geo.agg_kind) > 1
+        self.last_stats: dict = {}
+
+    @classmethod
+    def from_mesh(cls, vertices, faces, normals=None, accel: str = "bvh") -> "RayScene":
+        """A triangle mesh: vertices (V, 3) float32/float64, faces (F, 3) integer vertex
+        indices, optional per-vertex normals (V, 3) for shading_normal."""
+        v = _real_array(vertices, "vertices")
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise RayInputError(f"vertices must have shape (V, 3), got {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise RayInputError(f"vertices[{int(np.flatnonzero(~np.all(np.isfinite(v), axis=1))[0])}] is not finite")
+        f = np.asarray(faces)
+        if not np.issubdtype(f.dtype, np.integer):
+            raise RayInputError(f"faces must be integer vertex indices, got dtype {f.dtype}")
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise RayInputError(f"faces must have shape (F, 3), got {f.shape}")
+        if len(f) and (f.min() < 0 or f.max() >= len(v)):
+            raise RayInputError(f"faces refer to vertex {int(f.max() if f.max() >= len(v) else f.min())}, "
+                                f"but there are {len(v)} vertices")
+        n = None
+        if normals is not None:
+            n = _real_array(normals, "normals")
+            if n.shape != v.shape:
+                raise RayInputError(f"normals must have the shape of vertices {v.shape}, got {n.shape}")
+            if not np.all(np.isfinite(n)):
+                raise RayInputError("normals must be finite")
+        scene = Scene()
+        scene.root.add(TriangleMesh(v, f.astype(np.int64), normals=n))
+        return cls(scene, accel)
+
+    @classmethod
+    def from_spheres(cls, centers, radii, accel: str = "bvh") -> "RayScene":
+        """Spheres: centers (N, 3), radii (N,) or one number, finite and positive."""
+        c = _real_array(centers, "centers")
+        if c.ndim == 1 and c.shape[0] == 3:
+            c = c[None, :]
+        if c.ndim != 2 or c.shape[1] != 3:
+            raise RayInputError(f"centers must have shape (N, 3), got {c.shape}")
+        r = _real_array(radii, "radii")
+        if r.ndim > 1 or (r.ndim == 1 and len(r) != len(c)):
+            raise RayInputError(f"radii must be a number or have shape ({len(c)},), got {r.shape}")
+        r = np.broadcast_to(r, (len(c),)).copy()
+        if not np.all(np.isfinite(c)):
+            raise RayInputError("centers must be finite")
+        if not np.all(np.isfinite(r) & (r > 0)):
+            raise RayInputError(f"radii[{int(np.flatnonzero(~(np.isfinite(r) & (r > 0)))[0])}] must be finite "
+                                "and positive")
+        scene = Scene()
+        sph = scene.root.spheres
+        sph.center, sph.radius, sph.material = c.copy(), r, np.zeros(len(c), np.int32)
+        return cls(scene, accel)
+
+    @classmethod
+    def from_scene(cls, scene: Scene, accel: str = "bvh") -> "RayScene":
+        """Any scene model (loaded NFF/JSON, SPD generator, pathological scenes):
+        all its primitive kinds, nested groups and instances; `accel` is the
+        default for groups without their own spec."""
+        return cls(scene, accel)
+
+    # ------------------------------------------------------------- queries
+
+    def _run(self, mode, o, d, lo, hi, with_surface=False, offsets=None, all_t=None, all_i=None):
+        n = len(o)
+        t = np.empty(n)
+        kind = np.empty(n, np.int64)
+        idx = np.empty(n, np.int64)
+        inst = np.empty(n, np.int64)
+        m = n if with_surface else 0
+        uv, gn, sn = np.empty((m, 2)), np.empty((m, 3)), np.empty((m, 3))
+        offsets = np.zeros(0, np.int64) if offsets is None else offsets
+        all_t = np.zeros(0) if all_t is None else all_t
+        all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
+        counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
+        start = time.perf_counter()
+        if n:
+            _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv, gn, sn,
+                   with_surface, offsets, all_t, all_i, counters)
+        seconds = time.perf_counter() - start
+        totals = counters.sum(axis=0)
+        stats = {name: int(totals[k]) for k, name in C.NAMES.items() if totals[k]}
+        stats["rays.cast"] = n
+        stats["time.trace"] = seconds
+        return t, kind, idx, inst, uv, gn, sn, stats
+
+    def intersect(self, origins, directions, tmin=0.0, tmax=np.inf) -> Hits:
+        """Closest hit of every ray in [tmin, tmax]. Ties at equal t go to the
+        smaller (geom_id, prim_id, inst_id), whatever the traversal order."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        t, kind, idx, inst, uv, gn, sn, stats = self._run(CLOSEST, o, d, lo, hi, with_surface=True)
+        self.last_stats = stats
+        return Hits(t=t, prim_id=idx, geom_id=kind, inst_id=inst, uv=uv, normal=gn, shading_normal=sn)
+
+    def occluded(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+        """True where the ray meets anything in [tmin, tmax] (stops at the first hit found)."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        t, *_, stats = self._run(ANY, o, d, lo, hi)
+        self.last_stats = stats
+        return np.isfinite(t)
+
+    def _all(self, o, d, lo, hi):
+        _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+        offsets = np.zeros(len(o) + 1, np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        all_t = np.empty(offsets[-1])
+        all_i = np.empty((offsets[-1], 3), np.int64)
+        *_, stats2 = self._run(ALL_HITS, o, d, lo, hi, offsets=offsets, all_t=all_t, all_i=all_i)
+        for k, v in stats2.items():
+            stats[k] = stats.get(k, 0) + v
+        stats["rays.cast"] = len(o)
+        ray = np.repeat(np.arange(len(o), dtype=np.int64), counts)
+        order = np.lexsort((all_i[:, 2], all_i[:, 1], all_i[:, 0], all_t, ray))
+        ray, all_t, all_i = ray[order], all_t[order], all_i[order]
+        if self._may_repeat and len(ray) > 1:
+            # the same primitive met again in a later grid cell: same ray, t and identity
+            keep = np.ones(len(ray), bool)
+            keep[1:] = (ray[1:] != ray[:-1]) | (all_t[1:] != all_t[:-1]) | np.any(all_i[1:] != all_i[:-1], axis=1)
+            ray, all_t, all_i = ray[keep], all_t[keep], all_i[keep]
+        return ray, all_t, all_i, counts, stats
+
+    def intersect_all(self, origins, directions, tmin=0.0, tmax=np.inf, ids: bool = False):
+        """Every primitive each ray meets in [tmin, tmax], once, at its first
+        crossing in the interval (a sphere the ray passes through counts once,
+        where it enters): (ray_index, t, prim_id) sorted by ray, then t, then
+        (geom_id, prim_id, inst_id). With ids=True also geom_id and inst_id.
+        A ray through a shared edge or vertex of a mesh meets exactly one of
+        the triangles there (watertight tests)."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        ray, t, ident, _, stats = self._all(o, d, lo, hi)
+        self.last_stats = stats
+        if ids:
+            return ray, t, ident[:, 1].copy(), ident[:, 0].copy(), ident[:, 2].copy()
+        return ray, t, ident[:, 1].copy()
+
+    def count_hits(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+        """Number of primitives each ray meets in [tmin, tmax] (the lengths of intersect_all's lists)."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        if self._may_repeat:
+            ray, _, _, _, stats = self._all(o, d, lo, hi)
+            counts = np.bincount(ray, minlength=len(o)).astype(np.int64)
+        else:
+            _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+        self.last_stats = stats
+        return counts
+
+    def __repr__(self) -> str:
+        g = self.geo
+        return (f"RayScene({len(g.tri_faces)} triangles, {len(g.sph_radius)} spheres, {len(g.poly_start)} polygons, "
+                f"{len(g.cone_length)} cones, {len(g.inst_agg)} instances)")

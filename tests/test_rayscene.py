@@ -1,0 +1,228 @@
+"""RayScene: every query against the brute-force reference, input checks, hand-computed surfaces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from raykernel import Group, Instance, RayInputError, RayScene, Scene, TriangleMesh
+from raykernel.primitives import SPHERE, TRIANGLE
+from reference import all_hits, world_primitives
+
+
+def random_mesh(rng, n=150):
+    v = rng.uniform(-1, 1, (3 * n, 3))
+    return v, np.arange(3 * n).reshape(-1, 3)
+
+
+def random_rays(rng, n=400, extent=2.0):
+    o = rng.uniform(-extent, extent, (n, 3))
+    target = rng.uniform(-1, 1, (n, 3))
+    return o, target - o
+
+
+def reference_hits(scene: RayScene, o, d, tmin=0.0, tmax=np.inf):
+    """(n_prims, n_rays) t of every primitive, and the primitives' (kind, index, instance)."""
+    prims = world_primitives(scene.scene)
+    t = all_hits(prims, o, d, tmin, tmax).astype(float)
+    ident = np.array([(p.kind, p.index, p.instance) for p in prims], np.int64).reshape(-1, 3)
+    return t, ident
+
+
+def check_all_queries(scene, o, d, tmin=0.0, tmax=np.inf):
+    t_ref, ident = reference_hits(scene, o, d, tmin, tmax)
+    best = np.argmin(t_ref, axis=0)
+    t_best = t_ref[best, np.arange(len(o))]
+    hit = np.isfinite(t_best)
+    assert hit.sum() > 20 and (~hit).sum() > 5
+    h = scene.intersect(o, d, tmin, tmax)
+    np.testing.assert_allclose(h.t, t_best, rtol=1e-9)
+    assert np.all(h.prim_id[~hit] == -1) and np.all(h.geom_id[~hit] == -1)
+    # identities where the closest hit is not a near tie
+    t_sorted = np.sort(t_ref, axis=0)
+    clear = hit & ((t_sorted[1] - t_sorted[0]) > 1e-9 * np.abs(t_sorted[0]) + 1e-12)
+    assert np.array_equal(h.geom_id[clear], ident[best[clear], 0])
+    assert np.array_equal(h.prim_id[clear], ident[best[clear], 1])
+    assert np.array_equal(h.inst_id[clear], ident[best[clear], 2])
+    np.testing.assert_allclose(np.linalg.norm(h.normal[hit], axis=1), 1.0, rtol=1e-12)
+    assert np.all(np.isnan(h.normal[~hit]))
+    # occluded equals "the closest hit lies in [tmin, tmax]"
+    assert np.array_equal(scene.occluded(o, d, tmin, tmax), hit)
+    # count_hits and intersect_all against the per-ray lists of the reference
+    counts = np.isfinite(t_ref).sum(axis=0)
+    assert np.array_equal(scene.count_hits(o, d, tmin, tmax), counts)
+    ray, t, prim, geom, inst = scene.intersect_all(o, d, tmin, tmax, ids=True)
+    r_ref, p_ref = np.nonzero(np.isfinite(t_ref.T))
+    tt = t_ref.T[r_ref, p_ref]
+    order = np.lexsort((ident[p_ref, 2], ident[p_ref, 1], ident[p_ref, 0], tt, r_ref))
+    assert np.array_equal(ray, r_ref[order])
+    np.testing.assert_allclose(t, tt[order], rtol=1e-9)
+    assert np.array_equal(prim, ident[p_ref[order], 1])
+    assert np.array_equal(geom, ident[p_ref[order], 0])
+    assert np.array_equal(inst, ident[p_ref[order], 2])
+    assert np.array_equal(np.bincount(ray, minlength=len(o)), counts)
+    assert np.all((np.diff(ray) > 0) | ((np.diff(ray) == 0) & (np.diff(t) >= 0)))
+    return h
+
+
+@pytest.mark.parametrize("accel", ["bvh", "grid", "list"])
+def test_random_mesh_all_queries(accel):
+    rng = np.random.default_rng(1)
+    v, f = random_mesh(rng)
+    scene = RayScene.from_mesh(v, f, accel=accel)
+    o, d = random_rays(rng)
+    h = check_all_queries(scene, o, d)
+    assert np.all(h.geom_id[np.isfinite(h.t)] == TRIANGLE)
+    assert scene.last_stats["rays.cast"] == len(o)
+    assert scene.last_stats["tests.triangle"] > 0
+
+
+def test_random_mesh_with_intervals():
+    rng = np.random.default_rng(2)
+    v, f = random_mesh(rng)
+    scene = RayScene.from_mesh(v, f)
+    o, d = random_rays(rng)
+    tmin = rng.uniform(0, 0.5, len(o))
+    tmax = tmin + rng.uniform(0, 1.0, len(o))
+    check_all_queries(scene, o, d, tmin, tmax)
+
+
+def test_random_spheres_all_queries():
+    rng = np.random.default_rng(3)
+    c = rng.uniform(-1, 1, (80, 3))
+    r = rng.uniform(0.02, 0.2, 80)
+    scene = RayScene.from_spheres(c, r)
+    o, d = random_rays(rng)
+    h = check_all_queries(scene, o, d)
+    assert np.all(h.geom_id[np.isfinite(h.t)] == SPHERE)
+
+
+def test_scene_with_instances():
+    rng = np.random.default_rng(4)
+    v, f = random_mesh(rng, 40)
+    g = Group(name="part", accel="bvh")
+    g.add(TriangleMesh(v * 0.5, f))
+    g.spheres.add((0.2, 0.1, 0.0), 0.3)
+    scene = Scene()
+    m = np.eye(4)
+    m[:3, 3] = (0.6, 0.0, 0.1)
+    scene.root.add(Instance(g, m))
+    m2 = np.eye(4)
+    m2[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
+    m2[:3, 3] = (-0.5, 0.2, -0.3)
+    scene.root.add(Instance(g, m2))
+    rs = RayScene.from_scene(scene)
+    o, d = random_rays(rng)
+    h = check_all_queries(rs, o, d)
+    assert set(h.inst_id[np.isfinite(h.t)]) == {0, 1}
+
+
+def test_hand_computed_triangle_surface():
+    v = np.array([(0, 0, 0), (2, 0, 0), (0, 2, 0)], float)
+    n = np.array([(0, 0, 1), (1, 0, 1), (0, 1, 1)], float)
+    scene = RayScene.from_mesh(v, [(0, 1, 2)], normals=n)
+    h = scene.intersect([(0.5, 0.25, 1.0), (0.5, 0.25, -3.0)], [(0, 0, -1), (0, 0, 2)])
+    np.testing.assert_allclose(h.t, [1.0, 1.5])
+    np.testing.assert_allclose(h.uv, [(0.25, 0.125)] * 2)
+    np.testing.assert_allclose(h.normal, [(0, 0, 1)] * 2)
+    # shading normal: 0.625 n0 + 0.25 n1 + 0.125 n2 = (0.25, 0.125, 1), normalised
+    s = np.array([0.25, 0.125, 1.0])
+    np.testing.assert_allclose(h.shading_normal, [s / np.linalg.norm(s)] * 2)
+    assert h.prim_id.tolist() == [0, 0] and h.geom_id.tolist() == [TRIANGLE] * 2
+    # flat mesh: shading normal = geometric normal; reversed winding flips it
+    flat = RayScene.from_mesh(v, [(0, 2, 1)]).intersect((0.5, 0.25, 1.0), (0, 0, -1))
+    np.testing.assert_allclose(flat.normal, [(0, 0, -1)])
+    np.testing.assert_allclose(flat.shading_normal, [(0, 0, -1)])
+
+
+def test_hand_computed_sphere_surface():
+    scene = RayScene.from_spheres([(1.0, 0.0, 0.0)], 2.0)
+    h = scene.intersect([(1, 0, 5), (6, 0, 0), (1, -7, 0)], [(0, 0, -1), (-2, 0, 0), (0, 1, 0)])
+    np.testing.assert_allclose(h.t, [3.0, 1.5, 5.0])
+    np.testing.assert_allclose(h.normal, [(0, 0, 1), (1, 0, 0), (0, -1, 0)], atol=1e-15)
+    np.testing.assert_allclose(h.uv[:, 1], [0.0, 0.5, 0.5], atol=1e-12)
+    np.testing.assert_allclose(h.uv[1:, 0], [0.0, 0.75], atol=1e-12)
+    np.testing.assert_allclose(h.shading_normal, h.normal)
+    # from inside: the far side, normal still outward
+    h = scene.intersect((1, 0, 0), (0, 0, 1))
+    np.testing.assert_allclose(h.t, [2.0])
+    np.testing.assert_allclose(h.normal, [(0, 0, 1)])
+
+
+def test_float32_geometry_and_rays():
+    rng = np.random.default_rng(5)
+    v, f = random_mesh(rng)
+    v32 = v.astype(np.float32)
+    o, d = random_rays(rng)
+    a = RayScene.from_mesh(v32, f.astype(np.int32)).intersect(o.astype(np.float32), d.astype(np.float32))
+    b = RayScene.from_mesh(v32.astype(np.float64), f).intersect(o.astype(np.float32).astype(float),
+                                                                d.astype(np.float32).astype(float))
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.prim_id, b.prim_id)
+
+
+def test_single_ray_and_broadcast_origin():
+    scene = RayScene.from_spheres([(0, 0, 0)], 1.0)
+    assert scene.intersect((0, 0, 5), (0, 0, -1)).t.tolist() == [4.0]
+    h = scene.intersect((0, 0, 5), [(0, 0, -1), (0, 0, 1), (0, 0, -2)])
+    assert h.t.tolist() == [4.0, np.inf, 2.0]
+    assert scene.count_hits((0, 0, 5), (0, 0, -1)).tolist() == [1]
+    assert scene.occluded((0, 0, 5), (0, 0, -1), tmax=3.9).tolist() == [False]
+    assert scene.occluded((0, 0, 5), (0, 0, -1), tmax=4.0).tolist() == [True]
+
+
+def test_empty_batch():
+    scene = RayScene.from_spheres([(0, 0, 0)], 1.0)
+    h = scene.intersect(np.zeros((0, 3)), np.zeros((0, 3)))
+    assert len(h) == 0
+    ray, t, prim = scene.intersect_all(np.zeros((0, 3)), np.zeros((0, 3)))
+    assert len(ray) == len(t) == len(prim) == 0
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(origins=np.zeros((4, 2)), directions=np.ones((4, 3))), r"origins must have shape"),
+    (dict(origins=np.zeros((4, 3)), directions=np.ones((5, 3))), r"origins and directions differ"),
+    (dict(origins=np.zeros((4, 3)), directions=np.ones((4, 3, 1))), r"directions must have shape"),
+    (dict(origins=[(0, 0, np.nan)], directions=[(0, 0, 1)]), r"origins\[0\] is not finite"),
+    (dict(origins=[(0, 0, 0)], directions=[(0, np.inf, 1)]), r"directions\[0\] is not finite"),
+    (dict(origins=np.zeros((2, 3)), directions=[(0, 0, 1), (0, 0, 0)]), r"directions\[1\] has zero length"),
+    (dict(origins=[(0, 0, 0)], directions=[(0, 0, 1)], tmin=2.0, tmax=1.0), r"tmin > tmax"),
+    (dict(origins=[(0, 0, 0)], directions=[(0, 0, 1)], tmin=np.nan), r"tmin\[0\] is NaN"),
+    (dict(origins=[(0, 0, 0)], directions=[(0, 0, 1)], tmax=[1.0, 2.0]), r"tmax must be a number or have shape"),
+    (dict(origins=np.array([["a", "b", "c"]]), directions=[(0, 0, 1)]), r"origins must be an array of real"),
+    (dict(origins=[(0, 0, 0)], directions=np.array([(0, 0, 1j)])), r"directions must be an array of real"),
+])
+@pytest.mark.parametrize("query", ["intersect", "occluded", "count_hits", "intersect_all"])
+def test_ray_input_errors(kwargs, match, query):
+    scene = RayScene.from_spheres([(0, 0, 0)], 1.0)
+    with pytest.raises(ValueError, match=match):
+        getattr(scene, query)(**kwargs)
+    with pytest.raises(RayInputError):
+        getattr(scene, query)(**kwargs)
+
+
+@pytest.mark.parametrize("build, match", [
+    (lambda: RayScene.from_mesh(np.zeros((3, 2)), [(0, 1, 2)]), r"vertices must have shape"),
+    (lambda: RayScene.from_mesh(np.zeros((3, 3)), [(0, 1, 3)]), r"faces refer to vertex 3"),
+    (lambda: RayScene.from_mesh(np.zeros((3, 3)), [(0.0, 1.0, 2.0)]), r"faces must be integer"),
+    (lambda: RayScene.from_mesh(np.full((3, 3), np.nan), [(0, 1, 2)]), r"vertices\[0\] is not finite"),
+    (lambda: RayScene.from_mesh(np.zeros((3, 3)), [(0, 1, 2)], normals=np.zeros((2, 3))), r"normals must have"),
+    (lambda: RayScene.from_spheres([(0, 0, 0)], [-1.0]), r"radii\[0\] must be finite and positive"),
+    (lambda: RayScene.from_spheres([(0, 0, 0), (1, 1, 1)], [1.0]), r"radii must be a number or have shape"),
+    (lambda: RayScene.from_scene("not a scene"), r"scene must be a raykernel Scene"),
+])
+def test_geometry_input_errors(build, match):
+    with pytest.raises(ValueError, match=match):
+        build()
+
+
+def test_large_coordinates_stay_exact():
+    """A unit mesh 1e7 away from the origin and rays from near it: t as precise as near the origin."""
+    rng = np.random.default_rng(6)
+    v, f = random_mesh(rng, 60)
+    o, d = random_rays(rng, 200)
+    near = RayScene.from_mesh(v, f).intersect(o, d)
+    shift = np.array([1e7, -3e7, 2e7])
+    far = RayScene.from_mesh(v + shift, f).intersect(o + shift, d)
+    hit = np.isfinite(near.t)
+    assert np.array_equal(hit, np.isfinite(far.t))
+    np.testing.assert_allclose(far.t[hit], near.t[hit], rtol=1e-6)

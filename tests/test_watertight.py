@@ -1,0 +1,182 @@
+"""Watertight ray/triangle tests: rays aimed exactly at shared vertices and
+edges of closed meshes are never missed and never counted twice.
+
+Every mesh has dyadic coordinates and every ray has a dyadic origin and
+direction chosen so that the ray passes exactly (in real arithmetic) through
+its target vertex or edge point, heading into the solid: a ray entering a
+closed surface crosses it an even number of times, exactly twice for a
+convex one, and its first crossing is the target itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from raykernel import RayScene
+from raykernel.primitives import hit_triangle
+from reference import all_hits, world_primitives
+
+GRID = 2.0 ** -20     # vertex coordinates are multiples of this
+
+
+def dyadic(x):
+    return np.round(np.asarray(x, float) / GRID) * GRID
+
+
+def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit icosphere (subdivided icosahedron), outward winding, vertices rounded to dyadic numbers."""
+    p = (1 + 5 ** 0.5) / 2
+    v = [(-1, p, 0), (1, p, 0), (-1, -p, 0), (1, -p, 0), (0, -1, p), (0, 1, p), (0, -1, -p), (0, 1, -p),
+         (p, 0, -1), (p, 0, 1), (-p, 0, -1), (-p, 0, 1)]
+    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
+         (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
+         (8, 6, 7), (9, 8, 1)]
+    verts = [np.array(x, float) / np.linalg.norm(x) for x in v]
+    faces = f
+    for _ in range(level):
+        mid = {}
+
+        def middle(a, b):
+            key = (min(a, b), max(a, b))
+            if key not in mid:
+                m = verts[a] + verts[b]
+                verts.append(m / np.linalg.norm(m))
+                mid[key] = len(verts) - 1
+            return mid[key]
+        new = []
+        for a, b, c in faces:
+            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
+            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = new
+    return dyadic(np.array(verts)), np.array(faces, np.int64)
+
+
+def cube() -> tuple[np.ndarray, np.ndarray]:
+    """The cube [-1, 1]^3 as 12 outward-wound triangles (each face split along a diagonal)."""
+    v = np.array([(x, y, z) for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    faces = []
+    for a, b, c, d in quads:
+        faces += [(a, b, c), (a, c, d)]
+    faces = np.array(faces, np.int64)
+    n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    centroid = v[faces].mean(axis=1)
+    flip = np.einsum("ij,ij->i", n, centroid) < 0
+    faces[flip] = faces[flip][:, ::-1]
+    return v, faces
+
+
+def lumpy_sphere(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A closed, non-convex, star-shaped mesh: an icosphere with random radii."""
+    v, f = icosphere(2)
+    r = np.random.default_rng(seed).uniform(0.6, 1.4, len(v))
+    return dyadic(v * r[:, None]), f
+
+
+def assert_closed(faces):
+    edges = {}
+    for a, b, c in faces:
+        for e in ((a, b), (b, c), (c, a)):
+            edges[e] = edges.get(e, 0) + 1
+    assert all(n == 1 and edges.get((b, a)) == 1 for (a, b), n in edges.items())
+
+
+def targets(v, f, rng, n_edge_points=3):
+    """Every vertex, and points on every edge at dyadic fractions (exactly representable)."""
+    pts = [v]
+    edges = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    for _ in range(n_edge_points):
+        s = rng.integers(1, 16, len(edges)) / 16.0
+        pts.append(v[edges[:, 0]] + s[:, None] * (v[edges[:, 1]] - v[edges[:, 0]]))
+    return np.vstack(pts)
+
+
+def rays_through(points, inside, scale=2.0):
+    """Rays through each point towards `inside`, starting `scale` direction-lengths before it."""
+    d = inside - points
+    o = points - scale * d
+    assert np.all(o + scale * d == points), "targets must be exactly on the rays"
+    return o, d
+
+
+MESHES = {"cube": cube(), "icosphere": icosphere(3), "lumpy-0": lumpy_sphere(0), "lumpy-1": lumpy_sphere(1)}
+
+
+@pytest.mark.parametrize("accel", ["bvh", "list", "grid"])
+@pytest.mark.parametrize("name", list(MESHES))
+def test_rays_through_shared_vertices_and_edges(name, accel):
+    v, f = MESHES[name]
+    assert_closed(f)
+    rng = np.random.default_rng(7)
+    pts = targets(v, f, rng)
+    inside = np.array([2.0 ** -5, -3 * 2.0 ** -7, 2.0 ** -6])      # off-centre, to avoid symmetric lines
+    o, d = rays_through(pts, inside)
+    scene = RayScene.from_mesh(v, f, accel=accel)
+    hits = scene.intersect(o, d)
+    assert np.all(np.isfinite(hits.t)), f"{np.sum(~np.isfinite(hits.t))} rays missed the closed mesh"
+    # the target is the first crossing for a star-shaped mesh seen from outside along a ray to its centre
+    np.testing.assert_allclose(hits.t, 2.0, rtol=1e-12)
+    counts = scene.count_hits(o, d)
+    ray, t, prim = scene.intersect_all(o, d)
+    assert np.array_equal(np.bincount(ray, minlength=len(o)), counts)
+    assert np.all(counts % 2 == 0), "an odd number of crossings of a closed surface"
+    if name in ("cube", "icosphere"):
+        assert np.all(counts == 2), f"convex mesh: {np.sum(counts > 2)} double hits, {np.sum(counts < 2)} misses"
+    else:
+        assert np.all(counts >= 2)
+    # no primitive twice for one ray
+    assert len(np.unique(np.stack([ray, prim]), axis=1)[0]) == len(ray)
+    # the first hit of intersect_all is the closest hit
+    first = np.r_[0, np.flatnonzero(np.diff(ray)) + 1]
+    assert np.array_equal(t[first], hits.t)
+
+
+def test_axis_aligned_rays_through_a_grid_of_triangles():
+    """Rays along -z through every vertex and edge of an 8x8 grid of triangle pairs in z = 0:
+    each meets exactly one triangle (the list aggregate: no box test below the root)."""
+    n = 8
+    xs = np.arange(n + 1) / n
+    v = np.array([(x, y, 0.0) for y in xs for x in xs])
+    f = []
+    for j in range(n):
+        for i in range(n):
+            a = j * (n + 1) + i
+            f += [(a, a + 1, a + n + 2), (a, a + n + 2, a + n + 1)]
+    scene = RayScene.from_mesh(v, np.array(f), accel="list")
+    g = np.arange(1, 2 * n) / (2 * n)
+    pts = np.array([(x, y) for x in g for y in g])
+    o = np.column_stack([pts, np.full(len(pts), 1.0)])
+    counts = scene.count_hits(o, (0.0, 0.0, -1.0))
+    assert np.all(counts == 1)
+    # the same with a slanted direction
+    d = np.array([2.0 ** -3, -(2.0 ** -4), -1.0])
+    counts = scene.count_hits(np.column_stack([pts, np.zeros(len(pts))]) - d, d)
+    assert np.all(counts == 1)
+
+
+def test_shared_edge_and_vertex_of_two_triangles_exactly_one():
+    # two triangles sharing the diagonal (0,0)-(1,1); rays through the diagonal and the shared corners
+    tri_a = [(0, 0, 0), (1, 0, 0), (1, 1, 0)]
+    tri_b = [(0, 0, 0), (1, 1, 0), (0, 1, 0)]
+    for d in [(0.0, 0.0, -1.0), (0.25, 0.125, -1.0), (-0.5, 0.25, 1.0)]:
+        for p in [(0.5, 0.5), (0.25, 0.25), (0.0, 0.0), (1.0, 1.0), (0.75, 0.75)]:
+            o = (p[0] - d[0], p[1] - d[1], -d[2])
+            n = sum(np.isfinite(hit_triangle(*np.ravel(np.array(tri, float)), *o, *d, 0.0, np.inf)) for tri in (tri_a, tri_b))
+            inside_hull = p not in ((0.0, 0.0), (1.0, 1.0))
+            assert n == 1 if inside_hull else n <= 1, (d, p, n)
+
+
+def test_random_rays_agree_with_the_reference():
+    v, f = lumpy_sphere(3)
+    scene = RayScene.from_mesh(v, f)
+    prims = world_primitives(scene.scene)
+    rng = np.random.default_rng(11)
+    o = rng.uniform(-2, 2, (300, 3))
+    d = rng.normal(size=(300, 3))
+    ref = all_hits(prims, o, d).astype(float)
+    counts = np.isfinite(ref).sum(axis=0)
+    assert np.array_equal(scene.count_hits(o, d), counts)
+    np.testing.assert_allclose(scene.intersect(o, d).t, ref.min(axis=0), rtol=1e-9)
+    outside = np.linalg.norm(o, axis=1) > 1.5
+    assert outside.sum() > 50 and np.all(counts[outside] % 2 == 0)
