@@ -1,0 +1,89 @@
+"""The HTML report: self-contained, and it loads in a real headless browser with every image decoded."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from raykernel import compare as cm
+from raykernel.report import render_html, write_report
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    cmp = cm.compare(["spd:balls:1", "spd:tetra:1"], ["list", "bvh"], resolution=16, threads=1, model=None,
+                     warm_up=False, command="raykernel compare spd:balls:1 spd:tetra:1 --accel list --accel bvh")
+    path = tmp_path_factory.mktemp("report") / "report.html"
+    write_report(cmp, path, plots=[("Counts", cm.compare_figure_png(cmp))])
+    return path
+
+
+def test_report_is_self_contained(report):
+    text = report.read_text()
+    assert "http://" not in text and "https://" not in text
+    assert not re.search(r"<(link|iframe|object|embed)\b", text)
+    assert not re.search(r"<script[^>]*\bsrc=", text)
+    assert "url(" not in text and "@import" not in text
+    srcs = re.findall(r"<img[^>]*\bsrc='([^']*)'", text)
+    assert len(srcs) == 1 + 4                       # one plot, two scenes x two structures
+    assert all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert "raykernel compare spd:balls:1" in text
+    assert "N_IT" in text and "spd:tetra:1" in text
+
+
+def test_report_flags_disagreement():
+    cmp = cm.Comparison(runs=[], options={}, machine={}, command="x",
+                        disagreements=[cm.Disagreement("s", "bvh", "grid", {"rays.shadow": (1, 2)})])
+    assert "CORRECTNESS FAILURE" in render_html(cmp)
+
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--enable-logging=stderr", "--v=0", "--virtual-time-budget=5000"]
+
+
+def _chromium(args, tmp_path):
+    return subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={tmp_path / 'profile'}", *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+def _console_errors(log: str) -> list:
+    return [line for line in log.splitlines() if "CONSOLE" in line and ("ERROR" in line or "Uncaught" in line)]
+
+
+needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed "
+                                    "(apt-get install -y chromium); the headless browser test needs it")
+
+
+@needs_chromium
+def test_console_error_detection_works(tmp_path):
+    bad = tmp_path / "bad.html"
+    bad.write_text("<html><body><script>console.error('deliberate'); nosuchfunction();</script></body></html>")
+    proc = _chromium(["--dump-dom", bad.as_uri()], tmp_path)
+    assert _console_errors(proc.stderr), proc.stderr[-2000:]
+
+
+@needs_chromium
+def test_report_in_headless_chromium(report, tmp_path):
+    proc = _chromium(["--dump-dom", report.as_uri()], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert not _console_errors(proc.stderr), _console_errors(proc.stderr)
+    dom = proc.stdout
+    n = int(re.search(r'data-images="(\d+)"', dom).group(1))
+    decoded = int(re.search(r'data-images-decoded="(\d+)"', dom).group(1))
+    assert n == 5 and decoded == n
+    widths = [int(w) for w in re.findall(r'data-natural-width="(\d+)"', dom)]
+    assert len(widths) == n and all(w > 0 for w in widths)
+    assert sorted(widths)[:4] == [16, 16, 16, 16]
+
+    shot = tmp_path / "shot.png"
+    proc = _chromium([f"--screenshot={shot}", "--window-size=1000,1400", report.as_uri()], tmp_path)
+    assert shot.exists(), proc.stderr[-2000:]
+    from PIL import Image
+    pixels = np.asarray(Image.open(shot).convert("RGB")).reshape(-1, 3)
+    assert len(np.unique(pixels, axis=0)) > 50       # text, table, plot and renders, not a blank page
