@@ -147,6 +147,60 @@ def cmd_convert(args, console) -> int:
     return 0
 
 
+def _finish_comparison(cmp, args, console, title, plots) -> int:
+    from . import compare as cm
+    console.print(cm.table(cmp, title=title))
+    for accel, worst, mean, n in cm.prediction_summary(cmp):
+        console.print(f"cost model, {accel}: mean |error| {mean:.0%}, worst {worst:+.0%} over {n} run(s)",
+                      markup=False, highlight=False)
+    if args.json:
+        cm.write_json(cmp, args.json)
+    if args.csv:
+        cm.write_csv(cmp, args.csv)
+    if args.report:
+        from .report import write_report
+        write_report(cmp, args.report, title=title, plots=[(name, make()) for name, make in plots])
+    if cmp.disagreements:
+        cm.print_disagreements(cmp, console)
+        return 3
+    return 0
+
+
+def cmd_compare(args, console) -> int:
+    from . import compare as cm
+    cmp = cm.compare(args.scene, args.accel, spd=args.spd, resolution=args.resolution, threads=args.threads,
+                     model=args.calibration or "default", command=cm.command_from_args("compare", args))
+    return _finish_comparison(cmp, args, console, "raykernel compare",
+                              [("Counts and times per scene", lambda: cm.compare_figure_png(cmp))])
+
+
+def cmd_sweep(args, console) -> int:
+    from . import compare as cm
+    from .errors import OptionError
+    params = cm.parse_params(args.param)
+    if not params:
+        raise OptionError("give at least one --param NAME=V1,V2,...")
+    cmp = cm.sweep(args.template, params, args.accel, spd=args.spd, resolution=args.resolution,
+                   threads=args.threads, model=args.calibration or "default",
+                   command=cm.command_from_args("sweep", args))
+    if args.plot:
+        cm.plot_sweep(cmp, args.plot)
+    return _finish_comparison(cmp, args, console, f"raykernel sweep {args.template}",
+                              [("Sweep", lambda: cm.sweep_figure_png(cmp))])
+
+
+def cmd_calibrate(args, console) -> int:
+    from . import costmodel
+    out = args.output or costmodel.default_path()
+    model = costmodel.calibrate(threads=args.threads,
+                                log=lambda line: console.print(line, markup=False, highlight=False))
+    model.save(out)
+    for name, cost in sorted(model.costs.items()):
+        console.print(f"{name:18s} {cost * 1e9:10.2f} ns", markup=False, highlight=False)
+    console.print(f"calibration of {len(model.calibration)} renders -> {out}", markup=False, highlight=False)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="raykernel", description="Ray tracing with nestable acceleration "
                                      "structures and exact statistics.")
@@ -189,6 +243,35 @@ def build_parser() -> argparse.ArgumentParser:
     cv.add_argument("--segments", type=_positive_int, default=16,
                     help="OBJ only: slices around spheres and cones (default 16; spheres get half as many rings)")
     cv.set_defaults(func=cmd_convert)
+
+    for name, help_text in (("compare", "render scenes with several structures and compare the work they do"),
+                            ("sweep", "scaling study: render a scene template over parameter values")):
+        c = sub.add_parser(name, help=help_text)
+        if name == "compare":
+            c.add_argument("scene", nargs="+", help="scenes: .nff/.json files, spd:NAME[:SIZE], scene:NAME[:k=v,...]")
+            c.set_defaults(func=cmd_compare)
+        else:
+            c.add_argument("template", help="scene with {NAME} placeholders, e.g. spd:balls:{sf} or "
+                           "scene:stadium:ratio={ratio}")
+            c.add_argument("--param", action="append", default=[], metavar="NAME=V1,V2,...",
+                           help="values of a placeholder (repeatable; several give every combination)")
+            c.add_argument("--plot", help="write the sweep plot to this PNG")
+            c.set_defaults(func=cmd_sweep)
+        c.add_argument("--accel", action="append", required=True, metavar="SPEC",
+                       help="a structure to compare (repeatable); see `raykernel accels`")
+        c.add_argument("--spd", action="store_true", help="follow the SPD test procedure")
+        c.add_argument("--resolution", type=_positive_int, help="square image size (default: the scene's)")
+        c.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
+        c.add_argument("--json", help="write every counter of every run, the machine and the command here")
+        c.add_argument("--csv", help="write one row per run here")
+        c.add_argument("--report", help="write a self-contained HTML report here")
+        c.add_argument("--calibration", help="cost-model calibration JSON (default: this machine's, "
+                       "from `raykernel calibrate`, if any)")
+
+    cal = sub.add_parser("calibrate", help="fit the cost model (seconds per test, step, bound test) on this machine")
+    cal.add_argument("-o", "--output", help="calibration JSON (default: ~/.cache/raykernel/calibration-HOST.json)")
+    cal.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
+    cal.set_defaults(func=cmd_calibrate)
     return parser
 
 
