@@ -147,3 +147,10 @@ register(Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanat
     Param("max_res", 256, "most cells along any axis", int, 1, 4096),
     Param("mailbox", True, "skip items already tested against the ray in an earlier cell", bool),
 )))
+register(Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (origin, direction-cube face and "
+              "u, v), six 5D bisection trees built eagerly, candidate lists tested near first", (
+    Param("leaf", 8, "a hypercube with at most this many candidates is not split", int, 1, 1 << 20),
+    Param("depth", 20, "most splits below a face's root hypercube", int, 0, 200),
+    Param("budget_mb", 256.0, "MiB the trees and candidate lists may take; reaching it stops subdivision "
+          "with a warning (hits stay exact)", float, 0.0, 1 << 20),
+)))

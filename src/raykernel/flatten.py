@@ -32,6 +32,8 @@ STACK_SIZE = MAX_NESTING * (MAX_TREE_DEPTH + 2)
 
 LIST, BVH, GRID = 0, 1, 2
 AGG_KIND_CODES = {"list": LIST, "bvh": BVH, "grid": GRID}
+RC = 6
+AGG_KIND_CODES["rc"] = RC
 
 
 class Geometry(NamedTuple):
@@ -76,6 +78,12 @@ class Geometry(NamedTuple):
     grid_mailbox: np.ndarray    # (G,) int64 1: skip refs already tested in an earlier cell
     grid_cells: np.ndarray      # (sum of ncells + 1,) cell c of grid g holds refs
     #                             grid_cells[o + c] .. grid_cells[o + c + 1], o = grid_cell_offset[g]
+    rc_face_root: np.ndarray    # (RC, 6) root hypercube of each direction-cube face (see aggregates/rc.py)
+    rc_node_a: np.ndarray       # (RN,) inner: first child (global node); leaf: first candidate in refs
+    rc_node_b: np.ndarray       # (RN,) inner: -(split dimension + 1) of x, y, z, u, v; leaf: candidates
+    rc_split: np.ndarray        # (RN,) inner: split coordinate
+    rc_key: np.ndarray          # (RK,) near-face key of each candidate, rising within a leaf
+    rc_key_shift: np.ndarray    # (RC,) the key of refs[i] is rc_key[i - rc_key_shift[rc]]
     root: int                   # the top aggregate
 
 
@@ -112,6 +120,8 @@ class _Arrays:
         self.grid_origin, self.grid_cell_size, self.grid_res, self.grid_cell_offset = [], [], [], []
         self.grid_mailbox, self.grid_cells = [], []
         self.n_grid_cells = 0
+        self.rc = {k: [] for k in ("face_root", "node_a", "node_b", "split", "key", "key_shift")}
+        self.n_rc_nodes = self.n_rc_keys = 0
 
 
 def _sphere_refs(arr: _Arrays, s):
@@ -295,6 +305,25 @@ class _Builder:
             arr.refs.append(refs[grid.items])
             arr.n_refs += len(grid.items)
             stats = dict(stats)
+        elif kind == "rc":
+            from .aggregates.rc import build_rc
+            tree, stats = build_rc(bounds, leaf=params["leaf"], depth=params["depth"],
+                                   budget_mb=params["budget_mb"], name=name)
+            rc = arr.rc
+            arr.agg_kind.append(RC)
+            arr.agg_start.append(len(rc["face_root"]))
+            arr.agg_count.append(len(tree.node_b))
+            rc["face_root"].append(tree.face_root + arr.n_rc_nodes)
+            rc["node_a"].append(np.where(tree.node_b < 0, tree.node_a + arr.n_rc_nodes, tree.node_a + arr.n_refs))
+            rc["node_b"].append(tree.node_b)
+            rc["split"].append(tree.split)
+            rc["key"].append(tree.keys)
+            rc["key_shift"].append(arr.n_refs - arr.n_rc_keys)
+            arr.n_rc_nodes += len(tree.node_b)
+            arr.n_rc_keys += len(tree.keys)
+            arr.refs.append(refs[tree.items])
+            arr.n_refs += len(tree.items)
+            stats = dict(stats)
         else:
             raise SceneError(f"accelerator {kind!r} is not available in this build")
         arr.agg_bounds.append(box)
@@ -399,6 +428,12 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         grid_cell_offset=np.array(arr.grid_cell_offset, np.int64),
         grid_mailbox=np.array(arr.grid_mailbox, np.int64),
         grid_cells=_concat(arr.grid_cells, (0,), np.int64),
+        rc_face_root=np.array(arr.rc["face_root"], np.int64).reshape(-1, 6),
+        rc_node_a=_concat(arr.rc["node_a"], (0,), np.int64),
+        rc_node_b=_concat(arr.rc["node_b"], (0,), np.int64),
+        rc_split=_concat(arr.rc["split"], (0,), np.float64),
+        rc_key=_concat(arr.rc["key"], (0,), np.float64),
+        rc_key_shift=np.array(arr.rc["key_shift"], np.int64),
         root=int(root),
     )
     n_materials = max(1, len(scene.materials))
