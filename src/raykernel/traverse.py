@@ -30,6 +30,20 @@ that hypercube's candidate list tested in order, near first. The list's end
 and the early-exit terms live in the frame (RF_*), so a child aggregate can
 interrupt it; the rest is put back as an RC_NEXT entry. The walk stops once
 the next candidate's key puts its earliest possible hit past the closest.
+
+An octree (aggregates/octree.py) is walked one of three ways. point: the
+leaf holding a point is found from the root by the point's 28-bit address
+(Lathrop), its exit distance computed, and the point moved just past the
+exit wall. neighbor: the same, but the next descent starts from the
+neighbour across the exit wall (Glassner's pointers) rather than the root.
+Both keep the point's address in the frame (OF_POINT) and put an OCT_NEXT
+entry back before a non-empty leaf's references, like the grid. A point
+outside a collapsed node's shrunk box lies in an empty octant the collapse
+removed; its address bits give that octant, visited as an empty leaf.
+parametric (Revelles et al.): node entries with their entry distance, the
+children a ray crosses pushed farthest first, ordered by the first-child
+and next-child rules over the centre-plane parameters. The grid's mailbox
+serves octree frames too.
 """
 
 
@@ -40,6 +54,7 @@ from . import counters as C
 from .config import njit
 from .flatten import GRID, LIST, MAX_NESTING, STACK_SIZE
 from .flatten import RC
+from .flatten import OCTREE
 from .primitives import (AGGREGATE, CONE, INDEX_MASK, INSTANCE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE,
                          hit_cone, hit_polygon, hit_sphere, hit_triangle)
 
@@ -63,6 +78,13 @@ RC_NEXT = -17                # stack entry tag: continue the frame's rc candidat
 RF_END, RF_SHIFT, RF_O, RF_D = GF_CELL, GF_CELL + 1, GF_CELL + 2, GF_CELL + 3  # per rc frame: list end, key
 #                              shift, s * origin and |direction| along the face's axis
 RC_SLACK = 1.0 + 1e-7        # the early exit widens the closest hit by this factor (hit-point rounding)
+OCT_START = -4               # stack entry tag: start an octree walk (stack_a: octree index) at stack_t
+OCT_NEXT = -5                # stack entry tag: continue the point/neighbor walk by descending from node stack_a
+OCT_PARAM = -6               # stack entry tag: parametric walk, visit node stack_a (entry distance stack_t)
+OF_POINT = GF_CELL           # per frame: 28-bit address of the point the octree walk continues from
+OCT_BITS = 28
+OCT_FULL = 1 << OCT_BITS
+ALL_HITS = 2                 # any_hit mode of intersect: record every hit (hit_i[0] must be 0 on entry)
 
 
 @njit
@@ -80,6 +102,23 @@ def _inverse(d):
     if d == 0.0:
         return 1e300
     return 1.0 / d
+
+
+@njit(inline="always")
+def _mailbox_reset(frame_f, f):
+    """Turn the frame's mailbox on and empty it; returns True (the kernel's `mbox`)."""
+    frame_f[f, GF_MBOX_ON] = 1.0
+    for k in range(MBOX_SLOTS):
+        frame_f[f, GF_MBOX + k] = -1.0
+    return True
+
+
+@njit(inline="always")
+def _address(x, origin, scale, lo, hi):
+    """The octree address of coordinate x, clamped to [lo, hi]."""
+    u = (x - origin) * scale
+    q = np.int64(u) if u >= 0.0 and u < OCT_FULL else (np.int64(OCT_FULL - 1) if u >= OCT_FULL else np.int64(0))
+    return min(max(q, lo), hi)
 
 
 @njit(inline="always")
@@ -122,6 +161,9 @@ def _push_aggregate(geo, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b
     elif kind == RC:
         stack_a[sp] = geo.agg_start[a]
         stack_b[sp] = RC_START
+    elif kind == OCTREE:
+        stack_a[sp] = geo.agg_start[a]
+        stack_b[sp] = OCT_START
     else:
         stack_a[sp] = geo.agg_start[a]
         stack_b[sp] = NODE
@@ -135,7 +177,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
     """Closest hit (or, with any_hit, the first hit found) of the ray with
     the scene in [tmin, tmax]. On a hit returns True and fills hit_f
     (t, world-to-local map of the hit's frame) and hit_i (kind, index,
-    innermost instance). Counts tests, bounds tests and steps into cnt."""
+    innermost instance). Counts tests, bounds tests and steps into cnt.
+    any_hit == ALL_HITS records every hit instead (see the hit-recording block)."""
     stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i = ws
     best_t = tmax
     found = False
@@ -246,6 +289,192 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                 rc_shift = np.int64(frame_f[f, RF_SHIFT])
                 rc_o, rc_d = frame_f[f, RF_O], frame_f[f, RF_D]
             rc_on = True
+        elif b <= OCT_START:
+            # octree: the parametric walk, or a walk of leaves by point location
+            oi = geo.agg_start[frame_i[f, 0]]
+            if b == OCT_START and geo.oct_mailbox[oi] != 0:
+                mbox = _mailbox_reset(frame_f, f)
+            s = e = 0
+            if b == OCT_PARAM or (b == OCT_START and geo.oct_walk[oi] == 2):
+                # Revelles, Urena and Lastra 2000: node parameters with the ray reflected
+                # onto positive directions (amask: the reflected axes)
+                node = a if b == OCT_PARAM else geo.oct_root[oi]
+                cnt[C.CELLS_VISITED] += 1
+                cnt[C.BOUNDS_TESTS] += 1
+                nb = geo.oct_bounds
+                amask = 0
+                if ix >= 0.0:
+                    tx0, tx1 = (nb[node, 0] - ox) * ix, (nb[node, 3] - ox) * ix
+                else:
+                    tx0, tx1 = (nb[node, 3] - ox) * ix, (nb[node, 0] - ox) * ix
+                    amask |= 1
+                if iy >= 0.0:
+                    ty0, ty1 = (nb[node, 1] - oy) * iy, (nb[node, 4] - oy) * iy
+                else:
+                    ty0, ty1 = (nb[node, 4] - oy) * iy, (nb[node, 1] - oy) * iy
+                    amask |= 2
+                if iz >= 0.0:
+                    tz0, tz1 = (nb[node, 2] - oz) * iz, (nb[node, 5] - oz) * iz
+                else:
+                    tz0, tz1 = (nb[node, 5] - oz) * iz, (nb[node, 2] - oz) * iz
+                    amask |= 4
+                ot0 = max(max(tx0, ty0), tz0)
+                ot1 = min(min(tx1, ty1), tz1)
+                if ot0 > (ot1 * _CONSERVATIVE if ot1 > 0.0 else ot1) or ot1 < tmin or ot0 > best_t:
+                    continue    # a collapsed node's shrunk box the ray misses
+                n_items = geo.oct_count[node]
+                if n_items >= 0:
+                    cnt[C.CELLS_LEAVES] += 1
+                    if n_items == 0:
+                        cnt[C.CELLS_EMPTY] += 1
+                        continue
+                    s = geo.oct_first[node]
+                    e = s + n_items
+                else:
+                    # the centre planes
+                    half = np.int64(1) << (OCT_BITS - 1 - geo.oct_level[node])
+                    txm = (geo.oct_origin[oi, 0] + geo.oct_unit[oi, 0] * (geo.oct_loc[node, 0] + half) - ox) * ix
+                    tym = (geo.oct_origin[oi, 1] + geo.oct_unit[oi, 1] * (geo.oct_loc[node, 1] + half) - oy) * iy
+                    tzm = (geo.oct_origin[oi, 2] + geo.oct_unit[oi, 2] * (geo.oct_loc[node, 2] + half) - oz) * iz
+                    # first child (their table 1): entry plane, then the centre planes crossed before it
+                    cur = 0
+                    if tx0 >= ty0 and tx0 >= tz0:
+                        cur = (2 if tym < tx0 else 0) | (4 if tzm < tx0 else 0)
+                    elif ty0 >= tz0:
+                        cur = (1 if txm < ty0 else 0) | (4 if tzm < ty0 else 0)
+                    else:
+                        cur = (1 if txm < tz0 else 0) | (2 if tym < tz0 else 0)
+                    child0 = geo.oct_first[node]
+                    sp0 = sp
+                    while True:
+                        # child interval per axis: [t0, tm] below the centre plane, [tm, t1] above
+                        cx0, cx1 = (txm, tx1) if cur & 1 else (tx0, txm)
+                        cy0, cy1 = (tym, ty1) if cur & 2 else (ty0, tym)
+                        cz0, cz1 = (tzm, tz1) if cur & 4 else (tz0, tzm)
+                        centry = max(max(cx0, cy0), cz0)
+                        if centry > best_t:
+                            break
+                        if min(min(cx1, cy1), cz1) >= tmin:
+                            stack_a[sp], stack_b[sp], stack_t[sp] = child0 + (cur ^ amask), OCT_PARAM, centry
+                            sp += 1
+                        # next child (their table 3): across the nearest exit plane; the node's own wall ends it
+                        if cx1 <= cy1 and cx1 <= cz1:
+                            if cur & 1:
+                                break
+                            cur |= 1
+                        elif cy1 <= cz1:
+                            if cur & 2:
+                                break
+                            cur |= 2
+                        else:
+                            if cur & 4:
+                                break
+                            cur |= 4
+                    # nearest child on top
+                    lo_i, hi_i = sp0, sp - 1
+                    while lo_i < hi_i:
+                        stack_a[lo_i], stack_a[hi_i] = stack_a[hi_i], stack_a[lo_i]
+                        stack_t[lo_i], stack_t[hi_i] = stack_t[hi_i], stack_t[lo_i]
+                        lo_i += 1
+                        hi_i -= 1
+                    continue
+            else:
+                # point (Lathrop) or neighbor (Glassner): find the leaf holding the point p
+                # by its 28-bit address, leave it across its nearest wall, repeat
+                walk = geo.oct_walk[oi]
+                gox, goy, goz = geo.oct_origin[oi, 0], geo.oct_origin[oi, 1], geo.oct_origin[oi, 2]
+                gux, guy, guz = geo.oct_unit[oi, 0], geo.oct_unit[oi, 1], geo.oct_unit[oi, 2]
+                gsx, gsy, gsz = geo.oct_scale[oi, 0], geo.oct_scale[oi, 1], geo.oct_scale[oi, 2]
+                top = np.int64(OCT_FULL - 1)
+                if b == OCT_START:
+                    gt = stack_t[sp]
+                    px = _address(ox + gt * dx, gox, gsx, 0, top)
+                    py = _address(oy + gt * dy, goy, gsy, 0, top)
+                    pz = _address(oz + gt * dz, goz, gsz, 0, top)
+                    node = geo.oct_root[oi]
+                else:
+                    px = np.int64(frame_f[f, OF_POINT])
+                    py = np.int64(frame_f[f, OF_POINT + 1])
+                    pz = np.int64(frame_f[f, OF_POINT + 2])
+                    node = a
+                while True:
+                    # descend from node; it stays the container of the cell found
+                    leaf = np.int64(-1)
+                    while True:
+                        cnt[C.CELLS_VISITED] += 1
+                        sh = OCT_BITS - geo.oct_level[node]
+                        lx, ly, lz = geo.oct_loc[node, 0], geo.oct_loc[node, 1], geo.oct_loc[node, 2]
+                        diff = (px ^ lx) | (py ^ ly) | (pz ^ lz)
+                        if diff >> sh != 0:
+                            # p lies in an empty octant a collapse removed: the one its highest
+                            # differing address bit selects
+                            sh = 0
+                            while diff >> (sh + 1) != 0:
+                                sh += 1
+                            break
+                        if geo.oct_count[node] >= 0:
+                            leaf = node
+                            break
+                        bit = sh - 1
+                        node = geo.oct_first[node] + ((px >> bit) & 1) + 2 * ((py >> bit) & 1) + \
+                            4 * ((pz >> bit) & 1)
+                    side = np.int64(1) << sh
+                    clx, cly, clz = (px >> sh) << sh, (py >> sh) << sh, (pz >> sh) << sh
+                    cnt[C.CELLS_LEAVES] += 1
+                    if leaf >= 0 and geo.oct_count[leaf] > 0:
+                        s = geo.oct_first[leaf]
+                        e = s + geo.oct_count[leaf]
+                    else:
+                        s = e = 0
+                        cnt[C.CELLS_EMPTY] += 1
+                    # leave the cell across its nearest wall
+                    cnt[C.BOUNDS_TESTS] += 1
+                    tx = (gox + gux * (clx + side) - ox) * ix if dx > 0.0 else \
+                        ((gox + gux * clx - ox) * ix if dx < 0.0 else INF)
+                    ty = (goy + guy * (cly + side) - oy) * iy if dy > 0.0 else \
+                        ((goy + guy * cly - oy) * iy if dy < 0.0 else INF)
+                    tz = (goz + guz * (clz + side) - oz) * iz if dz > 0.0 else \
+                        ((goz + guz * clz - oz) * iz if dz < 0.0 else INF)
+                    axis = 0 if tx <= ty and tx <= tz else (1 if ty <= tz else 2)
+                    texit = min(min(tx, ty), tz)
+                    out = texit == INF
+                    # the point just past the exit: across the wall on the exit axis, in the cell on the others
+                    px = _address(ox + texit * dx, gox, gsx, clx, clx + side - 1)
+                    py = _address(oy + texit * dy, goy, gsy, cly, cly + side - 1)
+                    pz = _address(oz + texit * dz, goz, gsz, clz, clz + side - 1)
+                    if axis == 0:
+                        px = clx + side if dx > 0.0 else clx - 1
+                        out = out or px < 0 or px > top
+                        pa = px
+                    elif axis == 1:
+                        py = cly + side if dy > 0.0 else cly - 1
+                        out = out or py < 0 or py > top
+                        pa = py
+                    else:
+                        pz = clz + side if dz > 0.0 else clz - 1
+                        out = out or pz < 0 or pz > top
+                        pa = pz
+                    if walk == 0:
+                        node = geo.oct_root[oi]
+                    elif not out:
+                        # still inside the container's slot, or across its wall to the neighbour
+                        ssh = OCT_BITS - geo.oct_slot[node]
+                        if pa >> ssh != geo.oct_loc[node, axis] >> ssh:
+                            up = (dx > 0.0) if axis == 0 else ((dy > 0.0) if axis == 1 else (dz > 0.0))
+                            node = geo.oct_nbr[node, 2 * axis + (1 if up else 0)]
+                            out = node < 0
+                    if s == e:
+                        if out or texit > best_t:
+                            break
+                        continue
+                    if not out:
+                        # come back for the next leaf after this one's references
+                        frame_f[f, OF_POINT], frame_f[f, OF_POINT + 1], frame_f[f, OF_POINT + 2] = px, py, pz
+                        stack_a[sp], stack_b[sp], stack_t[sp] = node, OCT_NEXT, texit
+                        sp += 1
+                    break
+                if s == e:
+                    continue
         elif b < NODE:
             # grid: step the 3D-DDA to the next non-empty cell
             gi = a
@@ -269,10 +498,7 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                 ty = (goy + (cy + (sy > 0)) * csy - oy) * iy if sy != 0 else INF
                 tz = (goz + (cz + (sz > 0)) * csz - oz) * iz if sz != 0 else INF
                 if geo.grid_mailbox[gi] != 0:
-                    mbox = True
-                    frame_f[f, GF_MBOX_ON] = 1.0
-                    for k in range(MBOX_SLOTS):
-                        frame_f[f, GF_MBOX + k] = -1.0
+                    mbox = _mailbox_reset(frame_f, f)
             else:
                 cx = np.int64(frame_f[f, GF_CELL])
                 cy = np.int64(frame_f[f, GF_CELL + 1])
@@ -409,6 +635,18 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                 break
             if t != INF:
                 inst = frame_i[f, 2]
+                if any_hit == ALL_HITS:
+                    # every hit: hit_i[0] counts them; hit k is t = hit_f[HIT_F + k] and
+                    # (kind, index, instance) = hit_i[HIT_I + 3k ..], stored while they fit
+                    k = hit_i[0]
+                    if HIT_F + k < hit_f.shape[0] and HIT_I + 3 * k + 2 < hit_i.shape[0]:
+                        hit_f[HIT_F + k] = t
+                        hit_i[HIT_I + 3 * k] = kind
+                        hit_i[HIT_I + 3 * k + 1] = idx
+                        hit_i[HIT_I + 3 * k + 2] = inst
+                    hit_i[0] = k + 1
+                    found = True
+                    continue
                 # t <= best_t here; ties at equal t go to the smaller
                 # (ref, instance), so every traversal order reports the same primitive
                 if not found or t < best_t or ref < best_ref or (ref == best_ref and inst < best_inst):
