@@ -154,3 +154,21 @@ register(Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (ori
     Param("budget_mb", 256.0, "MiB the trees and candidate lists may take; reaching it stops subdivision "
           "with a warning (hits stay exact)", float, 0.0, 1 << 20),
 )))
+register(Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
+              "objects in every child their box overlaps", (
+    Param("depth", 8, "maximum subdivision depth (the root is level 0)", int, 0, 24),
+    Param("leaf", 3, "a node holding at most this many items (or vertices, see vertexcount) is a leaf", int, 1,
+          1 << 20),
+    Param("rule60", False, "Haines's problem-voxel rule: keep a node a leaf when its largest child would "
+          "still hold >= 60% of its items (unless it is the only occupied child)", bool),
+    Param("density", 0.0, "Glassner's density criterion: subdivide only while the items' volume clipped to "
+          "the cell, over the cell volume, is under this ratio (0: off)", float, 0.0, 1e6),
+    Param("vertexcount", False, "count polygon/patch vertices and 3 per triangle instead of items against "
+          "leaf (Glassner's measure)", bool),
+    Param("collapse", True, "a node with one non-empty child takes that child's subtree and box; the walks "
+          "step through the removed empty octants using the address bits", bool),
+    Param("walk", "neighbor", "traversal: point (top-down point location with Lathrop's 28-bit addresses), "
+          "neighbor (Glassner's 6 neighbour pointers per node, then descent), parametric (Revelles, Urena and "
+          "Lastra 2000)", str, choices=("point", "neighbor", "parametric")),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
+)))

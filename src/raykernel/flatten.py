@@ -24,6 +24,7 @@ import numpy as np
 from . import accel
 from .errors import SceneError
 from .primitives import AGGREGATE, CONE, INSTANCE, PATCH, POLYGON, SPHERE, TRIANGLE, make_ref
+from .primitives import INDEX_MASK, KIND_SHIFT
 from .scene import Group, Instance, Scene
 
 MAX_NESTING = 16          # aggregates along any path from the root (the kernel's frame stack)
@@ -32,6 +33,8 @@ STACK_SIZE = MAX_NESTING * (MAX_TREE_DEPTH + 2)
 
 LIST, BVH, GRID = 0, 1, 2
 AGG_KIND_CODES = {"list": LIST, "bvh": BVH, "grid": GRID}
+OCTREE = 3
+AGG_KIND_CODES["octree"] = OCTREE
 RC = 6
 AGG_KIND_CODES["rc"] = RC
 
@@ -84,6 +87,19 @@ class Geometry(NamedTuple):
     rc_split: np.ndarray        # (RN,) inner: split coordinate
     rc_key: np.ndarray          # (RK,) near-face key of each candidate, rising within a leaf
     rc_key_shift: np.ndarray    # (RC,) the key of refs[i] is rc_key[i - rc_key_shift[rc]]
+    oct_bounds: np.ndarray      # (ON, 6) octree node boxes (see aggregates/octree.py)
+    oct_first: np.ndarray       # (ON,) inner: first of 8 children (global node); leaf: first ref
+    oct_count: np.ndarray       # (ON,) refs in a leaf; -1 for an inner node
+    oct_loc: np.ndarray         # (ON, 3) int64 lower 28-bit address of the node's box
+    oct_level: np.ndarray       # (ON,) level of the node's box
+    oct_slot: np.ndarray        # (ON,) level of the octant the node occupies in its parent
+    oct_nbr: np.ndarray         # (ON, 6) neighbour across -x, +x, -y, +y, -z, +z (global node), -1: none
+    oct_root: np.ndarray        # (O,) root node of each octree
+    oct_origin: np.ndarray      # (O, 3) lower corner of the root box
+    oct_unit: np.ndarray        # (O, 3) side of one address unit
+    oct_scale: np.ndarray       # (O, 3) 1 / oct_unit
+    oct_walk: np.ndarray        # (O,) 0 point, 1 neighbor, 2 parametric
+    oct_mailbox: np.ndarray     # (O,) 1: skip refs already tested in an earlier leaf
     root: int                   # the top aggregate
 
 
@@ -120,6 +136,9 @@ class _Arrays:
         self.grid_origin, self.grid_cell_size, self.grid_res, self.grid_cell_offset = [], [], [], []
         self.grid_mailbox, self.grid_cells = [], []
         self.n_grid_cells = 0
+        self.oct = {k: [] for k in ("bounds", "first", "count", "loc", "level", "slot", "nbr", "root", "origin",
+                                    "unit", "walk", "mailbox")}
+        self.n_oct_nodes = 0
         self.rc = {k: [] for k in ("face_root", "node_a", "node_b", "split", "key", "key_shift")}
         self.n_rc_nodes = self.n_rc_keys = 0
 
@@ -251,6 +270,17 @@ class _Builder:
                 raise SceneError(f"group {group.name or '(unnamed)'} holds a {type(child).__name__}")
         return depth
 
+    def _vertex_weights(self, refs):
+        """Glassner's vertex count per reference: polygon and patch vertices, 3 per triangle, else 1."""
+        kinds = refs >> KIND_SHIFT
+        idx = refs & INDEX_MASK
+        counts = np.concatenate([p.count for p in self.arr.poly]) if self.arr.poly else np.zeros(0, np.int64)
+        w = np.ones(len(refs), np.int64)
+        poly = (kinds == POLYGON) | (kinds == PATCH)
+        w[poly] = counts[idx[poly]]
+        w[kinds == TRIANGLE] = 3
+        return w
+
     def _build_aggregate(self, spec, refs, bounds, name) -> int:
         kind, params = spec
         arr = self.arr
@@ -323,6 +353,33 @@ class _Builder:
             arr.n_rc_keys += len(tree.keys)
             arr.refs.append(refs[tree.items])
             arr.n_refs += len(tree.items)
+            stats = dict(stats)
+        elif kind == "octree":
+            from .aggregates.octree import WALKS, build_octree
+            weights = self._vertex_weights(refs) if params["vertexcount"] else None
+            tree, stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"], rule60=params["rule60"],
+                                       density=params["density"], vertexcount=params["vertexcount"],
+                                       weights=weights, collapse=params["collapse"], name=name)
+            o = arr.oct
+            arr.agg_kind.append(OCTREE)
+            arr.agg_start.append(len(o["root"]))
+            arr.agg_count.append(len(tree.count))
+            inner = tree.count < 0
+            o["bounds"].append(tree.bounds)
+            o["first"].append(np.where(inner, tree.first + arr.n_oct_nodes, tree.first + arr.n_refs))
+            o["count"].append(tree.count)
+            o["loc"].append(tree.loc)
+            o["level"].append(tree.level)
+            o["slot"].append(tree.slot)
+            o["nbr"].append(np.where(tree.nbr >= 0, tree.nbr + arr.n_oct_nodes, -1))
+            o["root"].append(arr.n_oct_nodes)
+            o["origin"].append(tree.origin)
+            o["unit"].append(tree.unit)
+            o["walk"].append(WALKS.index(params["walk"]))
+            o["mailbox"].append(int(params["mailbox"]))
+            arr.n_oct_nodes += len(tree.count)
+            arr.refs.append(refs[tree.order])
+            arr.n_refs += len(tree.order)
             stats = dict(stats)
         else:
             raise SceneError(f"accelerator {kind!r} is not available in this build")
@@ -434,6 +491,19 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         rc_split=_concat(arr.rc["split"], (0,), np.float64),
         rc_key=_concat(arr.rc["key"], (0,), np.float64),
         rc_key_shift=np.array(arr.rc["key_shift"], np.int64),
+        oct_bounds=_concat(arr.oct["bounds"], (0, 6), np.float64),
+        oct_first=_concat(arr.oct["first"], (0,), np.int64),
+        oct_count=_concat(arr.oct["count"], (0,), np.int64),
+        oct_loc=_concat(arr.oct["loc"], (0, 3), np.int64),
+        oct_level=_concat(arr.oct["level"], (0,), np.int64),
+        oct_slot=_concat(arr.oct["slot"], (0,), np.int64),
+        oct_nbr=_concat(arr.oct["nbr"], (0, 6), np.int64),
+        oct_root=np.array(arr.oct["root"], np.int64),
+        oct_origin=np.array(arr.oct["origin"], np.float64).reshape(-1, 3),
+        oct_unit=np.array(arr.oct["unit"], np.float64).reshape(-1, 3),
+        oct_scale=1.0 / np.array(arr.oct["unit"], np.float64).reshape(-1, 3),
+        oct_walk=np.array(arr.oct["walk"], np.int64),
+        oct_mailbox=np.array(arr.oct["mailbox"], np.int64),
         root=int(root),
     )
     n_materials = max(1, len(scene.materials))
