@@ -136,9 +136,15 @@ def describe() -> str:
 
 
 register(Kind("list", "brute force: test every child"))
-register(Kind("bvh", "bounding volume hierarchy, binned surface-area heuristic", (
-    Param("leaf", 4, "maximum items in a leaf the SAH may keep", int, 1, 64),
-    Param("bins", 16, "SAH bins per axis", int, 2, 256),
+register(Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (build=sah) or "
+              "Goldsmith-Salmon insertion (build=gs)", (
+    Param("leaf", 4, "maximum items in a leaf the SAH may keep (sah only; gs leaves hold one item)", int, 1, 64),
+    Param("bins", 16, "SAH bins per axis (sah only)", int, 2, 256),
+    Param("build", "sah", "sah: top-down binned SAH; gs: Goldsmith-Salmon 1987 incremental insertion",
+          str, choices=("sah", "gs")),
+    Param("order", "file", "gs insertion order: file (as given), shuffle (seeded permutation) or curve "
+          "(Morton order of the box centres); ignored by sah", str, choices=("file", "shuffle", "curve")),
+    Param("seed", 1, "seed of order=shuffle (gs only)", int, 0, 2 ** 31 - 1),
 )))
 register(Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatides-Woo)", (
     Param("res", "regular", "resolution rule: regular (about density*N cubic cells) or woo "
@@ -146,6 +152,17 @@ register(Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanat
     Param("density", 2.0, "cells per item (regular) or per cube root of the item count (woo)", float, 0.001, 1000.0),
     Param("max_res", 256, "most cells along any axis", int, 1, 4096),
     Param("mailbox", True, "skip items already tested against the ray in an earlier cell", bool),
+)))
+register(Kind("hgrid", "hierarchical grid: a uniform grid whose cells with more than threshold references hold "
+              "a sub-grid over those items instead, recursively", (
+    Param("res", "regular", "resolution rule of every level: regular or woo (see grid)", str,
+          choices=("regular", "woo")),
+    Param("density", 2.0, "cells per item at every level (see grid)", float, 0.001, 1000.0),
+    Param("max_res", 256, "most cells along any axis of any level", int, 1, 4096),
+    Param("threshold", 8, "a cell holding more references than this gets a sub-grid", int, 1, 1 << 30),
+    Param("depth", 2, "most levels of sub-grids below the top grid (clamped so that no ray path nests more "
+          "than 16 aggregates)", int, 0, 15),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier cell of the same grid", bool),
 )))
 register(Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (origin, direction-cube face and "
               "u, v), six 5D bisection trees built eagerly, candidate lists tested near first", (

@@ -32,6 +32,7 @@ MAX_TREE_DEPTH = 96       # nodes along any path within one hierarchy (the kerne
 STACK_SIZE = MAX_NESTING * (MAX_TREE_DEPTH + 2)
 
 LIST, BVH, GRID = 0, 1, 2
+HGRID_BUDGET = 8          # an hgrid's sub-grids stop once all its levels hold this many references per top-level one
 AGG_KIND_CODES = {"list": LIST, "bvh": BVH, "grid": GRID}
 OCTREE = 3
 AGG_KIND_CODES["octree"] = OCTREE
@@ -221,7 +222,9 @@ class _Builder:
         spec = accel.parse_spec(group.accel) if group.accel else self.default
         refs = np.concatenate(refs) if refs else np.zeros(0, np.int64)
         bounds = np.vstack(bounds) if bounds else np.zeros((0, 6))
+        self._nesting, self._extra_nesting = depth + 1, 0
         agg = self._build_aggregate(spec, refs, bounds, group.name)
+        depth += self._extra_nesting    # aggregates an aggregate nests in itself (hgrid sub-grids)
         self.built[key] = (agg, depth + 1)
         return agg, depth + 1
 
@@ -281,8 +284,63 @@ class _Builder:
         w[kinds == TRIANGLE] = 3
         return w
 
+    def _build_hgrid(self, params, refs, bounds, name, level=0, levels=None) -> int:
+        """A grid whose cells holding more than `threshold` references hold one reference to a
+        sub-grid over those items instead, down to `depth` levels (aggregates/hgrid.py)."""
+        from .aggregates.grid import build_grid
+        from .aggregates.hgrid import clipped_bounds, dense_cells, replace_cells
+        arr = self.arr
+        start = time.perf_counter()
+        grid, stats = build_grid(bounds, res_rule=params["res"], density=params["density"],
+                                 max_res=params["max_res"], name=name or "(unnamed)")
+        if levels is None:
+            # every level is one more aggregate on a ray's path: stay within MAX_NESTING
+            levels = max(0, min(params["depth"], MAX_NESTING - getattr(self, "_nesting", 1)))
+            self._hgrid_budget = HGRID_BUDGET * len(grid.items) + 4096
+        cells = dense_cells(grid, params["threshold"]) if level < levels else np.zeros(0, np.int64)
+        if level > 0:
+            # a cell that kept every item of its grid made no progress: refining it again could go on forever
+            cells = cells[np.diff(grid.cell_start)[cells] < len(refs)]
+        cell_start, cell_refs = grid.cell_start, refs[grid.items]
+        self._hgrid_budget -= len(cell_refs)
+        subs = []
+        for c in cells:
+            if self._hgrid_budget <= 0:
+                break           # out of references: the remaining crowded cells keep their items
+            items = grid.items[grid.cell_start[c]:grid.cell_start[c + 1]]
+            subs.append(self._build_hgrid(params, refs[items], clipped_bounds(grid, bounds, c, items), name,
+                                          level + 1, levels))
+        cells = cells[:len(subs)]
+        if len(subs):
+            cell_start, cell_refs = replace_cells(cell_start, cell_refs, cells, make_ref(AGGREGATE, subs))
+            self._extra_nesting = max(getattr(self, "_extra_nesting", 0), level + 1)
+        agg = len(arr.agg_kind)
+        ncells = len(cell_start) - 1
+        arr.agg_kind.append(GRID)
+        arr.agg_start.append(len(arr.grid_res))
+        arr.agg_count.append(ncells)
+        arr.grid_origin.append(grid.origin)
+        arr.grid_cell_size.append(grid.cell_size)
+        arr.grid_res.append(grid.res)
+        arr.grid_cell_offset.append(arr.n_grid_cells)
+        arr.grid_mailbox.append(int(params["mailbox"]))
+        arr.grid_cells.append(cell_start + arr.n_refs)
+        arr.n_grid_cells += ncells + 1
+        arr.refs.append(cell_refs)
+        arr.n_refs += len(cell_refs)
+        arr.agg_bounds.append(np.concatenate([bounds[:, :3].min(axis=0), bounds[:, 3:].max(axis=0)]))
+        stats = dict(stats, refs=len(cell_refs), empty_leaves=int(np.count_nonzero(np.diff(cell_start) == 0)),
+                     bytes=int(cell_start.nbytes + cell_refs.nbytes + 72), level=level, levels=levels,
+                     subgrids=len(cells))
+        stats.update(kind=accel.format_spec("hgrid", params), name=name, items=len(refs),
+                     seconds=time.perf_counter() - start)
+        self.agg_stats.append(stats)
+        return agg
+
     def _build_aggregate(self, spec, refs, bounds, name) -> int:
         kind, params = spec
+        if kind == "hgrid" and len(refs):
+            return self._build_hgrid(params, refs, bounds, name)
         arr = self.arr
         start = time.perf_counter()
         # empty children (an empty group's box is +inf..-inf) add nothing to the box
@@ -301,7 +359,11 @@ class _Builder:
                      "refs": len(refs), "bytes": refs.nbytes}
         elif kind == "bvh":
             from .aggregates.bvh import build_bvh
-            tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"])
+            if params.get("build", "sah") == "gs":
+                from .aggregates.gsbvh import build_gs
+                tree, stats = build_gs(bounds, order=params["order"], seed=params["seed"])
+            else:
+                tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"])
             if stats.get("max_depth", 0) > MAX_TREE_DEPTH:
                 raise SceneError(f"group {name or '(unnamed)'}: BVH depth {stats['max_depth']} exceeds "
                                  f"{MAX_TREE_DEPTH}")

@@ -1,0 +1,306 @@
+"""Goldsmith-Salmon BVH: structure, insertion orders, quality against the SAH build, traversal, renders."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import raykernel
+from raykernel.accel import parse_spec
+from raykernel.aggregates.bvh import BVHArrays, build_bvh, is_leaf
+from raykernel.aggregates.gsbvh import MAX_DEPTH, ORDERS, build_gs, insertion_order, morton_codes
+from raykernel.errors import OptionError
+from raykernel.flatten import BVH, flatten
+from raykernel.scene import Group, Material, Scene, TriangleMesh
+from raykernel.traverse import cast_rays
+
+EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
+
+
+# ---------------------------------------------------------------- helpers
+
+def random_boxes(rng, n, size=0.02, span=1.0):
+    lo = rng.random((n, 3)) * span
+    return np.hstack([lo, lo + rng.random((n, 3)) * size])
+
+
+def check_tree(bvh, stats, items):
+    """The layout's invariants for a tree with one item per leaf."""
+    items = np.asarray(items, np.float64).reshape(-1, 6)
+    n = len(items)
+    bounds, first, count, order = bvh
+    m = len(count)
+    assert isinstance(bvh, BVHArrays)
+    assert bounds.dtype == np.float64 and bounds.shape == (m, 6)
+    assert first.dtype == count.dtype == order.dtype == np.int64
+    assert np.array_equal(np.sort(order), np.arange(n))
+    leaf = (count > 0) | (first <= np.arange(m))
+    assert np.array_equal(is_leaf(bvh), leaf)
+    inner = np.flatnonzero(~leaf)
+    leaves = np.flatnonzero(leaf)
+    depth = np.zeros(m, np.int64)
+    for i in inner:
+        depth[first[i]] = depth[first[i] + 1] = depth[i] + 1
+    if n == 0:
+        assert m == 1 and count[0] == 0 and first[0] == 0 and np.array_equal(bounds[0], EMPTY_BOX)
+    else:
+        assert m == 2 * n - 1
+        left = first[inner]
+        assert np.all(count[inner] == 0) and np.all(left > inner) and np.all(left + 1 < m)
+        assert np.array_equal(np.sort(np.concatenate([left, left + 1])), np.arange(1, m))
+        union = np.hstack([np.minimum(bounds[left, :3], bounds[left + 1, :3]),
+                           np.maximum(bounds[left, 3:], bounds[left + 1, 3:])])
+        assert np.array_equal(bounds[inner], union)
+        assert np.all(count[leaves] == 1)
+        assert np.array_equal(np.sort(first[leaves]), np.arange(n))
+        assert np.array_equal(bounds[leaves], items[order[first[leaves]]])
+    if stats is not None:
+        assert stats["nodes"] == m and stats["inner"] == len(inner) and stats["leaves"] == len(leaves)
+        assert stats["empty_leaves"] == int(n == 0) and stats["refs"] == n
+        assert stats["bytes"] == sum(a.nbytes for a in bvh)
+        assert stats["max_depth"] == int(depth.max()) <= MAX_DEPTH
+        assert stats["seconds"] >= 0.0
+
+
+def same_arrays(a, b):
+    return all(x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes() for x, y in zip(a, b))
+
+
+def box_area(b):
+    e = b[..., 3:] - b[..., :3]
+    return 2.0 * (e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0])
+
+
+def sah_cost(bvh):
+    area = box_area(bvh.bounds)
+    leaf = is_leaf(bvh)
+    return float((area * np.where(leaf, bvh.count, 1.0)).sum() / area[0])
+
+
+def chain_cost(items):
+    """SAH cost of the list-order chain: each item hung beside everything inserted before it."""
+    lo = np.minimum.accumulate(items[:, :3])
+    hi = np.maximum.accumulate(items[:, 3:])
+    prefix = box_area(np.hstack([lo, hi]))
+    return float((prefix[1:].sum() + box_area(items).sum()) / prefix[-1])
+
+
+# ---------------------------------------------------------------- structure
+
+@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("kind", ["uniform", "clustered", "slivers", "mixed"])
+def test_structure_on_random_scenes(order, kind):
+    rng = np.random.default_rng(len(kind))
+    n = 2000
+    if kind == "uniform":
+        items = random_boxes(rng, n)
+    elif kind == "clustered":
+        c = rng.random((6, 3))[rng.integers(0, 6, n)] * 100 + rng.normal(0, 0.5, (n, 3))
+        items = np.hstack([c - 0.01, c + 0.01])
+    elif kind == "slivers":
+        lo = rng.random((n, 3))
+        ext = np.zeros((n, 3))
+        ext[np.arange(n), rng.integers(0, 3, n)] = rng.random(n) * 10
+        items = np.hstack([lo, lo + ext])
+    else:
+        items = random_boxes(rng, n, size=1.0) * rng.choice([1e-3, 1.0, 1e3], (n, 1))
+    bvh, stats = build_gs(items, order, seed=3)
+    check_tree(bvh, stats, items)
+    assert stats["order"] == order
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 3, 17])
+def test_small_inputs(n):
+    items = random_boxes(np.random.default_rng(n), n)
+    bvh, stats = build_gs(items, "shuffle")
+    check_tree(bvh, stats, items)
+    if n == 1:
+        assert stats["nodes"] == 1 and bvh.count[0] == 1
+        assert np.array_equal(bvh.bounds[0], items[0])
+
+
+@pytest.mark.parametrize("items", [
+    np.tile([[1.0, 2.0, 3.0, 1.5, 2.5, 3.0]], (1000, 1)),                      # identical boxes
+    np.hstack([np.random.default_rng(1).random((1000, 3))] * 2),                # points: all areas zero
+    np.column_stack([np.arange(1024.0), np.zeros((1024, 2)), np.arange(1024.0), np.zeros((1024, 2))]),
+], ids=["identical", "points", "collinear"])
+def test_degenerate_input_stays_balanced(items):
+    for order in ORDERS:
+        bvh, stats = build_gs(items, order)
+        check_tree(bvh, stats, items)
+        assert stats["max_depth"] <= 3 * math.ceil(math.log2(len(items)))
+
+
+def test_depth_guard_on_nested_boxes():
+    """Boxes around one centre, inserted from small to large, would make a chain 100 deep."""
+    r = np.arange(1, 201, dtype=np.float64)[:, None]
+    items = np.hstack([-r * np.ones(3), r * np.ones(3)])
+    bvh, stats = build_gs(items, "file")
+    check_tree(bvh, stats, items)
+    assert stats["max_depth"] == MAX_DEPTH
+    _, small = build_gs(items, "file", max_depth=12)
+    assert small["max_depth"] <= 12
+    with pytest.raises(OptionError):
+        build_gs(items, max_depth=5)
+
+
+@pytest.mark.parametrize("magnitude", [1e-300, 1e300, 1.5e308])
+def test_extreme_magnitudes(magnitude):
+    rng = np.random.default_rng(4)
+    c = (rng.random((300, 3)) * 2 - 1) * magnitude
+    items = np.hstack([c, c + np.abs(c) * 0.1])
+    bvh, stats = build_gs(items, "shuffle")
+    check_tree(bvh, stats, items)
+    assert stats["max_depth"] <= 40
+
+
+def test_deterministic_for_a_seed_and_input_untouched():
+    items = random_boxes(np.random.default_rng(5), 3000)
+    copy = items.copy()
+    for order in ORDERS:
+        a, _ = build_gs(items, order, seed=7)
+        b, _ = build_gs(items, order, seed=7)
+        assert same_arrays(a, b)
+    assert np.array_equal(items, copy)
+
+
+def test_seeds_give_different_trees():
+    items = random_boxes(np.random.default_rng(6), 3000)
+    a, _ = build_gs(items, "shuffle", seed=1)
+    b, _ = build_gs(items, "shuffle", seed=2)
+    assert not same_arrays(a, b)
+    check_tree(b, None, items)
+    # the seed means nothing to the other orders
+    assert same_arrays(build_gs(items, "file", seed=1)[0], build_gs(items, "file", seed=2)[0])
+
+
+def test_insertion_orders():
+    items = random_boxes(np.random.default_rng(8), 500)
+    assert np.array_equal(insertion_order(items, "file", 1), np.arange(500))
+    shuffled = insertion_order(items, "shuffle", 1)
+    assert np.array_equal(np.sort(shuffled), np.arange(500)) and not np.array_equal(shuffled, np.arange(500))
+    curve = insertion_order(items, "curve", 1)
+    codes = morton_codes(items)
+    assert np.all(np.diff(codes[curve].astype(np.float64)) >= 0)
+    # Morton order interleaves x, y, z bits: x is the lowest bit
+    corners = np.array([[x, y, z] * 2 for z in (0, 1) for y in (0, 1) for x in (0, 1)], np.float64)
+    assert morton_codes(corners).tolist() == [0] + [int("111" * 21, 2) // 7 * k for k in range(1, 8)]
+    with pytest.raises(OptionError):
+        build_gs(items, "random")
+
+
+def test_file_order_is_the_given_order():
+    """A file-order tree depends on the order of the boxes; shuffling the input changes it."""
+    items = random_boxes(np.random.default_rng(9), 1000)
+    a, _ = build_gs(items, "file")
+    b, _ = build_gs(items[::-1].copy(), "file")
+    assert not np.array_equal(a.first, b.first) or not np.array_equal(a.order, b.order[::-1])
+
+
+# ---------------------------------------------------------------- quality
+
+@pytest.mark.parametrize("order", ["file", "shuffle"])
+def test_cost_near_binned_sah_and_far_below_a_chain(order):
+    rng = np.random.default_rng(10)
+    items = random_boxes(rng, 10000, size=0.02)
+    gs, _ = build_gs(items, order)
+    sah, _ = build_bvh(items, leaf_size=1)
+    assert sah_cost(gs) < 2.0 * sah_cost(sah)
+    assert sah_cost(gs) < 0.01 * chain_cost(items)
+
+
+def test_curve_order_is_sane():
+    items = random_boxes(np.random.default_rng(11), 10000, size=0.02)
+    gs, stats = build_gs(items, "curve")
+    sah, _ = build_bvh(items, leaf_size=1)
+    assert sah_cost(gs) < 5.0 * sah_cost(sah)
+    assert sah_cost(gs) < 0.05 * chain_cost(items)
+
+
+# ---------------------------------------------------------------- accelerator spec and flatten
+
+def test_spec_parameters():
+    assert parse_spec("bvh")[1] == {"leaf": 4, "bins": 16, "build": "sah", "order": "file", "seed": 1}
+    assert parse_spec("bvh(build=gs, order=curve, seed=9)")[1]["order"] == "curve"
+    for bad in ("bvh(build=gsx)", "bvh(order=zorder)", "bvh(seed=-1)"):
+        with pytest.raises(OptionError):
+            parse_spec(bad)
+
+
+def new_scene() -> Scene:
+    scene = Scene()
+    scene.add_material(Material())
+    return scene
+
+
+def fill_group(group, rng, n=30, spread=4.0):
+    """Spheres, cones, polygons, patches and a triangle mesh at random."""
+    for _ in range(n):
+        group.spheres.add(rng.uniform(-spread, spread, 3), rng.uniform(0.1, 0.8), 0)
+    for _ in range(n // 3):
+        base = rng.uniform(-spread, spread, 3)
+        group.cones.add(base, rng.uniform(0.05, 0.5), base + rng.normal(0, 1.0, 3), rng.uniform(0.05, 0.5), 0)
+    for _ in range(n // 3):
+        c = rng.uniform(-spread, spread, 3)
+        u, v = rng.normal(0, 0.6, 3), rng.normal(0, 0.6, 3)
+        angles = np.linspace(0, 2 * np.pi, rng.integers(3, 7), endpoint=False)
+        group.polygons.add(c + np.outer(np.cos(angles), u) + np.outer(np.sin(angles), v), 0)
+    for _ in range(n // 4):
+        c = rng.uniform(-spread, spread, 3)
+        u, v = rng.normal(0, 0.6, 3), rng.normal(0, 0.6, 3)
+        group.patches.add(np.array([c, c + u, c + u + v, c + v]), 0, normals=rng.normal(0, 1, (4, 3)) + np.cross(u, v))
+    verts = rng.uniform(-spread, spread, 3) + rng.normal(0, 0.8, (30, 3))
+    faces = np.array([f for f in rng.integers(0, 30, (40, 3)) if len(set(f)) == 3])
+    group.add(TriangleMesh(verts, faces, 0))
+    return group
+
+
+def random_rays(rng, n, spread=6.0):
+    origins = rng.normal(0, 1, (n, 3))
+    origins *= 2.5 * spread / np.linalg.norm(origins, axis=1)[:, None]
+    inside = rng.uniform(-spread * 0.6, spread * 0.6, (n // 4, 3))
+    origins = np.vstack([origins, inside])
+    targets = rng.uniform(-spread * 0.7, spread * 0.7, (len(origins), 3))
+    return origins, targets - origins
+
+
+def test_flatten_uses_the_gs_build():
+    scene = new_scene()
+    fill_group(scene.root, np.random.default_rng(12))
+    geo, stats = flatten(scene, default_accel="bvh(build=gs, order=shuffle, seed=4)")
+    assert geo.agg_kind[geo.root] == BVH
+    agg = stats["aggregates"][0]
+    assert agg["kind"] == "bvh(build=gs, order=shuffle, seed=4)" and agg["order"] == "shuffle"
+    n = agg["items"]
+    assert agg["nodes"] == 2 * n - 1 == stats["build.nodes"] and agg["refs"] == n
+
+
+@pytest.mark.parametrize("order", ORDERS)
+@pytest.mark.parametrize("seed", [0, 1])
+def test_cast_rays_match_list(order, seed):
+    rng = np.random.default_rng(100 + seed)
+    scene = new_scene()
+    fill_group(scene.root, rng)
+    inner = fill_group(Group(name="inner", accel=f"bvh(build=gs, order={order})"), rng, n=12, spread=2.0)
+    scene.root.add(inner)
+    o, d = random_rays(rng, 2000)
+    ref = cast_rays(flatten(scene, "list")[0], o, d)
+    assert np.isfinite(ref[0]).sum() > 300
+    got = cast_rays(flatten(scene, f"bvh(build=gs, order={order}, seed={seed})")[0], o, d)
+    for a, b in zip(got[:4], ref[:4]):
+        np.testing.assert_array_equal(a, b)
+    shadow = cast_rays(flatten(scene, f"bvh(build=gs, order={order})")[0], o, d, tmax=0.5, any_hit=True)
+    np.testing.assert_array_equal(np.isfinite(shadow[0]),
+                                  np.isfinite(cast_rays(flatten(scene, "list")[0], o, d, tmax=0.5)[0]))
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_spd_balls_render_matches_sah_bvh(order):
+    scene = raykernel.load("spd:balls:1")
+    sah = raykernel.render(scene, accel="bvh", resolution=32, spd=True)
+    gs = raykernel.render(scene, accel=f"bvh(build=gs, order={order})", resolution=32, spd=True)
+    np.testing.assert_array_equal(gs.image, sah.image)
+    rays = {k: v for k, v in sah.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
+    assert rays and {k: gs.stats[k] for k in rays} == rays
