@@ -387,3 +387,23 @@ def test_cli_renders_the_stadium(tmp_path):
     image = np.asarray(Image.open(out))
     assert image.shape == (32, 32, 3)
     assert image.std() > 0          # not a blank picture
+
+
+def test_stadium_teapot_bvh_nests_a_bvh_and_keeps_the_hits():
+    import numpy as np
+    from raykernel.flatten import flatten
+    from raykernel.traverse import cast_rays
+    plain = P.load("stadium", ratio=1000, stadium_prims=600, teapot_prims=200)
+    nested = P.load("stadium", ratio=1000, stadium_prims=600, teapot_prims=200, teapot_bvh=1)
+    assert [g.accel for g in nested.root.children if g.name == "teapot"] == ["bvh"]
+    rng = np.random.default_rng(3)
+    eye = nested.camera.eye
+    d = nested.camera.look_at - eye + rng.normal(scale=0.3 * np.linalg.norm(nested.camera.look_at - eye) / 10,
+                                                  size=(400, 3))
+    o = np.tile(eye, (400, 1))
+    a = cast_rays(flatten(plain, "grid")[0], o, d)
+    b = cast_rays(flatten(nested, "grid")[0], o, d)
+    assert np.isfinite(a[0]).sum() > 100
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[2], b[2])
+    with pytest.raises(raykernel.OptionError, match="teapot_bvh"):
+        P.load("stadium", teapot_bvh=2)

@@ -88,6 +88,8 @@ _SPECS: dict[str, dict[str, _Param]] = {
         "ratio": _Param(600.0, 1.0, 1e6, False, "stadium length / teapot size"),
         "stadium_prims": _Param(5000, 500, 1_000_000, True, "primitives in the stadium"),
         "teapot_prims": _Param(5000, 100, 1_000_000, True, "teapot facets, rounded to the nearest SPD teapot size"),
+        "teapot_bvh": _Param(0, 0, 1, True, "1: the teapot group gets its own BVH, nested in the structure "
+                             "over the stadium (Haines's fix for the problem voxel)"),
     },
     "satellite": {
         "time": _Param(0.0, -1e9, 1e9, False, "seconds along the orbit from the start position"),
@@ -327,19 +329,23 @@ def _bake(group: Group, m: np.ndarray):
 
 # ---- stadium ---------------------------------------------------------------------------------
 
-def stadium(ratio: float = 600.0, stadium_prims: int = 5000, teapot_prims: int = 5000) -> Scene:
+def stadium(ratio: float = 600.0, stadium_prims: int = 5000, teapot_prims: int = 5000,
+            teapot_bvh: int = 0) -> Scene:
     """Haines's teapot in a football stadium.
 
     ratio          stadium length / teapot size, 1 to 1e6 (default 600: a 1 ft teapot)
     stadium_prims  primitives in the stadium, 500 to 1e6 (default 5000)
     teapot_prims   teapot facets, 100 to 1e6 (default 5000; the SPD teapot size
                    whose facet count is nearest is used: 5112 at the default)
+    teapot_bvh     1 gives the teapot group its own BVH, nested inside whatever
+                   structure is built over the stadium (default 0: one structure)
 
     The stadium is 600 ft long (x from -150 to 450) and 420 ft wide; the goal
     line runs along x = 0 and the teapot stands on it at the origin. Groups:
     stadium (field, stands with seats, goalposts, towers) and teapot.
     """
-    p = _checked("stadium", dict(ratio=ratio, stadium_prims=stadium_prims, teapot_prims=teapot_prims))
+    p = _checked("stadium", dict(ratio=ratio, stadium_prims=stadium_prims, teapot_prims=teapot_prims,
+                                 teapot_bvh=teapot_bvh))
     ratio, target = p["ratio"], p["stadium_prims"]
     scene = Scene(background=(0.03, 0.05, 0.12))
     mat = scene.add_material
@@ -464,7 +470,7 @@ def stadium(ratio: float = 600.0, stadium_prims: int = 5000, teapot_prims: int =
                              (*ring(depth - 0.5 * d)[1], height + 0.01)], concrete)
 
     # the teapot on the goal line
-    teapot = scene.root.add(Group(name="teapot"))
+    teapot = scene.root.add(Group(name="teapot", accel="bvh" if teapot_bvh else None))
     size = STADIUM_LENGTH / ratio
     lo, hi = _add_teapot(teapot, p["teapot_prims"], size, chrome)
     center = (lo + hi) / 2.0
