@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from raykernel import Group, Instance, RayInputError, RayScene, Scene, TriangleMesh
-from raykernel.primitives import SPHERE, TRIANGLE
+from raykernel.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 from reference import all_hits, world_primitives
 
 
@@ -29,8 +29,31 @@ def reference_hits(scene: RayScene, o, d, tmin=0.0, tmax=np.inf):
     return t, ident
 
 
+KIND_CODES = {"sphere": SPHERE, "polygon": POLYGON, "patch": PATCH, "cone": CONE, "triangle": TRIANGLE}
+
+
+def user_ids(scene: RayScene, kind, index):
+    """(geom_id, prim_id) of global (kind, index) pairs, from the sizes scene.geometries lists:
+    geometries of one kind family (polygons and patches together) are numbered one after another."""
+    family = {PATCH: POLYGON}
+    ranges, next_first = [], {}
+    for g, info in enumerate(scene.geometries):
+        k = family.get(KIND_CODES[info["kind"]], KIND_CODES[info["kind"]])
+        first = next_first.get(k, 0)
+        ranges.append((k, first, info["count"], g))
+        next_first[k] = first + info["count"]
+    geom = np.full(len(kind), -1, np.int64)
+    local = np.full(len(kind), -1, np.int64)
+    for i, (k, idx) in enumerate(zip(kind, index)):
+        for fk, first, n, g in ranges:
+            if k >= 0 and family.get(k, k) == fk and first <= idx < first + n:
+                geom[i], local[i] = g, idx - first
+    return geom, local
+
+
 def check_all_queries(scene, o, d, tmin=0.0, tmax=np.inf):
     t_ref, ident = reference_hits(scene, o, d, tmin, tmax)
+    geom_ref, local_ref = user_ids(scene, ident[:, 0], ident[:, 1])
     best = np.argmin(t_ref, axis=0)
     t_best = t_ref[best, np.arange(len(o))]
     hit = np.isfinite(t_best)
@@ -41,8 +64,9 @@ def check_all_queries(scene, o, d, tmin=0.0, tmax=np.inf):
     # identities where the closest hit is not a near tie
     t_sorted = np.sort(t_ref, axis=0)
     clear = hit & ((t_sorted[1] - t_sorted[0]) > 1e-9 * np.abs(t_sorted[0]) + 1e-12)
-    assert np.array_equal(h.geom_id[clear], ident[best[clear], 0])
-    assert np.array_equal(h.prim_id[clear], ident[best[clear], 1])
+    assert np.array_equal(h.kind[clear], ident[best[clear], 0])
+    assert np.array_equal(h.geom_id[clear], geom_ref[best[clear]])
+    assert np.array_equal(h.prim_id[clear], local_ref[best[clear]])
     assert np.array_equal(h.inst_id[clear], ident[best[clear], 2])
     np.testing.assert_allclose(np.linalg.norm(h.normal[hit], axis=1), 1.0, rtol=1e-12)
     assert np.all(np.isnan(h.normal[~hit]))
@@ -54,11 +78,11 @@ def check_all_queries(scene, o, d, tmin=0.0, tmax=np.inf):
     ray, t, prim, geom, inst = scene.intersect_all(o, d, tmin, tmax, ids=True)
     r_ref, p_ref = np.nonzero(np.isfinite(t_ref.T))
     tt = t_ref.T[r_ref, p_ref]
-    order = np.lexsort((ident[p_ref, 2], ident[p_ref, 1], ident[p_ref, 0], tt, r_ref))
+    order = np.lexsort((ident[p_ref, 2], local_ref[p_ref], geom_ref[p_ref], tt, r_ref))
     assert np.array_equal(ray, r_ref[order])
     np.testing.assert_allclose(t, tt[order], rtol=1e-9)
-    assert np.array_equal(prim, ident[p_ref[order], 1])
-    assert np.array_equal(geom, ident[p_ref[order], 0])
+    assert np.array_equal(prim, local_ref[p_ref[order]])
+    assert np.array_equal(geom, geom_ref[p_ref[order]])
     assert np.array_equal(inst, ident[p_ref[order], 2])
     assert np.array_equal(np.bincount(ray, minlength=len(o)), counts)
     assert np.all((np.diff(ray) > 0) | ((np.diff(ray) == 0) & (np.diff(t) >= 0)))
@@ -72,7 +96,7 @@ def test_random_mesh_all_queries(accel):
     scene = RayScene.from_mesh(v, f, accel=accel)
     o, d = random_rays(rng)
     h = check_all_queries(scene, o, d)
-    assert np.all(h.geom_id[np.isfinite(h.t)] == TRIANGLE)
+    assert np.all(h.kind[np.isfinite(h.t)] == TRIANGLE) and np.all(h.geom_id[np.isfinite(h.t)] == 0)
     assert scene.last_stats["rays.cast"] == len(o)
     assert scene.last_stats["tests.triangle"] > 0
 
@@ -94,7 +118,7 @@ def test_random_spheres_all_queries():
     scene = RayScene.from_spheres(c, r)
     o, d = random_rays(rng)
     h = check_all_queries(scene, o, d)
-    assert np.all(h.geom_id[np.isfinite(h.t)] == SPHERE)
+    assert np.all(h.kind[np.isfinite(h.t)] == SPHERE) and np.all(h.geom_id[np.isfinite(h.t)] == 0)
 
 
 def test_scene_with_instances():
@@ -128,7 +152,7 @@ def test_hand_computed_triangle_surface():
     # shading normal: 0.625 n0 + 0.25 n1 + 0.125 n2 = (0.25, 0.125, 1), normalised
     s = np.array([0.25, 0.125, 1.0])
     np.testing.assert_allclose(h.shading_normal, [s / np.linalg.norm(s)] * 2)
-    assert h.prim_id.tolist() == [0, 0] and h.geom_id.tolist() == [TRIANGLE] * 2
+    assert h.prim_id.tolist() == [0, 0] and h.geom_id.tolist() == [0, 0] and h.kind.tolist() == [TRIANGLE] * 2
     # flat mesh: shading normal = geometric normal; reversed winding flips it
     flat = RayScene.from_mesh(v, [(0, 2, 1)]).intersect((0.5, 0.25, 1.0), (0, 0, -1))
     np.testing.assert_allclose(flat.normal, [(0, 0, -1)])

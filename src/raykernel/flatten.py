@@ -128,6 +128,7 @@ class _Arrays:
         self.poly = []     # (Polygons set, is_patch)
         self.mesh = []
         self.n_sph = self.n_cone = self.n_poly = self.n_poly_verts = self.n_tri = self.n_tri_verts = 0
+        self.geometries = []   # (kind, first global index, count) of each primitive set, in build order
         self.agg_kind, self.agg_bounds, self.agg_start, self.agg_count = [], [], [], []
         self.node_bounds, self.node_first, self.node_count = [], [], []
         self.n_nodes = 0
@@ -150,6 +151,7 @@ def _sphere_refs(arr: _Arrays, s):
             (s.radius == 0.0) | ~np.isfinite(s.radius)) else 0
         raise SceneError(f"sphere {bad}: radius must be finite and non-zero, centre finite")
     idx = np.arange(arr.n_sph, arr.n_sph + len(s))
+    arr.geometries.append((SPHERE, arr.n_sph, len(s)))
     arr.sph.append(s)
     arr.n_sph += len(s)
     r = np.abs(s.radius)[:, None]
@@ -165,6 +167,7 @@ def _cone_refs(arr: _Arrays, c):
         raise SceneError(f"cone {int(np.flatnonzero(bad)[0])}: base and apex must differ, radii must not both be "
                          "zero and must have the same sign")
     idx = np.arange(arr.n_cone, arr.n_cone + len(c))
+    arr.geometries.append((CONE, arr.n_cone, len(c)))
     arr.cone.append(c)
     arr.n_cone += len(c)
     unit = axis / length[:, None]
@@ -180,6 +183,7 @@ def _cone_refs(arr: _Arrays, c):
 def _polygon_refs(arr: _Arrays, p):
     kind = PATCH if p.patches else POLYGON
     idx = np.arange(arr.n_poly, arr.n_poly + len(p))
+    arr.geometries.append((kind, arr.n_poly, len(p)))
     arr.poly.append(p)
     arr.n_poly += len(p)
     arr.n_poly_verts += len(p.vertices)
@@ -190,6 +194,7 @@ def _polygon_refs(arr: _Arrays, p):
 
 def _mesh_refs(arr: _Arrays, m):
     idx = np.arange(arr.n_tri, arr.n_tri + len(m.faces))
+    arr.geometries.append((TRIANGLE, arr.n_tri, len(m.faces)))
     arr.mesh.append((m, arr.n_tri_verts))
     arr.n_tri += len(m.faces)
     arr.n_tri_verts += len(m.vertices)
@@ -584,5 +589,6 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         "build.aggregates": len(b.agg_stats),
         "build.nesting": int(depth),
         "aggregates": b.agg_stats,
+        "geometries": np.array(arr.geometries, np.int64).reshape(-1, 3),
     }
     return geo, stats

@@ -7,19 +7,23 @@
 
 Rays are rows of (N, 3) arrays (a single (3,) row is broadcast against the
 other argument); directions need not be unit length, t is measured in units
-of the direction given. Every query runs the one traversal of traverse.py,
-in parallel over chunks of rays, with watertight ray/triangle tests.
+of the direction given. Queries run in parallel over chunks of rays, with
+watertight ray/triangle tests: a scene of triangles under one BVH (every
+from_mesh) takes the fast kernel of meshcast.py, any other scene the one
+traversal of traverse.py; both give the same hits and counters.
 
 Identities of a hit:
 
-* `geom_id`: the primitive kind (SPHERE 0, POLYGON 1, PATCH 2, CONE 3,
-  TRIANGLE 4), -1 on a miss. A RayScene from one mesh has geom_id 4 on
-  every hit, one from spheres 0.
-* `prim_id`: the index within that kind's global numbering, in the order
-  flatten() builds the arrays; for a RayScene from one mesh it is the face
-  index, for spheres the sphere index. -1 on a miss.
+* `geom_id`: which geometry was hit: one mesh, or one set of spheres,
+  polygons, patches or cones, numbered in build order (`RayScene.geometries`
+  describes each); a RayScene from one mesh or one sphere set has geom_id 0.
+  -1 on a miss.
+* `prim_id`: the primitive's index within its geometry (the face index of a
+  mesh, the sphere index of a sphere set). -1 on a miss.
 * `inst_id`: the innermost Instance the primitive was reached through
   (instances numbered in flatten order), -1 outside instances.
+* `kind`: the primitive kind (SPHERE 0, POLYGON 1, PATCH 2, CONE 3,
+  TRIANGLE 4), -1 on a miss.
 
 Geometry is stored in float64 whatever the input dtype: float32 vertices are
 widened exactly, and the intersection and traversal arithmetic stays in
@@ -30,7 +34,6 @@ already round a vertex by more than the smallest feature.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 
@@ -41,13 +44,16 @@ from . import counters as C
 from .config import njit
 from .errors import RayKernelError
 from .flatten import GRID, flatten
+from . import meshcast
+from .hitsurface import store_miss, store_surface
+from .meshcast import MeshKernel
 from .primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
-from .render import surface
 from .scene import Scene, TriangleMesh
 from .traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 
 CHUNK = 1024
 CLOSEST, ANY = 0, 1
+KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone", TRIANGLE: "triangle"}
 
 
 class RayInputError(RayKernelError, ValueError):
@@ -59,9 +65,10 @@ class Hits:
     """Closest hits of a batch of N rays (one row per ray)."""
 
     t: np.ndarray               # (N,) ray parameter of the hit, inf on a miss
-    prim_id: np.ndarray         # (N,) index within the primitive kind (face index for a mesh), -1 on a miss
-    geom_id: np.ndarray         # (N,) primitive kind (0 sphere, 1 polygon, 2 patch, 3 cone, 4 triangle), -1
+    prim_id: np.ndarray         # (N,) index within its geometry (face index for a mesh), -1 on a miss
+    geom_id: np.ndarray         # (N,) geometry (mesh or primitive set) in RayScene.geometries, -1 on a miss
     inst_id: np.ndarray         # (N,) innermost instance, -1 outside instances or on a miss
+    kind: np.ndarray            # (N,) primitive kind (0 sphere, 1 polygon, 2 patch, 3 cone, 4 triangle), -1
     uv: np.ndarray              # (N, 2) triangles: barycentric (p = (1-u-v) v0 + u v1 + v v2);
     #                             spheres: (longitude / 2pi, colatitude / pi) in the sphere's frame;
     #                             cones: (angle around the axis / 2pi, height / length); NaN otherwise
@@ -77,54 +84,6 @@ class Hits:
 
 
 # ----------------------------------------------------------------- kernel
-
-@njit(inline="always")
-def _unit(x, y, z):
-    n = math.sqrt(x * x + y * y + z * z)
-    if n == 0.0:
-        return 0.0, 0.0, 0.0
-    return x / n, y / n, z / n
-
-
-@njit(inline="always")
-def _surface_uv(geo, kind, idx, px, py, pz):
-    """(u, v) of local point p on primitive (kind, idx)."""
-    if kind == TRIANGLE:
-        f = geo.tri_faces
-        v = geo.tri_verts
-        a, b, c = f[idx, 0], f[idx, 1], f[idx, 2]
-        e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-        e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-        gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        area = gx * gx + gy * gy + gz * gz
-        wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
-        cx, cy, cz = wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x
-        dx, dy, dz = e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx
-        return (cx * gx + cy * gy + cz * gz) / area, (dx * gx + dy * gy + dz * gz) / area
-    if kind == SPHERE:
-        x, y, z = _unit(px - geo.sph_center[idx, 0], py - geo.sph_center[idx, 1], pz - geo.sph_center[idx, 2])
-        u = math.atan2(y, x) / (2.0 * math.pi)
-        if u < 0.0:
-            u += 1.0
-        return u, math.acos(min(1.0, max(-1.0, z))) / math.pi
-    if kind == CONE:
-        ax, ay, az = geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2]
-        wx, wy, wz = px - geo.cone_base[idx, 0], py - geo.cone_base[idx, 1], pz - geo.cone_base[idx, 2]
-        s = wx * ax + wy * ay + wz * az
-        # a frame across the axis: e1 = axis x (the coordinate axis least aligned with it)
-        if abs(ax) <= abs(ay) and abs(ax) <= abs(az):
-            e1x, e1y, e1z = _unit(0.0, az, -ay)
-        elif abs(ay) <= abs(az):
-            e1x, e1y, e1z = _unit(-az, 0.0, ax)
-        else:
-            e1x, e1y, e1z = _unit(ay, -ax, 0.0)
-        e2x, e2y, e2z = ay * e1z - az * e1y, az * e1x - ax * e1z, ax * e1y - ay * e1x
-        u = math.atan2(wx * e2x + wy * e2y + wz * e2z, wx * e1x + wy * e1y + wz * e1z) / (2.0 * math.pi)
-        if u < 0.0:
-            u += 1.0
-        return u, s / geo.cone_length[idx]
-    return np.nan, np.nan
-
 
 @njit(parallel=True)
 def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, idx_out, inst_out,
@@ -148,7 +107,7 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
         hit_f = np.zeros(HIT_F + cap)
         hit_i = np.zeros(HIT_I + 3 * cap, np.int64)
         ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i)
-        cnt = np.zeros(C.N_COUNTERS, np.int64)
+        cnt = np.zeros(counters.shape[1], np.int64)     # columns past N_COUNTERS: lazy octree passes
         for r in range(r0, r1):
             cnt[C.RAYS_CAST] += 1
             ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
@@ -168,15 +127,9 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
                     idx_out[r] = k
                 continue
             if not intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt):
-                t_out[r] = np.inf
+                store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
                 kind_out[r] = -1
-                idx_out[r] = -1
                 inst_out[r] = -1
-                if with_surface:
-                    uv_out[r, 0] = uv_out[r, 1] = np.nan
-                    for k in range(3):
-                        gn_out[r, k] = np.nan
-                        sn_out[r, k] = np.nan
                 continue
             t = hit_f[0]
             kind = hit_i[0]
@@ -185,27 +138,10 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
             kind_out[r] = kind
             idx_out[r] = idx
             inst_out[r] = hit_i[2]
-            if not with_surface:
-                continue
-            # the hit point in the primitive's own frame; normals back by the transpose
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-            m = hit_f[1:13]
-            lx = m[0] * px + m[1] * py + m[2] * pz + m[3]
-            ly = m[4] * px + m[5] * py + m[6] * pz + m[7]
-            lz = m[8] * px + m[9] * py + m[10] * pz + m[11]
-            gx, gy, gz, sx, sy, sz, _ = surface(geo, kind, idx, lx, ly, lz)
-            gx, gy, gz = _unit(m[0] * gx + m[4] * gy + m[8] * gz, m[1] * gx + m[5] * gy + m[9] * gz,
-                               m[2] * gx + m[6] * gy + m[10] * gz)
-            sx, sy, sz = _unit(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
-                               m[2] * sx + m[6] * sy + m[10] * sz)
-            if sx == 0.0 and sy == 0.0 and sz == 0.0:
-                sx, sy, sz = gx, gy, gz
-            gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz
-            sn_out[r, 0], sn_out[r, 1], sn_out[r, 2] = sx, sy, sz
-            u, v = _surface_uv(geo, kind, idx, lx, ly, lz)
-            uv_out[r, 0] = u
-            uv_out[r, 1] = v
-        for k in range(C.N_COUNTERS):
+            if with_surface:
+                store_surface(geo, r, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f[1:13],
+                              uv_out, gn_out, sn_out)
+        for k in range(counters.shape[1]):
             counters[c, k] = cnt[k]
 
 
@@ -285,9 +221,31 @@ class RayScene:
             raise RayInputError(f"scene must be a raykernel Scene, got {type(scene).__name__}")
         self.scene = scene
         self.geo, self.build_stats = flatten(scene, accel)
+        table = self.build_stats.pop("geometries")
+        self.geometries = [{"kind": KIND_NAMES[k], "count": int(n)} for k, _, n in table]
+        # per kind family (polygons and patches share one numbering): first global index of each geometry
+        family = np.where(table[:, 0] == PATCH, POLYGON, table[:, 0]) if len(table) else table[:, 0]
+        self._geom_of = {int(k): (np.flatnonzero(family == k), table[family == k, 1]) for k in np.unique(family)}
         # a primitive can be met twice along a ray only through grid cells or a group nested twice
         self._may_repeat = bool(np.any(self.geo.agg_kind == GRID)) or len(self.geo.agg_kind) > 1
+        # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
+        self._lazy = self.build_stats.get("lazy")
+        self._may_repeat = self._may_repeat or self._lazy is not None
+        self._mesh = MeshKernel.of(self.geo)
         self.last_stats: dict = {}
+
+    def _identify(self, kind: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(geometry, index within it) of global (kind, index) pairs; -1 where kind is -1."""
+        geom = np.full(len(kind), -1, np.int64)
+        local = np.full(len(kind), -1, np.int64)
+        family = np.where(kind == PATCH, POLYGON, kind)
+        for k, (ids, starts) in self._geom_of.items():
+            sel = family == k
+            if np.any(sel):
+                g = np.searchsorted(starts, index[sel], side="right") - 1
+                geom[sel] = ids[g]
+                local[sel] = index[sel] - starts[g]
+        return geom, local
 
     @classmethod
     def from_mesh(cls, vertices, faces, normals=None, accel: str = "bvh") -> "RayScene":
@@ -361,7 +319,24 @@ class RayScene:
         all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
         start = time.perf_counter()
-        if n:
+        if n and self._mesh is not None:
+            mesh = self._mesh
+            meshcast.query(self.geo, mesh.corners, mesh.prim, mesh.root, o, d, lo, hi, np.int64(mode), CHUNK,
+                           t, idx, uv, gn, sn, with_surface, offsets, all_t, all_i, counters)
+            if mode != ALL_HITS:
+                kind[:] = np.where(idx >= 0, TRIANGLE, -1)
+                inst[:] = -1
+        elif n and self._lazy is not None:
+            # passes of PASS_CHUNKS chunks; the lazy octrees refine after each
+            for a, b in self._lazy.ranges(n, CHUNK):
+                rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + self._lazy.columns), np.int64)
+                _query(self.geo, o[a:b], d[a:b], lo[a:b], hi[a:b], np.int64(mode), CHUNK, t[a:b], kind[a:b],
+                       idx[a:b], inst[a:b], uv[a:b], gn[a:b], sn[a:b], with_surface,
+                       offsets[a:b + 1] if len(offsets) else offsets, all_t, all_i, rows)
+                counters[a // CHUNK:a // CHUNK + len(rows)] = rows[:, :C.N_COUNTERS]
+                self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
+            self._lazy.update_stats(self.build_stats, self.geo)
+        elif n:
             _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv, gn, sn,
                    with_surface, offsets, all_t, all_i, counters)
         seconds = time.perf_counter() - start
@@ -377,7 +352,8 @@ class RayScene:
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
         t, kind, idx, inst, uv, gn, sn, stats = self._run(CLOSEST, o, d, lo, hi, with_surface=True)
         self.last_stats = stats
-        return Hits(t=t, prim_id=idx, geom_id=kind, inst_id=inst, uv=uv, normal=gn, shading_normal=sn)
+        geom, prim = self._identify(kind, idx)
+        return Hits(t=t, prim_id=prim, geom_id=geom, inst_id=inst, kind=kind, uv=uv, normal=gn, shading_normal=sn)
 
     def occluded(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
         """True where the ray meets anything in [tmin, tmax] (stops at the first hit found)."""
@@ -387,7 +363,10 @@ class RayScene:
         return np.isfinite(t)
 
     def _all(self, o, d, lo, hi):
+        mark = self._lazy.checkpoint() if self._lazy is not None else None
         _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+        if mark is not None:
+            self.geo = self._lazy.restore(mark, self.geo)   # the second run must meet the same trees
         offsets = np.zeros(len(o) + 1, np.int64)
         np.cumsum(counts, out=offsets[1:])
         all_t = np.empty(offsets[-1])
@@ -397,6 +376,8 @@ class RayScene:
             stats[k] = stats.get(k, 0) + v
         stats["rays.cast"] = len(o)
         ray = np.repeat(np.arange(len(o), dtype=np.int64), counts)
+        # identities as the user sees them: (geometry, index within it, instance)
+        all_i[:, 0], all_i[:, 1] = self._identify(all_i[:, 0], all_i[:, 1])
         order = np.lexsort((all_i[:, 2], all_i[:, 1], all_i[:, 0], all_t, ray))
         ray, all_t, all_i = ray[order], all_t[order], all_i[order]
         if self._may_repeat and len(ray) > 1:

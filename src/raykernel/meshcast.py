@@ -1,0 +1,204 @@
+"""The fast path of RayScene: one triangle mesh (or several) under one BVH.
+
+    mesh = MeshKernel.of(geo)          # None unless geo is triangles under a single BVH, no instances
+    mesh.query(geo, origins, directions, tmin, tmax, mode, ...)   # same outputs as rayscene's generic kernel
+
+The generic intersection routine (traverse.py) carries every aggregate kind,
+nesting frames, instances and mailboxes through one loop; for the common
+case of ray casting against a plain mesh that generality costs several
+times the work. This kernel walks the same BVH (same nodes, same order,
+same conservative box test) and runs the same watertight triangle test, so
+its hits, ties and counters are identical to the generic kernel's (tested),
+with three changes that make it fast:
+
+* the ray's permutation and shear for the watertight test are computed once
+  per ray instead of once per triangle (the same arithmetic, bit for bit);
+* the triangles' corners are copied into leaf order, nine numbers per
+  reference, so a leaf's triangles are read from one contiguous block;
+* the loop knows only BVH nodes and triangles.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import prange
+
+from . import counters as C
+from .config import njit
+from .flatten import BVH, Geometry
+from .hitsurface import store_miss, store_surface
+from .primitives import INDEX_MASK, TRIANGLE
+from .primitives import _edge_sign as edge_sign
+from .traverse import ALL_HITS, box_entry
+from .traverse import _inverse as inverse
+
+INF = np.inf
+STACK = 192                  # a BVH is at most 96 nodes deep (flatten.MAX_TREE_DEPTH): 2 entries per level
+_IDENTITY = np.array([1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0])
+
+
+class MeshKernel(NamedTuple):
+    corners: np.ndarray      # (R, 9) float64: v0, v1, v2 of the triangle of each leaf reference
+    prim: np.ndarray         # (R,) int64 global triangle index of each leaf reference
+    root: int                # root node of the BVH
+
+    @classmethod
+    def of(cls, geo: Geometry) -> "MeshKernel | None":
+        """The fast-path arrays, or None when geo holds anything but triangles under one BVH."""
+        if (len(geo.agg_kind) != 1 or geo.agg_kind[0] != BVH or len(geo.inst_agg) or len(geo.sph_radius)
+                or len(geo.cone_length) or len(geo.poly_start) or not len(geo.tri_faces)):
+            return None
+        prim = geo.refs & INDEX_MASK
+        corners = geo.tri_verts[geo.tri_faces[prim]].reshape(-1, 9)
+        return cls(np.ascontiguousarray(corners), prim.astype(np.int64), int(geo.agg_start[geo.root]))
+
+
+@njit(inline="always")
+def _ray_shear(dx, dy, dz):
+    """The watertight test's per-ray constants (primitives.hit_triangle):
+    the dominant axis kz, the other two (kx, ky) in winding order, shear sx, sy, sz."""
+    ax, ay, az = abs(dx), abs(dy), abs(dz)
+    if ax >= ay and ax >= az:
+        kz, kx, ky = 0, 1, 2
+        rz, rx, ry = dx, dy, dz
+    elif ay >= az:
+        kz, kx, ky = 1, 2, 0
+        rz, rx, ry = dy, dz, dx
+    else:
+        kz, kx, ky = 2, 0, 1
+        rz, rx, ry = dz, dx, dy
+    if rz < 0.0:
+        rx, ry = ry, rx
+        kx, ky = ky, kx
+    if rz == 0.0:
+        return kx, ky, kz, 0.0, 0.0, 0.0
+    return kx, ky, kz, rx / rz, ry / rz, 1.0 / rz
+
+
+@njit(inline="always")
+def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
+    """primitives.hit_triangle for corners row j with the ray's shear precomputed."""
+    if sz == 0.0:
+        return INF
+    pz0, px0, py0 = c[j, kz] - o[kz], c[j, kx] - o[kx], c[j, ky] - o[ky]
+    pz1, px1, py1 = c[j, 3 + kz] - o[kz], c[j, 3 + kx] - o[kx], c[j, 3 + ky] - o[ky]
+    pz2, px2, py2 = c[j, 6 + kz] - o[kz], c[j, 6 + kx] - o[kx], c[j, 6 + ky] - o[ky]
+    ax0, ay0 = px0 - sx * pz0, py0 - sy * pz0
+    ax1, ay1 = px1 - sx * pz1, py1 - sy * pz1
+    ax2, ay2 = px2 - sx * pz2, py2 - sy * pz2
+    u, su = edge_sign(ax1, ay1, ax2, ay2)
+    v, sv = edge_sign(ax2, ay2, ax0, ay0)
+    w, sw = edge_sign(ax0, ay0, ax1, ay1)
+    if su == 0 or su != sv or su != sw:
+        return INF
+    det = u + v + w
+    if det == 0.0:
+        return INF
+    t = (u * pz0 + v * pz1 + w * pz2) * sz / det
+    if tmin <= t <= tmax:
+        return t
+    return INF
+
+
+@njit(parallel=True)
+def query(geo, corners, prim, root, origins, directions, tmin, tmax, mode, chunk, t_out, idx_out,
+          uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters):
+    """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
+    outputs and conventions of rayscene._query (kind and instance are implied:
+    TRIANGLE, -1). All hits: with len(offsets) == 0 counts them into idx_out, else
+    writes ray r's hits to rows offsets[r] .. offsets[r + 1] of all_t / all_i."""
+    n = origins.shape[0]
+    n_chunks = (n + chunk - 1) // chunk
+    store = offsets.shape[0] > 0
+    nb = geo.node_bounds
+    first = geo.node_first
+    count = geo.node_count
+    for ci in prange(n_chunks):
+        c = np.int64(ci)
+        stack = np.empty(STACK, np.int64)
+        stack_t = np.empty(STACK)
+        o = np.empty(3)
+        cnt = np.zeros(C.N_COUNTERS, np.int64)
+        for r in range(c * chunk, min(n, (c + 1) * chunk)):
+            cnt[C.RAYS_CAST] += 1
+            ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+            dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+            o[0], o[1], o[2] = ox, oy, oz
+            ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+            kx, ky, kz, sx, sy, sz = _ray_shear(dx, dy, dz)
+            lo = tmin[r]
+            best = tmax[r]
+            best_j = np.int64(-1)
+            n_all = np.int64(0)
+            base = offsets[r] if store else 0
+            sp = 0
+            cnt[C.BOUNDS_TESTS] += 1
+            te = box_entry(geo.agg_bounds, geo.root, ox, oy, oz, ix, iy, iz, lo, best)
+            if te != INF:
+                stack[0] = root
+                stack_t[0] = te
+                sp = 1
+            while sp > 0:
+                sp -= 1
+                if stack_t[sp] > best:
+                    continue
+                node = stack[sp]
+                cnt[C.CELLS_VISITED] += 1
+                k = count[node]
+                if k == 0:
+                    left = first[node]
+                    cnt[C.BOUNDS_TESTS] += 2
+                    tl = box_entry(nb, left, ox, oy, oz, ix, iy, iz, lo, best)
+                    tr = box_entry(nb, left + 1, ox, oy, oz, ix, iy, iz, lo, best)
+                    if tl <= tr:
+                        if tr != INF:
+                            stack[sp], stack_t[sp] = left + 1, tr
+                            sp += 1
+                        if tl != INF:
+                            stack[sp], stack_t[sp] = left, tl
+                            sp += 1
+                    else:
+                        if tl != INF:
+                            stack[sp], stack_t[sp] = left, tl
+                            sp += 1
+                        stack[sp], stack_t[sp] = left + 1, tr
+                        sp += 1
+                    continue
+                cnt[C.CELLS_LEAVES] += 1
+                s = first[node]
+                for j in range(s, s + k):
+                    cnt[C.TESTS + TRIANGLE] += 1
+                    t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best)
+                    if t == INF:
+                        continue
+                    if mode == ALL_HITS:
+                        if store and n_all < offsets[r + 1] - base:
+                            all_t[base + n_all] = t
+                            all_i[base + n_all, 0] = TRIANGLE
+                            all_i[base + n_all, 1] = prim[j]
+                            all_i[base + n_all, 2] = -1
+                        n_all += 1
+                        continue
+                    # ties at equal t go to the smaller triangle index, as in the generic kernel
+                    if best_j < 0 or t < best or prim[j] < prim[best_j]:
+                        best = t
+                        best_j = j
+                        if mode != 0:
+                            sp = 0
+                            break
+            if mode == ALL_HITS:
+                if not store:
+                    idx_out[r] = n_all
+                continue
+            if best_j < 0:
+                store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
+                continue
+            t_out[r] = best
+            idx_out[r] = prim[best_j]
+            if with_surface:
+                store_surface(geo, r, TRIANGLE, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz,
+                              _IDENTITY, uv_out, gn_out, sn_out)
+        for k in range(C.N_COUNTERS):
+            counters[c, k] = cnt[k]

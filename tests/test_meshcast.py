@@ -1,0 +1,148 @@
+"""The mesh fast path of RayScene against the generic kernel, and geometry identities.
+
+The fast kernel (meshcast.py) must give exactly what the generic traversal
+gives on the same BVH: the same t, identities, surfaces and counters, bit
+for bit, for every query kind.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
+from raykernel.primitives import SPHERE, TRIANGLE
+from test_watertight import MESHES, rays_through, targets
+
+
+def generic(scene: RayScene) -> RayScene:
+    """The same scene with the fast path switched off."""
+    other = copy.copy(scene)
+    other._mesh = None
+    return other
+
+
+def assert_same_queries(scene: RayScene, o, d, tmin=0.0, tmax=np.inf):
+    assert scene._mesh is not None, "this scene should take the fast path"
+    slow = generic(scene)
+    for query in ("intersect", "occluded", "count_hits", "intersect_all"):
+        fast_out = getattr(scene, query)(o, d, tmin, tmax)
+        fast_stats = {k: v for k, v in scene.last_stats.items() if k != "time.trace"}
+        slow_out = getattr(slow, query)(o, d, tmin, tmax)
+        slow_stats = {k: v for k, v in slow.last_stats.items() if k != "time.trace"}
+        assert fast_stats == slow_stats, query
+        if query == "intersect":
+            for field in ("t", "prim_id", "geom_id", "inst_id", "kind", "uv", "normal", "shading_normal"):
+                assert np.array_equal(getattr(fast_out, field), getattr(slow_out, field), equal_nan=True), field
+        elif query == "intersect_all":
+            for a, b in zip(fast_out, slow_out):
+                assert np.array_equal(a, b)
+        else:
+            assert np.array_equal(fast_out, slow_out)
+    return scene.intersect(o, d, tmin, tmax)
+
+
+def test_random_triangle_soup():
+    rng = np.random.default_rng(11)
+    v = rng.uniform(-1, 1, (600, 3))
+    f = np.arange(600).reshape(-1, 3)
+    o = rng.uniform(-2, 2, (3000, 3))
+    d = rng.uniform(-1, 1, (3000, 3)) - o
+    h = assert_same_queries(RayScene.from_mesh(v, f), o, d)
+    assert 0.2 < np.mean(np.isfinite(h.t)) < 0.95
+
+
+def test_intervals_and_axis_parallel_rays():
+    rng = np.random.default_rng(12)
+    v = rng.uniform(-1, 1, (900, 3))
+    f = np.arange(900).reshape(-1, 3)
+    o = rng.uniform(-2, 2, (2000, 3))
+    d = np.zeros((2000, 3))
+    d[np.arange(2000), rng.integers(0, 3, 2000)] = rng.choice([-1.0, 1.0], 2000)
+    d[:500] = rng.normal(size=(500, 3))
+    tmin = rng.uniform(0, 1, 2000)
+    tmax = tmin + rng.uniform(0, 3, 2000)
+    tmax[:100] = tmin[:100]            # empty-length intervals
+    assert_same_queries(RayScene.from_mesh(v, f), o, d, tmin, tmax)
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_shared_edges_and_vertices_of_closed_meshes(name):
+    v, f = MESHES[name]
+    pts = targets(v, f, np.random.default_rng(7))
+    o, d = rays_through(pts, np.array([2.0 ** -5, -3 * 2.0 ** -7, 2.0 ** -6]))
+    h = assert_same_queries(RayScene.from_mesh(v, f), o, d)
+    assert np.all(np.isfinite(h.t))
+
+
+def test_smooth_normals_and_flat_meshes():
+    rng = np.random.default_rng(13)
+    v, f = MESHES["lumpy-0"]
+    n = v / np.linalg.norm(v, axis=1)[:, None]
+    o = rng.normal(size=(1500, 3)) * 3
+    d = rng.normal(size=(1500, 3)) * 0.1 - 0.1 * o
+    assert_same_queries(RayScene.from_mesh(v, f, normals=n), o, d)
+    flat = np.c_[rng.uniform(-1, 1, (300, 2)), np.zeros(300)]          # every triangle in z = 0
+    assert_same_queries(RayScene.from_mesh(flat, np.arange(300).reshape(-1, 3)), o, d)
+
+
+def test_huge_and_tiny_scales():
+    v, f = MESHES["icosphere"]
+    rng = np.random.default_rng(14)
+    o = rng.normal(size=(800, 3)) * 4
+    d = rng.normal(size=(800, 3)) * 0.5 - o          # towards points near the unit sphere
+    for scale, shift in ((1e-6, 0.0), (1e6, 0.0), (1.0, 1e7)):
+        h = assert_same_queries(RayScene.from_mesh(v * scale + shift, f), o * scale + shift, d * scale)
+        assert np.mean(np.isfinite(h.t)) > 0.3
+
+
+def test_which_scenes_take_the_fast_path():
+    v, f = MESHES["cube"]
+    assert RayScene.from_mesh(v, f)._mesh is not None
+    assert RayScene.from_mesh(v, f, accel="bvh(build=gs)")._mesh is not None
+    assert RayScene.from_mesh(v, f, accel="grid")._mesh is None
+    assert RayScene.from_mesh(v, f, accel="list")._mesh is None
+    assert RayScene.from_spheres([(0, 0, 0)], 1.0)._mesh is None
+    scene = Scene()
+    scene.root.add(TriangleMesh(v, f))
+    scene.root.spheres.add((3, 0, 0), 1.0)
+    assert RayScene.from_scene(scene)._mesh is None
+    inst = Scene()
+    g = Group(name="g", accel="bvh")
+    g.add(TriangleMesh(v, f))
+    inst.root.add(Instance(g, np.eye(4)))
+    assert RayScene.from_scene(inst)._mesh is None
+
+
+def test_geometry_ids_count_within_each_geometry():
+    """Two meshes and a sphere set in the root, a third mesh in a nested group:
+    geom_id numbers them in build order and prim_id counts within each."""
+    square = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], float)
+    quads = np.array([(0, 1, 2), (0, 2, 3)])
+    scene = Scene()
+    scene.root.add(TriangleMesh(square + (0, 0, 0), quads))        # geometry 0: x in [0, 1]
+    scene.root.add(TriangleMesh(square + (2, 0, 0), quads))        # geometry 1: x in [2, 3]
+    scene.root.spheres.add((5.5, 0.5, 0.0), 0.25)                   # a sphere set
+    inner = Group(name="inner", accel="bvh")
+    inner.add(TriangleMesh(square + (8, 0, 0), quads))
+    scene.root.add(inner)
+    rs = RayScene.from_scene(scene)
+    kinds = [g["kind"] for g in rs.geometries]
+    assert sorted(kinds) == ["sphere", "triangle", "triangle", "triangle"] and len(rs.geometries) == 4
+    assert all(g["count"] == (1 if g["kind"] == "sphere" else 2) for g in rs.geometries)
+    # aim at the lower-right triangle (face 0) and upper-left (face 1) of each square, and at the sphere
+    o = np.array([(0.7, 0.2, 1), (0.2, 0.7, 1), (2.7, 0.2, 1), (2.2, 0.7, 1), (5.5, 0.5, 1), (8.2, 0.7, 1),
+                  (20, 20, 1)], float)
+    h = rs.intersect(o, (0, 0, -1))
+    mesh_ids = [i for i, k in enumerate(kinds) if k == "triangle"]
+    sphere_id = kinds.index("sphere")
+    assert h.prim_id.tolist() == [0, 1, 0, 1, 0, 1, -1]
+    assert h.kind.tolist() == [TRIANGLE] * 4 + [SPHERE, TRIANGLE, -1]
+    first, second, nested = mesh_ids
+    assert h.geom_id.tolist() == [first, first, second, second, sphere_id, nested, -1]
+    assert len({first, second, nested, sphere_id}) == 4
+    ray, t, prim, geom, inst = rs.intersect_all(o, (0, 0, -1), ids=True)
+    assert ray.tolist() == [0, 1, 2, 3, 4, 5] and prim.tolist() == [0, 1, 0, 1, 0, 1]
+    assert geom.tolist() == h.geom_id[:6].tolist() and inst.tolist() == [-1] * 6
