@@ -26,17 +26,60 @@ from _report import SHARED_SPD, machine, replace_section  # noqa: E402
 SPD_MESHES = ["gears-sf4", "mount-sf6", "teapot-sf6", "tetra-sf6"]
 
 
-def meshes():
+def scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
+    """Every polygon (fan-triangulated) and mesh triangle of a scene, in world space."""
+    from raykernel.convert import walk
+    verts, faces, n = [], [], 0
+    for group, m, _ in walk(scene):
+        for s in group.primitive_sets():
+            if s.kind in ("polygon", "patch"):
+                v = s.vertices
+                tri = np.concatenate([np.stack([np.full(c - 2, a), a + np.arange(1, c - 1), a + np.arange(2, c)], 1)
+                                      for a, c in zip(s.start, s.count)])
+            elif s.kind == "triangle":
+                v, tri = s.vertices, s.faces
+            else:
+                raise ValueError(f"{s.kind} is not made of triangles")
+            verts.append(v @ m[:3, :3].T + m[:3, 3])
+            faces.append(tri + n)
+            n += len(v)
+    return np.concatenate(verts), np.concatenate(faces).astype(np.int64)
+
+
+def obj_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
+    """A scene as triangles through our OBJ export (spheres and cones tessellated), loaded by trimesh."""
+    import io
+
     import trimesh
-    out = {}
+
+    from raykernel.convert import scene_to_obj
+    obj, _ = scene_to_obj(scene)
+    m = trimesh.load(io.StringIO(obj), file_type="obj", force="mesh", process=False)
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def _load_obj(path):
+    import trimesh
+    m = trimesh.load(path, force="mesh", process=False)
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+
+
+def _icosphere():
+    import trimesh
     s = trimesh.creation.icosphere(subdivisions=6)
-    out["sphere-80k"] = (np.asarray(s.vertices, float), np.asarray(s.faces, np.int64))
-    for name in SPD_MESHES:
-        path = SHARED_SPD / f"{name}.obj"
-        if path.exists():
-            m = trimesh.load(path, force="mesh", process=False)
-            out[name] = (np.asarray(m.vertices, float), np.asarray(m.faces, np.int64))
-    return out
+    return np.asarray(s.vertices, float), np.asarray(s.faces, np.int64)
+
+
+MESHES = {
+    "sphere-80k": _icosphere,
+    **{name: (lambda name=name: _load_obj(SHARED_SPD / f"{name}.obj")) for name in SPD_MESHES},
+    "tetra-sf10": lambda: scene_triangles(__import__("raykernel").load("spd:tetra:10")),   # 4^10 triangles
+    "stadium": lambda: obj_triangles(__import__("raykernel").load("scene:stadium")),     # teapot in a stadium
+}
+
+
+def meshes(names=None):
+    return {name: make() for name, make in MESHES.items() if names is None or name in names}
 
 
 def camera_rays(v, n):
@@ -70,16 +113,17 @@ def best_of(fn, repeat=2):
     return best, out
 
 
-def worker(n_rays, threads):
+def worker(data_path, threads):
     import numba
     numba.set_num_threads(threads)
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh as EmbreeMesh
 
     from raykernel import RayScene
-    rng = np.random.default_rng(0)
+    data = np.load(data_path)
     rows = []
-    for name, (v, f) in meshes().items():
+    for name in data["names"]:
+        v, f = data[f"{name}/v"], data[f"{name}/f"]
         t0 = time.perf_counter()
         rs = RayScene.from_mesh(v, f)
         build_rk = time.perf_counter() - t0
@@ -88,10 +132,11 @@ def worker(n_rays, threads):
         EmbreeMesh(es, v[f].astype(np.float32))
         build_em = time.perf_counter() - t0
         for kind in ("coherent", "incoherent"):
-            o, d = camera_rays(v, n_rays) if kind == "coherent" else random_rays(v, n_rays, rng)
+            o, d = data[f"{name}/{kind}/o"], data[f"{name}/{kind}/d"]
             o32, d32 = o.astype(np.float32), d.astype(np.float32)
             rs.intersect(o[:1000], d[:1000])
             sec_rk, h = best_of(lambda: rs.intersect(o, d))
+            stats = rs.last_stats
             es.run(o32[:1000], d32[:1000], output=1)
             sec_em, e = best_of(lambda: es.run(o32, d32, output=1))
             hit_rk = np.isfinite(h.t)
@@ -100,12 +145,24 @@ def worker(n_rays, threads):
             same = hit_rk == hit_em
             both = hit_rk & hit_em
             same[both] = np.abs(h.t[both] - t_em[both]) <= 1e-5 * np.maximum(np.abs(h.t[both]), 1e-30)
-            rows.append(dict(mesh=name, tris=len(f), kind=kind, rays=len(o), threads=threads,
+            rows.append(dict(mesh=str(name), tris=len(f), kind=kind, rays=len(o), threads=threads,
                              rk=len(o) / sec_rk / 1e6, em=len(o) / sec_em / 1e6, agree=float(same.mean()),
                              hit=float(hit_rk.mean()), build_rk=build_rk, build_em=build_em,
-                             tests=rs.last_stats.get("tests.triangle", 0) / len(o),
-                             nodes=rs.last_stats.get("cells.visited", 0) / len(o)))
+                             tests=stats.get("tests.triangle", 0) / len(o),
+                             nodes=stats.get("cells.visited", 0) / len(o)))
     print(json.dumps(rows))
+
+
+def prepare(path, n_rays, names):
+    """The meshes and both ray sets, saved once so every process casts exactly the same rays."""
+    rng = np.random.default_rng(0)
+    arrays, kept = {}, []
+    for name, (v, f) in meshes(names).items():
+        kept.append(name)
+        arrays[f"{name}/v"], arrays[f"{name}/f"] = v, f
+        arrays[f"{name}/coherent/o"], arrays[f"{name}/coherent/d"] = camera_rays(v, n_rays)
+        arrays[f"{name}/incoherent/o"], arrays[f"{name}/incoherent/d"] = random_rays(v, n_rays, rng)
+    np.savez(path, names=np.array(kept), **arrays)
 
 
 JIT_SNIPPET = ("import time; t=time.perf_counter(); import numpy as np; from raykernel import RayScene; "
@@ -124,19 +181,23 @@ def jit_times():
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--rays", type=int, default=1_000_000)
-    ap.add_argument("--worker", action="store_true")
+    ap.add_argument("--meshes", default=None, help="comma-separated subset of the meshes")
+    ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-report", action="store_true")
     args = ap.parse_args()
     if args.worker:
-        worker(args.rays, args.threads)
+        worker(args.worker, args.threads)
         return
     rows = []
-    for threads in (1, 2):
-        cmd = ["taskset", "-c", f"0-{threads - 1}", sys.executable, __file__, "--worker", "--threads", str(threads),
-               "--rays", str(args.rays)]
-        out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
-        rows += json.loads(out.strip().splitlines()[-1])
+    with tempfile.TemporaryDirectory() as tmp:
+        data = f"{tmp}/rays.npz"
+        prepare(data, args.rays, args.meshes.split(",") if args.meshes else None)
+        for threads in (1, 2):
+            cmd = ["taskset", "-c", f"0-{threads - 1}", sys.executable, __file__, "--worker", data,
+                   "--threads", str(threads)]
+            out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+            rows += json.loads(out.strip().splitlines()[-1])
     cold, warm = jit_times()
     import embreex
     lines = [f"Machine: {machine()}; embreex {getattr(embreex, '__version__', '4.4.0.post1')} (Embree 4, float32).",
