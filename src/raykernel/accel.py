@@ -189,3 +189,19 @@ register(Kind("octree", "octree (Glassner 1984): centre subdivision of the scene
           "Lastra 2000)", str, choices=("point", "neighbor", "parametric")),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
 )))
+register(Kind("lazyoctree", "lazy octree (Lathrop 1988): one leaf at first; between passes of rays (the "
+              "renderer's batches of tiles, RayScene's runs of 8192 rays) a leaf is split one level, as the "
+              "octree splits, when it meets I-V (and VI with rule60): I level < depth, II not empty, III more "
+              "than one item (M > 1), IV at least `rays` rays passed through it without a hit in it since it "
+              "was made (N >= rays), V M*k < N", (
+    Param("depth", 8, "criterion I: most levels (the root is level 0; 0 never refines)", int, 0, 24),
+    Param("rays", 4, "criterion IV: rays that must pass through a leaf without a hit in it before it may split",
+          int, 1, 1 << 40),
+    Param("k", 0.1, "criterion V: a leaf of M items splits only after more than k*M passes (0: off)", float,
+          0.0, 1e9),
+    Param("rule60", False, "criterion VI, Haines's problem-voxel rule: a leaf whose largest child would still "
+          "hold >= 60% of its items (unless the only occupied one) stays a leaf for good", bool),
+    Param("walk", "neighbor", "traversal: point, neighbor or parametric (see octree)", str,
+          choices=("point", "neighbor", "parametric")),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
+)))

@@ -12,6 +12,9 @@ group instanced many times is built once.
 
 References are tagged integers (see primitives.make_ref): a leaf of any
 aggregate can hold a primitive, an aggregate or an instance.
+
+With lazy octrees in the scene, build["lazy"] holds them
+(aggregates/lazyoctree.py): whoever traces rays refines them between passes.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ OCTREE = 3
 AGG_KIND_CODES["octree"] = OCTREE
 RC = 6
 AGG_KIND_CODES["rc"] = RC
+AGG_KIND_CODES["lazyoctree"] = OCTREE   # walked as an octree, refined between passes (aggregates/lazyoctree.py)
 
 
 class Geometry(NamedTuple):
@@ -101,6 +105,7 @@ class Geometry(NamedTuple):
     oct_scale: np.ndarray       # (O, 3) 1 / oct_unit
     oct_walk: np.ndarray        # (O,) 0 point, 1 neighbor, 2 parametric
     oct_mailbox: np.ndarray     # (O,) 1: skip refs already tested in an earlier leaf
+    oct_pass: np.ndarray        # (ON,) lazy octree leaf that may split: its pass counter column, else -1
     root: int                   # the top aggregate
 
 
@@ -141,6 +146,7 @@ class _Arrays:
         self.oct = {k: [] for k in ("bounds", "first", "count", "loc", "level", "slot", "nbr", "root", "origin",
                                     "unit", "walk", "mailbox")}
         self.n_oct_nodes = 0
+        self.lazy = []     # one record per lazy octree, for aggregates/lazyoctree.py
         self.rc = {k: [] for k in ("face_root", "node_a", "node_b", "split", "key", "key_shift")}
         self.n_rc_nodes = self.n_rc_keys = 0
 
@@ -448,6 +454,34 @@ class _Builder:
             arr.refs.append(refs[tree.order])
             arr.n_refs += len(tree.order)
             stats = dict(stats)
+        elif kind == "lazyoctree":
+            # Lathrop's lazy octree: one leaf now, subdivided between passes of rays
+            from .aggregates.lazyoctree import build_lazy
+            from .aggregates.octree import WALKS
+            tree, stats, boxes = build_lazy(bounds, depth=params["depth"], rays=params["rays"], k=params["k"],
+                                            rule60=params["rule60"], name=name)
+            arr.lazy.append(dict(params, octree=len(arr.oct["root"]), node=arr.n_oct_nodes, ref=arr.n_refs,
+                                 refs=refs, boxes=boxes, stats=stats))
+            o = arr.oct
+            arr.agg_kind.append(OCTREE)
+            arr.agg_start.append(len(o["root"]))
+            arr.agg_count.append(len(tree.count))
+            inner = tree.count < 0
+            o["bounds"].append(tree.bounds)
+            o["first"].append(np.where(inner, tree.first + arr.n_oct_nodes, tree.first + arr.n_refs))
+            o["count"].append(tree.count)
+            o["loc"].append(tree.loc)
+            o["level"].append(tree.level)
+            o["slot"].append(tree.slot)
+            o["nbr"].append(np.where(tree.nbr >= 0, tree.nbr + arr.n_oct_nodes, -1))
+            o["root"].append(arr.n_oct_nodes)
+            o["origin"].append(tree.origin)
+            o["unit"].append(tree.unit)
+            o["walk"].append(WALKS.index(params["walk"]))
+            o["mailbox"].append(int(params["mailbox"]))
+            arr.n_oct_nodes += len(tree.count)
+            arr.refs.append(refs[tree.order])
+            arr.n_refs += len(tree.order)
         else:
             raise SceneError(f"accelerator {kind!r} is not available in this build")
         arr.agg_bounds.append(box)
@@ -571,8 +605,14 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         oct_scale=1.0 / np.array(arr.oct["unit"], np.float64).reshape(-1, 3),
         oct_walk=np.array(arr.oct["walk"], np.int64),
         oct_mailbox=np.array(arr.oct["mailbox"], np.int64),
+        oct_pass=np.full(arr.n_oct_nodes, -1, np.int64),
         root=int(root),
     )
+    lazy = None
+    if arr.lazy:
+        # lazy octrees take over the octree and reference arrays to grow them between passes
+        from .aggregates.lazyoctree import LazyOctrees
+        geo, lazy = LazyOctrees.attach(geo, arr.lazy)
     n_materials = max(1, len(scene.materials))
     for name in ("sph_mat", "cone_mat", "poly_mat", "tri_mat"):
         mats = getattr(geo, name)
@@ -591,4 +631,7 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         "aggregates": b.agg_stats,
         "geometries": np.array(arr.geometries, np.int64).reshape(-1, 3),
     }
+    if lazy is not None:
+        stats["lazy"] = lazy
+        lazy.update_stats(stats, geo)
     return geo, stats

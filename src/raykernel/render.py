@@ -14,7 +14,9 @@ pixel centre and rays whose weight falls below 1/512 are not cast.
 
 The image is traced in tiles of TILE x TILE samples, in parallel; each
 tile owns one row of counters, so counts and image bytes do not depend on
-the number of threads.
+the number of threads. The tiles are traced in batches of n_tiles // 32 (at
+least one), in a fixed order; lazy octrees (aggregates/lazyoctree.py) are
+refined between batches from the pass counts of the batch's tiles.
 """
 
 from __future__ import annotations
@@ -254,14 +256,15 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
 
 @njit(parallel=True)
 def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, first, last,
-                  max_depth, cutoff, out, counters):
+                  max_depth, cutoff, out, counters, passes):
     """Trace tiles first..last-1 of the sample grid into `out`, one counter row per tile.
-    cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3)."""
+    cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
+    passes[tile - first]: the tile's pass counts of lazy octree leaves (aggregates/lazyoctree.py)."""
     for ti in prange(last - first):
         tile = np.int64(ti) + first
         ws = workspace()
         rays = np.zeros((RAY_STACK, 11))
-        cnt = np.zeros(C.N_COUNTERS, np.int64)
+        cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         x0 = tile_x[tile]
         y0 = tile_y[tile]
         for j in range(y0, min(y0 + TILE, samples_h)):
@@ -277,6 +280,8 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
                 out[j, i, 2] = b
         for k in range(C.N_COUNTERS):
             counters[tile, k] = cnt[k]
+        for k in range(passes.shape[1]):
+            passes[ti, k] = cnt[C.N_COUNTERS + k]
 
 
 def camera_vectors(camera, width: int, height: int, corners: bool) -> np.ndarray:
@@ -369,14 +374,20 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     cutoff = 0.0 if spd else CUTOFF
 
     t1 = time.perf_counter()
+    lazy = build.get("lazy")     # lazy octrees: each batch is a pass, refined after it
     batch = max(1, n_tiles // 32)
     for first in range(0, n_tiles, batch):
         last = min(n_tiles, first + batch)
+        passes = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
         _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first, last,
-                      max_depth, cutoff, samples, counts)
+                      max_depth, cutoff, samples, counts, passes)
+        if lazy is not None:
+            geo = lazy.refine(geo, passes)
         if progress is not None:
             progress(last, n_tiles)
     trace = time.perf_counter() - t1
+    if lazy is not None:
+        lazy.update_stats(build, geo)
 
     if spd:
         image = 0.25 * (samples[:-1, :-1] + samples[1:, :-1] + samples[:-1, 1:] + samples[1:, 1:])

@@ -43,7 +43,11 @@ removed; its address bits give that octant, visited as an empty leaf.
 parametric (Revelles et al.): node entries with their entry distance, the
 children a ray crosses pushed farthest first, ordered by the first-child
 and next-child rules over the centre-plane parameters. The grid's mailbox
-serves octree frames too.
+serves octree frames too. A lazy octree's candidate leaf (see
+aggregates/lazyoctree.py) gets an OCT_PASS entry at its exit distance above
+the walk's continuation: popped with no closer hit found, it counts a pass
+through the leaf into cnt[N_COUNTERS + column], where the kernel gave cnt
+room for it (cast_rays does not: it never counts passes).
 """
 
 
@@ -81,6 +85,8 @@ RC_SLACK = 1.0 + 1e-7        # the early exit widens the closest hit by this fac
 OCT_START = -4               # stack entry tag: start an octree walk (stack_a: octree index) at stack_t
 OCT_NEXT = -5                # stack entry tag: continue the point/neighbor walk by descending from node stack_a
 OCT_PARAM = -6               # stack entry tag: parametric walk, visit node stack_a (entry distance stack_t)
+OCT_PASS = -7                # stack entry tag: a lazy octree leaf left at stack_t; if the ray gets there without
+#                              a closer hit, count a pass in cnt[N_COUNTERS + stack_a] (aggregates/lazyoctree.py)
 OF_POINT = GF_CELL           # per frame: 28-bit address of the point the octree walk continues from
 OCT_BITS = 28
 OCT_FULL = 1 << OCT_BITS
@@ -290,6 +296,9 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                 rc_o, rc_d = frame_f[f, RF_O], frame_f[f, RF_D]
             rc_on = True
         elif b <= OCT_START:
+            if b == OCT_PASS:
+                cnt[C.N_COUNTERS + a] += 1
+                continue
             # octree: the parametric walk, or a walk of leaves by point location
             oi = geo.agg_start[frame_i[f, 0]]
             if b == OCT_START and geo.oct_mailbox[oi] != 0:
@@ -330,6 +339,10 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                         continue
                     s = geo.oct_first[node]
                     e = s + n_items
+                    col = geo.oct_pass[node]
+                    if col >= 0 and C.N_COUNTERS + col < cnt.shape[0]:
+                        stack_a[sp], stack_b[sp], stack_t[sp] = col, OCT_PASS, ot1
+                        sp += 1
                 else:
                     # the centre planes
                     half = np.int64(1) << (OCT_BITS - 1 - geo.oct_level[node])
@@ -471,6 +484,11 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                         # come back for the next leaf after this one's references
                         frame_f[f, OF_POINT], frame_f[f, OF_POINT + 1], frame_f[f, OF_POINT + 2] = px, py, pz
                         stack_a[sp], stack_b[sp], stack_t[sp] = node, OCT_NEXT, texit
+                        sp += 1
+                    col = geo.oct_pass[leaf]
+                    if col >= 0 and C.N_COUNTERS + col < cnt.shape[0]:
+                        # a lazy octree's candidate leaf: see whether the ray leaves it without a hit
+                        stack_a[sp], stack_b[sp], stack_t[sp] = col, OCT_PASS, texit
                         sp += 1
                     break
                 if s == e:

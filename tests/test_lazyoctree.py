@@ -1,0 +1,503 @@
+"""Lazy octree (Lathrop): starts as one leaf, refines between passes only where rays pass,
+each criterion, hits against list on random, stadium, nested and instanced scenes,
+renders against bvh, and results that do not depend on the thread count."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import raykernel
+from raykernel import RayScene
+from raykernel import pathological as P
+from raykernel.accel import describe, parse_spec
+from raykernel.aggregates import lazyoctree
+from raykernel.aggregates.lazyoctree import PASS_CHUNKS, build_lazy
+from raykernel.aggregates.octree import ADDRESS_BITS
+from raykernel.errors import OptionError
+from raykernel.flatten import OCTREE, flatten
+from raykernel.rayscene import CHUNK
+from raykernel.scene import Group, Instance
+from raykernel.traverse import cast_rays
+from test_grid import assert_same_hits, fill_group, nested_scene, new_scene, random_rays, rotation_scale
+from test_pathological import child, points
+
+WALKS = ("point", "neighbor", "parametric")
+PASS = PASS_CHUNKS * CHUNK          # rays of one RayScene pass
+
+
+def lazy_of(rs: RayScene):
+    return rs.build_stats["lazy"]
+
+
+def tree_of(geo, octree=0):
+    """{(level, loc): ("inner" | sorted refs of the leaf)} of the nodes reachable from the root,
+    and {(level, loc): {wall: (level, loc) of the neighbour}}: read from the flat arrays."""
+    nodes, nbrs = {}, {}
+    todo = [int(geo.oct_root[octree])]
+    while todo:
+        n = todo.pop()
+        key = (int(geo.oct_level[n]), tuple(int(x) for x in geo.oct_loc[n]))
+        if geo.oct_count[n] < 0:
+            nodes[key] = "inner"
+            todo.extend(int(geo.oct_first[n]) + c for c in range(8))
+        else:
+            s = int(geo.oct_first[n])
+            nodes[key] = tuple(sorted(geo.refs[s:s + geo.oct_count[n]].tolist()))
+        nbrs[key] = {w: (int(geo.oct_level[m]), tuple(int(x) for x in geo.oct_loc[m]))
+                     for w, m in enumerate(geo.oct_nbr[n]) if m >= 0}
+    return nodes, nbrs
+
+
+def root_box(geo, octree=0):
+    lo = geo.oct_origin[octree]
+    return lo, lo + geo.oct_unit[octree] * float(1 << ADDRESS_BITS)
+
+
+def lattice_rays(lo, hi, n):
+    """Rays along +x, +y and +z through the centres of an n x n lattice over the box's faces:
+    with n = 2**depth, every cell of that depth is crossed along every axis."""
+    o, d = [], []
+    u = (np.arange(n) + 0.5) / n
+    for a in range(3):
+        b, c = (a + 1) % 3, (a + 2) % 3
+        for i in u:
+            for j in u:
+                p = np.empty(3)
+                p[a] = lo[a] - 1.0
+                p[b] = lo[b] + i * (hi[b] - lo[b])
+                p[c] = lo[c] + j * (hi[c] - lo[c])
+                o.append(p)
+                d.append(np.eye(3)[a])
+    return np.array(o), np.array(d)
+
+
+def same_hits_as_list(scene, spec, o, d, repeats=1, plain=None):
+    """RayScene(spec) against RayScene(list) (of `plain`, the same scene with list specs, if given):
+    closest, any and all hits, `repeats` times (the tree refines during and between the
+    queries). Returns the lazy RayScene."""
+    ref = RayScene.from_scene(scene if plain is None else plain, "list")
+    got = RayScene.from_scene(scene, spec)
+    want = ref.intersect(o, d)
+    want_any = ref.occluded(o, d, tmax=0.5)
+    want_all = ref.intersect_all(o, d, ids=True)
+    assert np.isfinite(want.t).sum() > len(o) // 20
+    for _ in range(repeats):
+        h = got.intersect(o, d)
+        for name in ("t", "prim_id", "geom_id", "inst_id"):
+            np.testing.assert_array_equal(getattr(h, name), getattr(want, name))
+        np.testing.assert_array_equal(h.normal, want.normal)
+        np.testing.assert_array_equal(got.occluded(o, d, tmax=0.5), want_any)
+        for a, b in zip(got.intersect_all(o, d, ids=True), want_all):
+            np.testing.assert_array_equal(a, b)
+    # the refined tree through the plain traversal too
+    assert_same_hits(cast_rays(got.geo, o, d), cast_rays(ref.geo, o, d))
+    return got
+
+
+# ---------------------------------------------------------------- parameters
+
+@pytest.mark.parametrize("text, allowed", [
+    ("lazyoctree(depth=25)", "depth must be an integer in \\[0, 24\\]"),
+    ("lazyoctree(depth=-1)", "depth"),
+    ("lazyoctree(rays=0)", "rays must be an integer in \\[1, "),
+    ("lazyoctree(rays=2.5)", "rays must be an integer"),
+    ("lazyoctree(k=-0.5)", "k must be a number in \\[0.0, "),
+    ("lazyoctree(k=lots)", "k must be a number"),
+    ("lazyoctree(rule60=maybe)", "rule60 must be on or off"),
+    ("lazyoctree(walk=sideways)", "point, neighbor, parametric"),
+    ("lazyoctree(leaf=3)", "its parameters: depth, rays, k, rule60, walk, mailbox")])
+def test_bad_parameters_are_option_errors(text, allowed):
+    with pytest.raises(OptionError, match=allowed):
+        parse_spec(text)
+
+
+@pytest.mark.parametrize("kw, name", [({"depth": 30}, "depth"), ({"depth": 2.0}, "depth"), ({"rays": 0}, "rays"),
+                                      ({"rays": True}, "rays"), ({"k": -1.0}, "k"), ({"k": "x"}, "k"),
+                                      ({"rule60": "on"}, "rule60")])
+def test_build_lazy_checks_its_arguments(kw, name):
+    with pytest.raises(OptionError, match=f"lazyoctree {name} must be"):
+        build_lazy(np.array([[0, 0, 0, 1, 1, 1.0]]), **kw)
+
+
+def test_defaults_and_description():
+    assert parse_spec("lazyoctree") == ("lazyoctree", {"depth": 8, "rays": 4, "k": 0.1, "rule60": False,
+                                                       "walk": "neighbor", "mailbox": True})
+    text = describe()
+    assert "lazyoctree:" in text and "M*k < N" in text
+
+
+# ---------------------------------------------------------------- the tree
+
+def test_starts_as_one_leaf_holding_every_item():
+    scene = new_scene()
+    fill_group(scene.root, np.random.default_rng(1), n=20)
+    geo, build = flatten(scene, "lazyoctree")
+    assert geo.agg_kind[geo.root] == OCTREE
+    root = geo.oct_root[0]
+    n_items = build["aggregates"][0]["items"]
+    assert len(geo.oct_count) == 1 and geo.oct_count[root] == n_items > 1
+    assert sorted(geo.refs[geo.oct_first[root]:geo.oct_first[root] + n_items].tolist()) == sorted(geo.refs.tolist())
+    assert np.all(geo.oct_nbr[root] == -1) and geo.oct_pass[root] == 0
+    assert build["lazy"].columns == 1
+    assert build["build.nodes"] == 1 and build["build.refine_passes"] == 0 and build["build.subdivisions"] == 0
+    # the root box is the octree's
+    octree_geo, _ = flatten(scene, "octree")
+    np.testing.assert_array_equal(geo.oct_bounds[root], octree_geo.oct_bounds[octree_geo.oct_root[0]])
+
+
+@pytest.mark.parametrize("depth", [2, 3])
+def test_refined_everywhere_it_is_the_octree_with_leaf_1(depth):
+    """Rays through every cell of the finest level, all hits (every leaf crossed counts a
+    pass): the lazy octree becomes octree(leaf=1, collapse=off), neighbours included."""
+    scene = new_scene()
+    fill_group(scene.root, np.random.default_rng(4), n=24)
+    rs = RayScene.from_scene(scene, f"lazyoctree(depth={depth}, rays=1, k=0)")
+    o, d = lattice_rays(*root_box(rs.geo), 2 ** (depth + 1))
+    assert len(o) < PASS
+    for _ in range(depth + 1):
+        rs.count_hits(o, d)
+    eager, _ = flatten(scene, f"octree(depth={depth}, leaf=1, collapse=off)")
+    got_nodes, got_nbrs = tree_of(rs.geo)
+    want_nodes, want_nbrs = tree_of(eager)
+    assert len(want_nodes) > 9
+    assert got_nodes == want_nodes
+    assert got_nbrs == want_nbrs
+    # one more pass changes nothing: the criteria are all spent
+    stats = dict(rs.build_stats)
+    rs.count_hits(o, d)
+    assert rs.build_stats["build.nodes"] == stats["build.nodes"] == len(want_nodes)
+    assert lazy_of(rs).columns == 0
+
+
+def test_refines_only_where_rays_pass():
+    scene = new_scene()
+    rng = np.random.default_rng(2)
+    for x in np.linspace(-4, 4, 9):
+        for y in np.linspace(-4, 4, 5):
+            scene.root.spheres.add((x, y, rng.uniform(-4, 4)), 0.3, 0)
+    rs = RayScene.from_scene(scene, "lazyoctree(rays=1, k=0)")
+    lo, hi = root_box(rs.geo)
+    mid = 0.5 * (lo[0] + hi[0])
+    # rays along y and z, all in the -x half of the box
+    n = 3000
+    o = np.column_stack([rng.uniform(lo[0], mid - 0.5, n), np.full(n, lo[1] - 1), rng.uniform(lo[2], hi[2], n)])
+    d = np.tile([0.0, 1.0, 0.0], (n, 1))
+    o2 = np.column_stack([rng.uniform(lo[0], mid - 0.5, n), rng.uniform(lo[1], hi[1], n), np.full(n, lo[2] - 1)])
+    d2 = np.tile([0.0, 0.0, 1.0], (n, 1))
+    for _ in range(4):
+        rs.count_hits(np.vstack([o, o2]), np.vstack([d, d2]))
+    geo = rs.geo
+    inner = np.flatnonzero(geo.oct_count < 0)
+    assert len(inner) > 8
+    # inner nodes: the root, and nodes of the -x half only
+    assert all(geo.oct_bounds[n, 0] < mid for n in inner)
+    assert sorted(n for n in inner if geo.oct_bounds[n, 3] > mid) == [geo.oct_root[0]]
+    # the +x half is four leaves of the first split, each holding many spheres
+    kids = geo.oct_first[geo.oct_root[0]] + np.arange(8)
+    plus = kids[geo.oct_bounds[kids, 0] >= mid]
+    assert len(plus) == 4 and np.all(geo.oct_count[plus] >= 2)
+
+
+# ---------------------------------------------------------------- criteria
+
+def sphere_row(n):
+    scene = new_scene()
+    for x in range(n):
+        scene.root.spheres.add((2.0 * x, 0.0, 0.0), 0.5, 0)
+    return scene
+
+
+def rays_past(n, rng):
+    """Rays along +y that cross the box of sphere_row(5) between its spheres (x = 1, 3, 5, 7) and miss them all."""
+    xs = 2.0 * rng.integers(0, 4, n) + 1.0
+    o = np.column_stack([xs, np.full(n, -3.0), rng.uniform(-0.4, 0.4, n)])
+    return o, np.tile([0.0, 1.0, 0.0], (n, 1))
+
+
+def test_depth_0_never_refines():
+    scene = new_scene()
+    fill_group(scene.root, np.random.default_rng(3), n=20)
+    rs = RayScene.from_scene(scene, "lazyoctree(depth=0, rays=1, k=0)")
+    assert lazy_of(rs).columns == 0
+    o, d = random_rays(np.random.default_rng(4), 3 * PASS // 2)
+    rs.count_hits(o, d)
+    rs.intersect(o, d)
+    assert rs.build_stats["build.nodes"] == 1 and rs.build_stats["build.subdivisions"] == 0
+    assert rs.build_stats["build.refine_passes"] == 4
+
+
+def test_a_leaf_of_one_object_never_refines():
+    one = new_scene()
+    one.root.spheres.add((0, 0, 0), 1.0, 0)
+    rs = RayScene.from_scene(one, "lazyoctree(rays=1, k=0)")
+    assert lazy_of(rs).columns == 0
+    o, d = random_rays(np.random.default_rng(5), 2000, spread=1.0)
+    rs.count_hits(o, d)
+    assert rs.build_stats["build.nodes"] == 1
+    # in a refined tree, leaves of one item or none hold no pass column
+    rs = RayScene.from_scene(sphere_row(5), "lazyoctree(rays=1, k=0)")
+    o, d = random_rays(np.random.default_rng(6), 4000, spread=5.0)
+    o = o + [4.0, 0, 0]
+    for _ in range(4):
+        rs.count_hits(o, d)
+    geo = rs.geo
+    leaves = np.flatnonzero(geo.oct_count >= 0)
+    assert np.all(geo.oct_pass[leaves[geo.oct_count[leaves] <= 1]] == -1)
+    assert np.all(geo.oct_pass[geo.oct_count < 0] == -1)
+    assert rs.build_stats["build.subdivisions"] > 1
+
+
+def test_rays_criterion_counts_passes_without_a_hit():
+    """Criterion IV: the root splits once `rays` rays passed through it without a hit,
+    counted over passes; rays that hit something do not count."""
+    scene = sphere_row(5)
+    rng = np.random.default_rng(7)
+    miss_o, miss_d = rays_past(30, rng)
+    hit_o = np.column_stack([2.0 * rng.integers(0, 5, 50), np.full(50, -3.0), rng.uniform(-0.2, 0.2, 50)])
+    o, d = np.vstack([miss_o, hit_o]), np.vstack([miss_d, np.tile([0.0, 1.0, 0.0], (50, 1))])
+    ref = RayScene.from_scene(scene, "list").intersect(o, d)
+    assert np.isinf(ref.t[:30]).all() and np.isfinite(ref.t[30:]).all()
+    for rays, queries in ((30, 1), (31, 2), (60, 2), (61, 3)):
+        rs = RayScene.from_scene(scene, f"lazyoctree(rays={rays}, k=0)")
+        for q in range(queries):
+            assert rs.build_stats["build.subdivisions"] == 0
+            rs.intersect(o, d)
+        assert rs.build_stats["build.subdivisions"] == 1, (rays, queries)
+
+
+def test_k_criterion_asks_more_passes_of_a_dense_leaf():
+    """Criterion V: M * k < N, with M = 5 spheres and N = 30 passes per query."""
+    scene = sphere_row(5)
+    o, d = rays_past(30, np.random.default_rng(8))
+    for k, splits_after in ((5.9, 1), (6.0, 2), (11.9, 2), (12.0, 3)):
+        rs = RayScene.from_scene(scene, f"lazyoctree(rays=1, k={k})")
+        for q in range(splits_after):
+            assert rs.build_stats["build.subdivisions"] == 0
+            rs.intersect(o, d)
+        assert rs.build_stats["build.subdivisions"] >= 1, (k, splits_after)
+
+
+def test_rule60_keeps_a_problem_voxel_a_leaf_for_good():
+    # five big spheres around the centre in all 8 children, two small ones in two corners:
+    # each child with a corner sphere holds 6 of the 7 items
+    scene = new_scene()
+    for _ in range(5):
+        scene.root.spheres.add((0, 0, 0), 1.0, 0)
+    scene.root.spheres.add((-9, -9, -9), 0.5, 0)
+    scene.root.spheres.add((9, 9, 9), 0.5, 0)
+    o, d = random_rays(np.random.default_rng(9), 3000, spread=9.0)
+    on = RayScene.from_scene(scene, "lazyoctree(rays=1, k=0, rule60=on)")
+    off = RayScene.from_scene(scene, "lazyoctree(rays=1, k=0, rule60=off)")
+    for _ in range(3):
+        on.count_hits(o, d)
+        off.count_hits(o, d)
+    assert on.build_stats["build.nodes"] == 1 and lazy_of(on).columns == 0
+    assert off.build_stats["build.subdivisions"] >= 2
+    np.testing.assert_array_equal(on.count_hits(o, d), off.count_hits(o, d))
+
+
+def test_node_budget_stops_refining_with_exact_hits(monkeypatch):
+    monkeypatch.setattr(lazyoctree, "MAX_NODES", 1 + 8 * 3)
+    scene = new_scene()
+    fill_group(scene.root, np.random.default_rng(10), n=30)
+    o, d = random_rays(np.random.default_rng(11), 3000)
+    rs = same_hits_as_list(scene, "lazyoctree(rays=1, k=0)", o, d, repeats=3)
+    agg = rs.build_stats["aggregates"][0]
+    assert agg["nodes"] == 25 and agg["subdivisions"] == 3 and agg["budget_reached"]
+    assert lazy_of(rs).columns == 0
+
+
+# ---------------------------------------------------------------- hits against list
+
+@pytest.mark.parametrize("walk", WALKS)
+@pytest.mark.parametrize("extra", ["", "mailbox=off", "rule60=on", "depth=3", "rays=50, k=2"])
+def test_random_scenes_match_list(walk, extra):
+    for seed in (0, 1):
+        rng = np.random.default_rng(seed)
+        scene = new_scene()
+        fill_group(scene.root, rng, n=25, big=seed == 1)
+        o, d = random_rays(rng, 1500)
+        oi, di = random_rays(rng, 500, inside=True)
+        o, d = np.vstack([o, oi]), np.vstack([d, di])
+        spec = f"lazyoctree(walk={walk}{', ' + extra if extra else ''})"
+        rs = same_hits_as_list(scene, spec, o, d, repeats=2)
+        if "rays=50" not in extra and not (seed == 1 and "rule60" in extra):
+            # (big items in every octant keep the root a problem voxel under rule60)
+            assert rs.build_stats["build.subdivisions"] > 0
+
+
+@pytest.mark.parametrize("walk", WALKS)
+def test_passes_within_one_query_match_list(walk):
+    """More than one pass inside each query, all-hits included (its two runs must meet the same trees)."""
+    rng = np.random.default_rng(12)
+    scene = new_scene()
+    fill_group(scene.root, rng, n=40)
+    o, d = random_rays(rng, 2 * PASS + 500)
+    rs = same_hits_as_list(scene, f"lazyoctree(walk={walk}, mailbox=off, rays=1, k=0)", o, d)
+    # intersect, occluded and two runs of intersect_all, three passes each, then cast_rays
+    assert rs.build_stats["build.refine_passes"] == 3 * 3
+
+
+@pytest.mark.parametrize("ratio", [1.0, 1e6])
+def test_stadium_matches_list(ratio):
+    scene = P.stadium(ratio=ratio, stadium_prims=600, teapot_prims=200)
+    rng = np.random.default_rng(13)
+    eye = scene.camera.eye
+    pts = points(child(scene.root, "teapot"))
+    tlo, thi = pts.min(axis=0), pts.max(axis=0)
+    targets = np.vstack([rng.uniform(tlo, thi, (2000, 3)),
+                         rng.uniform([-150, -210, 0], [450, 210, 80], (1000, 3))])
+    o = np.vstack([np.tile(eye, (2000, 1)), rng.uniform([-150, -210, 1], [450, 210, 80], (1000, 3))])
+    rs = same_hits_as_list(scene, "lazyoctree", o, targets - o, repeats=2)
+    assert rs.build_stats["build.subdivisions"] > 0
+
+
+@pytest.mark.parametrize("outer, inner, instanced", [
+    ("lazyoctree", "bvh", False), ("bvh", "lazyoctree(rays=1, k=0)", False),
+    ("lazyoctree(walk=point)", "lazyoctree(walk=parametric)", False),
+    ("grid", "lazyoctree(rays=1, k=0)", True), ("lazyoctree(walk=parametric)", "octree", True),
+    ("lazyoctree", "lazyoctree(mailbox=off, rays=1, k=0)", True)])
+def test_nested_and_instanced_match_list(outer, inner, instanced):
+    rng = np.random.default_rng(7)
+    scene = nested_scene(rng, outer, inner, instanced)
+    o, d = random_rays(rng, 2000)
+    oi, di = random_rays(rng, 500, inside=True)
+    o, d = np.vstack([o, oi]), np.vstack([d, di])
+    plain = nested_scene(np.random.default_rng(7), "list", "list", instanced)
+    rs = same_hits_as_list(scene, "bvh", o, d, repeats=2, plain=plain)
+    aggs = rs.build_stats["aggregates"]
+    lazy = [a for a in aggs if a["kind"].startswith("lazyoctree")]
+    assert lazy and len(lazy) == len(lazy_of(rs).records)
+    # nested ones refine too (every inner lazy octree here gets plenty of rays)
+    assert all(a["subdivisions"] > 0 for a in lazy if "rays=1" in a["kind"])
+    assert rs.build_stats["build.subdivisions"] == sum(a["subdivisions"] for a in lazy)
+
+
+def instanced_scene(spec, seed=11):
+    """A group shown through rotated, scaled instances, three levels deep; groups alternate spec and bvh."""
+    rng = np.random.default_rng(seed)
+    leaf = fill_group(Group(name="leaf", accel=spec), rng, n=10, spread=1.0)
+    level = leaf
+    for k in range(3):
+        up = Group(name=f"l{k}", accel=spec if k % 2 else "bvh")
+        up.add(Instance(level, rotation_scale(rng)))
+        up.add(Instance(level, rotation_scale(rng)))
+        level = up
+    scene = new_scene()
+    scene.root.accel = spec
+    scene.root.add(level)
+    return scene
+
+
+@pytest.mark.parametrize("walk", WALKS)
+def test_in_rotated_scaled_instances(walk):
+    spec = f"lazyoctree(walk={walk}, rays=1, k=0)"
+    o, d = random_rays(np.random.default_rng(12), 2500, spread=10.0)
+    rs = same_hits_as_list(instanced_scene(spec), spec, o, d, repeats=2, plain=instanced_scene("list"))
+    lazy = [a for a in rs.build_stats["aggregates"] if a["kind"].startswith("lazyoctree")]
+    # the root holds one item (criterion III keeps it a leaf); the instanced ones refine
+    assert [a["subdivisions"] > 0 for a in lazy] == [a["items"] > 1 for a in lazy] == [True, True, False]
+
+
+def test_flat_and_empty_groups():
+    scene = new_scene()
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        c = np.append(rng.uniform(-4, 4, 2), 1.0)
+        scene.root.polygons.add([c, c + [1, 0, 0], c + [0.5, 1, 0]], 0)
+    scene.root.add(Group(name="empty", accel="lazyoctree"))
+    o, d = random_rays(rng, 2000, spread=4.0)
+    same_hits_as_list(scene, "lazyoctree(rays=1, k=0)", o, d, repeats=2)
+
+
+# ---------------------------------------------------------------- renders
+
+def stats_of_tree(geo, octree=0):
+    """N_IN, N_V, N_EV, N_OIV of the tree reachable from the root, counted from the arrays."""
+    nodes, _ = tree_of(geo, octree)
+    leaves = [v for v in nodes.values() if v != "inner"]
+    return {"nodes": len(nodes), "inner": len(nodes) - len(leaves), "leaves": len(leaves),
+            "empty_leaves": sum(1 for v in leaves if not v), "refs": sum(len(v) for v in leaves)}
+
+
+@pytest.mark.parametrize("name", ["spd:balls:1", "spd:gears:1"])
+def test_spd_render_matches_bvh(name):
+    scene = raykernel.load(name)
+    bvh = raykernel.render(scene, accel="bvh", resolution=48, spd=True)
+    rays = {k: v for k, v in bvh.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
+    # 49 x 49 corner samples: 4 x 4 tiles of 16, fewer than 32, so one tile per batch
+    batches = 16
+    for walk in WALKS:
+        got = raykernel.render(scene, accel=f"lazyoctree(walk={walk})", resolution=48, spd=True)
+        np.testing.assert_array_equal(got.image, bvh.image)
+        assert {k: got.stats[k] for k in rays} == rays
+        agg = got.stats.aggregates[0]
+        assert agg["subdivisions"] > 0 and agg["passes"] == got.stats["build.refine_passes"] == batches
+        assert agg["nodes"] == got.stats["build.nodes"] == 1 + 8 * agg["subdivisions"]
+        assert agg["nodes"] == agg["inner"] + agg["leaves"] and agg["inner"] == agg["subdivisions"]
+        assert got.stats["build.refs"] == agg["refs"] and got.stats["build.empty_leaves"] == agg["empty_leaves"]
+
+
+def test_render_stats_are_the_final_tree():
+    scene = raykernel.load("spd:balls:1")
+    res = raykernel.render(scene, accel="lazyoctree(rays=1, k=0)", resolution=32, spd=True)
+    # the same render again: the same image, tree and counters
+    again = raykernel.render(scene, accel="lazyoctree(rays=1, k=0)", resolution=32, spd=True)
+    assert res.image.tobytes() == again.image.tobytes()
+    keys = [k for k, v in res.stats.items() if isinstance(v, int)]
+    assert {k: res.stats[k] for k in keys} == {k: again.stats[k] for k in keys}
+    rs = RayScene.from_scene(scene, "lazyoctree(rays=1, k=0)")
+    o, d = random_rays(np.random.default_rng(1), 3000, spread=2.0)
+    for _ in range(3):
+        rs.count_hits(o, d)
+    want = stats_of_tree(rs.geo)
+    agg = rs.build_stats["aggregates"][0]
+    assert {k: agg[k] for k in want} == want
+    assert agg["bytes"] == want["nodes"] * lazyoctree.NODE_BYTES + 8 * want["refs"] + 48
+    assert rs.build_stats["build.bytes"] == sum(a.nbytes for a in rs.geo if isinstance(a, np.ndarray))
+
+
+SUBPROCESS = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from raykernel import RayScene, load, render
+    scene = load("spd:balls:2")
+    r = render(scene, accel="lazyoctree(rays=2, k=0.05)", resolution=40, spd=True)
+    keys = sorted(k for k, v in r.stats.items() if isinstance(v, int) and not k.startswith("time."))
+    rng = np.random.default_rng(3)
+    o = rng.normal(0, 4, (20000, 3))
+    d = rng.normal(0, 1, (20000, 3)) - 0.1 * o
+    rs = RayScene.from_scene(scene, "lazyoctree(rays=2, k=0.05, walk=parametric)")
+    h = rs.intersect(o, d)
+    n = rs.count_hits(o, d)
+    q = [rs.last_stats[k] for k in sorted(rs.last_stats) if not k.startswith("time.")]
+    np.savez(sys.argv[1], image=r.image, keys=np.array(keys), values=np.array([r.stats[k] for k in keys]),
+             threads=r.stats.info["threads"], t=h.t, prim=h.prim_id, n=n, q=np.array(q),
+             nodes=rs.build_stats["build.nodes"])
+""")
+
+
+def test_thread_count_does_not_change_result(tmp_path):
+    out = {}
+    for n in (1, 2):
+        path = tmp_path / f"t{n}.npz"
+        env = dict(os.environ, NUMBA_NUM_THREADS=str(n))
+        proc = subprocess.run([sys.executable, "-c", SUBPROCESS, str(path)], env=env, capture_output=True,
+                              text=True)
+        assert proc.returncode == 0, proc.stderr
+        out[n] = np.load(path)
+        assert int(out[n]["threads"]) == n
+    assert out[1]["image"].tobytes() == out[2]["image"].tobytes()
+    assert list(out[1]["keys"]) == list(out[2]["keys"])
+    values = dict(zip(out[1]["keys"], out[1]["values"]))
+    assert values["build.subdivisions"] > 0
+    np.testing.assert_array_equal(out[1]["values"], out[2]["values"])
+    for name in ("t", "prim", "n", "q", "nodes"):
+        np.testing.assert_array_equal(out[1][name], out[2][name])
+    assert int(out[1]["nodes"]) > 1
