@@ -15,7 +15,8 @@ from raykernel.scene import Group, Instance, Scene, TriangleMesh
 from raykernel.traverse import cast_rays
 
 GRID_SPECS = ["grid", "grid(mailbox=off)", "grid(res=woo)", "grid(res=woo, mailbox=off)",
-              "grid(density=0.25)", "grid(density=8, max_res=7)"]
+              "grid(density=0.25)", "grid(density=8, max_res=7)", "grid(res=klimaszewski)",
+              "grid(res=klimaszewski, mailbox=off, density=0.5)", "hgrid(res=klimaszewski, threshold=4)"]
 
 
 # ---------------------------------------------------------------- scenes
@@ -120,10 +121,81 @@ def test_resolution_rules():
     assert flat[2] == 1 and flat[0] == flat[1] == 10
 
 
+def test_klimaszewski_rule_by_hand():
+    """Worked examples of our reading of the rule (grid.py): per axis extent / mean item extent,
+    scaled down uniformly to at most density * n cells, axes below one cell pinned at one."""
+    def k(extent, n, size, density=2.0, max_res=256):
+        return grid_resolution(np.array(extent, float), n, "klimaszewski", density, max_res,
+                               item_size=np.array(size, float)).tolist()
+    # unit cubes in an 8-cube: 8 cells per axis while 512 <= density * n ...
+    assert k([8, 8, 8], 300, [1, 1, 1]) == [8, 8, 8]
+    # ... else all axes scaled by (200 / 512) ** (1/3): 5.85 -> 6
+    assert k([8, 8, 8], 100, [1, 1, 1]) == [6, 6, 6]
+    # long thin items along x: want 4 x 160 x 160 cells, 400 allowed; x would fall to 0.63
+    # cells and keeps one, y and z share the rest: sqrt(400 / 160^2) * 160 = 20
+    assert k([16, 16, 16], 200, [4, 0.1, 0.1]) == [1, 20, 20]
+    # thin along y only: the proportions between x and z stay (1 : 2)
+    assert k([16, 16, 32], 100, [0.5, 16, 0.5]) == [10, 1, 20]
+    # the same ratios at any scale
+    for scale in (1e-250, 1e-6, 1e6, 1e250):
+        assert k(np.array([16, 16, 16]) * scale, 200, np.array([4, 0.1, 0.1]) * scale) == [1, 20, 20]
+    # a flat axis gets one cell and does not count; items bigger than the box give one cell
+    assert k([8, 8, 0], 300, [1, 2, 0]) == [8, 4, 1]
+    assert k([8, 8, 8], 300, [10, 10, 10]) == [1, 1, 1]
+    # fewer cells allowed than one: one cell
+    assert k([8, 8, 8], 10, [1, 1, 1], density=0.01) == [1, 1, 1]
+    # clamped to max_res after scaling
+    assert k([1000, 1, 1], 10 ** 6, [0.001, 1, 1]) == [256, 1, 1]
+    assert k([1000, 1, 1], 10 ** 6, [0.001, 1, 1], max_res=4096) == [4096, 1, 1]
+    # a subnormal mean extent is still a size: every cell goes to that axis, no overflow on the way
+    assert k([8, 4, 2], 1000, [5e-324, 1, 1]) == [256, 1, 1]
+
+
+def test_klimaszewski_falls_back_to_regular_without_item_extent():
+    ext = np.array([8.0, 4.0, 2.0])
+    regular = grid_resolution(ext, 1000, "regular", 2.0, 256).tolist()
+    sized = grid_resolution(ext, 1000, "klimaszewski", 2.0, 256, item_size=np.array([2.0, 0.1, 0.1])).tolist()
+    assert sized != regular
+    for size in ([0.0, 0.1, 0.1], [0.0, 0.0, 0.0], [1.0, 1.0, 0.0]):
+        assert grid_resolution(ext, 1000, "klimaszewski", 2.0, 256, item_size=np.array(size)).tolist() == regular
+    with pytest.raises(ValueError, match="item_size"):
+        grid_resolution(ext, 1000, "klimaszewski", 2.0, 256)
+    # points: boxes of no extent
+    points = np.random.default_rng(2).uniform(-5, 5, (500, 3))
+    boxes = np.hstack([points, points])
+    assert build_grid(boxes, res_rule="klimaszewski")[0].res.tolist() == \
+        build_grid(boxes, res_rule="regular")[0].res.tolist()
+
+
+def test_klimaszewski_grids_follow_the_items():
+    rng = np.random.default_rng(4)
+    # rods 3 long along x, 0.05 thick, in a 10-cube: more cells across the rods than along them
+    lo = rng.uniform(0, 7, (400, 3))
+    rods = np.hstack([lo, lo + [3.0, 0.05, 0.05]])
+    grid, stats = build_grid(rods, res_rule="klimaszewski", density=2.0)
+    assert grid.res[1] > 3 * grid.res[0] and grid.res[2] > 3 * grid.res[0]
+    assert np.prod(grid.res) <= 1.2 * 2.0 * 400
+    assert stats["res"] == tuple(grid.res.tolist())
+    # and the cells still hold exactly the overlapping items
+    for c in range(0, int(np.prod(grid.res)), 7):
+        x, y, z = c % grid.res[0], (c // grid.res[0]) % grid.res[1], c // (grid.res[0] * grid.res[1])
+        cell_lo = grid.origin + np.array([x, y, z]) * grid.cell_size
+        overlap = np.all((rods[:, :3] <= cell_lo + grid.cell_size) & (rods[:, 3:] >= cell_lo), axis=1)
+        assert set(np.flatnonzero(overlap).tolist()) <= set(grid.items[grid.cell_start[c]:grid.cell_start[c + 1]]
+                                                             .tolist())
+    # a few big items among many small ones: the mean extent, so fewer cells than the small ones alone ask
+    small = np.hstack([lo, lo + 0.1])
+    alone, _ = build_grid(small, res_rule="klimaszewski", density=100.0)
+    big = np.vstack([small, [[0, 0, 0, 10, 10, 10]] * 40])
+    mixed, _ = build_grid(big, res_rule="klimaszewski", density=100.0)
+    assert np.all(mixed.res < alone.res)
+
+
 def test_flat_scene_is_padded_and_single_item_works():
     boxes = np.array([[0, 0, 1, 2, 2, 1], [1, 1, 1, 3, 3, 1.0]])
-    grid, _ = build_grid(boxes)
-    assert grid.res[2] == 1 and grid.cell_size[2] > 0
+    for rule in ("regular", "woo", "klimaszewski"):
+        grid, _ = build_grid(boxes, res_rule=rule)
+        assert grid.res[2] == 1 and grid.cell_size[2] > 0
     one, stats = build_grid(np.array([[0, 0, 0, 1, 1, 1.0]]))
     assert stats["refs"] >= 1 and len(one.items) == np.prod(one.res)
 
@@ -137,7 +209,8 @@ def test_too_many_cells_is_a_scene_error():
         build_grid(boxes, density=50.0, max_refs=1000)
 
 
-@pytest.mark.parametrize("spec, allowed", [("grid(res=foo)", "regular, woo"),
+@pytest.mark.parametrize("spec, allowed", [("grid(res=foo)", "regular, woo, klimaszewski"),
+                                           ("hgrid(res=foo)", "regular, woo, klimaszewski"),
                                            ("grid(density=-1)", "density"),
                                            ("grid(mailbox=maybe)", "on or off"),
                                            ("grid(max_res=0)", "max_res"),
@@ -223,7 +296,8 @@ def lattice_scene():
 
 @pytest.mark.parametrize("spec, res", [("grid(density=64, max_res=8)", 8), ("grid(density=64, max_res=4)", 4),
                                        ("grid(density=64, max_res=8, mailbox=off)", 8),
-                                       ("grid", None), ("grid(res=woo)", None), ("grid(density=0.1)", None)])
+                                       ("grid", None), ("grid(res=woo)", None), ("grid(density=0.1)", None),
+                                       ("grid(res=klimaszewski)", None)])
 def test_axis_parallel_and_cell_boundary_rays(spec, res):
     scene = lattice_scene()
     o, d = axis_and_boundary_rays()
@@ -283,6 +357,7 @@ def nested_scene(rng, outer, inner, instanced=False):
 @pytest.mark.parametrize("outer, inner, instanced", [
     ("grid", "bvh", False), ("bvh", "grid", False), ("grid", "grid", False),
     ("grid(mailbox=off)", "grid(res=woo)", False), ("list", "grid", False),
+    ("grid(res=klimaszewski)", "grid(res=klimaszewski)", True),
     ("grid", "grid", True), ("bvh", "grid(mailbox=off)", True), ("grid", "list", True)])
 def test_nested_grids_match_list(outer, inner, instanced):
     rng = np.random.default_rng(7)
@@ -360,7 +435,7 @@ def test_huge_extent_scene():
     o, d = np.vstack([o, far]), np.vstack([d, fd])
     ref = cast(scene, "list", o, d)
     assert np.isfinite(ref[0][-3:-1]).all()
-    for spec in ("grid", "grid(res=woo)", "grid(mailbox=off)"):
+    for spec in ("grid", "grid(res=woo)", "grid(mailbox=off)", "grid(res=klimaszewski)"):
         assert_same_hits(cast(scene, spec, o, d), ref)
 
 

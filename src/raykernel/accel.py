@@ -147,16 +147,18 @@ register(Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (
     Param("seed", 1, "seed of order=shuffle (gs only)", int, 0, 2 ** 31 - 1),
 )))
 register(Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatides-Woo)", (
-    Param("res", "regular", "resolution rule: regular (about density*N cubic cells) or woo "
-          "(longest side density*N^(1/3) cells)", str, choices=("regular", "woo")),
+    Param("res", "regular", "resolution rule: regular (about density*N cubic cells), woo "
+          "(longest side density*N^(1/3) cells) or klimaszewski (our reading of Klimaszewski's heterogeneous "
+          "rule: per axis, cells about the items' mean extent, scaled down to at most density*N cells; "
+          "regular where the items have no extent)", str, choices=("regular", "woo", "klimaszewski")),
     Param("density", 2.0, "cells per item (regular) or per cube root of the item count (woo)", float, 0.001, 1000.0),
     Param("max_res", 256, "most cells along any axis", int, 1, 4096),
     Param("mailbox", True, "skip items already tested against the ray in an earlier cell", bool),
 )))
 register(Kind("hgrid", "hierarchical grid: a uniform grid whose cells with more than threshold references hold "
               "a sub-grid over those items instead, recursively", (
-    Param("res", "regular", "resolution rule of every level: regular or woo (see grid)", str,
-          choices=("regular", "woo")),
+    Param("res", "regular", "resolution rule of every level: regular, woo or klimaszewski (see grid)", str,
+          choices=("regular", "woo", "klimaszewski")),
     Param("density", 2.0, "cells per item at every level (see grid)", float, 0.001, 1000.0),
     Param("max_res", 256, "most cells along any axis of any level", int, 1, 4096),
     Param("threshold", 8, "a cell holding more references than this gets a sub-grid", int, 1, 1 << 30),
@@ -188,6 +190,24 @@ register(Kind("octree", "octree (Glassner 1984): centre subdivision of the scene
           "neighbor (Glassner's 6 neighbour pointers per node, then descent), parametric (Revelles, Urena and "
           "Lastra 2000)", str, choices=("point", "neighbor", "parametric")),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
+)))
+register(Kind("hybrid", "Haines's hybrid (RTN 2(1), 1988): an octree whose problem voxels (leaves the "
+              "subdivision left holding more than threshold items: depth limit, rule60, density) each hold "
+              "a Goldsmith-Salmon BVH over their items, cut to the voxel", (
+    Param("depth", 8, "maximum octree depth (see octree)", int, 0, 24),
+    Param("leaf", 3, "an octree node holding at most this many items is a leaf (see octree)", int, 1, 1 << 20),
+    Param("rule60", True, "Haines's 60% problem-voxel rule (see octree)", bool),
+    Param("density", 0.0, "Glassner's density criterion, 0: off (see octree)", float, 0.0, 1e6),
+    Param("vertexcount", False, "count vertices instead of items against leaf (see octree)", bool),
+    Param("collapse", True, "collapse single-child chains (see octree)", bool),
+    Param("threshold", 8, "a leaf holding more items than this is a problem voxel and gets a BVH", int, 1,
+          1 << 30),
+    Param("order", "file", "insertion order of the voxels' BVHs: file, shuffle or curve (see bvh, build=gs)",
+          str, choices=("file", "shuffle", "curve")),
+    Param("seed", 1, "seed of order=shuffle", int, 0, 2 ** 31 - 1),
+    Param("walk", "neighbor", "octree traversal: point, neighbor or parametric (see octree)", str,
+          choices=("point", "neighbor", "parametric")),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier leaf of the octree", bool),
 )))
 register(Kind("lazyoctree", "lazy octree (Lathrop 1988): one leaf at first; between passes of rays (the "
               "renderer's batches of tiles, RayScene's runs of 8192 rays) a leaf is split one level, as the "

@@ -348,10 +348,73 @@ class _Builder:
         self.agg_stats.append(stats)
         return agg
 
+    def _append_octree(self, tree, params, refs):
+        """Store an octree (aggregates/octree.py) as the next aggregate; its leaves hold refs[tree.order]."""
+        from .aggregates.octree import WALKS
+        arr = self.arr
+        o = arr.oct
+        arr.agg_kind.append(OCTREE)
+        arr.agg_start.append(len(o["root"]))
+        arr.agg_count.append(len(tree.count))
+        inner = tree.count < 0
+        o["bounds"].append(tree.bounds)
+        o["first"].append(np.where(inner, tree.first + arr.n_oct_nodes, tree.first + arr.n_refs))
+        o["count"].append(tree.count)
+        o["loc"].append(tree.loc)
+        o["level"].append(tree.level)
+        o["slot"].append(tree.slot)
+        o["nbr"].append(np.where(tree.nbr >= 0, tree.nbr + arr.n_oct_nodes, -1))
+        o["root"].append(arr.n_oct_nodes)
+        o["origin"].append(tree.origin)
+        o["unit"].append(tree.unit)
+        o["walk"].append(WALKS.index(params["walk"]))
+        o["mailbox"].append(int(params["mailbox"]))
+        arr.n_oct_nodes += len(tree.count)
+        arr.refs.append(refs[tree.order])
+        arr.n_refs += len(tree.order)
+
+    def _build_hybrid(self, params, refs, bounds, name) -> int:
+        """An octree whose problem voxels (leaves holding more than `threshold` items) hold one
+        reference to a Goldsmith-Salmon BVH over their items cut to the voxel (aggregates/hybrid.py)."""
+        from .aggregates.hybrid import clipped_bounds, hybrid_stats, problem_voxels, replace_leaves
+        from .aggregates.octree import build_octree
+        start = time.perf_counter()
+        weights = self._vertex_weights(refs) if params["vertexcount"] else None
+        tree, octree_stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"],
+                                          rule60=params["rule60"], density=params["density"],
+                                          vertexcount=params["vertexcount"], weights=weights,
+                                          collapse=params["collapse"], name=name)
+        voxels = problem_voxels(tree, params["threshold"])
+        n_problem = len(voxels)
+        if getattr(self, "_nesting", 1) >= MAX_NESTING:
+            voxels = voxels[:0]     # a BVH would be one aggregate too many on a ray's path
+        bvh_spec = accel.parse_spec(f"bvh(build=gs, order={params['order']}, seed={params['seed']})")
+        subs, bvh_stats = [], []
+        for node in voxels:
+            items = tree.order[tree.first[node]:tree.first[node] + tree.count[node]]
+            subs.append(self._build_aggregate(bvh_spec, refs[items],
+                                              clipped_bounds(tree, bounds, node, items, params["depth"]), name))
+            bvh_stats.append(self.agg_stats.pop())
+        leaf_refs = refs
+        if len(subs):
+            tree = replace_leaves(tree, voxels, len(refs))
+            leaf_refs = np.concatenate([refs, make_ref(AGGREGATE, subs)])
+            self._extra_nesting = max(getattr(self, "_extra_nesting", 0), 1)
+        agg = len(self.arr.agg_kind)
+        self._append_octree(tree, params, leaf_refs)
+        self.arr.agg_bounds.append(np.concatenate([bounds[:, :3].min(axis=0), bounds[:, 3:].max(axis=0)]))
+        stats = hybrid_stats(octree_stats, tree, bvh_stats, n_problem)
+        stats.update(kind=accel.format_spec("hybrid", params), name=name, items=len(refs),
+                     seconds=time.perf_counter() - start)
+        self.agg_stats.append(stats)
+        return agg
+
     def _build_aggregate(self, spec, refs, bounds, name) -> int:
         kind, params = spec
         if kind == "hgrid" and len(refs):
             return self._build_hgrid(params, refs, bounds, name)
+        if kind == "hybrid" and len(refs):
+            return self._build_hybrid(params, refs, bounds, name)
         arr = self.arr
         start = time.perf_counter()
         # empty children (an empty group's box is +inf..-inf) add nothing to the box
@@ -428,60 +491,21 @@ class _Builder:
             arr.n_refs += len(tree.items)
             stats = dict(stats)
         elif kind == "octree":
-            from .aggregates.octree import WALKS, build_octree
+            from .aggregates.octree import build_octree
             weights = self._vertex_weights(refs) if params["vertexcount"] else None
             tree, stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"], rule60=params["rule60"],
                                        density=params["density"], vertexcount=params["vertexcount"],
                                        weights=weights, collapse=params["collapse"], name=name)
-            o = arr.oct
-            arr.agg_kind.append(OCTREE)
-            arr.agg_start.append(len(o["root"]))
-            arr.agg_count.append(len(tree.count))
-            inner = tree.count < 0
-            o["bounds"].append(tree.bounds)
-            o["first"].append(np.where(inner, tree.first + arr.n_oct_nodes, tree.first + arr.n_refs))
-            o["count"].append(tree.count)
-            o["loc"].append(tree.loc)
-            o["level"].append(tree.level)
-            o["slot"].append(tree.slot)
-            o["nbr"].append(np.where(tree.nbr >= 0, tree.nbr + arr.n_oct_nodes, -1))
-            o["root"].append(arr.n_oct_nodes)
-            o["origin"].append(tree.origin)
-            o["unit"].append(tree.unit)
-            o["walk"].append(WALKS.index(params["walk"]))
-            o["mailbox"].append(int(params["mailbox"]))
-            arr.n_oct_nodes += len(tree.count)
-            arr.refs.append(refs[tree.order])
-            arr.n_refs += len(tree.order)
+            self._append_octree(tree, params, refs)
             stats = dict(stats)
         elif kind == "lazyoctree":
             # Lathrop's lazy octree: one leaf now, subdivided between passes of rays
             from .aggregates.lazyoctree import build_lazy
-            from .aggregates.octree import WALKS
             tree, stats, boxes = build_lazy(bounds, depth=params["depth"], rays=params["rays"], k=params["k"],
                                             rule60=params["rule60"], name=name)
             arr.lazy.append(dict(params, octree=len(arr.oct["root"]), node=arr.n_oct_nodes, ref=arr.n_refs,
                                  refs=refs, boxes=boxes, stats=stats))
-            o = arr.oct
-            arr.agg_kind.append(OCTREE)
-            arr.agg_start.append(len(o["root"]))
-            arr.agg_count.append(len(tree.count))
-            inner = tree.count < 0
-            o["bounds"].append(tree.bounds)
-            o["first"].append(np.where(inner, tree.first + arr.n_oct_nodes, tree.first + arr.n_refs))
-            o["count"].append(tree.count)
-            o["loc"].append(tree.loc)
-            o["level"].append(tree.level)
-            o["slot"].append(tree.slot)
-            o["nbr"].append(np.where(tree.nbr >= 0, tree.nbr + arr.n_oct_nodes, -1))
-            o["root"].append(arr.n_oct_nodes)
-            o["origin"].append(tree.origin)
-            o["unit"].append(tree.unit)
-            o["walk"].append(WALKS.index(params["walk"]))
-            o["mailbox"].append(int(params["mailbox"]))
-            arr.n_oct_nodes += len(tree.count)
-            arr.refs.append(refs[tree.order])
-            arr.n_refs += len(tree.order)
+            self._append_octree(tree, params, refs)
         else:
             raise SceneError(f"accelerator {kind!r} is not available in this build")
         arr.agg_bounds.append(box)
@@ -626,7 +650,7 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         "build.refs": int(sum(s.get("refs", 0) for s in b.agg_stats)),
         "build.bytes": int(nbytes),
         "build.seconds": time.perf_counter() - t0,
-        "build.aggregates": len(b.agg_stats),
+        "build.aggregates": len(b.agg_stats) + sum(s.get("nested_aggregates", 0) for s in b.agg_stats),
         "build.nesting": int(depth),
         "aggregates": b.agg_stats,
         "geometries": np.array(arr.geometries, np.int64).reshape(-1, 3),

@@ -224,8 +224,10 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
         a = stack_a[sp]
         b = stack_b[sp]
         rc_on = False
-        if stack_t[sp] > best_t:
-            continue            # entered beyond the closest hit so far
+        if stack_t[sp] > best_t and (b != NODE or stack_t[sp] > best_t * _CONSERVATIVE):
+            # entered beyond the closest hit so far; a BVH node entered within rounding of it
+            # may hold a primitive hit at exactly best_t (coplanar faces), which the tie rule needs
+            continue
         if b == NODE:
             node = a
             cnt[C.CELLS_VISITED] += 1

@@ -1,6 +1,6 @@
 """Uniform grid (Fujimoto 1986) over axis-aligned item boxes, as flat arrays.
 
-    grid, stats = build_grid(item_bounds, res_rule="regular", density=2.0)
+    grid, stats = build_grid(item_bounds, res_rule="regular", density=2.0)   # or "woo", "klimaszewski"
     # grid.origin (3,), grid.cell_size (3,), grid.res (3,), grid.cell_start (ncells + 1,), grid.items (R,)
     items_of_cell = grid.items[grid.cell_start[c]:grid.cell_start[c + 1]]
 
@@ -32,6 +32,18 @@ Resolution rules
     over the k axes that are not flat (volume: the product of their extents).
 ``woo``: Woo's rule: the longest side gets ``density * n ** (1/3)`` cells,
     the other sides proportionally many (rounded, at least 1).
+``klimaszewski``: cells follow the size of the objects, not only their
+    number, as K. Klimaszewski's heterogeneous rule for adaptive grids
+    (1994/1997) asks. His formula is not at hand, so this is our reading:
+    per axis, cells about as long as the items' mean extent along it,
+        n_i = extent_i / mean item extent_i   (at least 1),
+    then, if that makes more than ``density * n`` cells, every axis above
+    one cell scaled down by the same factor (axes that would fall below one
+    cell keep one), so the proportions between the axes stay. Long thin
+    items along x thus give short cells along y and z and long ones along x.
+    The ratio is the same at every scale. When the items have no extent
+    along an axis that is not flat (points, or all items flat in parallel
+    planes), their size says nothing there and the rule is ``regular``.
 Every axis is clamped to [1, max_res]. More than ``max_cells`` cells or
 ``max_refs`` references is an error that names the limit.
 """
@@ -49,7 +61,7 @@ from ..errors import OptionError, SceneError
 
 __all__ = ["GridArrays", "RULES", "build_grid", "grid_resolution"]
 
-RULES = ("regular", "woo")
+RULES = ("regular", "woo", "klimaszewski")
 MAX_CELLS = 16_000_000
 MAX_REFS = 64_000_000
 FLAT = 1e-6                 # an axis thinner than this fraction of the longest is flat
@@ -79,8 +91,9 @@ def grid_box(bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo, pad
 
 
-def grid_resolution(extent, n: int, rule: str, density: float, max_res: int) -> np.ndarray:
-    """Cells per axis for `n` items in a box of `extent` (see the module docstring)."""
+def grid_resolution(extent, n: int, rule: str, density: float, max_res: int, item_size=None) -> np.ndarray:
+    """Cells per axis for `n` items in a box of `extent` (see the module docstring);
+    `item_size`, the items' mean extent per axis, is needed by the klimaszewski rule."""
     extent = np.asarray(extent, np.float64)
     longest = float(extent.max())
     flat = extent < 2.0 * FLAT * longest
@@ -96,9 +109,42 @@ def grid_resolution(extent, n: int, rule: str, density: float, max_res: int) -> 
         for a in range(3):
             if not flat[a]:
                 res[a] = _clamp_round(along * extent[a] / longest, max_res)
+    elif rule == "klimaszewski":
+        if item_size is None:
+            raise ValueError("the klimaszewski rule needs the items' mean extent per axis (item_size)")
+        cells = _size_cells(extent, np.asarray(item_size, np.float64), flat, density * n)
+        if cells is None:
+            return grid_resolution(extent, n, "regular", density, max_res)
+        for a in range(3):
+            res[a] = _clamp_round(cells[a], max_res)
     else:
         raise OptionError(f"grid resolution rule must be one of {', '.join(RULES)}, got {rule!r}")
     return res
+
+
+def _size_cells(extent, size, flat, target):
+    """Cells per axis (floats) of the klimaszewski rule, or None where the items'
+    size gives no cell length along a live axis. Worked in logarithms: the
+    ratios can be as large as the scene's range of scales."""
+    log_want = np.zeros(3)
+    for a in np.flatnonzero(~flat):
+        if not (0.0 < size[a] < math.inf):
+            return None
+        log_want[a] = max(0.0, math.log(extent[a]) - math.log(size[a]))      # at least one cell
+    log_target = math.log(target)
+    free = [a for a in range(3) if log_want[a] > 0.0]
+    while free and float(log_want.sum()) > log_target:
+        # one common factor for the axes above one cell; an axis it would take below one cell keeps one
+        log_scale = (log_target - float(sum(log_want[a] for a in free))) / len(free)
+        pinned = [a for a in free if log_want[a] + log_scale <= 0.0]
+        if not pinned:
+            for a in free:
+                log_want[a] += log_scale
+            break
+        for a in pinned:
+            log_want[a] = 0.0
+            free.remove(a)
+    return np.exp(log_want)
 
 
 def _clamp_round(x: float, max_res: int) -> int:
@@ -189,7 +235,8 @@ def build_grid(bounds, *, res_rule="regular", density=2.0, max_res=256, max_cell
 
     if solid.any():
         origin, extent = grid_box(items[solid])
-        res = grid_resolution(extent, int(solid.sum()), res_rule, float(density), int(max_res))
+        size = np.mean(items[solid, 3:] - items[solid, :3], axis=0)
+        res = grid_resolution(extent, int(solid.sum()), res_rule, float(density), int(max_res), item_size=size)
     else:
         origin, extent, res = np.zeros(3), np.ones(3), np.ones(3, np.int64)
     ncells = int(np.prod(res))

@@ -1,0 +1,140 @@
+"""Haines's hybrid (Ray Tracing News 2(1), 1988): an octree whose problem voxels hold a BVH.
+
+    spec "hybrid(depth=8, leaf=3, rule60=on, threshold=8, order=file, walk=neighbor)"
+    tree, octree_stats = build_octree(bounds, depth=8, leaf=3, rule60=True)   # the octree part
+    voxels = problem_voxels(tree, threshold=8)        # leaves still holding more than 8 items
+    boxes = clipped_bounds(tree, bounds, voxel, items, depth=8)   # a voxel's items cut to it
+    tree = replace_leaves(tree, voxels, first_new=len(refs))      # each voxel: one reference
+
+Why
+---
+An octree cannot separate a dense object that is small against the whole
+scene (Haines's teapot in a stadium): the depth limit, or the 60% rule,
+stops the subdivision with thousands of facets in one voxel, and every ray
+through that voxel tests them all. Haines's proposal: subdivide as an octree
+to some level, and give every such *problem voxel* a Goldsmith-Salmon BVH
+over its objects. Here a problem voxel is a leaf of the octree (built by
+octree.build_octree with the same criteria as the ``octree`` kind: depth,
+leaf, rule60, density, vertexcount, collapse) holding more than
+``threshold`` items; only the depth limit, the 60% rule or the density
+criterion leave a leaf that full when ``threshold`` >= ``leaf``.
+
+How
+---
+Nothing new is traversed. Each problem voxel's BVH is an ordinary nested
+aggregate (bvh, build=gs, with the hybrid's ``order`` and ``seed``), and the
+voxel's item list becomes a single reference to it, the mechanism hgrid uses
+for its sub-grids. flatten.py builds the BVHs, calls replace_leaves, and
+stores the octree as usual; the one intersection routine walks the octree
+and opens a frame for the BVH when it meets the reference.
+
+Items cut to the voxel
+----------------------
+Each BVH is built over its items' boxes cut to the voxel (widened by a
+margin at least twice the octree's insertion margin, see clipped_bounds), not
+over the whole boxes: a floor polygon that crosses the voxel does not
+stretch the BVH over the whole floor, and a ray in this voxel meets the box
+of an item only where the item can be inside this voxel. No hit is lost: the
+octree walk visits, in order along the ray, every leaf the ray crosses up to
+the closest hit, and the leaf holding a hit point holds the item (its box
+overlaps that leaf), with the hit point inside the item's cut box.
+
+Exactness
+---------
+The octree's mailbox (per octree frame) skips primitives already tested in
+an earlier leaf and each BVH reference (unique to its voxel); inside a BVH
+frame there is no mailbox, so an item in several problem voxels may be
+tested once per voxel the ray passes through. That costs tests, never
+results: the closest hit is the smallest t over all tests, ties at equal t go
+to the smaller reference (traverse.py), and the order of the walk is fixed by
+the ray alone, so hits and counters are the same at any thread count.
+In all-hits mode such an item is reported once per voxel and rayscene
+merges the repeats, as it does for grids.
+
+Each BVH adds one aggregate to the nesting on paths through a problem
+voxel. Where the group already nests MAX_NESTING (flatten.py) aggregates,
+the problem voxels keep their items and the statistics say so
+(``bvhs`` < ``problem_voxels``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .octree import ADDRESS_BITS, OctreeArrays
+
+__all__ = ["problem_voxels", "clipped_bounds", "clip_margin", "replace_leaves", "hybrid_stats", "STAT_KEYS"]
+
+STAT_KEYS = ("nodes", "inner", "leaves", "empty_leaves", "refs", "bytes", "seconds")
+
+
+def problem_voxels(tree: OctreeArrays, threshold: int) -> np.ndarray:
+    """Leaves holding more than `threshold` items, in node order."""
+    return np.flatnonzero(tree.count > threshold)
+
+
+def clip_margin(tree: OctreeArrays, node: int, depth: int) -> np.ndarray:
+    """Per axis, twice the octree's insertion margin (octree.build_octree:
+    1e-9 of the scene's scale plus 1e-7 of the finest cell) with the node's
+    side in place of the finest cell's, which is never smaller."""
+    extent = tree.unit * float(1 << ADDRESS_BITS)
+    side = extent / float(1 << int(tree.level[node]))
+    finest = extent / float(1 << int(depth))
+    scale = max(float(extent.max()), float(np.abs(tree.origin).max()))
+    return 2.0 * (1e-9 * scale + 1e-7 * np.maximum(side, finest))
+
+
+def clipped_bounds(tree: OctreeArrays, bounds: np.ndarray, node: int, items: np.ndarray, depth: int) -> np.ndarray:
+    """Boxes of `items` cut to leaf `node`'s box widened by clip_margin; never empty for the leaf's items."""
+    m = clip_margin(tree, node, depth)
+    lo = tree.bounds[node, :3] - m
+    hi = tree.bounds[node, 3:] + m
+    b = bounds[items]
+    out_lo = np.maximum(b[:, :3], lo)
+    out_hi = np.minimum(b[:, 3:], hi)
+    # an item of the leaf overlaps the widened box; keep min <= max against rounding anyway
+    return np.hstack([np.minimum(out_lo, out_hi), np.maximum(out_lo, out_hi)])
+
+
+def replace_leaves(tree: OctreeArrays, voxels: np.ndarray, first_new: int) -> OctreeArrays:
+    """The same octree with leaf voxels[j] holding the single entry first_new + j
+    (flatten appends the BVH references after the group's own, so that entry
+    names voxel j's BVH); every other leaf keeps its items, in order."""
+    voxels = np.asarray(voxels, np.int64)
+    leaves = np.flatnonzero(tree.count >= 0)
+    is_voxel = np.zeros(len(tree.count), bool)
+    is_voxel[voxels] = True
+    new_count = tree.count.copy()
+    new_count[voxels] = 1
+    # the leaves' lists one after the other in node order
+    new_first = tree.first.copy()
+    counts = new_count[leaves]
+    starts = np.zeros(len(leaves), np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    new_first[leaves] = starts
+    order = np.empty(int(counts.sum()), np.int64)
+    kept = leaves[~is_voxel[leaves]]
+    c = tree.count[kept]
+    offset = np.arange(int(c.sum()), dtype=np.int64) - np.repeat(np.cumsum(c) - c, c)
+    order[np.repeat(new_first[kept], c) + offset] = tree.order[np.repeat(tree.first[kept], c) + offset]
+    order[new_first[voxels]] = first_new + np.arange(len(voxels), dtype=np.int64)
+    return tree._replace(first=new_first, count=new_count, order=order)
+
+
+def hybrid_stats(octree_stats: dict, tree: OctreeArrays, bvh_stats: list[dict], n_problem: int) -> dict:
+    """Build statistics of a hybrid: the octree's and the BVHs' counts side by side
+    (octree_*, bvh_*), their sums under the usual names, and the voxel counts.
+    octree_stats: build_octree's, for the octree before its voxels were replaced
+    (`tree`, after replacement, gives refs and bytes)."""
+    octree = dict(octree_stats, refs=int(len(tree.order)), bytes=int(sum(a.nbytes for a in tree)))
+    bvh = {k: sum(s[k] for s in bvh_stats) for k in STAT_KEYS}
+    stats = {k: octree[k] + bvh[k] for k in STAT_KEYS}
+    stats["max_depth"] = octree["max_depth"]
+    for k in STAT_KEYS:
+        stats[f"octree_{k}"] = octree[k]
+        stats[f"bvh_{k}"] = bvh[k]
+    stats["bvh_max_depth"] = max((s["max_depth"] for s in bvh_stats), default=0)
+    stats["problem_voxels"] = int(n_problem)
+    stats["bvhs"] = len(bvh_stats)
+    stats["nested_aggregates"] = len(bvh_stats)
+    return stats
