@@ -102,12 +102,43 @@ def workspace():
             np.zeros(HIT_F), np.zeros(HIT_I, np.int64))
 
 
+STILL = 1e300                # _inverse(0.0): the ray does not move along that axis
+
+
 @njit(inline="always")
 def _inverse(d):
     # a huge finite reciprocal keeps 0 * (1/d) from becoming NaN at slab planes
     if d == 0.0:
-        return 1e300
+        return STILL
     return 1.0 / d
+
+
+@njit(inline="always")
+def _slab(lo, hi, o, inv):
+    """(entry, exit) t of the ray in the slab lo <= x <= hi, inv = _inverse(direction).
+    A ray that does not move along the axis is in the closed slab for every t or for
+    none: on the wall x = hi the products would give (-huge, 0), as if it left at t = 0."""
+    if inv == STILL:
+        if lo <= o <= hi:
+            return -INF, INF
+        return INF, -INF
+    t0 = (lo - o) * inv
+    t1 = (hi - o) * inv
+    if t0 > t1:
+        return t1, t0
+    return t0, t1
+
+
+@njit(inline="always")
+def _cell_slab(lo, hi, o, inv, top):
+    """_slab for an octree cell: a still ray on the wall between two cells is in the upper
+    one only, as a point's address puts it (the items there are in both), unless the wall is
+    the octree's upper wall `top`."""
+    if inv == STILL:
+        if lo <= o and (o < hi or o == top):
+            return -INF, INF
+        return INF, -INF
+    return _slab(lo, hi, o, inv)
 
 
 @njit(inline="always")
@@ -130,18 +161,9 @@ def _address(x, origin, scale, lo, hi):
 @njit(inline="always")
 def box_entry(b, i, ox, oy, oz, ix, iy, iz, tmin, tmax):
     """Entry distance of the ray into box i of `b` within [tmin, tmax], or inf."""
-    t0 = (b[i, 0] - ox) * ix
-    t1 = (b[i, 3] - ox) * ix
-    if t0 > t1:
-        t0, t1 = t1, t0
-    t2 = (b[i, 1] - oy) * iy
-    t3 = (b[i, 4] - oy) * iy
-    if t2 > t3:
-        t2, t3 = t3, t2
-    t4 = (b[i, 2] - oz) * iz
-    t5 = (b[i, 5] - oz) * iz
-    if t4 > t5:
-        t4, t5 = t5, t4
+    t0, t1 = _slab(b[i, 0], b[i, 3], ox, ix)
+    t2, t3 = _slab(b[i, 1], b[i, 4], oy, iy)
+    t4, t5 = _slab(b[i, 2], b[i, 5], oz, iz)
     tnear = max(max(t0, t2), max(t4, tmin))
     tfar = min(min(t1, t3), min(t5, tmax)) * _CONSERVATIVE if min(min(t1, t3), t5) > 0.0 else \
         min(min(t1, t3), min(t5, tmax))
@@ -313,19 +335,20 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                 cnt[C.CELLS_VISITED] += 1
                 cnt[C.BOUNDS_TESTS] += 1
                 nb = geo.oct_bounds
+                top = geo.oct_root[oi]
                 amask = 0
                 if ix >= 0.0:
-                    tx0, tx1 = (nb[node, 0] - ox) * ix, (nb[node, 3] - ox) * ix
+                    tx0, tx1 = _cell_slab(nb[node, 0], nb[node, 3], ox, ix, nb[top, 3])
                 else:
                     tx0, tx1 = (nb[node, 3] - ox) * ix, (nb[node, 0] - ox) * ix
                     amask |= 1
                 if iy >= 0.0:
-                    ty0, ty1 = (nb[node, 1] - oy) * iy, (nb[node, 4] - oy) * iy
+                    ty0, ty1 = _cell_slab(nb[node, 1], nb[node, 4], oy, iy, nb[top, 4])
                 else:
                     ty0, ty1 = (nb[node, 4] - oy) * iy, (nb[node, 1] - oy) * iy
                     amask |= 2
                 if iz >= 0.0:
-                    tz0, tz1 = (nb[node, 2] - oz) * iz, (nb[node, 5] - oz) * iz
+                    tz0, tz1 = _cell_slab(nb[node, 2], nb[node, 5], oz, iz, nb[top, 5])
                 else:
                     tz0, tz1 = (nb[node, 5] - oz) * iz, (nb[node, 2] - oz) * iz
                     amask |= 4
