@@ -20,6 +20,7 @@ from raykernel.primitives import AGGREGATE, INDEX_MASK, KIND_SHIFT, POLYGON, SPH
 from raykernel.rayscene import RayScene
 from raykernel.scene import Group
 from raykernel.traverse import cast_rays
+from conftest import work_counts
 from test_grid import assert_same_hits, cast, fill_group, new_scene, random_rays
 
 WALKS = ("point", "neighbor", "parametric")
@@ -317,6 +318,14 @@ def test_counts_are_the_same_across_runs_and_chunkings():
         np.testing.assert_array_equal(x, y)
     parts = [cast_rays(geo, o[k:k + 700], d[k:k + 700])[4] for k in range(0, 3000, 700)]
     np.testing.assert_array_equal(np.sum(parts, axis=0)[:C.RAYS_CAST], a[4][:C.RAYS_CAST])
+
+
+def test_same_image_and_counts_at_any_thread_count():
+    scene = pathological.stadium(ratio=1e6, stadium_prims=800, teapot_prims=300)
+    runs = [raykernel.render(scene, accel="hybrid(threshold=4)", resolution=24, spd=True, threads=t) for t in (1, 2)]
+    np.testing.assert_array_equal(runs[0].image, runs[1].image)
+    assert work_counts(runs[0].stats) == work_counts(runs[1].stats)
+    assert runs[0].stats["tests.total"] > 0
 
 
 # ---------------------------------------------------------------- the teapot in a stadium

@@ -52,9 +52,12 @@ In all-hits mode such an item is reported once per voxel and rayscene
 merges the repeats, as it does for grids.
 
 Each BVH adds one aggregate to the nesting on paths through a problem
-voxel. Where the group already nests MAX_NESTING (flatten.py) aggregates,
-the problem voxels keep their items and the statistics say so
-(``bvhs`` < ``problem_voxels``).
+voxel. Where the hybrid and the aggregates below it already nest
+MAX_NESTING (flatten.py) deep, the problem voxels keep their items and the
+statistics say so (``bvhs`` < ``problem_voxels``). Groups are built from the
+leaves up, so a hybrid placed so deep below the root that its BVHs would be
+one aggregate too many on a path is rejected with the nesting SceneError,
+like any scene nested too deep.
 """
 
 from __future__ import annotations
