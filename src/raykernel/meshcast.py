@@ -1,7 +1,7 @@
 """The fast path of RayScene: one triangle mesh (or several) under one BVH.
 
-    mesh = MeshKernel.of(geo)          # None unless geo is triangles under a single BVH, no instances
-    mesh.query(geo, origins, directions, tmin, tmax, mode, ...)   # same outputs as rayscene's generic kernel
+    mesh = MeshKernel.of(geo, geometries)   # None unless geo is triangles under a single BVH, no instances
+    query(geo, *mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayscene's generic kernel
 
 The generic intersection routine (traverse.py) carries every aggregate kind,
 nesting frames, instances and mailboxes through one loop; for the common
@@ -15,7 +15,9 @@ with three changes that make it fast:
   per ray instead of once per triangle (the same arithmetic, bit for bit);
 * the triangles' corners are copied into leaf order, nine numbers per
   reference, so a leaf's triangles are read from one contiguous block;
-* the loop knows only BVH nodes and triangles.
+* the loop knows only BVH nodes and triangles;
+* large batches are traced in an order that keeps neighbouring rays
+  together (rayorder.py), results written back to each ray's own row.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from .flatten import BVH, Geometry
 from .hitsurface import store_miss, store_surface
 from .primitives import INDEX_MASK, TRIANGLE
 from .primitives import _edge_sign as edge_sign
+from .traverse import _CONSERVATIVE as CONSERVATIVE
 from .traverse import ALL_HITS, box_entry
 from .traverse import _inverse as inverse
 
@@ -42,17 +45,23 @@ _IDENTITY = np.array([1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0])
 class MeshKernel(NamedTuple):
     corners: np.ndarray      # (R, 9) float64: v0, v1, v2 of the triangle of each leaf reference
     prim: np.ndarray         # (R,) int64 global triangle index of each leaf reference
+    geom: np.ndarray         # (R,) int64 geometry (mesh) of each leaf reference
+    local: np.ndarray        # (R,) int64 face index within that mesh
     root: int                # root node of the BVH
 
     @classmethod
-    def of(cls, geo: Geometry) -> "MeshKernel | None":
-        """The fast-path arrays, or None when geo holds anything but triangles under one BVH."""
+    def of(cls, geo: Geometry, geometries: np.ndarray) -> "MeshKernel | None":
+        """The fast-path arrays, or None when geo holds anything but triangles under one BVH.
+        geometries: flatten's (kind, first global index, count) rows, all triangle meshes here."""
         if (len(geo.agg_kind) != 1 or geo.agg_kind[0] != BVH or len(geo.inst_agg) or len(geo.sph_radius)
                 or len(geo.cone_length) or len(geo.poly_start) or not len(geo.tri_faces)):
             return None
-        prim = geo.refs & INDEX_MASK
+        prim = (geo.refs & INDEX_MASK).astype(np.int64)
         corners = geo.tri_verts[geo.tri_faces[prim]].reshape(-1, 9)
-        return cls(np.ascontiguousarray(corners), prim.astype(np.int64), int(geo.agg_start[geo.root]))
+        geom = np.searchsorted(geometries[:, 1], prim, side="right") - 1
+        local = prim - geometries[geom, 1]
+        return cls(np.ascontiguousarray(corners), prim, geom.astype(np.int64), local.astype(np.int64),
+                   int(geo.agg_start[geo.root]))
 
 
 @njit(inline="always")
@@ -103,15 +112,19 @@ def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
 
 
 @njit(parallel=True)
-def query(geo, corners, prim, root, origins, directions, tmin, tmax, mode, chunk, t_out, idx_out,
-          uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters):
+def query(geo, corners, prim, geom, local, root, origins, directions, order, tmin, tmax, mode, chunk, t_out,
+          kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
+          counters):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
-    outputs and conventions of rayscene._query (kind and instance are implied:
-    TRIANGLE, -1). All hits: with len(offsets) == 0 counts them into idx_out, else
-    writes ray r's hits to rows offsets[r] .. offsets[r + 1] of all_t / all_i."""
+    outputs of rayscene._query, identities as the user sees them: geometry and
+    index within it (-1 on a miss). All hits: with len(offsets) == 0 counts them
+    into idx_out, else writes ray r's hits to rows offsets[r] .. offsets[r + 1]
+    of all_t / all_i as (kind, global index, instance), like the generic kernel.
+    order: the rays in the order to trace them (rayorder.py), or empty for 0..n-1."""
     n = origins.shape[0]
     n_chunks = (n + chunk - 1) // chunk
     store = offsets.shape[0] > 0
+    reordered = order.shape[0] > 0
     nb = geo.node_bounds
     first = geo.node_first
     count = geo.node_count
@@ -120,9 +133,11 @@ def query(geo, corners, prim, root, origins, directions, tmin, tmax, mode, chunk
         stack = np.empty(STACK, np.int64)
         stack_t = np.empty(STACK)
         o = np.empty(3)
-        cnt = np.zeros(C.N_COUNTERS, np.int64)
-        for r in range(c * chunk, min(n, (c + 1) * chunk)):
-            cnt[C.RAYS_CAST] += 1
+        # counters in locals (registers), written once per chunk
+        n_bounds = n_nodes = n_leaves = n_tests = np.int64(0)
+        r0, r1 = c * chunk, min(n, (c + 1) * chunk)
+        for i in range(r0, r1):
+            r = order[i] if reordered else i
             ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
             dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
             o[0], o[1], o[2] = ox, oy, oz
@@ -134,7 +149,7 @@ def query(geo, corners, prim, root, origins, directions, tmin, tmax, mode, chunk
             n_all = np.int64(0)
             base = offsets[r] if store else 0
             sp = 0
-            cnt[C.BOUNDS_TESTS] += 1
+            n_bounds += 1
             te = box_entry(geo.agg_bounds, geo.root, ox, oy, oz, ix, iy, iz, lo, best)
             if te != INF:
                 stack[0] = root
@@ -142,14 +157,14 @@ def query(geo, corners, prim, root, origins, directions, tmin, tmax, mode, chunk
                 sp = 1
             while sp > 0:
                 sp -= 1
-                if stack_t[sp] > best:
-                    continue
+                if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
+                    continue        # entered beyond the closest hit, beyond rounding (ties need the node)
                 node = stack[sp]
-                cnt[C.CELLS_VISITED] += 1
+                n_nodes += 1
                 k = count[node]
                 if k == 0:
                     left = first[node]
-                    cnt[C.BOUNDS_TESTS] += 2
+                    n_bounds += 2
                     tl = box_entry(nb, left, ox, oy, oz, ix, iy, iz, lo, best)
                     tr = box_entry(nb, left + 1, ox, oy, oz, ix, iy, iz, lo, best)
                     if tl <= tr:
@@ -166,10 +181,10 @@ def query(geo, corners, prim, root, origins, directions, tmin, tmax, mode, chunk
                         stack[sp], stack_t[sp] = left + 1, tr
                         sp += 1
                     continue
-                cnt[C.CELLS_LEAVES] += 1
+                n_leaves += 1
                 s = first[node]
                 for j in range(s, s + k):
-                    cnt[C.TESTS + TRIANGLE] += 1
+                    n_tests += 1
                     t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best)
                     if t == INF:
                         continue
@@ -194,11 +209,18 @@ def query(geo, corners, prim, root, origins, directions, tmin, tmax, mode, chunk
                 continue
             if best_j < 0:
                 store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
+                kind_out[r] = geom_out[r] = inst_out[r] = -1
                 continue
             t_out[r] = best
-            idx_out[r] = prim[best_j]
+            kind_out[r] = TRIANGLE
+            geom_out[r] = geom[best_j]
+            idx_out[r] = local[best_j]
+            inst_out[r] = -1
             if with_surface:
                 store_surface(geo, r, TRIANGLE, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz,
                               _IDENTITY, uv_out, gn_out, sn_out)
-        for k in range(C.N_COUNTERS):
-            counters[c, k] = cnt[k]
+        counters[c, C.RAYS_CAST] = r1 - r0
+        counters[c, C.BOUNDS_TESTS] = n_bounds
+        counters[c, C.CELLS_VISITED] = n_nodes
+        counters[c, C.CELLS_LEAVES] = n_leaves
+        counters[c, C.TESTS + TRIANGLE] = n_tests

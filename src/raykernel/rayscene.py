@@ -43,10 +43,11 @@ from numba import prange
 from . import counters as C
 from .config import njit
 from .errors import RayKernelError
-from .flatten import GRID, flatten
+from .flatten import BVH, LIST, flatten
 from . import meshcast
 from .hitsurface import store_miss, store_surface
 from .meshcast import MeshKernel
+from .rayorder import coherent_order
 from .primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 from .scene import Scene, TriangleMesh
 from .traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
@@ -160,9 +161,8 @@ def _vectors(value, name: str) -> np.ndarray:
         arr = arr[None, :]
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise RayInputError(f"{name} must have shape (N, 3) or (3,), got {arr.shape}")
-    bad = ~np.all(np.isfinite(arr), axis=1)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
+    if not np.isfinite(arr).all():        # (whole-array test first: reductions along rows are slow)
+        i = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
         raise RayInputError(f"{name}[{i}] is not finite: {arr[i].tolist()}")
     return arr
 
@@ -188,7 +188,7 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
             d = np.broadcast_to(d, o.shape)
         else:
             raise RayInputError(f"origins and directions differ in length: {len(o)} vs {len(d)}")
-    zero = ~np.any(d != 0.0, axis=1)
+    zero = (d[:, 0] == 0.0) & (d[:, 1] == 0.0) & (d[:, 2] == 0.0)
     if zero.any():
         raise RayInputError(f"directions[{int(np.flatnonzero(zero)[0])}] has zero length")
     n = len(o)
@@ -226,12 +226,14 @@ class RayScene:
         # per kind family (polygons and patches share one numbering): first global index of each geometry
         family = np.where(table[:, 0] == PATCH, POLYGON, table[:, 0]) if len(table) else table[:, 0]
         self._geom_of = {int(k): (np.flatnonzero(family == k), table[family == k, 1]) for k in np.unique(family)}
-        # a primitive can be met twice along a ray only through grid cells or a group nested twice
-        self._may_repeat = bool(np.any(self.geo.agg_kind == GRID)) or len(self.geo.agg_kind) > 1
+        # a primitive can be met twice along a ray through a group nested twice, or in several cells
+        # of any structure but a list or a BVH (a grid or an octree holds an item in every cell it overlaps)
+        self._may_repeat = bool(np.any((self.geo.agg_kind != LIST) & (self.geo.agg_kind != BVH))) or \
+            len(self.geo.agg_kind) > 1
         # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
         self._lazy = self.build_stats.get("lazy")
         self._may_repeat = self._may_repeat or self._lazy is not None
-        self._mesh = MeshKernel.of(self.geo)
+        self._mesh = MeshKernel.of(self.geo, table)
         self.last_stats: dict = {}
 
     def _identify(self, kind: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -307,9 +309,13 @@ class RayScene:
     # ------------------------------------------------------------- queries
 
     def _run(self, mode, o, d, lo, hi, with_surface=False, offsets=None, all_t=None, all_i=None):
+        """One query kernel over all rays: t, kind, geom, idx, inst, uv, normals, shading normals, stats.
+        Closest and any hits: idx counts within the geometry; all hits: idx holds the counts, or with
+        offsets the hits go to all_t / all_i as (kind, global index, instance)."""
         n = len(o)
         t = np.empty(n)
         kind = np.empty(n, np.int64)
+        geom = np.empty(n, np.int64)
         idx = np.empty(n, np.int64)
         inst = np.empty(n, np.int64)
         m = n if with_surface else 0
@@ -321,11 +327,11 @@ class RayScene:
         start = time.perf_counter()
         if n and self._mesh is not None:
             mesh = self._mesh
-            meshcast.query(self.geo, mesh.corners, mesh.prim, mesh.root, o, d, lo, hi, np.int64(mode), CHUNK,
-                           t, idx, uv, gn, sn, with_surface, offsets, all_t, all_i, counters)
-            if mode != ALL_HITS:
-                kind[:] = np.where(idx >= 0, TRIANGLE, -1)
-                inst[:] = -1
+            box = self.geo.agg_bounds[self.geo.root]
+            order = coherent_order(o, d, box[:3], box[3:])
+            order = np.zeros(0, np.int64) if order is None else order
+            meshcast.query(self.geo, *mesh, o, d, order, lo, hi, np.int64(mode), CHUNK, t, kind, geom, idx, inst,
+                           uv, gn, sn, with_surface, offsets, all_t, all_i, counters)
         elif n and self._lazy is not None:
             # passes of PASS_CHUNKS chunks; the lazy octrees refine after each
             for a, b in self._lazy.ranges(n, CHUNK):
@@ -340,19 +346,20 @@ class RayScene:
             _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv, gn, sn,
                    with_surface, offsets, all_t, all_i, counters)
         seconds = time.perf_counter() - start
+        if self._mesh is None and mode != ALL_HITS:
+            geom, idx = self._identify(kind, idx)
         totals = counters.sum(axis=0)
         stats = {name: int(totals[k]) for k, name in C.NAMES.items() if totals[k]}
         stats["rays.cast"] = n
         stats["time.trace"] = seconds
-        return t, kind, idx, inst, uv, gn, sn, stats
+        return t, kind, geom, idx, inst, uv, gn, sn, stats
 
     def intersect(self, origins, directions, tmin=0.0, tmax=np.inf) -> Hits:
         """Closest hit of every ray in [tmin, tmax]. Ties at equal t go to the
         smaller (geom_id, prim_id, inst_id), whatever the traversal order."""
         o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
-        t, kind, idx, inst, uv, gn, sn, stats = self._run(CLOSEST, o, d, lo, hi, with_surface=True)
+        t, kind, geom, prim, inst, uv, gn, sn, stats = self._run(CLOSEST, o, d, lo, hi, with_surface=True)
         self.last_stats = stats
-        geom, prim = self._identify(kind, idx)
         return Hits(t=t, prim_id=prim, geom_id=geom, inst_id=inst, kind=kind, uv=uv, normal=gn, shading_normal=sn)
 
     def occluded(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
@@ -364,7 +371,7 @@ class RayScene:
 
     def _all(self, o, d, lo, hi):
         mark = self._lazy.checkpoint() if self._lazy is not None else None
-        _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+        _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
         if mark is not None:
             self.geo = self._lazy.restore(mark, self.geo)   # the second run must meet the same trees
         offsets = np.zeros(len(o) + 1, np.int64)
@@ -408,7 +415,7 @@ class RayScene:
             ray, _, _, _, stats = self._all(o, d, lo, hi)
             counts = np.bincount(ray, minlength=len(o)).astype(np.int64)
         else:
-            _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
         self.last_stats = stats
         return counts
 
