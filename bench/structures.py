@@ -22,8 +22,12 @@ from _report import machine, replace_section
 
 RAY_KEYS = ("rays.eye", "rays.eye_hit", "rays.reflect", "rays.reflect_hit", "rays.refract", "rays.refract_hit",
             "rays.shadow", "rays.shadow_blocked")
-OCTREE_VARIANTS = ("octree(walk=point)", "octree(walk=neighbor)", "octree(walk=parametric)",
-                   "octree(rule60=off)", "octree(collapse=off)", "octree(density=0.3)", "octree(mailbox=off)")
+# the defaults first, then one change each: walks, criteria off or on (whichever is not the default),
+# limits up and down, and the old defaults (depth 8, no budget)
+OCTREE_VARIANTS = ("octree", "octree(walk=point)", "octree(walk=parametric)", "octree(rule60=on)",
+                   "octree(density=0.3)", "octree(vertexcount=on)", "octree(collapse=off)", "octree(mailbox=off)",
+                   "octree(leaf=1)", "octree(leaf=8)", "octree(depth=8)", "octree(depth=24)", "octree(budget=8)",
+                   "octree(budget=32)", "octree(depth=8, budget=0)")
 
 
 def run(scenes, specs, resolution):

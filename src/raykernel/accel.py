@@ -174,8 +174,13 @@ register(Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (ori
           "with a warning (hits stay exact)", float, 0.0, 1 << 20),
 )))
 register(Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
-              "objects in every child their box overlaps", (
-    Param("depth", 8, "maximum subdivision depth (the root is level 0)", int, 0, 24),
+              "objects in every child their box overlaps; nodes with the most items times box area are split "
+              "first, until depth, leaf, the criteria or the reference budget stop them. Defaults: depth 16 and "
+              "budget 16 keep memory proportional to the items (under 20 MB on every SPD default scene; without "
+              "a budget, items no split separates grow the tree as 8^depth: 11.6 GB on SPD shells at depth 8) "
+              "while small clusters in big boxes still get resolved; rule60 stays off, as it stops subdivision "
+              "early wherever a large floor polygon reaches into the other octants", (
+    Param("depth", 16, "maximum subdivision depth (the root is level 0)", int, 0, 24),
     Param("leaf", 3, "a node holding at most this many items (or vertices, see vertexcount) is a leaf", int, 1,
           1 << 20),
     Param("rule60", False, "Haines's problem-voxel rule: keep a node a leaf when its largest child would "
@@ -190,6 +195,8 @@ register(Kind("octree", "octree (Glassner 1984): centre subdivision of the scene
           "neighbor (Glassner's 6 neighbour pointers per node, then descent), parametric (Revelles, Urena and "
           "Lastra 2000)", str, choices=("point", "neighbor", "parametric")),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
+    Param("budget", 16.0, "the leaves together hold at most budget * items + 4096 references; a split that "
+          "would exceed it is skipped (0: no limit)", float, 0.0, 1e6),
 )))
 register(Kind("hybrid", "Haines's hybrid (RTN 2(1), 1988): an octree whose problem voxels (leaves the "
               "subdivision left holding more than threshold items: depth limit, rule60, density) each hold "

@@ -495,7 +495,8 @@ class _Builder:
             weights = self._vertex_weights(refs) if params["vertexcount"] else None
             tree, stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"], rule60=params["rule60"],
                                        density=params["density"], vertexcount=params["vertexcount"],
-                                       weights=weights, collapse=params["collapse"], name=name)
+                                       weights=weights, collapse=params["collapse"], budget=params["budget"],
+                                       name=name)
             self._append_octree(tree, params, refs)
             stats = dict(stats)
         elif kind == "lazyoctree":
