@@ -8,7 +8,9 @@ For each SPD generator at its default size, renders ../shared/scenes/spd's
 `povray +W512 +H512 -D +A0.0 +WT2` (Debian's povray 3.7; +A0.0 supersamples
 every pixel), each as a fresh process, alternating, best of --repeat runs.
 raykernel's wall clock includes Python start-up, loading the cached
-kernels, parsing and building; its trace seconds are shown beside it.
+kernels, parsing and building; its trace seconds are shown beside it, and
+so is the time of the same render called from a running Python process
+(`raykernel.render(raykernel.load(nff), ...)`: loading, building, tracing).
 Writes the `renders` section of BENCHMARKS.md.
 """
 
@@ -26,6 +28,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import ROOT, SHARED_SPD, machine, replace_section  # noqa: E402
 
+import raykernel  # noqa: E402
 from raykernel import spd  # noqa: E402
 
 RAYKERNEL = [sys.executable, "-m", "raykernel.cli"]
@@ -73,14 +76,17 @@ def main() -> None:
                                   str(args.threads), "-o", f"{tmp}/{stem}.png", "--stats-json", f"{tmp}/{stem}.json"]
             pov_cmd = ["povray", f"+I{pov}", f"+O{tmp}/{stem}-pov.png", "+W512", "+H512", "-D", "+A0.0",
                        f"+WT{args.threads}"]
-            rk, pv, trace = [], [], []
+            rk, pv, trace, inproc = [], [], [], []
             for _ in range(args.repeat):
                 rk.append(timed(rk_cmd, tmp)[0])
                 trace.append(json.loads(Path(f"{tmp}/{stem}.json").read_text())["counters"]["time.trace"])
                 pv.append(timed(pov_cmd, tmp)[0])
-            rows.append(dict(scene=stem, raykernel=min(rk), trace=min(trace), povray=min(pv)))
-            print(f"{stem}: raykernel {min(rk):.2f} s (trace {min(trace):.2f} s), povray {min(pv):.2f} s, "
-                  f"ratio {min(pv) / min(rk):.2f}")
+                start = time.perf_counter()
+                raykernel.render(raykernel.load(str(nff)), spd=True, resolution=512, threads=args.threads)
+                inproc.append(time.perf_counter() - start)
+            rows.append(dict(scene=stem, raykernel=min(rk), trace=min(trace), inproc=min(inproc), povray=min(pv)))
+            print(f"{stem}: raykernel {min(rk):.2f} s (trace {min(trace):.2f} s, in-process {min(inproc):.2f} s), "
+                  f"povray {min(pv):.2f} s, ratio {min(pv) / min(rk):.2f}")
     lines = [
         "## SPD renders (raykernel vs POV-Ray)",
         "",
@@ -94,17 +100,20 @@ def main() -> None:
         f"kernels, parsing and building). POV-Ray: `povray +IX.pov +W512 +H512 -D +A0.0 +WT{args.threads}` "
         "(+A0.0 antialiases every pixel). speed-up = POV-Ray seconds / raykernel seconds.",
         "",
-        "| scene | raykernel s | of which trace s | POV-Ray s | speed-up |",
-        "|---|---:|---:|---:|---:|",
+        "In-process: the same render called in a running Python session (`raykernel.render(raykernel.load(nff), "
+        "spd=True, resolution=512)`), i.e. without interpreter start-up and kernel loading.",
+        "",
+        "| scene | raykernel s | of which trace s | in-process s | POV-Ray s | speed-up | speed-up in-process |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
-        lines.append(f"| {r['scene']} | {r['raykernel']:.2f} | {r['trace']:.2f} | {r['povray']:.2f} | "
-                     f"{r['povray'] / r['raykernel']:.2f} |")
-    total_rk = sum(r["raykernel"] for r in rows)
-    total_pv = sum(r["povray"] for r in rows)
+        lines.append(f"| {r['scene']} | {r['raykernel']:.2f} | {r['trace']:.2f} | {r['inproc']:.2f} | "
+                     f"{r['povray']:.2f} | {r['povray'] / r['raykernel']:.2f} | {r['povray'] / r['inproc']:.2f} |")
     if rows:
-        lines.append(f"| all | {total_rk:.2f} | {sum(r['trace'] for r in rows):.2f} | {total_pv:.2f} | "
-                     f"{total_pv / total_rk:.2f} |")
+        total = {k: sum(r[k] for r in rows) for k in ("raykernel", "trace", "inproc", "povray")}
+        lines.append(f"| all | {total['raykernel']:.2f} | {total['trace']:.2f} | {total['inproc']:.2f} | "
+                     f"{total['povray']:.2f} | {total['povray'] / total['raykernel']:.2f} | "
+                     f"{total['povray'] / total['inproc']:.2f} |")
     replace_section("renders", "\n".join(lines))
     print(f"wrote the renders section of {ROOT / 'BENCHMARKS.md'}")
 
