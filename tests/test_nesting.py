@@ -1,0 +1,439 @@
+"""Every acceleration structure against the brute-force list: alone, nested in one another,
+instanced, on the teapot in a stadium and on every SPD scene.
+
+    SPECS                                   # every kind in accel.KINDS (read at import) and a few variants
+    scene = mixed_scene(Layout(seed=1), outer="grid", inner="octree")
+    assert_same_answers(scene, mixed_scene(Layout(seed=1), "list", "list"), *probe_rays(scene, rng, 300, 1.0))
+
+The reference is the same scene with every group's structure replaced by
+`list`. Every structure hands the same primitives the same (transformed) ray,
+and closest-hit ties go to the smallest (kind, index, instance), so every
+answer must be identical to the last bit: the closest hit (t, kind, index,
+instance), whether any hit exists (and that the one reported is a real hit),
+and every hit along the ray (RayScene.intersect_all and count_hits). The
+list itself is checked against the extended-precision caster of
+tests/reference.py in test_intersect.py and test_primitives.py.
+
+Kinds registered later are covered without editing this file. The quick
+part tries every spec alone on a few random scenes and every ordered pair of
+kinds on one scene; the full matrix of specs, with more random scenes, and
+the SPD renders are marked slow.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import raykernel
+from conftest import ray_counts
+from raykernel import accel, pathological, spd
+from raykernel import counters as C
+from raykernel.aggregates.octree import BUDGET_SLACK, build_octree
+from raykernel.errors import OptionError
+from raykernel.flatten import flatten
+from raykernel.primitives import PATCH
+from raykernel.rayscene import RayScene
+from raykernel.scene import Group, Instance, Polygons, Scene, TriangleMesh
+from raykernel.traverse import cast_rays
+from test_intersect import affine, fill_group, similarity
+
+VARIANTS = ("bvh(build=gs)", "octree(walk=point)", "octree(walk=parametric)", "octree(mailbox=off)",
+            "grid(mailbox=off)", "hgrid(threshold=2)")
+KIND_NAMES = tuple(accel.KINDS)
+SPECS = KIND_NAMES + tuple(v for v in VARIANTS if v.split("(")[0] in accel.KINDS)
+
+QUICK = settings(max_examples=5, deadline=None, derandomize=True, database=None,
+                 suppress_health_check=[HealthCheck.too_slow])
+THOROUGH = settings(max_examples=25, deadline=None, derandomize=True, database=None,
+                    suppress_health_check=[HealthCheck.too_slow])
+SPD_RESOLUTION = 24
+
+
+# ---------------------------------------------------------------- scenes
+
+@dataclass(frozen=True)
+class Layout:
+    """What a random scene is made of: the seed of every position, the primitives per group
+    (spheres, cones, polygons, patches, mesh triangles: fill_group of test_intersect, with
+    negative spheres, cylinders, concave polygons and a closed octahedron), the scale of the
+    whole scene, and how far the child groups spread (small: disjoint, 1: all overlapping)."""
+
+    seed: int
+    counts: tuple = (6, 3, 4, 2, 8)
+    extent: float = 1.0
+    spread: float = 0.6
+
+
+def scaled(m: np.ndarray, s: float) -> np.ndarray:
+    """The 4x4 affine map m followed by a uniform scale s about the origin."""
+    return np.diag([s, s, s, 1.0]) @ m
+
+
+def mixed_scene(layout: Layout, outer: str, inner: str | None = None) -> Scene:
+    """The root (structure `outer`) holds primitives of every kind. With `inner` it also holds
+    a child group (`inner`) with primitives, a group without a spec (merged into the child)
+    and a grandchild group (`outer`); a group `shape` (`inner`) shown by three instances
+    (rotated and scaled, sheared, mirrored); and a group `holder` (`outer`) holding primitives
+    and an instance of `shape`, itself instanced. Ids and numbering do not depend on the specs."""
+    rng = np.random.default_rng(layout.seed)
+    e = layout.extent
+    scene = Scene()
+    scene.root.accel = outer
+    fill_group(scene.root, rng, layout.counts, extent=e)
+    if inner is None:
+        return scene
+    small = tuple((c + 1) // 2 for c in layout.counts)
+    part = layout.spread * e
+
+    def somewhere():
+        return rng.uniform(-1.0, 1.0, 3) * (e - 0.5 * part)
+
+    child = fill_group(Group(name="child", accel=inner), rng, small, center=somewhere(), extent=part)
+    child.add(fill_group(Group(name="merged"), rng, small, center=somewhere(), extent=0.5 * part))
+    child.add(fill_group(Group(name="grandchild", accel=outer), rng, small, center=somewhere(), extent=0.5 * part))
+    scene.root.add(child)
+    shape = fill_group(Group(name="shape", accel=inner), rng, small, extent=1.0)
+    mirror = np.diag([1.0, -1.0, 1.0, 1.0])
+    for m in (similarity(rng), affine(rng), similarity(rng) @ mirror):
+        scene.root.add(Instance(shape, scaled(m, 0.4 * part)))
+    holder = fill_group(Group(name="holder", accel=outer), rng, small, extent=1.0)
+    holder.add(Instance(shape, affine(rng, shift=1.0)))
+    scene.root.add(Instance(holder, scaled(similarity(rng), 0.4 * part)))
+    return scene
+
+
+def world_corners(group: Group, matrix=None, out=None) -> list:
+    """Vertices of every polygon, patch and mesh triangle reachable from `group`, in world space,
+    as (k, 3) arrays of one polygon or triangle each."""
+    out = [] if out is None else out
+    m = np.eye(4) if matrix is None else matrix
+    for s in group.primitive_sets():
+        if isinstance(s, Polygons):
+            for i in range(len(s)):
+                out.append(s.polygon(i)[0] @ m[:3, :3].T + m[:3, 3])
+        elif isinstance(s, TriangleMesh):
+            for f in s.faces:
+                out.append(s.vertices[f] @ m[:3, :3].T + m[:3, 3])
+    for c in group.children:
+        if isinstance(c, Instance):
+            world_corners(c.group, m @ c.matrix, out)
+        else:
+            world_corners(c, m, out)
+    return out
+
+
+def probe_rays(scene: Scene, rng, n: int, extent: float, center=(0.0, 0.0, 0.0)):
+    """(origins, directions, tmin, tmax), n rays in six equal parts: from outside aimed into the
+    box center +- extent; from inside in random directions; from inside with a random finite
+    [tmin, tmax]; axis-parallel; axis-parallel through a polygon or triangle vertex; and aimed
+    at vertices and edge midpoints (where neighbouring triangles and polygons meet)."""
+    c = np.asarray(center, np.float64)
+    k = n // 6
+    far = rng.normal(size=(n, 3))
+    far = c + 3.0 * extent * far / np.linalg.norm(far, axis=1)[:, None]
+    inside = c + extent * rng.uniform(-1, 1, (n, 3))
+    o = np.empty((n, 3))
+    d = np.empty((n, 3))
+    tmin = np.zeros(n)
+    tmax = np.full(n, np.inf)
+    # from outside into the box
+    o[:k], d[:k] = far[:k], inside[:k] - far[:k]
+    # from inside, random directions of random lengths
+    o[k:3 * k] = inside[k:3 * k]
+    d[k:3 * k] = rng.normal(size=(2 * k, 3)) * rng.uniform(0.2, 3.0, (2 * k, 1))
+    length = np.linalg.norm(d[2 * k:3 * k], axis=1)
+    tmin[2 * k:3 * k] = rng.uniform(0, 1, k) * extent / length
+    tmax[2 * k:3 * k] = tmin[2 * k:3 * k] + rng.exponential(1.0, k) * extent / length
+    # axis-parallel, both signs, power-of-two lengths
+    axis = rng.integers(0, 3, n)
+    sign = rng.choice([-1.0, 1.0], n)
+    unit = np.zeros((n, 3))
+    unit[np.arange(n), axis] = sign * 2.0 ** rng.integers(-2, 3, n)
+    o[3 * k:4 * k] = inside[3 * k:4 * k]
+    d[3 * k:4 * k] = unit[3 * k:4 * k]
+    corners = world_corners(scene.root)
+    if corners:
+        pick = [corners[j] for j in rng.integers(0, len(corners), n)]
+        vertex = np.array([p[rng.integers(len(p))] for p in pick])
+        edge = np.array([0.5 * (p[j] + p[(j + 1) % len(p)]) for p in pick for j in [rng.integers(len(p))]])
+        target = np.where(rng.uniform(size=(n, 1)) < 0.5, vertex, edge)
+        # axis-parallel through a vertex: the ray passes it exactly
+        o[4 * k:5 * k] = vertex[4 * k:5 * k] - 3.0 * extent * np.sign(unit[4 * k:5 * k])
+        d[4 * k:5 * k] = unit[4 * k:5 * k]
+        o[5 * k:] = far[5 * k:]
+        d[5 * k:] = target[5 * k:] - far[5 * k:]
+    else:
+        o[4 * k:], d[4 * k:] = far[4 * k:], inside[4 * k:] - far[4 * k:]
+    return o, d, tmin, tmax
+
+
+# ---------------------------------------------------------------- answers
+
+@dataclass
+class Answers:
+    closest: tuple        # cast_rays: t, kind, index, instance
+    any_hit: tuple        # cast_rays with any_hit
+    everything: tuple     # RayScene.intersect_all(ids=True): ray, t, prim_id, geom_id, inst_id
+    counts: np.ndarray    # RayScene.count_hits
+    stats: dict           # flatten's build statistics
+
+
+def answers(scene: Scene, o, d, tmin, tmax, default="list") -> Answers:
+    rs = RayScene.from_scene(scene, default)          # built once: rs.geo feeds cast_rays too
+    closest = cast_rays(rs.geo, o, d, tmin, tmax)[:4]
+    any_hit = cast_rays(rs.geo, o, d, tmin, tmax, any_hit=True)[:4]
+    return Answers(closest, any_hit, tuple(rs.intersect_all(o, d, tmin, tmax, ids=True)),
+                   rs.count_hits(o, d, tmin, tmax), rs.build_stats)
+
+
+def first_difference(got, want, names) -> str:
+    for name, a, b in zip(names, got, want):
+        if not np.array_equal(a, b):
+            if np.shape(a) != np.shape(b):
+                return f"{name}: {np.shape(a)} values against {np.shape(b)}"
+            r = int(np.flatnonzero(np.asarray(a) != np.asarray(b))[0])
+            return f"{name} of ray {r}: {a[r]!r} against {b[r]!r}"
+    return ""
+
+
+def assert_same_answers(got: Answers, want: Answers, what: str, o, d):
+    """Bit-identical closest hits, all-hits lists and counts; any-hit finds a hit exactly when
+    there is one, and reports one of the list's hits of that ray (same t and instance)."""
+    diff = first_difference(got.closest, want.closest, ("t", "kind", "index", "instance"))
+    if diff:
+        r = int(diff.split("ray ")[1].split(":")[0])
+        pytest.fail(f"{what}: closest hit differs from list: {diff} (origin {o[r].tolist()}, "
+                    f"direction {d[r].tolist()})")
+    hit = np.isfinite(want.closest[0])
+    found = np.isfinite(got.any_hit[0])
+    bad = np.flatnonzero(hit != found)
+    assert not len(bad), f"{what}: any-hit disagrees with list on {len(bad)} rays, first {bad[0]}"
+    assert np.all(got.any_hit[0][found] >= want.closest[0][found])
+    ray, t, inst = want.everything[0], want.everything[1], want.everything[-1]
+    hits = set(zip(ray.tolist(), t.tolist(), inst.tolist()))
+    for r in np.flatnonzero(found):
+        key = (int(r), float(got.any_hit[0][r]), int(got.any_hit[3][r]))
+        assert key in hits, f"{what}: any-hit of ray {r} at t={key[1]!r} is none of the list's hits"
+    diff = first_difference(got.everything, want.everything, ("ray", "t", "prim_id", "geom_id", "inst_id"))
+    assert not diff, f"{what}: intersect_all differs from list: {diff}"
+    np.testing.assert_array_equal(got.counts, want.counts, err_msg=f"{what}: count_hits differs from list")
+
+
+def check_layout(layout: Layout, outer: str, inner: str | None, n_rays: int = 240) -> tuple[Answers, Answers]:
+    """Build the layout with the specs and with list everywhere, cast the same rays, compare;
+    returns both answers."""
+    scene = mixed_scene(layout, outer, inner)
+    rays = probe_rays(scene, np.random.default_rng(layout.seed + 1), n_rays, layout.extent)
+    want = answers(mixed_scene(layout, "list", None if inner is None else "list"), *rays)
+    got = answers(scene, *rays)
+    assert_same_answers(got, want, f"{outer} over {inner}" if inner else outer, rays[0], rays[1])
+    return got, want
+
+
+layouts = st.builds(Layout, seed=st.integers(0, 2 ** 31 - 1),
+                    counts=st.tuples(st.integers(0, 8), st.integers(0, 4), st.integers(0, 5), st.integers(0, 3),
+                                     st.integers(0, 12)),
+                    extent=st.sampled_from([1e-3, 1.0, 1e4]), spread=st.floats(0.1, 1.0))
+
+
+# ---------------------------------------------------------------- the specs
+
+def test_specs_cover_every_registered_kind_and_parse():
+    assert "list" in KIND_NAMES and len(KIND_NAMES) >= 6
+    assert set(KIND_NAMES) <= {s.split("(")[0] for s in SPECS}
+    for spec in SPECS:
+        name, params = accel.parse_spec(spec)
+        assert name in accel.KINDS and accel.parse_spec(accel.format_spec(name, params)) == (name, params)
+
+
+@pytest.mark.parametrize("spec", SPECS)
+@QUICK
+@given(layout=layouts)
+def test_every_kind_alone_matches_list(spec, layout):
+    check_layout(layout, spec, None)
+
+
+@pytest.mark.parametrize("inner", KIND_NAMES)
+@pytest.mark.parametrize("outer", KIND_NAMES)
+def test_every_pair_of_kinds_nested_and_instanced_matches_list(outer, inner):
+    layout = Layout(seed=1000 + 37 * KIND_NAMES.index(outer) + KIND_NAMES.index(inner), extent=4.0)
+    got, want = check_layout(layout, outer, inner, n_rays=600)
+    # the scene is worth comparing on: most rays hit, through every instance and every primitive kind
+    t, kind, _, inst = want.closest
+    assert np.isfinite(t).mean() > 0.3
+    assert set(inst[np.isfinite(t)].tolist()) >= {-1, 0, 1, 2, 3, 4}
+    assert set(kind[np.isfinite(t)].tolist()) == {0, 1, 2, 3, 4}
+    assert want.counts.max() >= 4
+    # and the structures were built as asked: root, child, grandchild, shape, holder
+    built = {a["kind"].split("(")[0] for a in got.stats["aggregates"]}
+    assert {outer, inner} <= built and got.stats["build.nesting"] >= 3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("inner", SPECS)
+@pytest.mark.parametrize("outer", SPECS)
+@THOROUGH
+@given(layout=layouts)
+def test_every_pair_of_specs_on_random_scenes(outer, inner, layout):
+    check_layout(layout, outer, inner)
+
+
+def test_the_comparison_catches_a_wrong_answer():
+    """The checks fail on a scene that differs from the reference by one moved sphere."""
+    layout = Layout(seed=5, extent=2.0)
+    scene = mixed_scene(layout, "bvh", "grid")
+    rays = probe_rays(scene, np.random.default_rng(6), 600, layout.extent)
+    want = answers(mixed_scene(layout, "list", "list"), *rays)
+    scene.root.spheres.center[0] += 0.05 * layout.extent
+    got = answers(scene, *rays)
+    with pytest.raises(pytest.fail.Exception, match="moved sphere: closest hit differs from list"):
+        assert_same_answers(got, want, "moved sphere", rays[0], rays[1])
+
+
+# ---------------------------------------------------------------- the teapot in a stadium
+
+def stadium_rays(scene: Scene, rng, n: int):
+    """Camera rays over the view, rays from the stands and the sky aimed at teapot vertices and
+    edge midpoints, and axis-parallel rays down onto the teapot and along the field."""
+    teapot = next(g for g in scene.root.children if isinstance(g, Group) and g.name == "teapot")
+    corners = world_corners(teapot)
+    pts = np.array([p[j] for p in corners for j in range(len(p))])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    k = n // 4
+    cam = scene.camera
+    forward, right, up = cam.basis()
+    spread = np.tan(np.radians(cam.angle) / 2)
+    u, v = rng.uniform(-spread, spread, (2, k))
+    d1 = forward + u[:, None] * right + v[:, None] * up
+    o1 = np.tile(cam.eye, (k, 1))
+    pick = [corners[j] for j in rng.integers(0, len(corners), k)]
+    target = np.array([0.5 * (p[0] + p[j]) if j else p[0] for p in pick for j in [rng.integers(len(p))]])
+    o2 = rng.uniform([-150, -210, 0.5], [450, 210, 80], (k, 3))
+    d2 = target - o2
+    o3 = np.column_stack([rng.uniform(lo[0], hi[0], k), rng.uniform(lo[1], hi[1], k), np.full(k, 200.0)])
+    d3 = np.tile([0.0, 0.0, -1.0], (k, 1))
+    o4 = np.column_stack([np.full(n - 3 * k, -149.0), rng.uniform(lo[1], hi[1], n - 3 * k),
+                          rng.uniform(lo[2], hi[2], n - 3 * k)])
+    d4 = np.tile([1.0, 0.0, 0.0], (n - 3 * k, 1))
+    return np.vstack([o1, o2, o3, o4]), np.vstack([d1, d2, d3, d4]), 0.0, np.inf
+
+
+@pytest.mark.parametrize("ratio", [1.0, 1e6])
+def test_stadium_every_kind_matches_list(ratio):
+    scene = pathological.stadium(ratio=ratio)
+    o, d, tmin, tmax = stadium_rays(scene, np.random.default_rng(int(ratio)), 1200)
+    want = answers(scene, o, d, tmin, tmax, "list")
+    t, kind, _, _ = want.closest
+    assert np.isfinite(t).mean() > 0.6
+    assert np.count_nonzero(kind == PATCH) > 200        # the teapot is hit, not only the stadium
+    for spec in SPECS:
+        if spec == "list":
+            continue
+        got = answers(scene, o, d, tmin, tmax, spec)
+        assert_same_answers(got, want, f"{spec} on the stadium at ratio {ratio:g}", o, d)
+
+
+# ---------------------------------------------------------------- the SPD scenes
+
+def render_every_kind(scene, resolution):
+    base = raykernel.render(scene, accel="list", resolution=resolution, spd=True)
+    counts = ray_counts(base.stats)
+    assert counts["rays.eye"] == (resolution + 1) ** 2 and counts["rays.shadow"] > 0
+    for spec in SPECS:
+        r = raykernel.render(scene, accel=spec, resolution=resolution, spd=True)
+        assert ray_counts(r.stats) == counts, f"{spec}: ray counts differ from list"
+        diff = np.argwhere(r.image != base.image)
+        assert not len(diff), (f"{spec}: {len(diff)} image values differ from list, first at "
+                               f"{diff[0].tolist()}: {r.image[tuple(diff[0])]!r} against "
+                               f"{base.image[tuple(diff[0])]!r}")
+        np.testing.assert_array_equal(r.to_uint8(), base.to_uint8())
+
+
+@pytest.mark.parametrize("name", spd.NAMES)
+def test_small_spd_scenes_render_identically_with_every_kind(name):
+    render_every_kind(raykernel.load(f"spd:{name}:1"), 16)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", spd.NAMES)
+def test_default_spd_scenes_render_identically_with_every_kind(name):
+    render_every_kind(raykernel.load(f"spd:{name}"), SPD_RESOLUTION)
+
+
+# ---------------------------------------------------------------- the octree's defaults stay sane
+
+@pytest.mark.parametrize("text, words", [("octree(budget=-1)", "budget must be a number in"),
+                                         ("octree(budget=lots)", "budget must be a number"),
+                                         ("octree(depth=25)", "depth must be an integer in")])
+def test_octree_budget_and_depth_are_checked(text, words):
+    with pytest.raises(OptionError, match=words):
+        accel.parse_spec(text)
+    with pytest.raises(OptionError, match="budget"):
+        build_octree(np.zeros((1, 6)), budget=-1.0)
+
+
+def test_octree_defaults_are_documented():
+    _, params = accel.parse_spec("octree")
+    assert params["depth"] == 16 and params["budget"] == 16.0 and params["leaf"] == 3 and not params["rule60"]
+    assert "budget=16.0" in accel.describe() and "depth=16" in accel.describe()
+
+
+def test_octree_budget_caps_references_where_no_split_separates_the_items():
+    """400 boxes around one point: every split keeps them all together in 8 children,
+    so without a budget the tree would grow as 8**depth."""
+    rng = np.random.default_rng(3)
+    boxes = np.hstack([rng.uniform(-1.0, -0.5, (400, 3)), rng.uniform(0.5, 1.0, (400, 3))])
+    boxes = np.vstack([boxes, [[-8, -8, -8, -7, -7, -7], [7, 7, 7, 8, 8, 8]]])
+    tree, stats = build_octree(boxes, depth=24, budget=2.0)
+    assert stats["budget_refs"] == 2 * len(boxes) + BUDGET_SLACK
+    assert stats["refs"] <= stats["budget_refs"] and stats["nodes"] < 20 * stats["budget_refs"]
+    again, _ = build_octree(boxes, depth=24, budget=2.0)
+    assert all(np.array_equal(a, b) for a, b in zip(tree, again))
+    # every leaf still holds every item its box overlaps
+    for n in np.flatnonzero(tree.count >= 0):
+        b = tree.bounds[n]
+        overlap = set(np.flatnonzero(np.all((boxes[:, :3] <= b[3:]) & (boxes[:, 3:] >= b[:3]), axis=1)).tolist())
+        assert overlap <= set(tree.order[tree.first[n]:tree.first[n] + tree.count[n]].tolist())
+
+
+def test_a_budget_that_does_not_bind_changes_nothing():
+    rng = np.random.default_rng(4)
+    lo = rng.uniform(-5, 5, (1000, 3))
+    boxes = np.hstack([lo, lo + rng.uniform(0, 1.0, (1000, 3))])
+    free, s_free = build_octree(boxes, depth=6, leaf=2, budget=0.0)
+    loose, s_loose = build_octree(boxes, depth=6, leaf=2, budget=1e6)
+    assert s_free["budget_refs"] == 0 and s_loose["refs"] < s_loose["budget_refs"]
+    assert all(np.array_equal(a, b) for a, b in zip(free, loose))
+    tight, s_tight = build_octree(boxes, depth=6, leaf=2, budget=1.0)
+    assert s_tight["refs"] <= s_tight["budget_refs"] == 1000 + BUDGET_SLACK < s_free["refs"]
+    assert s_tight["nodes"] < s_free["nodes"]
+
+
+@pytest.mark.parametrize("name", [f"spd:{n}" for n in spd.NAMES] + ["scene:stadium", "scene:stadium:ratio=1"])
+def test_default_octree_stays_small_on_every_spd_scene_and_the_stadium(name):
+    scene = raykernel.load(name)
+    _, stats = flatten(scene, "octree")
+    a = stats["aggregates"][0]
+    assert a["kind"] == "octree" and a["items"] == scene.count_primitives()
+    assert a["refs"] <= 16 * a["items"] + BUDGET_SLACK == a["budget_refs"]
+    assert a["bytes"] < 20 * 2 ** 20 and a["nodes"] < a["refs"]
+
+
+def test_default_octree_resolves_the_teapot_in_the_stadium():
+    """Depth 16 with the budget reaches the teapot at the default ratio; depth 8 leaves it
+    in a few cells of hundreds of facets (Haines's problem voxel)."""
+    scene = pathological.stadium()
+    o, d, *_ = stadium_rays(scene, np.random.default_rng(8), 400)
+    tests = slice(C.TESTS, C.TESTS + 5)
+    per_ray = {}
+    for spec in ("octree", "octree(depth=8)"):
+        geo, stats = flatten(scene, spec)
+        counts = cast_rays(geo, o, d)[4]
+        per_ray[spec] = counts[tests].sum() / len(o)
+    assert stats["aggregates"][0]["max_depth"] == 8
+    assert per_ray["octree"] < 30 < 300 < per_ray["octree(depth=8)"]
