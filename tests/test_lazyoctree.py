@@ -1,9 +1,11 @@
 """Lazy octree (Lathrop): starts as one leaf, refines between passes only where rays pass,
-each criterion, hits against list on random, stadium, nested and instanced scenes,
-renders against bvh, and results that do not depend on the thread count."""
+each criterion, the passes' schedule and the children's share of a split leaf's passes,
+hits against list on random, stadium, nested and instanced scenes, renders against bvh,
+and results that do not depend on the thread count."""
 
 from __future__ import annotations
 
+import importlib
 import os
 import subprocess
 import sys
@@ -14,10 +16,11 @@ import pytest
 
 import raykernel
 from raykernel import RayScene
+from raykernel import counters as C
 from raykernel import pathological as P
 from raykernel.accel import describe, parse_spec
 from raykernel.aggregates import lazyoctree
-from raykernel.aggregates.lazyoctree import PASS_CHUNKS, build_lazy
+from raykernel.aggregates.lazyoctree import PASS_CHUNKS, build_lazy, pass_ranges
 from raykernel.aggregates.octree import ADDRESS_BITS
 from raykernel.errors import OptionError
 from raykernel.flatten import OCTREE, flatten
@@ -28,7 +31,8 @@ from test_grid import assert_same_hits, fill_group, nested_scene, new_scene, ran
 from test_pathological import child, points
 
 WALKS = ("point", "neighbor", "parametric")
-PASS = PASS_CHUNKS * CHUNK          # rays of one RayScene pass
+PASS = PASS_CHUNKS * CHUNK          # rays of RayScene's longest pass (8192)
+RENDER = importlib.import_module("raykernel.render")
 
 
 def lazy_of(rs: RayScene):
@@ -176,12 +180,15 @@ def test_refined_everywhere_it_is_the_octree_with_leaf_1(depth):
 
 
 def test_refines_only_where_rays_pass():
+    """Rays in the -x half only. The root splits after the first pass of 16 rays, so its
+    children's share of its passes is at most (16 - 2) // 8 = 1, below the 2 a child needs:
+    only children that rays pass through split, and their shares go to their own children."""
     scene = new_scene()
     rng = np.random.default_rng(2)
     for x in np.linspace(-4, 4, 9):
         for y in np.linspace(-4, 4, 5):
             scene.root.spheres.add((x, y, rng.uniform(-4, 4)), 0.3, 0)
-    rs = RayScene.from_scene(scene, "lazyoctree(rays=1, k=0)")
+    rs = RayScene.from_scene(scene, "lazyoctree(rays=2, k=0)")
     lo, hi = root_box(rs.geo)
     mid = 0.5 * (lo[0] + hi[0])
     # rays along y and z, all in the -x half of the box
@@ -229,7 +236,8 @@ def test_depth_0_never_refines():
     rs.count_hits(o, d)
     rs.intersect(o, d)
     assert rs.build_stats["build.nodes"] == 1 and rs.build_stats["build.subdivisions"] == 0
-    assert rs.build_stats["build.refine_passes"] == 4
+    # 12,288 rays: 16, 16, 32, ..., 4096 (to 8192), then 4096: 11 passes a query
+    assert rs.build_stats["build.refine_passes"] == 2 * 11
 
 
 def test_a_leaf_of_one_object_never_refines():
@@ -313,6 +321,64 @@ def test_node_budget_stops_refining_with_exact_hits(monkeypatch):
     assert lazy_of(rs).columns == 0
 
 
+# ---------------------------------------------------------------- a split leaf's surplus passes
+
+def octant_clusters():
+    """Three spheres near each corner of [-5, 5]^3: every child of the root holds 3 items, all
+    in its outer grandchild ([2.5, 5] on each axis, signs as the child's)."""
+    scene = new_scene()
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            for sz in (-1, 1):
+                s = np.array([sx, sy, sz], float)
+                for c in ((4.5, 4.5, 4.5), (3.5, 4.5, 4.5), (4.5, 3.5, 4.5)):
+                    scene.root.spheres.add(s * c, 0.5, 0)
+    return scene
+
+
+def refined_with(spec, n_root):
+    """octant_clusters' lazy octree after one pass in which n_root rays passed through the root;
+    returns (build statistics, lazy octrees, Geometry)."""
+    geo, build = flatten(octant_clusters(), spec)
+    lazy = build["lazy"]
+    assert lazy.columns == 1
+    geo = lazy.refine(geo, np.array([[n_root]], np.int64))
+    lazy.update_stats(build, geo)
+    return build, lazy, geo
+
+
+@pytest.mark.parametrize("n_root, subdivisions", [
+    (13, 1),                 # root: M = 24, k = 0.5: needs max(2, 12 + 1) = 13 passes
+    (13 + 8 * 1 + 7, 1),     # surplus 15: each child 15 // 8 = 1 pass, a child of 3 items needs 2
+    (13 + 8 * 2, 1 + 8),     # each child 2: all eight split, with nothing left for theirs
+    (13 + 8 * (2 + 8 * 2), 1 + 8 + 8)])   # each child 18, 16 over: the outer grandchildren (3 items) get 2
+def test_children_share_the_surplus_of_a_split_leaf(n_root, subdivisions):
+    build, lazy, geo = refined_with("lazyoctree(rays=2, k=0.5)", n_root)
+    assert build["build.subdivisions"] == subdivisions and build["build.refine_passes"] == 1
+    assert build["build.nodes"] == 1 + 8 * subdivisions
+    root = geo.oct_root[0]
+    kids = geo.oct_first[root] + np.arange(8)
+    assert np.all(geo.oct_count[kids] == (-1 if subdivisions > 1 else 3))
+    # one pass fewer and the root stays a leaf
+    build, _, _ = refined_with("lazyoctree(rays=2, k=0.5)", 12)
+    assert build["build.subdivisions"] == 0
+
+
+def test_shares_stop_at_the_depth_limit_and_add_to_later_passes():
+    build, _, _ = refined_with("lazyoctree(depth=2, rays=2, k=0.5)", 13 + 8 * (2 + 8 * 2))
+    assert build["build.subdivisions"] == 1 + 8 and build["build.nodes"] == 73
+    # a child credited 1 pass needs 1 more of its own, not 2
+    build, lazy, geo = refined_with("lazyoctree(rays=2, k=0.5)", 13 + 8)
+    assert build["build.subdivisions"] == 1 and lazy.columns == 8
+    one = np.zeros((1, 8), np.int64)
+    one[0, 3] = 1
+    geo = lazy.refine(geo, one)
+    lazy.update_stats(build, geo)
+    assert build["build.subdivisions"] == 2
+    kids = geo.oct_first[geo.oct_root[0]] + np.arange(8)
+    assert [int(geo.oct_count[k] < 0) for k in kids] == [0, 0, 0, 1, 0, 0, 0, 0]
+
+
 # ---------------------------------------------------------------- hits against list
 
 @pytest.mark.parametrize("walk", WALKS)
@@ -340,8 +406,9 @@ def test_passes_within_one_query_match_list(walk):
     fill_group(scene.root, rng, n=40)
     o, d = random_rays(rng, 2 * PASS + 500)
     rs = same_hits_as_list(scene, f"lazyoctree(walk={walk}, mailbox=off, rays=1, k=0)", o, d)
-    # intersect, occluded and two runs of intersect_all, three passes each, then cast_rays
-    assert rs.build_stats["build.refine_passes"] == 3 * 3
+    # intersect, occluded and two runs of intersect_all (the first run's passes are undone), then
+    # cast_rays; 16,884 rays: 16, 16, 32, ..., 4096 (to 8192), 8192, 500: 12 passes a run
+    assert rs.build_stats["build.refine_passes"] == 3 * 12
 
 
 @pytest.mark.parametrize("ratio", [1.0, 1e6])
@@ -418,6 +485,69 @@ def test_flat_and_empty_groups():
 
 # ---------------------------------------------------------------- renders
 
+def test_pass_ranges():
+    assert pass_ranges(100, 16, 64) == [(0, 16), (16, 32), (32, 64), (64, 100)]
+    assert pass_ranges(300, 16, 64) == [(0, 16), (16, 32), (32, 64), (64, 128), (128, 192), (192, 256),
+                                        (256, 300)]
+    assert pass_ranges(10, 16, 64) == [(0, 10)]
+    assert pass_ranges(0, 16, 64) == []
+    assert pass_ranges(5, 1, 1) == [(0, 1), (1, 2), (2, 3), (3, 4), (4, 5)]
+    # a render of 4 tiles of 16 rows, batches of one tile: the first tile cut into rows
+    assert pass_ranges(64, 1, 16) == [(0, 1), (1, 2), (2, 4), (4, 8), (8, 16), (16, 32), (32, 48), (48, 64)]
+    # RayScene: within the first chunk of 1024 rays, then whole chunks
+    bounds = [b for _, b in pass_ranges(50000, 16, PASS)]
+    assert bounds[:7] == [16, 32, 64, 128, 256, 512, 1024]
+    assert all(b % CHUNK == 0 for b in bounds[6:-1]) and bounds[-1] == 50000
+    for first, most in ((0, 4), (8, 4), (-1, 1)):
+        with pytest.raises(ValueError, match="first"):
+            pass_ranges(10, first, most)
+
+
+def test_render_passes_start_with_one_row(monkeypatch):
+    """The eye rays of each pass of a 48 x 48 SPD render (49 x 49 corner samples in 4 x 4 tiles:
+    three of 16 x 16, then one 1 wide, and a last row of tiles 1 high)."""
+    seen = []
+    kernel = RENDER._render_tiles
+
+    def recording(*args):
+        kernel(*args)
+        first, last, counters = args[9], args[10], args[14]
+        seen.append(int(counters[first:last, C.RAYS_EYE].sum()))
+
+    monkeypatch.setattr(RENDER, "_render_tiles", recording)
+    scene = raykernel.load("spd:balls:1")
+    got = raykernel.render(scene, accel="lazyoctree", resolution=48, spd=True)
+    assert seen == [16, 16, 32, 64, 128, 256, 256, 16] + [256, 256, 256, 16] * 2 + [16, 16, 16, 1]
+    assert got.stats["rays.eye"] == 49 * 49 and got.stats["build.refine_passes"] == len(seen)
+    # other structures keep their batches: here one tile each
+    seen.clear()
+    raykernel.render(scene, accel="bvh", resolution=48, spd=True)
+    assert seen == [256, 256, 256, 16] * 3 + [16, 16, 16, 1]
+
+
+def test_rayscene_passes_shorter_than_a_chunk_count_every_ray():
+    """1000 rays, fewer than a chunk, in 7 passes; each crosses the one leaf (depth=0) of 5
+    spheres and tests them all."""
+    rs = RayScene.from_scene(sphere_row(5), "lazyoctree(depth=0)")
+    o, d = rays_past(1000, np.random.default_rng(14))
+    rs.intersect(o, d)
+    assert rs.last_stats["tests.sphere"] == 1000 * 5
+    assert rs.build_stats["build.refine_passes"] == 7
+
+
+def test_rayscene_refines_after_its_first_16_rays():
+    """32 rays between the spheres: the first 16 meet the one leaf of 5 spheres (80 tests), the
+    next 16 a split tree."""
+    rs = RayScene.from_scene(sphere_row(5), "lazyoctree(rays=1, k=0)")
+    o, d = rays_past(32, np.random.default_rng(15))
+    rs.intersect(o[:16], d[:16])
+    assert rs.last_stats["tests.sphere"] == 16 * 5
+    rs = RayScene.from_scene(sphere_row(5), "lazyoctree(rays=1, k=0)")
+    rs.intersect(o, d)
+    assert rs.build_stats["build.refine_passes"] == 2 and rs.build_stats["build.subdivisions"] >= 1
+    assert rs.last_stats["tests.sphere"] < 16 * 5 + 16 * 5
+
+
 def stats_of_tree(geo, octree=0):
     """N_IN, N_V, N_EV, N_OIV of the tree reachable from the root, counted from the arrays."""
     nodes, _ = tree_of(geo, octree)
@@ -431,8 +561,9 @@ def test_spd_render_matches_bvh(name):
     scene = raykernel.load(name)
     bvh = raykernel.render(scene, accel="bvh", resolution=48, spd=True)
     rays = {k: v for k, v in bvh.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
-    # 49 x 49 corner samples: 4 x 4 tiles of 16, fewer than 32, so one tile per batch
-    batches = 16
+    # 49 x 49 corner samples: 4 x 4 tiles of 16, fewer than 32, so one tile per batch; the first
+    # tile in rows 1, 1, 2, 4, 8, then 15 tiles
+    batches = 5 + 15
     for walk in WALKS:
         got = raykernel.render(scene, accel=f"lazyoctree(walk={walk})", resolution=48, spd=True)
         np.testing.assert_array_equal(got.image, bvh.image)
@@ -496,7 +627,8 @@ def test_thread_count_does_not_change_result(tmp_path):
     assert out[1]["image"].tobytes() == out[2]["image"].tobytes()
     assert list(out[1]["keys"]) == list(out[2]["keys"])
     values = dict(zip(out[1]["keys"], out[1]["values"]))
-    assert values["build.subdivisions"] > 0
+    # 41 x 41 samples in 3 x 3 tiles, one per batch: the first in 5 passes of rows, then 8 tiles
+    assert values["build.subdivisions"] > 0 and values["build.refine_passes"] == 5 + 8
     np.testing.assert_array_equal(out[1]["values"], out[2]["values"])
     for name in ("t", "prim", "n", "q", "nodes"):
         np.testing.assert_array_equal(out[1][name], out[2][name])

@@ -333,13 +333,14 @@ class RayScene:
             meshcast.query(self.geo, *mesh, o, d, order, lo, hi, np.int64(mode), CHUNK, t, kind, geom, idx, inst,
                            uv, gn, sn, with_surface, offsets, all_t, all_i, counters)
         elif n and self._lazy is not None:
-            # passes of PASS_CHUNKS chunks; the lazy octrees refine after each
+            # passes from a few rays up to PASS_CHUNKS chunks (lazyoctree.pass_ranges); the lazy octrees
+            # refine after each; passes shorter than a chunk add into the first chunk's row
             for a, b in self._lazy.ranges(n, CHUNK):
                 rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + self._lazy.columns), np.int64)
                 _query(self.geo, o[a:b], d[a:b], lo[a:b], hi[a:b], np.int64(mode), CHUNK, t[a:b], kind[a:b],
                        idx[a:b], inst[a:b], uv[a:b], gn[a:b], sn[a:b], with_surface,
                        offsets[a:b + 1] if len(offsets) else offsets, all_t, all_i, rows)
-                counters[a // CHUNK:a // CHUNK + len(rows)] = rows[:, :C.N_COUNTERS]
+                counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
                 self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
             self._lazy.update_stats(self.build_stats, self.geo)
         elif n:

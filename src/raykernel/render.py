@@ -15,8 +15,9 @@ pixel centre and rays whose weight falls below 1/512 are not cast.
 The image is traced in tiles of TILE x TILE samples, in parallel; each
 tile owns one row of counters, so counts and image bytes do not depend on
 the number of threads. The tiles are traced in batches of n_tiles // 32 (at
-least one), in a fixed order; lazy octrees (aggregates/lazyoctree.py) are
-refined between batches from the pass counts of the batch's tiles.
+least one), in a fixed order. With lazy octrees (aggregates/lazyoctree.py)
+the passes start smaller (one row of the first tile, then as many rows as
+before, up to a batch) and the trees are refined after each from its pass counts.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np
 from numba import prange
 
 from . import counters as C
+from .aggregates.lazyoctree import pass_ranges
 from .config import njit
 from .errors import OptionError
 from .flatten import flatten
@@ -374,16 +376,29 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     cutoff = 0.0 if spd else CUTOFF
 
     t1 = time.perf_counter()
-    lazy = build.get("lazy")     # lazy octrees: each batch is a pass, refined after it
+    lazy = build.get("lazy")     # lazy octrees: refined after each pass
     batch = max(1, n_tiles // 32)
-    for first in range(0, n_tiles, batch):
-        last = min(n_tiles, first + batch)
+    if lazy is None:
+        ranges = [(a * TILE, min(n_tiles, a + batch) * TILE) for a in range(0, n_tiles, batch)]
+    else:
+        # passes in rows of tiles: one row of the first tile, then as many as before, up to a batch
+        ranges = pass_ranges(n_tiles * TILE, 1, batch * TILE)
+    for a, b in ranges:
+        first, last = a // TILE, -(-b // TILE)
         passes = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
-        _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first, last,
-                      max_depth, cutoff, samples, counts, passes)
+        if a % TILE or b % TILE:
+            # rows of one tile: that tile moved down to its first row, the samples cut below its last
+            part = np.zeros((1, C.N_COUNTERS), np.int64)
+            below = min(sh, tile_y[first] + (b - 1) % TILE + 1)
+            _render_tiles(geo, mats, lights, scene.background, cam, sw, below, tile_x[first:last],
+                          tile_y[first:last] + a % TILE, 0, 1, max_depth, cutoff, samples, part, passes)
+            counts[first] += part[0]
+        else:
+            _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first, last,
+                          max_depth, cutoff, samples, counts, passes)
         if lazy is not None:
             geo = lazy.refine(geo, passes)
-        if progress is not None:
+        if progress is not None and b % TILE == 0:
             progress(last, n_tiles)
     trace = time.perf_counter() - t1
     if lazy is not None:

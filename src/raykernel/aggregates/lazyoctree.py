@@ -1,5 +1,5 @@
 """Lazy octree (Lathrop, Ray Tracing News 2(1), 1988): one leaf at first,
-subdivided between passes of rays, only where rays pass.
+subdivided between passes of rays where rays pass.
 
     geo, build = flatten(scene, default_accel="lazyoctree(rays=4, k=0.1)")
     lazy = build.get("lazy")     # LazyOctrees of the scene, None without lazy octrees
@@ -21,7 +21,7 @@ again by descent from the root, as the octree builder finds them.
 
 Criteria
 --------
-A leaf is subdivided, one level, when all of these hold:
+A leaf is subdivided when all of these hold:
   I    its level is below ``depth`` (the root is level 0; depth=0 never refines);
   II   it is not empty;
   III  it holds more than one item (M > 1);
@@ -38,15 +38,39 @@ ray that stops in the leaf, meets its end there or, as an any-hit ray, finds
 a hit there does not count. The walk counts this with an OCT_PASS stack
 entry (traverse.py) above the leaf's continuation. Only *candidates*
 (leaves meeting I-III, not kept by VI) have a counter column, so leaves that
-can never split cost nothing. Children start with N = 0, so a pass deepens
-the tree by at most one level.
+can never split cost nothing.
+
+Several levels in one refinement
+--------------------------------
+Lathrop applies the criteria ray by ray: once a leaf meets them it is split,
+and the next ray to come already meets its children. Between passes we read
+this so: of a leaf's N passes, the first need = max(rays, floor(M*k) + 1)
+were what it took to split it; the N - need after them would have met its
+children. Each of those rays hit nothing in the leaf, so it passed through
+every child it crossed, and it crossed at least one: the children together
+had at least N - need passes, we do not know where. Each child starts with
+an equal share, (N - need) // CHILD_SHARE (8), never more in total than they
+surely had. A child whose share meets the criteria splits in the same
+refinement and shares its own surplus the same way, down to ``depth``; later
+passes add to the shares. The shares are an estimate: rays that all crossed
+one side of a leaf credit the children on the other side too, so children
+(and, dividing by 8 a level, their children) of a leaf passed by many rays
+may split where no ray went. Without the shares each pass deepens the tree
+by one level at most, and the rays of a region seen for the first time meet
+its coarse leaves pass after pass.
 
 Passes and determinism
 ----------------------
-The tree changes only between passes, never while rays are in flight. The
-renderer's passes are its batches of tiles (about 32, see render.py),
-RayScene's are runs of PASS_CHUNKS chunks of CHUNK rays (boundaries fixed
-by ray indices). During a pass, every tile or chunk counts passes into its
+The tree changes only between passes, never while rays are in flight.
+Passes start small and grow (pass_ranges): the first is a few rays, each
+later one as long as all before it, up to a cap; the first rays meet the
+one-leaf tree a few at a time, and the tree is refined once a doubling
+before the passes reach their full length. The renderer traces the rows of
+its first tile in passes of 1, 1, 2, 4 and 8 rows (16 samples a row), then
+1, 2, 4, ... tiles up to its usual batch of n_tiles // 32 (render.py);
+RayScene's passes are FIRST_PASS = 16 rays, 16, 32, ... up to PASS_CHUNKS
+chunks of CHUNK rays (8192). Boundaries depend only on tile and ray
+indices. During a pass, every tile or chunk counts passes into its
 own columns after the N_COUNTERS ordinary counters; refine() sums them
 (integer sums: any order) and splits every leaf that meets the criteria, in
 node order. So images, hits and every counter are the same at any thread
@@ -85,9 +109,11 @@ from ..errors import OptionError
 from .grid import grid_box
 from .octree import ADDRESS_BITS, MAX_DEPTH, MAX_NODES, OctreeArrays
 
-__all__ = ["LazyOctrees", "build_lazy", "PASS_CHUNKS"]
+__all__ = ["LazyOctrees", "build_lazy", "pass_ranges", "FIRST_PASS", "PASS_CHUNKS"]
 
-PASS_CHUNKS = 8            # RayScene: chunks of rays (of rayscene.CHUNK) per pass
+FIRST_PASS = 16            # units of work (rays; rows of a render tile) in the first pass
+PASS_CHUNKS = 8            # RayScene: at most this many chunks of rays (of rayscene.CHUNK) per pass
+CHILD_SHARE = 8            # a split leaf's surplus passes are shared out among its 8 children
 # bytes of one node in the octree arrays: bounds 48, first 8, count 8, loc 24,
 # level 8, slot 8, neighbours 48, pass column 8
 NODE_BYTES = 160
@@ -316,9 +342,9 @@ class LazyOctrees:
 
     @staticmethod
     def ranges(n: int, chunk: int):
-        """RayScene's passes over n rays: runs of PASS_CHUNKS chunks of `chunk` rays."""
-        step = PASS_CHUNKS * chunk
-        return [(a, min(n, a + step)) for a in range(0, n, step)]
+        """RayScene's passes over n rays: FIRST_PASS rays, then as many as went before, up to
+        PASS_CHUNKS chunks of `chunk` rays (a power of two at least FIRST_PASS)."""
+        return pass_ranges(n, FIRST_PASS, PASS_CHUNKS * chunk)
 
     def refine(self, geo, pass_counts):
         """Add a pass's counts ((work items, columns) int64, one row per tile or chunk)
@@ -332,15 +358,26 @@ class LazyOctrees:
         cand = self.cand
         if len(cand):
             self.acc[cand] += pass_counts.sum(axis=0, dtype=np.int64)
-            own = self.owner[cand]
-            n_pass = self.acc[cand]
-            m = self.buf["oct_count"][cand]
-            chosen = cand[(n_pass >= self.rays[own]) & (m * self.k[own] < n_pass)]
+            chosen = self._ready(cand)
             if len(chosen):
-                self._subdivide(chosen)
+                # children that inherit enough passes split at once, and so on down
+                while len(chosen):
+                    old_n = self.n_nodes
+                    self._subdivide(chosen)
+                    chosen = self._ready(self.cand[self.cand >= old_n])
                 geo = self._view(geo)
         self.seconds += time.perf_counter() - t0
         return geo
+
+    def _need(self, nodes):
+        """The passes after which each leaf of `nodes` meets IV and V: max(rays, floor(M*k) + 1)."""
+        own = self.owner[nodes]
+        m = self.buf["oct_count"][nodes]
+        return np.maximum(self.rays[own], np.floor(m * self.k[own]).astype(np.int64) + 1)
+
+    def _ready(self, nodes):
+        """The candidates among `nodes` that meet IV and V."""
+        return nodes[self.acc[nodes] >= self._need(nodes)]
 
     def _subdivide(self, chosen):
         room = max(0, MAX_NODES - self.n_nodes) // 8
@@ -356,6 +393,7 @@ class LazyOctrees:
         self._reserve(8 * len(chosen), 8 * int(b["oct_count"][chosen].sum()))
         b = self.buf
         old_n = self.n_nodes
+        surplus = self.acc[chosen] - self._need(chosen)
         status, n_nodes, n_refs = _split(chosen, self.owner, self.origin, self.unit, self.rule60, self.boxes,
                                          self.item_ref, self.ref_item, self.refs, b["oct_first"], b["oct_count"],
                                          b["oct_loc"], b["oct_level"], b["oct_slot"], b["oct_bounds"],
@@ -364,7 +402,8 @@ class LazyOctrees:
         split = chosen[status == _SPLIT]
         self.final[chosen[status == _KEPT]] = True
         np.add.at(self.subdivisions, self.owner[split], 1)
-        self.acc[old_n:self.n_nodes] = 0
+        # the passes after the one that split it would have met the children (split's order is theirs)
+        self.acc[old_n:self.n_nodes] = np.repeat(surplus[status == _SPLIT] // CHILD_SHARE, 8)
         self.final[old_n:self.n_nodes] = False
         b["oct_pass"][old_n:self.n_nodes] = -1
         mask = np.zeros(self.n_nodes, np.bool_)
@@ -462,6 +501,24 @@ class LazyOctrees:
         build["build.refine_passes"] = self.passes
         build["build.subdivisions"] = int(self.subdivisions.sum())
         build["build.refine_seconds"] = self.seconds
+
+
+def pass_ranges(n: int, first: int, most: int) -> list[tuple[int, int]]:
+    """Passes over n units of work, as [start, end) ranges: `first` units, then as many as
+    all the passes before (first, first, 2 first, 4 first, ...), at most `most`.
+
+    Boundaries depend only on n, first and most (never on threads or timing). When
+    B = first * 2**j and most is a multiple of B, the passes before unit B cut the first
+    block of B units (a render tile's rows, RayScene's first chunk) and every later
+    boundary is a multiple of B, so later passes are whole tiles or chunks."""
+    if first < 1 or most < first:
+        raise ValueError(f"pass sizes need 1 <= first <= most, got first={first}, most={most}")
+    out, a = [], 0
+    while a < n:
+        b = min(n, a + min(most, max(first, a)))
+        out.append((a, b))
+        a = b
+    return out
 
 
 def _grown(a, cap, used):
