@@ -216,11 +216,12 @@ register(Kind("hybrid", "Haines's hybrid (RTN 2(1), 1988): an octree whose probl
           choices=("point", "neighbor", "parametric")),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf of the octree", bool),
 )))
-register(Kind("lazyoctree", "lazy octree (Lathrop 1988): one leaf at first; between passes of rays (the "
-              "renderer's batches of tiles, RayScene's runs of 8192 rays) a leaf is split one level, as the "
-              "octree splits, when it meets I-V (and VI with rule60): I level < depth, II not empty, III more "
-              "than one item (M > 1), IV at least `rays` rays passed through it without a hit in it since it "
-              "was made (N >= rays), V M*k < N", (
+register(Kind("lazyoctree", "lazy octree (Lathrop 1988): one leaf at first; between passes of rays (passes "
+              "that start small and double: a first tile row by row, then tiles; RayScene from 16 rays up to "
+              "8192) a leaf is split, as the octree splits, when it meets I-V (and VI with rule60): I level < "
+              "depth, II not empty, III more than one item (M > 1), IV at least `rays` rays passed through it "
+              "without a hit in it since it was made (N >= rays), V M*k < N; passes beyond what a split needed "
+              "are shared among the children, which may split in the same refinement", (
     Param("depth", 8, "criterion I: most levels (the root is level 0; 0 never refines)", int, 0, 24),
     Param("rays", 4, "criterion IV: rays that must pass through a leaf without a hit in it before it may split",
           int, 1, 1 << 40),
