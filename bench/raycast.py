@@ -119,7 +119,7 @@ def worker(data_path, threads):
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh as EmbreeMesh
 
-    from raykernel import RayScene, rayorder
+    from raykernel import RayScene
     data = np.load(data_path)
     rows = []
     for name in data["names"]:
@@ -137,11 +137,8 @@ def worker(data_path, threads):
             rs.intersect(o[:1000], d[:1000])
             sec_rk, h = best_of(lambda: rs.intersect(o, d))
             stats = rs.last_stats
-            # what the kept measures bring: the same rays without the ray order, and through the
-            # generic traversal (every aggregate kind, nesting, instances) instead of the mesh kernel
-            min_rays, rayorder.MIN_RAYS = rayorder.MIN_RAYS, 1 << 62
-            sec_unordered, _ = best_of(lambda: rs.intersect(o, d))
-            rayorder.MIN_RAYS = min_rays
+            # what the mesh kernel brings: the same rays through the generic traversal
+            # (every aggregate kind, nesting, instances)
             mesh, rs._mesh = rs._mesh, None
             rs.intersect(o[:1000], d[:1000])
             sec_generic, _ = best_of(lambda: rs.intersect(o, d), repeat=1)
@@ -156,7 +153,7 @@ def worker(data_path, threads):
             same[both] = np.abs(h.t[both] - t_em[both]) <= 1e-5 * np.maximum(np.abs(h.t[both]), 1e-30)
             rows.append(dict(mesh=str(name), tris=len(f), kind=kind, rays=len(o), threads=threads,
                              rk=len(o) / sec_rk / 1e6, em=len(o) / sec_em / 1e6, agree=float(same.mean()),
-                             unordered=len(o) / sec_unordered / 1e6, generic=len(o) / sec_generic / 1e6,
+                             generic=len(o) / sec_generic / 1e6,
                              hit=float(hit_rk.mean()), build_rk=build_rk, build_em=build_em,
                              tests=stats.get("tests.triangle", 0) / len(o),
                              nodes=stats.get("cells.visited", 0) / len(o)))
@@ -217,16 +214,15 @@ def main():
              "mesh's box, uniform random directions), the same rays for both libraries and both thread counts; "
              "closest hit with t, ids, uv and normals for raykernel (`RayScene.intersect`, input checks included), "
              "closest hit (output=1) for embreex; best of 2 runs. Each thread count runs in a process pinned to "
-             "that many cores with taskset. agree: same hit/miss and |t - t_embree| <= 1e-5 t. unordered: "
-             "raykernel without the ray order (rayorder.py; it only reorders incoherent batches); generic: "
+             "that many cores with taskset. agree: same hit/miss and |t - t_embree| <= 1e-5 t. generic: "
              "raykernel through the general traversal (traverse.py) instead of the mesh kernel (meshcast.py), one run.",
              "",
              "| mesh | triangles | rays | threads | raykernel Mrays/s | embreex Mrays/s | ratio | agree | "
-             "unordered Mrays/s | generic Mrays/s | tests/ray | nodes/ray |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "generic Mrays/s | tests/ray | nodes/ray |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r['mesh']} | {r['tris']} | {r['kind']} | {r['threads']} | {r['rk']:.2f} | {r['em']:.2f} | "
-                     f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {r['unordered']:.2f} | {r['generic']:.2f} | "
+                     f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {r['generic']:.2f} | "
                      f"{r['tests']:.1f} | {r['nodes']:.1f} |")
     lines += ["", f"JIT compile in a fresh process (import, build a 1-triangle scene, intersect and count_hits): "
               f"cold {cold:.1f} s (empty NUMBA_CACHE_DIR), warm {warm:.1f} s (from the cache)."]

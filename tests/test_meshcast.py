@@ -12,7 +12,7 @@ import copy
 import numpy as np
 import pytest
 
-from raykernel import Group, Instance, RayScene, Scene, TriangleMesh, rayorder
+from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
 from raykernel.primitives import SPHERE, TRIANGLE
 from test_watertight import MESHES, rays_through, targets
 
@@ -147,35 +147,3 @@ def test_geometry_ids_count_within_each_geometry():
     assert ray.tolist() == [0, 1, 2, 3, 4, 5] and prim.tolist() == [0, 1, 0, 1, 0, 1]
     assert geom.tolist() == h.geom_id[:6].tolist() and inst.tolist() == [-1] * 6
 
-
-def test_radix_argsort_is_a_stable_argsort():
-    rng = np.random.default_rng(15)
-    for bits in (3, 11, 24):
-        keys = rng.integers(0, 1 << bits, 5000)
-        assert np.array_equal(rayorder._radix_argsort(keys, bits), np.argsort(keys, kind="stable"))
-
-
-def test_ray_order_changes_nothing_but_the_order_of_work(monkeypatch):
-    """A batch large enough to be reordered gives exactly the unordered results and counters."""
-    rng = np.random.default_rng(16)
-    v, f = MESHES["lumpy-1"]
-    scene = RayScene.from_mesh(v, f)
-    n = rayorder.MIN_RAYS + 1234
-    o = rng.uniform(-1.5, 1.5, (n, 3))
-    d = rng.normal(size=(n, 3))
-    box = scene.geo.agg_bounds[scene.geo.root]
-    order = rayorder.coherent_order(o, d, box[:3], box[3:])
-    assert order is not None and sorted(order.tolist()) == list(range(n)) and not np.array_equal(order, np.arange(n))
-    results = []
-    for min_rays in (rayorder.MIN_RAYS, 1 << 62):
-        monkeypatch.setattr(rayorder, "MIN_RAYS", min_rays)
-        h = scene.intersect(o, d)
-        stats = {k: v for k, v in scene.last_stats.items() if k != "time.trace"}
-        results.append((h, stats, scene.occluded(o, d), scene.count_hits(o, d)))
-    (a, sa, oa, ca), (b, sb, ob, cb) = results
-    assert sa == sb and np.array_equal(oa, ob) and np.array_equal(ca, cb)
-    for field in ("t", "prim_id", "geom_id", "uv", "normal"):
-        assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
-    # rays of one camera are already coherent: left in their order
-    cam = np.tile([0.0, 0.0, 5.0], (n, 1))
-    assert rayorder.coherent_order(cam, np.c_[rng.uniform(-1, 1, (n, 2)), -np.ones(n)], box[:3], box[3:]) is None

@@ -15,9 +15,12 @@ with three changes that make it fast:
   per ray instead of once per triangle (the same arithmetic, bit for bit);
 * the triangles' corners are copied into leaf order, nine numbers per
   reference, so a leaf's triangles are read from one contiguous block;
-* the loop knows only BVH nodes and triangles;
-* large batches are traced in an order that keeps neighbouring rays
-  together (rayorder.py), results written back to each ray's own row.
+* the loop knows only BVH nodes and triangles.
+
+Tracing large incoherent batches in Morton order of origin and direction
+octant was tried and dropped: the scattered reads and writes cost more than
+the better cache use of the traversal saved (bench/raycast.py numbers in
+BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -112,19 +115,16 @@ def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
 
 
 @njit(parallel=True)
-def query(geo, corners, prim, geom, local, root, origins, directions, order, tmin, tmax, mode, chunk, t_out,
-          kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
-          counters):
+def query(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out,
+          geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
     outputs of rayscene._query, identities as the user sees them: geometry and
     index within it (-1 on a miss). All hits: with len(offsets) == 0 counts them
     into idx_out, else writes ray r's hits to rows offsets[r] .. offsets[r + 1]
-    of all_t / all_i as (kind, global index, instance), like the generic kernel.
-    order: the rays in the order to trace them (rayorder.py), or empty for 0..n-1."""
+    of all_t / all_i as (kind, global index, instance), like the generic kernel."""
     n = origins.shape[0]
     n_chunks = (n + chunk - 1) // chunk
     store = offsets.shape[0] > 0
-    reordered = order.shape[0] > 0
     nb = geo.node_bounds
     first = geo.node_first
     count = geo.node_count
@@ -136,8 +136,7 @@ def query(geo, corners, prim, geom, local, root, origins, directions, order, tmi
         # counters in locals (registers), written once per chunk
         n_bounds = n_nodes = n_leaves = n_tests = np.int64(0)
         r0, r1 = c * chunk, min(n, (c + 1) * chunk)
-        for i in range(r0, r1):
-            r = order[i] if reordered else i
+        for r in range(r0, r1):
             ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
             dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
             o[0], o[1], o[2] = ox, oy, oz

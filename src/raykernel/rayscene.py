@@ -47,7 +47,6 @@ from .flatten import BVH, LIST, flatten
 from . import meshcast
 from .hitsurface import store_miss, store_surface
 from .meshcast import MeshKernel
-from .rayorder import coherent_order
 from .primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 from .scene import Scene, TriangleMesh
 from .traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
@@ -327,10 +326,7 @@ class RayScene:
         start = time.perf_counter()
         if n and self._mesh is not None:
             mesh = self._mesh
-            box = self.geo.agg_bounds[self.geo.root]
-            order = coherent_order(o, d, box[:3], box[3:])
-            order = np.zeros(0, np.int64) if order is None else order
-            meshcast.query(self.geo, *mesh, o, d, order, lo, hi, np.int64(mode), CHUNK, t, kind, geom, idx, inst,
+            meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom, idx, inst,
                            uv, gn, sn, with_surface, offsets, all_t, all_i, counters)
         elif n and self._lazy is not None:
             # passes from a few rays up to PASS_CHUNKS chunks (lazyoctree.pass_ranges); the lazy octrees
