@@ -2,8 +2,8 @@
 instanced, on the teapot in a stadium and on every SPD scene.
 
     SPECS                                   # every kind in accel.KINDS (read at import) and a few variants
-    scene = mixed_scene(Layout(seed=1), outer="grid", inner="octree")
-    assert_same_answers(scene, mixed_scene(Layout(seed=1), "list", "list"), *probe_rays(scene, rng, 300, 1.0))
+    scene = mixed_scene(Layout(seed=1), outer="grid", inner="octree")     # groups in groups, instances
+    got, want = check_layout(Layout(seed=1), "grid", "octree")           # that scene against list
 
 The reference is the same scene with every group's structure replaced by
 `list`. Every structure hands the same primitives the same (transformed) ray,
@@ -15,9 +15,11 @@ list itself is checked against the extended-precision caster of
 tests/reference.py in test_intersect.py and test_primitives.py.
 
 Kinds registered later are covered without editing this file. The quick
-part tries every spec alone on a few random scenes and every ordered pair of
-kinds on one scene; the full matrix of specs, with more random scenes, and
-the SPD renders are marked slow.
+part tries every spec alone on a few random scenes, every ordered pair of
+kinds on one scene, the stadium and the SPD scenes at size factor 1; the
+full matrix of specs on more random scenes and the SPD scenes at their
+default sizes are marked slow. The last section checks that the octree's
+defaults keep it small on every SPD scene and the stadium.
 """
 
 from __future__ import annotations

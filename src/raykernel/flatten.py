@@ -516,6 +516,30 @@ class _Builder:
         return agg
 
 
+CULL_MARGIN = 1e-9        # culling boxes grow by this much of their aggregate's size or distance from the origin
+
+
+def _culling_boxes(agg_kind, agg_bounds, agg_start, agg_count, node_bounds):
+    """Aggregate and BVH node boxes widened by CULL_MARGIN of the aggregate's size or distance
+    from the origin (the margin the grid and the octree give their cells). A ray through a
+    vertex on a box's wall, rounded by an instance's map, can pass just outside the box while
+    the primitive test still reports the hit: without the margin a BVH or a nested aggregate
+    would miss a hit that a list finds."""
+    agg = agg_bounds.copy()
+    nodes = node_bounds.copy()
+    finite = np.all(np.isfinite(agg), axis=1)
+    box = np.where(finite[:, None], agg, 0.0)
+    margin = CULL_MARGIN * np.maximum((box[:, 3:] - box[:, :3]).max(axis=1, initial=0.0),
+                                      np.abs(box).max(axis=1, initial=0.0))
+    agg[finite, :3] -= margin[finite, None]
+    agg[finite, 3:] += margin[finite, None]
+    for a in np.flatnonzero((agg_kind == BVH) & finite):
+        s, n = agg_start[a], agg_count[a]
+        nodes[s:s + n, :3] -= margin[a]
+        nodes[s:s + n, 3:] += margin[a]
+    return agg, nodes
+
+
 def _concat(parts, shape, dtype):
     return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros(shape, dtype), dtype=dtype)
 
@@ -547,6 +571,10 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
     b = _Builder(default_accel)
     root, depth = b.build_group(scene.root)
     arr = b.arr
+    agg_kind, agg_start = np.array(arr.agg_kind, np.int64), np.array(arr.agg_start, np.int64)
+    agg_count = np.array(arr.agg_count, np.int64)
+    agg_bounds, node_bounds = _culling_boxes(agg_kind, np.array(arr.agg_bounds, np.float64).reshape(-1, 6), agg_start,
+                                             agg_count, _concat(arr.node_bounds, (0, 6), np.float64))
 
     sph = arr.sph
     cone = arr.cone
@@ -596,9 +624,8 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         poly_vnormals=_concat(vn_parts, (0, 3), np.float64),
         tri_verts=tri_verts, tri_vnormals=tri_vn, tri_faces=tri_faces, tri_smooth=tri_smooth,
         tri_mat=_concat([m.material for m, _ in arr.mesh], (0,), np.int32),
-        agg_kind=np.array(arr.agg_kind, np.int64), agg_bounds=np.array(arr.agg_bounds, np.float64).reshape(-1, 6),
-        agg_start=np.array(arr.agg_start, np.int64), agg_count=np.array(arr.agg_count, np.int64),
-        node_bounds=_concat(arr.node_bounds, (0, 6), np.float64),
+        agg_kind=agg_kind, agg_bounds=agg_bounds, agg_start=agg_start, agg_count=agg_count,
+        node_bounds=node_bounds,
         node_first=_concat(arr.node_first, (0,), np.int64),
         node_count=_concat(arr.node_count, (0,), np.int64),
         refs=_concat(arr.refs, (0,), np.int64),
