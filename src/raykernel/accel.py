@@ -167,11 +167,18 @@ register(Kind("hgrid", "hierarchical grid: a uniform grid whose cells with more 
     Param("mailbox", True, "skip items already tested against the ray in an earlier cell of the same grid", bool),
 )))
 register(Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (origin, direction-cube face and "
-              "u, v), six 5D bisection trees built eagerly, candidate lists tested near first", (
+              "u, v), six 5D bisection trees, candidate lists tested near first; lazy (default): each face's root "
+              "starts as one leaf, and between passes of rays (those of lazyoctree) a leaf where at least `rays` "
+              "rays arrived is split, several levels where the arrivals go on; lazy=off builds the whole trees "
+              "before any ray", (
     Param("leaf", 8, "a hypercube with at most this many candidates is not split", int, 1, 1 << 20),
     Param("depth", 20, "most splits below a face's root hypercube", int, 0, 200),
     Param("budget_mb", 256.0, "MiB the trees and candidate lists may take; reaching it stops subdivision "
           "with a warning (hits stay exact)", float, 0.0, 1 << 20),
+    Param("lazy", True, "on: subdivide lazily where rays arrive (Arvo and Kirk), a hypercube stopping after 15 "
+          "splits in a row that each keep more than 3/4 of its candidates; off: eagerly, breadth first over all "
+          "of 5D space until leaf, depth, 5 such splits or the budget stop it", bool),
+    Param("rays", 1, "lazy: rays that must arrive at a leaf before it is split", int, 1, 1 << 40),
 )))
 register(Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
               "objects in every child their box overlaps; nodes with the most items times box area are split "

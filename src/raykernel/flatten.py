@@ -15,6 +15,8 @@ aggregate can hold a primitive, an aggregate or an instance.
 
 With lazy octrees in the scene, build["lazy"] holds them
 (aggregates/lazyoctree.py): whoever traces rays refines them between passes.
+With lazy ray classification (aggregates/rc.py) too, it holds a LazySet
+(aggregates/lazyset.py) of both.
 """
 
 from __future__ import annotations
@@ -87,11 +89,15 @@ class Geometry(NamedTuple):
     grid_cells: np.ndarray      # (sum of ncells + 1,) cell c of grid g holds refs
     #                             grid_cells[o + c] .. grid_cells[o + c + 1], o = grid_cell_offset[g]
     rc_face_root: np.ndarray    # (RC, 6) root hypercube of each direction-cube face (see aggregates/rc.py)
-    rc_node_a: np.ndarray       # (RN,) inner: first child (global node); leaf: first candidate in refs
+    rc_node_a: np.ndarray       # (RN,) inner: first child (global node); leaf: first candidate in rc_ref
     rc_node_b: np.ndarray       # (RN,) inner: -(split dimension + 1) of x, y, z, u, v; leaf: candidates
     rc_split: np.ndarray        # (RN,) inner: split coordinate
     rc_key: np.ndarray          # (RK,) near-face key of each candidate, rising within a leaf
-    rc_key_shift: np.ndarray    # (RC,) the key of refs[i] is rc_key[i - rc_key_shift[rc]]
+    rc_ref: np.ndarray          # (RK,) tagged reference of each candidate
+    rc_pass: np.ndarray         # (RN,) lazy rc leaf that may split: its row of rc_vinfo, else -1
+    rc_vinfo: np.ndarray        # (RP, 3) first pass counter column, levels K, first entry in rc_vdim/rc_vsplit
+    rc_vdim: np.ndarray         # (RS,) split dimension of each inner node of the candidates' virtual subtrees
+    rc_vsplit: np.ndarray       # (RS,) split coordinate of each inner node of those subtrees
     oct_bounds: np.ndarray      # (ON, 6) octree node boxes (see aggregates/octree.py)
     oct_first: np.ndarray       # (ON,) inner: first of 8 children (global node); leaf: first ref
     oct_count: np.ndarray       # (ON,) refs in a leaf; -1 for an inner node
@@ -147,7 +153,8 @@ class _Arrays:
                                     "unit", "walk", "mailbox")}
         self.n_oct_nodes = 0
         self.lazy = []     # one record per lazy octree, for aggregates/lazyoctree.py
-        self.rc = {k: [] for k in ("face_root", "node_a", "node_b", "split", "key", "key_shift")}
+        self.rc = {k: [] for k in ("face_root", "node_a", "node_b", "split", "key", "ref")}
+        self.lazy_rc = []  # one record per lazy rc aggregate, for aggregates/rc.py
         self.n_rc_nodes = self.n_rc_keys = 0
 
 
@@ -472,24 +479,28 @@ class _Builder:
             arr.n_refs += len(grid.items)
             stats = dict(stats)
         elif kind == "rc":
-            from .aggregates.rc import build_rc
-            tree, stats = build_rc(bounds, leaf=params["leaf"], depth=params["depth"],
-                                   budget_mb=params["budget_mb"], name=name)
+            from .aggregates.rc import build_rc, start_rc
             rc = arr.rc
+            if params["lazy"]:
+                # six root leaves now, split between passes where rays arrive (LazyRC)
+                tree, stats, boxes, keys = start_rc(bounds, leaf=params["leaf"], depth=params["depth"],
+                                                    budget_mb=params["budget_mb"], rays=params["rays"], name=name)
+                arr.lazy_rc.append(dict(params, node=arr.n_rc_nodes, cand=arr.n_rc_keys, items=tree.items,
+                                        boxes=boxes, box=tree.box, stats=stats, name=name))
+            else:
+                tree, stats = build_rc(bounds, leaf=params["leaf"], depth=params["depth"],
+                                       budget_mb=params["budget_mb"], name=name)
             arr.agg_kind.append(RC)
             arr.agg_start.append(len(rc["face_root"]))
             arr.agg_count.append(len(tree.node_b))
             rc["face_root"].append(tree.face_root + arr.n_rc_nodes)
-            rc["node_a"].append(np.where(tree.node_b < 0, tree.node_a + arr.n_rc_nodes, tree.node_a + arr.n_refs))
+            rc["node_a"].append(np.where(tree.node_b < 0, tree.node_a + arr.n_rc_nodes, tree.node_a + arr.n_rc_keys))
             rc["node_b"].append(tree.node_b)
             rc["split"].append(tree.split)
             rc["key"].append(tree.keys)
-            rc["key_shift"].append(arr.n_refs - arr.n_rc_keys)
+            rc["ref"].append(refs[tree.items])
             arr.n_rc_nodes += len(tree.node_b)
             arr.n_rc_keys += len(tree.keys)
-            arr.refs.append(refs[tree.items])
-            arr.n_refs += len(tree.items)
-            stats = dict(stats)
         elif kind == "octree":
             from .aggregates.octree import build_octree
             weights = self._vertex_weights(refs) if params["vertexcount"] else None
@@ -643,7 +654,11 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         rc_node_b=_concat(arr.rc["node_b"], (0,), np.int64),
         rc_split=_concat(arr.rc["split"], (0,), np.float64),
         rc_key=_concat(arr.rc["key"], (0,), np.float64),
-        rc_key_shift=np.array(arr.rc["key_shift"], np.int64),
+        rc_ref=_concat(arr.rc["ref"], (0,), np.int64),
+        rc_pass=np.full(arr.n_rc_nodes, -1, np.int64),
+        rc_vinfo=np.zeros((0, 3), np.int64),
+        rc_vdim=np.zeros(0, np.int64),
+        rc_vsplit=np.zeros(0, np.float64),
         oct_bounds=_concat(arr.oct["bounds"], (0, 6), np.float64),
         oct_first=_concat(arr.oct["first"], (0,), np.int64),
         oct_count=_concat(arr.oct["count"], (0,), np.int64),
@@ -665,6 +680,12 @@ def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
         # lazy octrees take over the octree and reference arrays to grow them between passes
         from .aggregates.lazyoctree import LazyOctrees
         geo, lazy = LazyOctrees.attach(geo, arr.lazy)
+    if arr.lazy_rc:
+        # lazy ray classification refines between the same passes; its columns follow the octrees'
+        from .aggregates.lazyset import LazySet
+        from .aggregates.rc import LazyRC
+        geo, lazy_rc = LazyRC.attach(geo, arr.lazy_rc, base=0 if lazy is None else lazy.columns)
+        lazy = LazySet(lazy, lazy_rc)
     n_materials = max(1, len(scene.materials))
     for name in ("sph_mat", "cone_mat", "poly_mat", "tri_mat"):
         mats = getattr(geo, name)

@@ -30,6 +30,9 @@ that hypercube's candidate list tested in order, near first. The list's end
 and the early-exit terms live in the frame (RF_*), so a child aggregate can
 interrupt it; the rest is put back as an RC_NEXT entry. The walk stops once
 the next candidate's key puts its earliest possible hit past the closest.
+A lazy rc leaf that may still split (rc_pass >= 0) counts the ray's arrival
+in cnt[N_COUNTERS + column], the column of the cell of its virtual subtree
+the ray's 5D point falls in, where the kernel gave cnt room for it.
 
 An octree (aggregates/octree.py) is walked one of three ways. point: the
 leaf holding a point is found from the root by the point's 28-bit address
@@ -79,8 +82,8 @@ HIT_F = 13                   # t, world-to-local 3x4 of the frame that was hit
 HIT_I = 3                    # kind, index, innermost instance (-1: none)
 RC_START = -16               # stack entry tag: classify the ray in rc aggregate stack_a, entered at stack_t
 RC_NEXT = -17                # stack entry tag: continue the frame's rc candidate list at refs[stack_a]
-RF_END, RF_SHIFT, RF_O, RF_D = GF_CELL, GF_CELL + 1, GF_CELL + 2, GF_CELL + 3  # per rc frame: list end, key
-#                              shift, s * origin and |direction| along the face's axis
+RF_END, RF_O, RF_D = GF_CELL, GF_CELL + 1, GF_CELL + 2  # per rc frame: list end, s * origin and |direction|
+#                              along the face's axis
 RC_SLACK = 1.0 + 1e-7        # the early exit widens the closest hit by this factor (hit-point rounding)
 OCT_START = -4               # stack entry tag: start an octree walk (stack_a: octree index) at stack_t
 OCT_NEXT = -5                # stack entry tag: continue the point/neighbor walk by descending from node stack_a
@@ -226,7 +229,6 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
     frame_f[0, GF_MBOX_ON] = 0.0
     mbox = False
     rc_on = False
-    rc_shift = np.int64(0)
     rc_o = rc_d = 0.0
     base = 0
     sp = _push_aggregate(geo, geo.root, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, 0, cnt)
@@ -305,18 +307,30 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
                     rq = rpx if rnb == -1 else (rpy if rnb == -2 else (rpz if rnb == -3 else
                                                                       (rcu if rnb == -4 else rcv)))
                     rnode = geo.rc_node_a[rnode] + (0 if rq < geo.rc_split[rnode] else 1)
+                rpj = geo.rc_pass[rnode]
+                if rpj >= 0:
+                    # a lazy rc leaf that may split: count the arrival in its virtual cell (aggregates/rc.py)
+                    rcol = C.N_COUNTERS + geo.rc_vinfo[rpj, 0]
+                    rk = geo.rc_vinfo[rpj, 1]
+                    if rcol + (1 << rk) <= cnt.shape[0]:
+                        roff = geo.rc_vinfo[rpj, 2] - 1
+                        rh = 1
+                        for _ in range(rk):
+                            rdim = geo.rc_vdim[roff + rh]
+                            rq = rpx if rdim == 0 else (rpy if rdim == 1 else (rpz if rdim == 2 else
+                                                                              (rcu if rdim == 3 else rcv)))
+                            rh = 2 * rh + (0 if rq < geo.rc_vsplit[roff + rh] else 1)
+                        cnt[rcol + rh - (1 << rk)] += 1
                 cnt[C.CELLS_LEAVES] += 1
                 if rnb == 0:
                     cnt[C.CELLS_EMPTY] += 1
                     continue
                 s = geo.rc_node_a[rnode]
                 e = s + rnb
-                rc_shift = geo.rc_key_shift[a]
-                frame_f[f, RF_END], frame_f[f, RF_SHIFT], frame_f[f, RF_O], frame_f[f, RF_D] = e, rc_shift, rc_o, rc_d
+                frame_f[f, RF_END], frame_f[f, RF_O], frame_f[f, RF_D] = e, rc_o, rc_d
             else:
                 s = a
                 e = np.int64(frame_f[f, RF_END])
-                rc_shift = np.int64(frame_f[f, RF_SHIFT])
                 rc_o, rc_d = frame_f[f, RF_O], frame_f[f, RF_D]
             rc_on = True
         elif b <= OCT_START:
@@ -593,9 +607,12 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit,
             e = b
         i = s
         while i < e:
-            if rc_on and geo.rc_key[i - rc_shift] > rc_o + best_t * rc_d * RC_SLACK + 1e-9 * abs(rc_o):
-                break           # rc: this and every later candidate lies beyond the closest hit
-            ref = geo.refs[i]
+            if rc_on:
+                if geo.rc_key[i] > rc_o + best_t * rc_d * RC_SLACK + 1e-9 * abs(rc_o):
+                    break       # rc: this and every later candidate lies beyond the closest hit
+                ref = geo.rc_ref[i]
+            else:
+                ref = geo.refs[i]
             kind = ref >> KIND_SHIFT
             idx = ref & INDEX_MASK
             i += 1

@@ -1,8 +1,10 @@
 """Ray classification (Arvo and Kirk 1987) over axis-aligned item boxes, as flat arrays.
 
-    tree, stats = build_rc(item_bounds, leaf=8, depth=20, budget_mb=256)
-    node = tree.face_root[face_of(dx, dy, dz)]     # then descend with node_b / split
+    tree, stats = build_rc(item_bounds, leaf=8, depth=20, budget_mb=256)   # eager: the whole trees now
+    node = tree.face_root[face_of(dx, dy, dz)[0]]  # then descend with node_b / split
     items, keys = tree.items[s:s + n], tree.keys[s:s + n]   # leaf: s = node_a, n = node_b
+    geo, build = flatten(scene, "rc")              # lazy (the default): six root leaves, grown by
+    geo = build["lazy"].refine(geo, pass_counts)   # LazyRC between passes of rays (render, RayScene)
 
 Rays as points in 5D
 --------------------
@@ -59,16 +61,61 @@ that keeps more than KEEP (3/4) of its parent's candidates is a split without
 progress, and after five such splits in a row (one round over the five
 dimensions) a hypercube is not split further. Without that rule a 5D tree
 of depth 20 grows to about a million hypercubes per face for a few hundred
-items. The paper subdivides
-lazily, as rays arrive; here the tree is built eagerly, before any ray is
-cast, breadth first over all six faces together, so that the result does not
-depend on the rays, the thread count or the timing. The size of the finished
-tree (24 bytes a node, 16 a candidate) is kept under `budget_mb` MiB: the
-first split that would pass it stops all further subdivision, the remaining
-hypercubes become leaves with their (longer, still complete) candidate lists,
-and `build_rc` warns once (RcBudgetWarning) and sets stats["budget_exceeded"].
-Results stay exact; only the speed suffers. The six roots are always kept,
-even when they alone exceed the budget.
+items. The size of the tree (24 bytes a node, 16 a candidate of a leaf) is
+kept under `budget_mb` MiB: the first split that would pass it stops all
+further subdivision, the remaining hypercubes stay leaves with their
+(longer, still complete) candidate lists, and a warning (RcBudgetWarning)
+says so once; stats["budget_exceeded"] is set. Results stay exact; only the
+speed suffers. The six roots are always kept, even when they alone exceed
+the budget.
+
+Eager (lazy=off, build_rc) builds the trees before any ray is cast, breadth
+first over all six faces together, so the budget is spent evenly over the
+5D space, most of which no ray ever visits.
+
+Lazy (lazy=on, the default), as Arvo and Kirk subdivide: each face's root
+starts as one leaf holding every item, and a leaf is split only where rays
+arrive. The trees change only between passes of rays (those of
+aggregates/lazyoctree.py, as render.py and RayScene cut them; boundaries
+depend only on tile and ray indices), never while rays are in flight. A
+leaf that may still split (more than `leaf` candidates, above the depth
+limit, not stopped by the progress rule or the budget) is a *candidate*:
+during a pass, each ray that reaches it adds one to a counter column of its
+tile's or chunk's row. So that one pass can deepen the tree by more than
+one level, a candidate counts not only arrivals but where in it they fall:
+its cell is split K times more in thought (its *virtual* subtree, split
+exactly as real splits would be) and each of the 2**K virtual cells has its
+column. K follows the arrivals expected in the next pass: VIRTUAL_LEVELS
+for the six roots, else 0 for none and about log2(arrivals / rays) + 2 (at
+most VIRTUAL_LEVELS), from the candidate's arrivals in the last pass or,
+for a child below its parent's virtual subtree, half of the parent's. So
+the columns stay about as many as the candidates plus the rays of a pass.
+
+Between passes, refine() sums the rows (integer sums: any order, any thread
+count) and walks each candidate's virtual subtree top down, in node order:
+a cell at which at least `rays` rays arrived (counted since it became a
+leaf) is split for real, its children's lists taken from its own by the
+beam test, and a child's arrivals are those of its virtual cell in this
+pass; a cell at the bottom of the virtual subtree may still split once,
+its children waiting for rays of their own. Every other leaf waits for
+later passes, keeping its count. So a region no ray reaches is never
+split, and images, hits and counters are the same at any thread count.
+
+The progress rule allows LAZY_STALE_SPLITS (15, three rounds) splits in a
+row without progress instead of five: near the root of a scene with a large
+floor no single split separates anything yet (a beam from half of a 24-unit
+floor still sweeps the whole cluster of balls), and lazily the rule only
+guards paths rays actually take, where the budget bounds the cost anyway.
+With five, lazy trees stopped there and tested more candidates per ray
+than the eager ones (SPD teapot at 128x128: 558 against 413).
+
+Storage: LazyRC keeps the scene's rc node and candidate arrays with room to
+grow (doubling); the Geometry handed back views the used part. A split
+leaf's list stays behind unused until the unused entries outnumber the
+leaves' lists; then, between passes, the lists are moved together (not
+while a checkpoint of an all-hits query is out, which needs them in place).
+The budget counts the trees' nodes and leaves' lists, as eagerly;
+build.bytes counts the arrays as they are, unused entries included.
 """
 
 from __future__ import annotations
@@ -84,14 +131,20 @@ from ..config import njit
 from ..errors import OptionError
 from .grid import grid_box
 
-__all__ = ["RcArrays", "RcBudgetWarning", "build_rc", "face_of", "NODE_BYTES", "CANDIDATE_BYTES"]
+__all__ = ["RcArrays", "RcBudgetWarning", "LazyRC", "build_rc", "start_rc", "face_of", "NODE_BYTES",
+           "CANDIDATE_BYTES", "VIRTUAL_LEVELS"]
 
 NODE_BYTES = 24
 CANDIDATE_BYTES = 16
 KEEP = 0.75                 # a child keeping more than this share of its parent's list made no progress
 STALE_SPLITS = 5            # splits in a row that removed nothing before a hypercube stops splitting
+LAZY_STALE_SPLITS = 15      # the same, lazy: three rounds over x, y, z, u, v (module docstring)
 BOX_MARGIN = 1e-8           # item boxes widened by this fraction of the aggregate's size
 UV_MARGIN = 1e-9            # direction cells widened by this much in u and v
+VIRTUAL_LEVELS = 5          # lazy: most levels of a candidate's virtual subtree (one round over x, y, z, u, v)
+# lazy: per-node state columns (owner aggregate, face, depth, progress-free splits in a row, arrivals,
+# arrivals expected in a pass)
+_OWNER, _FACE, _DEPTH, _STALE, _ARRIVED, _RATE = range(6)
 
 
 class RcBudgetWarning(UserWarning):
@@ -159,6 +212,20 @@ def meets_beam(bx, i, lo, hi, face):
     h0, h1 = _le(v0, wc1, h0, h1)
     h0, h1 = _le(-v1, -wc0, h0, h1)
     return h0 <= h1
+
+
+@njit(inline="always")
+def _longest(lo, hi, norm):
+    """The dimension a hypercube is split along: its longest side in units of the root's sides
+    (ties to the lower dimension). Eager, lazy and virtual splits all use this one rule."""
+    dim = 0
+    best = -1.0
+    for k in range(5):
+        side = (hi[k] - lo[k]) * norm[k]
+        if side > best:
+            best = side
+            dim = k
+    return dim
 
 
 @njit
@@ -240,14 +307,7 @@ def _build_kernel(bx, keys, orders, root_lo, root_hi, leaf, max_depth, budget, k
             face, dep, stale, st, cnt = lv_info[j, 0], lv_info[j, 1], lv_info[j, 2], lv_info[j, 3], lv_info[j, 4]
             done = True
             if not exceeded and cnt > leaf and dep < max_depth and stale < STALE_SPLITS:
-                # split the longest side, in units of the root's sides
-                dim = 0
-                best = -1.0
-                for k in range(5):
-                    side = (lv_hi[j, k] - lv_lo[j, k]) * norm[k]
-                    if side > best:
-                        best = side
-                        dim = k
+                dim = _longest(lv_lo[j], lv_hi[j], norm)
                 mid = 0.5 * (lv_lo[j, dim] + lv_hi[j, dim])
                 nx_buf = _grow_i(nx_buf, nb + 2 * cnt)
                 counts = np.zeros(2, np.int64)
@@ -329,22 +389,14 @@ def _check(value, name, low, high, kind):
         raise OptionError(f"rc {name} must be a number in [{low}, {high}], got {value!r}")
 
 
-def build_rc(bounds, *, leaf=8, depth=20, budget_mb=256.0, name=None):
-    """Build the ray-classification trees over item boxes.
-
-    bounds: (n, 6) item boxes, finite (or the empty box +inf..-inf, which no
-    list holds), n >= 1. leaf >= 1: most candidates a hypercube keeps
-    without splitting; depth >= 0: most splits below a face root; budget_mb
-    >= 0: MiB the finished tree may take (see the module docstring).
-
-    Returns (RcArrays, stats) with stats = {"nodes" (hypercubes), "inner",
-    "leaves", "empty_leaves", "refs" (candidates in all lists), "bytes",
-    "seconds", "max_depth", "budget_exceeded"}.
-    """
-    t0 = time.perf_counter()
+def _check_all(leaf, depth, budget_mb):
     _check(leaf, "leaf", 1, 1 << 20, (int, np.integer))
     _check(depth, "depth", 0, 200, (int, np.integer))
     _check(budget_mb, "budget_mb", 0.0, 1 << 20, (int, float, np.integer, np.floating))
+
+
+def _prepare(bounds):
+    """Widened item boxes, their keys per face, each face's items in key order and the root hypercube."""
     items = np.ascontiguousarray(np.asarray(bounds, np.float64))
     if items.ndim != 2 or items.shape[1] != 6 or len(items) == 0:
         raise ValueError(f"bounds must have shape (n, 6) with n >= 1, got {items.shape}")
@@ -368,18 +420,39 @@ def build_rc(bounds, *, leaf=8, depth=20, budget_mb=256.0, name=None):
         orders[f] = live[np.argsort(keys[live, f], kind="stable")]
     root_lo = np.concatenate([box[:3], [-1.0, -1.0]])
     root_hi = np.concatenate([box[3:], [1.0, 1.0]])
+    return box, np.ascontiguousarray(bx), np.ascontiguousarray(keys), orders, root_lo, root_hi
+
+
+def _budget_warning(name, budget_mb, nodes, cands, nbytes):
+    warnings.warn(f"rc aggregate {name or '(unnamed)'}: the memory budget of {budget_mb} MiB is reached; "
+                  f"subdivision stopped at {nodes} hypercubes and {cands} candidates "
+                  f"({nbytes / (1 << 20):.3g} MiB). Hits stay exact but tracing is slower; raise budget_mb "
+                  f"or lower depth", RcBudgetWarning, stacklevel=3)
+
+
+def build_rc(bounds, *, leaf=8, depth=20, budget_mb=256.0, name=None):
+    """Build the ray-classification trees over item boxes, eagerly (lazy=off).
+
+    bounds: (n, 6) item boxes, finite (or the empty box +inf..-inf, which no
+    list holds), n >= 1. leaf >= 1: most candidates a hypercube keeps
+    without splitting; depth >= 0: most splits below a face root; budget_mb
+    >= 0: MiB the finished tree may take (see the module docstring).
+
+    Returns (RcArrays, stats) with stats = {"nodes" (hypercubes), "inner",
+    "leaves", "empty_leaves", "refs" (candidates in all lists), "bytes",
+    "seconds", "max_depth", "budget_exceeded"}.
+    """
+    t0 = time.perf_counter()
+    _check_all(leaf, depth, budget_mb)
+    box, bx, keys, orders, root_lo, root_hi = _prepare(bounds)
     budget = int(float(budget_mb) * (1 << 20))
     node_a, node_b, split, cand, ckeys, deepest, exceeded = _build_kernel(
-        np.ascontiguousarray(bx), np.ascontiguousarray(keys), orders, root_lo, root_hi, int(leaf), int(depth),
-        budget, KEEP)
+        bx, keys, orders, root_lo, root_hi, int(leaf), int(depth), budget, KEEP)
     tree = RcArrays(box, np.arange(6, dtype=np.int64), node_a, node_b, split, cand, ckeys)
     leaves = node_b >= 0
     nbytes = NODE_BYTES * len(node_a) + CANDIDATE_BYTES * len(cand)
     if exceeded:
-        warnings.warn(f"rc aggregate {name or '(unnamed)'}: the memory budget of {budget_mb} MiB is reached; "
-                      f"subdivision stopped at {len(node_a)} hypercubes and {len(cand)} candidates "
-                      f"({nbytes / (1 << 20):.3g} MiB). Hits stay exact but tracing is slower; raise budget_mb "
-                      f"or lower depth", RcBudgetWarning, stacklevel=2)
+        _budget_warning(name, budget_mb, len(node_a), len(cand), nbytes)
     stats = {
         "nodes": int(len(node_a)),
         "inner": int(np.count_nonzero(~leaves)),
@@ -392,3 +465,399 @@ def build_rc(bounds, *, leaf=8, depth=20, budget_mb=256.0, name=None):
         "budget_exceeded": bool(exceeded),
     }
     return tree, stats
+
+
+def start_rc(bounds, *, leaf=8, depth=20, budget_mb=256.0, rays=1, name=None):
+    """The start of a lazy ray classification (lazy=on): six root leaves, each face's list
+    holding every item with a box, in key order. Arguments as build_rc; rays >= 1: arrivals
+    at a leaf before it splits.
+
+    Returns (RcArrays, stats as build_rc's, widened item boxes (n, 6), keys (n, 6)): the
+    boxes and keys are what LazyRC needs to split leaves later."""
+    t0 = time.perf_counter()
+    _check_all(leaf, depth, budget_mb)
+    _check(rays, "rays", 1, 1 << 40, (int, np.integer))
+    box, bx, keys, orders, root_lo, root_hi = _prepare(bounds)
+    n = orders.shape[1]
+    cand = orders.reshape(-1).copy()
+    ckeys = np.concatenate([keys[orders[f], f] for f in range(6)])
+    tree = RcArrays(box, np.arange(6, dtype=np.int64), np.arange(6, dtype=np.int64) * n,
+                    np.full(6, n, np.int64), np.zeros(6), cand, ckeys)
+    nbytes = NODE_BYTES * 6 + CANDIDATE_BYTES * len(cand)
+    exceeded = nbytes > float(budget_mb) * (1 << 20)
+    if exceeded:
+        _budget_warning(name, budget_mb, 6, len(cand), nbytes)
+    stats = {"nodes": 6, "inner": 0, "leaves": 6, "empty_leaves": 6 if n == 0 else 0, "refs": int(len(cand)),
+             "bytes": int(nbytes), "seconds": time.perf_counter() - t0, "max_depth": 0,
+             "budget_exceeded": bool(exceeded), "passes": 0, "subdivisions": 0, "refine_seconds": 0.0}
+    return tree, stats, bx, keys
+
+
+# ----------------------------------------------------------------- lazy subdivision
+
+@njit
+def _refine_kernel(cand, levels, hoff, hist, node_a, node_b, split, key, ref, item, state, cell, n_nodes, n_cands,
+                   bx, norm, p_leaf, p_depth, p_rays, p_stale, budget, used, exhausted, subdivisions, keep):
+    """Split candidates where their arrivals say so (module docstring), in candidate order.
+    cand: candidate leaves, in node order; levels: K of each; hist[hoff[j]:hoff[j] + 2**K]:
+    arrivals of this pass in each virtual cell of candidate j. Appends nodes at n_nodes and
+    lists at n_cands, growing the arrays as needed. Returns the arrays, n_nodes, n_cands."""
+    heap = np.zeros(2 << VIRTUAL_LEVELS, np.int64)
+    st_node = np.empty(2 * VIRTUAL_LEVELS + 2, np.int64)
+    st_h = np.empty(2 * VIRTUAL_LEVELS + 2, np.int64)
+    lo = np.empty(5)
+    hi = np.empty(5)
+    counts = np.zeros(2, np.int64)
+    for j in range(cand.shape[0]):
+        c = cand[j]
+        r = state[c, _OWNER]
+        k = levels[j]
+        v = 1 << k
+        # arrivals per virtual node (heap order: node h has children 2h and 2h + 1, cells at v..2v-1)
+        for q in range(v):
+            heap[v + q] = hist[hoff[j] + q]
+        for h in range(v - 1, 0, -1):
+            heap[h] = heap[2 * h] + heap[2 * h + 1]
+        state[c, _ARRIVED] += heap[1]
+        state[c, _RATE] = heap[1]
+        st_node[0] = c
+        st_h[0] = 1
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            nd = st_node[sp]
+            h = st_h[sp]
+            m = node_b[nd]
+            if exhausted[r] or state[nd, _ARRIVED] < p_rays[r] or m <= p_leaf[r] or \
+                    state[nd, _DEPTH] >= p_depth[r] or state[nd, _STALE] >= p_stale[r]:
+                continue
+            face = state[nd, _FACE]
+            dim = _longest(cell[nd, :5], cell[nd, 5:], norm[r])
+            mid = 0.5 * (cell[nd, dim] + cell[nd, 5 + dim])
+            # the children's lists from the parent's, in the same (key) order
+            key = _grow_f(key, n_cands + 2 * m)
+            ref = _grow_i(ref, n_cands + 2 * m)
+            item = _grow_i(item, n_cands + 2 * m)
+            start0 = n_cands
+            st = node_a[nd]
+            for side in range(2):
+                counts[side] = 0
+                for q in range(5):
+                    lo[q] = cell[nd, q]
+                    hi[q] = cell[nd, 5 + q]
+                if side == 0:
+                    hi[dim] = mid
+                else:
+                    lo[dim] = mid
+                for q in range(st, st + m):
+                    it = item[q]
+                    if meets_beam(bx, it, lo, hi, face):
+                        key[n_cands] = key[q]
+                        ref[n_cands] = ref[q]
+                        item[n_cands] = it
+                        n_cands += 1
+                        counts[side] += 1
+            delta = 2 * NODE_BYTES + CANDIDATE_BYTES * (counts[0] + counts[1] - m)
+            if used[r] + delta > budget[r]:
+                # the budget: this aggregate's trees stop growing here
+                exhausted[r] = True
+                n_cands = start0
+                continue
+            used[r] += delta
+            subdivisions[r] += 1
+            node_a = _grow_i(node_a, n_nodes + 2)
+            node_b = _grow_i(node_b, n_nodes + 2)
+            split = _grow_f(split, n_nodes + 2)
+            state = _grow_rows(state, n_nodes + 2)
+            cell = _grow_rows(cell, n_nodes + 2)
+            node_a[nd] = n_nodes
+            node_b[nd] = -(dim + 1)
+            split[nd] = mid
+            pos = start0
+            for side in range(2):
+                kid = n_nodes + side
+                node_a[kid] = pos
+                node_b[kid] = counts[side]
+                split[kid] = 0.0
+                pos += counts[side]
+                state[kid, _OWNER] = r
+                state[kid, _FACE] = face
+                state[kid, _DEPTH] = state[nd, _DEPTH] + 1
+                state[kid, _STALE] = state[nd, _STALE] + 1 if counts[side] > keep * m else 0
+                # arrivals of this pass in the child's virtual cell, if it is one; beyond the virtual
+                # subtree only the parent's are known: half of them are expected next time
+                if h < v:
+                    state[kid, _ARRIVED] = heap[2 * h + side]
+                    state[kid, _RATE] = heap[2 * h + side]
+                else:
+                    state[kid, _ARRIVED] = 0
+                    state[kid, _RATE] = state[nd, _RATE] // 2
+                for q in range(10):
+                    cell[kid, q] = cell[nd, q]
+                if side == 0:
+                    cell[kid, 5 + dim] = mid
+                else:
+                    cell[kid, dim] = mid
+            # children inside the virtual subtree (their arrivals known) may split further now, first child first
+            if h < v:
+                st_node[sp], st_h[sp] = n_nodes + 1, 2 * h + 1
+                st_node[sp + 1], st_h[sp + 1] = n_nodes, 2 * h
+                sp += 2
+            n_nodes += 2
+    return node_a, node_b, split, key, ref, item, state, cell, n_nodes, n_cands
+
+
+@njit
+def _virtual_subtrees(cand, levels, cell, state, norm, vdim, vsplit, voff):
+    """Split dimension and coordinate of every inner node of each candidate's virtual subtree
+    (heap order, node h at vsplit[voff[j] + h - 1]), computed exactly as _refine_kernel splits."""
+    lo = np.empty((2 << VIRTUAL_LEVELS, 5))
+    hi = np.empty((2 << VIRTUAL_LEVELS, 5))
+    for j in range(cand.shape[0]):
+        c = cand[j]
+        v = 1 << levels[j]
+        r = state[c, _OWNER]
+        for q in range(5):
+            lo[1, q] = cell[c, q]
+            hi[1, q] = cell[c, 5 + q]
+        for h in range(1, v):
+            dim = _longest(lo[h], hi[h], norm[r])
+            mid = 0.5 * (lo[h, dim] + hi[h, dim])
+            vdim[voff[j] + h - 1] = dim
+            vsplit[voff[j] + h - 1] = mid
+            if 2 * h < v:
+                for q in range(5):
+                    lo[2 * h, q] = lo[h, q]
+                    hi[2 * h, q] = hi[h, q]
+                    lo[2 * h + 1, q] = lo[h, q]
+                    hi[2 * h + 1, q] = hi[h, q]
+                hi[2 * h, dim] = mid
+                lo[2 * h + 1, dim] = mid
+
+
+def _levels(arrived, rays):
+    """K of each candidate's virtual subtree: none without arrivals, else about log2(arrivals / rays) + 2."""
+    ratio = arrived // rays
+    bits = np.zeros(len(ratio), np.int64)
+    nz = ratio > 0
+    bits[nz] = np.floor(np.log2(ratio[nz].astype(np.float64))).astype(np.int64) + 1
+    return np.where(arrived > 0, np.minimum(VIRTUAL_LEVELS, 1 + bits), 0)
+
+
+_NODE_ARRAYS = ("node_a", "node_b", "split", "state", "cell", "pass_")
+_CAND_ARRAYS = ("key", "ref", "item")
+
+
+class LazyRC:
+    """Every lazy ray classification of one built scene, with room to grow its arrays.
+
+    columns: pass counter columns a pass must provide (after counters.N_COUNTERS and
+    `base` columns of other lazy structures); refine() takes their counts and returns
+    the Geometry to use next. See the module docstring."""
+
+    def __init__(self):
+        raise TypeError("use LazyRC.attach(geo, records)")
+
+    @classmethod
+    def attach(cls, geo, records, base=0):
+        """Take over geo's rc arrays for the lazy rc aggregates in `records` (from flatten: first
+        root node, first candidate, items of the root lists, widened boxes, keys, tagged refs,
+        box, params, stats dict). Returns (geo viewing the growable arrays, LazyRC)."""
+        self = object.__new__(cls)
+        self.records = records
+        self.base = int(base)
+        n, nc = len(geo.rc_node_a), len(geo.rc_key)
+        self.n_nodes, self.n_cands = n, nc
+        cap, ccap = n + max(1024, n), nc + max(4096, nc)
+        b = self.buf = {}
+        for name, a in (("node_a", geo.rc_node_a), ("node_b", geo.rc_node_b), ("split", geo.rc_split),
+                        ("key", geo.rc_key), ("ref", geo.rc_ref)):
+            b[name] = np.empty(ccap if name in _CAND_ARRAYS else cap, a.dtype)
+            b[name][:len(a)] = a
+        b["state"] = np.zeros((cap, 6), np.int64)
+        b["state"][:, _OWNER] = -1
+        b["cell"] = np.zeros((cap, 10))
+        b["pass_"] = np.full(cap, -1, np.int64)
+        b["item"] = np.full(ccap, -1, np.int64)
+        boxes = []
+        n_items = 0
+        for r, rec in enumerate(records):
+            node, start, items = rec["node"], rec["cand"], rec["items"]
+            b["item"][start:start + len(items)] = items + n_items
+            boxes.append(rec["boxes"])
+            n_items += len(rec["boxes"])
+            root_lo = np.concatenate([rec["box"][:3], [-1.0, -1.0]])
+            root_hi = np.concatenate([rec["box"][3:], [1.0, 1.0]])
+            for f in range(6):
+                b["state"][node + f] = (r, f, 0, 0, 0, 0)
+                b["cell"][node + f] = np.concatenate([root_lo, root_hi])
+        self.boxes = np.ascontiguousarray(np.concatenate(boxes))
+        self.norm = np.array([1.0 / (c[5:] - c[:5]) for c in (b["cell"][rec["node"]] for rec in records)])
+        self.leaf = np.array([rec["leaf"] for rec in records], np.int64)
+        self.depth = np.array([rec["depth"] for rec in records], np.int64)
+        self.rays = np.array([rec["rays"] for rec in records], np.int64)
+        self.stale = np.full(len(records), LAZY_STALE_SPLITS, np.int64)
+        self.budget_mb = [rec["budget_mb"] for rec in records]
+        self.budget = np.array([int(float(m) * (1 << 20)) for m in self.budget_mb], np.int64)
+        self.used = np.array([rec["stats"]["bytes"] for rec in records], np.int64)
+        self.exhausted = np.array([rec["stats"]["budget_exceeded"] for rec in records], np.bool_)
+        self.warned = self.exhausted.copy()      # start_rc warned already
+        self.held = False                        # a checkpoint is out: keep the lists in place
+        self.subdivisions = np.zeros(len(records), np.int64)
+        self.passes = 0
+        self.seconds = 0.0
+        roots = np.concatenate([rec["node"] + np.arange(6) for rec in records])
+        self.cand = roots[self._may_split(roots)]
+        self.levels = np.full(len(self.cand), VIRTUAL_LEVELS, np.int64)   # no arrivals seen yet: look deep
+        return self._number(geo), self
+
+    # ------------------------------------------------------------- passes
+
+    @property
+    def columns(self) -> int:
+        return int(self._widths.sum())
+
+    def _may_split(self, nodes):
+        b = self.buf
+        own = b["state"][nodes, _OWNER]
+        return (b["node_b"][nodes] > self.leaf[own]) & (b["state"][nodes, _DEPTH] < self.depth[own]) & \
+            (b["state"][nodes, _STALE] < self.stale[own]) & ~self.exhausted[own]
+
+    def refine(self, geo, pass_counts, base=None):
+        """Add a pass's counts ((work items, columns) int64, one row per tile or chunk) and split
+        the candidates where rays arrived; number the columns of the next pass from `base`
+        (columns of other lazy structures before these). Returns the Geometry to trace with."""
+        t0 = time.perf_counter()
+        pass_counts = np.asarray(pass_counts)
+        if pass_counts.ndim != 2 or pass_counts.shape[1] != self.columns:
+            raise ValueError(f"pass counts must have {self.columns} columns, got shape {pass_counts.shape}")
+        if base is not None:
+            self.base = int(base)
+        self.passes += 1
+        if len(self.cand):
+            b = self.buf
+            hist = pass_counts.sum(axis=0, dtype=np.int64)
+            hoff = np.concatenate([[0], np.cumsum(self._widths)[:-1]]).astype(np.int64)
+            old_n = self.n_nodes
+            out = _refine_kernel(self.cand, self.levels, hoff, hist, b["node_a"], b["node_b"], b["split"], b["key"],
+                                 b["ref"], b["item"], b["state"], b["cell"], np.int64(self.n_nodes),
+                                 np.int64(self.n_cands), self.boxes, self.norm, self.leaf, self.depth, self.rays,
+                                 self.stale, self.budget, self.used, self.exhausted, self.subdivisions, KEEP)
+            for name, a in zip(("node_a", "node_b", "split", "key", "ref", "item", "state", "cell"), out[:8]):
+                b[name] = a
+            self.n_nodes, self.n_cands = int(out[8]), int(out[9])
+            if len(b["pass_"]) < len(b["node_a"]):
+                grown = np.full(len(b["node_a"]), -1, np.int64)
+                grown[:old_n] = b["pass_"][:old_n]
+                b["pass_"] = grown
+            b["pass_"][self.cand] = -1
+            # candidates now: old ones still leaves, and the new leaves, in node order
+            new = np.arange(old_n, self.n_nodes, dtype=np.int64)
+            nodes = np.concatenate([self.cand[b["node_b"][self.cand] >= 0], new[b["node_b"][new] >= 0]])
+            self.cand = nodes[self._may_split(nodes)]
+            self.levels = _levels(b["state"][self.cand, _RATE], self.rays[b["state"][self.cand, _OWNER]])
+            self._warn()
+            self._compact()
+        self.seconds += time.perf_counter() - t0
+        return self._number(geo)
+
+    def _compact(self):
+        """Move the leaves' lists together once the split leaves' old lists outnumber them."""
+        b, n = self.buf, self.n_nodes
+        leaves = np.flatnonzero(b["node_b"][:n] >= 0)
+        count = b["node_b"][leaves]
+        live = int(count.sum())
+        if self.held or self.n_cands <= 2 * live:
+            return
+        start = np.zeros(len(leaves), np.int64)
+        np.cumsum(count[:-1], out=start[1:])
+        src = np.repeat(b["node_a"][leaves] - start, count) + np.arange(live, dtype=np.int64)
+        cap = live + max(4096, live)
+        for name in _CAND_ARRAYS:
+            moved = np.empty(cap, b[name].dtype)
+            moved[:live] = b[name][src]
+            b[name] = moved
+        b["node_a"][leaves] = start
+        self.n_cands = live
+
+    def _warn(self):
+        for r in np.flatnonzero(self.exhausted & ~self.warned):
+            rec = self.records[r]
+            sel = self.buf["state"][:self.n_nodes, _OWNER] == r
+            refs = int(self.buf["node_b"][:self.n_nodes][sel & (self.buf["node_b"][:self.n_nodes] >= 0)].sum())
+            _budget_warning(rec["name"], self.budget_mb[r], int(sel.sum()), refs, int(self.used[r]))
+            self.warned[r] = True
+
+    def _number(self, geo):
+        """Columns of the candidates (in node order, 2**K each, from base) and their virtual subtrees."""
+        b = self.buf
+        self._widths = np.left_shift(1, self.levels).astype(np.int64)
+        n_cand = len(self.cand)
+        b["pass_"][self.cand] = np.arange(n_cand, dtype=np.int64)
+        vinfo = np.empty((n_cand, 3), np.int64)
+        vinfo[:, 0] = self.base + np.concatenate([[0], np.cumsum(self._widths)[:-1]]).astype(np.int64)
+        vinfo[:, 1] = self.levels
+        vinfo[:, 2] = np.concatenate([[0], np.cumsum(self._widths - 1)[:-1]]).astype(np.int64)
+        n_split = int((self._widths - 1).sum())
+        vdim = np.zeros(n_split, np.int64)
+        vsplit = np.zeros(n_split)
+        _virtual_subtrees(self.cand, self.levels, b["cell"], b["state"], self.norm, vdim, vsplit, vinfo[:, 2].copy())
+        self.vinfo, self.vdim, self.vsplit = vinfo, vdim, vsplit
+        return self._view(geo)
+
+    def _view(self, geo):
+        n, nc, b = self.n_nodes, self.n_cands, self.buf
+        return geo._replace(rc_node_a=b["node_a"][:n], rc_node_b=b["node_b"][:n], rc_split=b["split"][:n],
+                            rc_key=b["key"][:nc], rc_ref=b["ref"][:nc], rc_pass=b["pass_"][:n],
+                            rc_vinfo=self.vinfo, rc_vdim=self.vdim, rc_vsplit=self.vsplit)
+
+    # ------------------------------------------------------------- all-hits queries run twice
+
+    def checkpoint(self):
+        """The state to go back to, so that a second run over the same rays meets the same trees."""
+        n, b = self.n_nodes, self.buf
+        self.held = True
+        return dict(n_nodes=n, n_cands=self.n_cands, arrays={name: b[name][:n].copy() for name in _NODE_ARRAYS},
+                    cand=self.cand.copy(), levels=self.levels.copy(), base=self.base, passes=self.passes,
+                    used=self.used.copy(), exhausted=self.exhausted.copy(), warned=self.warned.copy(),
+                    subdivisions=self.subdivisions.copy())
+
+    def restore(self, mark, geo):
+        """Back to `mark` (from checkpoint); returns the Geometry to use."""
+        n = mark["n_nodes"]
+        for name, a in mark["arrays"].items():
+            self.buf[name][:n] = a
+        self.buf["pass_"][n:] = -1
+        self.n_nodes, self.n_cands = n, mark["n_cands"]
+        self.cand, self.levels, self.base = mark["cand"], mark["levels"], mark["base"]
+        self.passes = mark["passes"]
+        self.used, self.exhausted = mark["used"], mark["exhausted"]
+        self.warned, self.subdivisions = mark["warned"], mark["subdivisions"]
+        self.held = False
+        return self._number(geo)
+
+    # ------------------------------------------------------------- statistics
+
+    def update_stats(self, build, geo):
+        """Write the trees as they now stand into the build statistics of flatten()."""
+        n, b = self.n_nodes, self.buf
+        owner = b["state"][:n, _OWNER]
+        node_b = b["node_b"][:n]
+        for r, rec in enumerate(self.records):
+            sel = owner == r
+            cnt = node_b[sel]
+            leaves = cnt >= 0
+            nodes, refs = int(sel.sum()), int(cnt[leaves].sum())
+            rec["stats"].update(nodes=nodes, inner=int(np.count_nonzero(~leaves)),
+                                leaves=int(np.count_nonzero(leaves)), empty_leaves=int(np.count_nonzero(cnt == 0)),
+                                refs=refs, bytes=NODE_BYTES * nodes + CANDIDATE_BYTES * refs,
+                                max_depth=int(b["state"][:n, _DEPTH][sel].max()), passes=self.passes,
+                                subdivisions=int(self.subdivisions[r]), refine_seconds=self.seconds,
+                                budget_exceeded=bool(self.exhausted[r]))
+        aggs = build.get("aggregates", [])
+        for key, name in (("build.nodes", "nodes"), ("build.empty_leaves", "empty_leaves"), ("build.refs", "refs")):
+            build[key] = int(sum(s.get(name, 0) for s in aggs))
+        build["build.bytes"] = int(sum(a.nbytes for a in geo if isinstance(a, np.ndarray)))
+        build["build.refine_passes"] = self.passes
+        build["build.subdivisions"] = int(self.subdivisions.sum())
+        build["build.refine_seconds"] = self.seconds
