@@ -24,6 +24,7 @@ from raykernel.flatten import RC, flatten
 from raykernel.rayscene import CHUNK
 from raykernel.scene import Group, Instance
 from raykernel.traverse import cast_rays
+from test_lazyoctree import same_hits_as_list
 from test_grid import (assert_same_hits, axis_and_boundary_rays, fill_group, lattice_scene, nested_scene, new_scene,
                        random_rays, rotation_scale)
 
@@ -45,27 +46,6 @@ def cast(scene, accel, origins, directions, **kw):
         assert rs.build_stats["build.refine_passes"] >= 3
         geo = rs.geo
     return cast_rays(geo, origins, directions, **kw)
-
-
-def same_hits_as_list(scene, spec, o, d, repeats=2, plain=None):
-    """RayScene(spec) against RayScene(list) (of `plain`, the scene with list specs, if given):
-    closest, any and all hits, `repeats` times while the lazy trees grow. Returns the RayScene."""
-    ref = RayScene.from_scene(scene if plain is None else plain, "list")
-    got = RayScene.from_scene(scene, spec)
-    want = ref.intersect(o, d)
-    want_any = ref.occluded(o, d, tmax=0.5)
-    want_all = ref.intersect_all(o, d, ids=True)
-    assert np.isfinite(want.t).sum() > len(o) // 20
-    for _ in range(repeats):
-        h = got.intersect(o, d)
-        for name in ("t", "prim_id", "geom_id", "inst_id"):
-            np.testing.assert_array_equal(getattr(h, name), getattr(want, name))
-        np.testing.assert_array_equal(h.normal, want.normal)
-        np.testing.assert_array_equal(got.occluded(o, d, tmax=0.5), want_any)
-        for a, b in zip(got.intersect_all(o, d, ids=True), want_all):
-            np.testing.assert_array_equal(a, b)
-    assert_same_hits(cast_rays(got.geo, o, d), cast_rays(ref.geo, o, d))
-    return got
 
 
 def random_boxes(rng, n=60):
