@@ -21,7 +21,7 @@ from raykernel import pathological as P
 from raykernel.accel import describe, parse_spec
 from raykernel.aggregates import lazyoctree
 from raykernel.aggregates.lazyoctree import PASS_CHUNKS, build_lazy, pass_ranges
-from raykernel.aggregates.octree import ADDRESS_BITS
+from raykernel.aggregates.octree import ADDRESS_BITS, BUDGET_SLACK
 from raykernel.errors import OptionError
 from raykernel.flatten import OCTREE, flatten
 from raykernel.rayscene import CHUNK
@@ -115,7 +115,8 @@ def same_hits_as_list(scene, spec, o, d, repeats=1, plain=None):
     ("lazyoctree(k=lots)", "k must be a number"),
     ("lazyoctree(rule60=maybe)", "rule60 must be on or off"),
     ("lazyoctree(walk=sideways)", "point, neighbor, parametric"),
-    ("lazyoctree(leaf=3)", "its parameters: depth, rays, k, rule60, walk, mailbox")])
+    ("lazyoctree(budget=-1)", "budget must be a number in \\[0.0, "),
+    ("lazyoctree(leaf=3)", "its parameters: depth, rays, k, rule60, budget, walk, mailbox")])
 def test_bad_parameters_are_option_errors(text, allowed):
     with pytest.raises(OptionError, match=allowed):
         parse_spec(text)
@@ -130,8 +131,8 @@ def test_build_lazy_checks_its_arguments(kw, name):
 
 
 def test_defaults_and_description():
-    assert parse_spec("lazyoctree") == ("lazyoctree", {"depth": 8, "rays": 4, "k": 0.1, "rule60": False,
-                                                       "walk": "neighbor", "mailbox": True})
+    assert parse_spec("lazyoctree") == ("lazyoctree", {"depth": 16, "rays": 2, "k": 0.0, "rule60": False,
+                                                       "budget": 16.0, "walk": "neighbor", "mailbox": True})
     text = describe()
     assert "lazyoctree:" in text and "M*k < N" in text
 
@@ -225,6 +226,31 @@ def rays_past(n, rng):
     xs = 2.0 * rng.integers(0, 4, n) + 1.0
     o = np.column_stack([xs, np.full(n, -3.0), rng.uniform(-0.4, 0.4, n)])
     return o, np.tile([0.0, 1.0, 0.0], (n, 1))
+
+
+def test_budget_bounds_the_references_of_items_no_split_separates():
+    """Two equal spheres: every cell of their common box holds both, and rays through its corners
+    miss them, so without a budget those cells split down to the depth limit."""
+    scene = new_scene()
+    for _ in range(2):
+        scene.root.spheres.add((0.0, 0.0, 0.0), 1.0, 0)
+    rng = np.random.default_rng(21)
+    n = 4000
+    yz = rng.uniform(0.75, 1.0, (n, 2)) * rng.choice([-1.0, 1.0], (n, 2))   # |y|, |z| >= 0.75: outside the sphere
+    o = np.column_stack([np.full(n, -3.0), yz])
+    d = np.tile([1.0, 0.0, 0.0], (n, 1))
+    aim = np.column_stack([np.full(500, -3.0), rng.uniform(-0.5, 0.5, (500, 2))])   # and some that hit
+    o, d = np.vstack([o, aim]), np.vstack([d, np.tile([1.0, 0.0, 0.0], (500, 1))])
+    cap = 1 * 2 + BUDGET_SLACK
+    free = RayScene.from_scene(scene, "lazyoctree(rays=1, depth=10, budget=0)")
+    free.intersect(o, d)
+    free_stats = free.build_stats["aggregates"][0]
+    assert free_stats["refs"] > cap and not free_stats["budget_reached"]
+    held = same_hits_as_list(scene, "lazyoctree(rays=1, depth=10, budget=1)", o, d)
+    held_stats = held.build_stats["aggregates"][0]
+    assert held_stats["budget_refs"] == cap
+    assert held_stats["budget_reached"] and 0 < held_stats["refs"] <= cap
+    assert held.build_stats["build.refs"] == held_stats["refs"] == stats_of_tree(held.geo)["refs"]
 
 
 def test_depth_0_never_refines():
@@ -503,26 +529,52 @@ def test_pass_ranges():
             pass_ranges(10, first, most)
 
 
-def test_render_passes_start_with_one_row(monkeypatch):
-    """The eye rays of each pass of a 48 x 48 SPD render (49 x 49 corner samples in 4 x 4 tiles:
-    three of 16 x 16, then one 1 wide, and a last row of tiles 1 high)."""
+def test_lazy_passes_go_coarse_to_fine():
+    # 40 tiles in batches of 2: one sample per tile in runs of 1, 1, 2, 2, ...; then each finer level
+    passes = RENDER.lazy_passes(40, 2)
+    level0 = [p for p in passes if p[0] == RENDER.TILE]
+    assert [(a, b) for _, _, a, b in level0] == [(0, 1), (1, 2)] + [(a, a + 2) for a in range(2, 40, 2)]
+    assert all(coarse == 0 for _, coarse, _, _ in level0)
+    for step in (8, 4, 2, 1):
+        level = [(a, b) for s, coarse, a, b in passes if s == step and coarse == 2 * step]
+        assert level == [(a, a + 2) for a in range(0, 40, 2)]
+    assert len(passes) == len(level0) + 4 * 20
+    assert RENDER.lazy_passes(1, 1) == [(16, 0, 0, 1), (8, 16, 0, 1), (4, 8, 0, 1), (2, 4, 0, 1), (1, 2, 0, 1)]
+
+
+def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
+    """The eye rays of each pass of a 48 x 48 SPD render: 49 x 49 corner samples in 4 x 4 tiles (three
+    of 16 wide, then one 1 wide; likewise in height), one tile per batch; counted here from the tiles'
+    sample lattices, and every sample traced once."""
     seen = []
     kernel = RENDER._render_tiles
 
     def recording(*args):
+        before = args[14][:, C.RAYS_EYE].sum()
         kernel(*args)
-        first, last, counters = args[9], args[10], args[14]
-        seen.append(int(counters[first:last, C.RAYS_EYE].sum()))
+        seen.append((args[16], args[17], args[9], args[10], int(args[14][:, C.RAYS_EYE].sum() - before)))
 
     monkeypatch.setattr(RENDER, "_render_tiles", recording)
     scene = raykernel.load("spd:balls:1")
     got = raykernel.render(scene, accel="lazyoctree", resolution=48, spd=True)
-    assert seen == [16, 16, 32, 64, 128, 256, 256, 16] + [256, 256, 256, 16] * 2 + [16, 16, 16, 1]
+    traced = np.zeros((49, 49), np.int64)
+    for step, coarse, first, last, eye in seen:
+        assert last == first + 1
+        y0, x0 = divmod(first, 4)
+        mine = [(j, i) for j in range(16 * y0, min(16 * y0 + 16, 49), step)
+                for i in range(16 * x0, min(16 * x0 + 16, 49), step)
+                if not (coarse and (j - 16 * y0) % coarse == 0 and (i - 16 * x0) % coarse == 0)]
+        assert eye == len(mine)
+        for j, i in mine:
+            traced[j, i] += 1
+    assert (traced == 1).all()
+    assert [s[0] for s in seen] == [16] * 16 + [8] * 16 + [4] * 16 + [2] * 16 + [1] * 16
+    assert [s[4] for s in seen[:16]] == [1] * 16      # one sample per tile first
     assert got.stats["rays.eye"] == 49 * 49 and got.stats["build.refine_passes"] == len(seen)
-    # other structures keep their batches: here one tile each
+    # other structures keep their batches: here one tile each, every sample at once
     seen.clear()
     raykernel.render(scene, accel="bvh", resolution=48, spd=True)
-    assert seen == [256, 256, 256, 16] * 3 + [16, 16, 16, 1]
+    assert [s[4] for s in seen] == [256, 256, 256, 16] * 3 + [16, 16, 16, 1]
 
 
 def test_rayscene_passes_shorter_than_a_chunk_count_every_ray():
@@ -561,9 +613,9 @@ def test_spd_render_matches_bvh(name):
     scene = raykernel.load(name)
     bvh = raykernel.render(scene, accel="bvh", resolution=48, spd=True)
     rays = {k: v for k, v in bvh.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
-    # 49 x 49 corner samples: 4 x 4 tiles of 16, fewer than 32, so one tile per batch; the first
-    # tile in rows 1, 1, 2, 4, 8, then 15 tiles
-    batches = 5 + 15
+    # 49 x 49 corner samples: 4 x 4 tiles of 16, fewer than 32, so one tile per batch, at each of
+    # the five lattice steps 16, 8, 4, 2, 1
+    batches = 5 * 16
     for walk in WALKS:
         got = raykernel.render(scene, accel=f"lazyoctree(walk={walk})", resolution=48, spd=True)
         np.testing.assert_array_equal(got.image, bvh.image)
@@ -627,8 +679,8 @@ def test_thread_count_does_not_change_result(tmp_path):
     assert out[1]["image"].tobytes() == out[2]["image"].tobytes()
     assert list(out[1]["keys"]) == list(out[2]["keys"])
     values = dict(zip(out[1]["keys"], out[1]["values"]))
-    # 41 x 41 samples in 3 x 3 tiles, one per batch: the first in 5 passes of rows, then 8 tiles
-    assert values["build.subdivisions"] > 0 and values["build.refine_passes"] == 5 + 8
+    # 41 x 41 samples in 3 x 3 tiles, one per batch, at each of five lattice steps
+    assert values["build.subdivisions"] > 0 and values["build.refine_passes"] == 5 * 9
     np.testing.assert_array_equal(out[1]["values"], out[2]["values"])
     for name in ("t", "prim", "n", "q", "nodes"):
         np.testing.assert_array_equal(out[1][name], out[2][name])

@@ -188,7 +188,7 @@ def test_rc_is_listed_with_its_help():
     text = raykernel.accel.describe()
     assert "rc: ray classification" in text and "budget_mb=256.0" in text
     assert "lazy=on" in text and "rays=1" in text
-    assert parse_spec("rc") == ("rc", {"leaf": 8, "depth": 20, "budget_mb": 256.0, "lazy": True, "rays": 1})
+    assert parse_spec("rc") == ("rc", {"leaf": 8, "depth": 40, "budget_mb": 256.0, "lazy": True, "rays": 1})
 
 
 # ---------------------------------------------------------------- traversal against bvh and list

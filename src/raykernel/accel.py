@@ -172,10 +172,10 @@ register(Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (ori
               "rays arrived is split, several levels where the arrivals go on; lazy=off builds the whole trees "
               "before any ray", (
     Param("leaf", 8, "a hypercube with at most this many candidates is not split", int, 1, 1 << 20),
-    Param("depth", 20, "most splits below a face's root hypercube", int, 0, 200),
+    Param("depth", 40, "most splits below a face's root hypercube", int, 0, 200),
     Param("budget_mb", 256.0, "MiB the trees and candidate lists may take; reaching it stops subdivision "
           "with a warning (hits stay exact)", float, 0.0, 1 << 20),
-    Param("lazy", True, "on: subdivide lazily where rays arrive (Arvo and Kirk), a hypercube stopping after 15 "
+    Param("lazy", True, "on: subdivide lazily where rays arrive (Arvo and Kirk), a hypercube stopping after 40 "
           "splits in a row that each keep more than 3/4 of its candidates; off: eagerly, breadth first over all "
           "of 5D space until leaf, depth, 5 such splits or the budget stop it", bool),
     Param("rays", 1, "lazy: rays that must arrive at a leaf before it is split", int, 1, 1 << 40),
@@ -224,18 +224,20 @@ register(Kind("hybrid", "Haines's hybrid (RTN 2(1), 1988): an octree whose probl
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf of the octree", bool),
 )))
 register(Kind("lazyoctree", "lazy octree (Lathrop 1988): one leaf at first; between passes of rays (passes "
-              "that start small and double: a first tile row by row, then tiles; RayScene from 16 rays up to "
-              "8192) a leaf is split, as the octree splits, when it meets I-V (and VI with rule60): I level < "
-              "depth, II not empty, III more than one item (M > 1), IV at least `rays` rays passed through it "
+              "that trace a render coarse to fine: one sample per tile, then the samples between, level by "
+              "level; RayScene from 16 rays up to 8 chunks of 8192) a leaf is split, as the octree splits, when "
+              "it meets I-V (and VI with rule60) and the reference budget allows: I level < depth, II not empty, III more than one item (M > 1), IV at least `rays` rays passed through it "
               "without a hit in it since it was made (N >= rays), V M*k < N; passes beyond what a split needed "
               "are shared among the children, which may split in the same refinement", (
-    Param("depth", 8, "criterion I: most levels (the root is level 0; 0 never refines)", int, 0, 24),
-    Param("rays", 4, "criterion IV: rays that must pass through a leaf without a hit in it before it may split",
+    Param("depth", 16, "criterion I: most levels (the root is level 0; 0 never refines)", int, 0, 24),
+    Param("rays", 2, "criterion IV: rays that must pass through a leaf without a hit in it before it may split",
           int, 1, 1 << 40),
-    Param("k", 0.1, "criterion V: a leaf of M items splits only after more than k*M passes (0: off)", float,
+    Param("k", 0.0, "criterion V: a leaf of M items splits only after more than k*M passes (0: off)", float,
           0.0, 1e9),
     Param("rule60", False, "criterion VI, Haines's problem-voxel rule: a leaf whose largest child would still "
           "hold >= 60% of its items (unless the only occupied one) stays a leaf for good", bool),
+    Param("budget", 16.0, "the leaves hold at most budget * items + 4096 references; a split past it is not made "
+          "and its leaf stays a leaf (0: no budget)", float, 0.0, 1e6),
     Param("walk", "neighbor", "traversal: point, neighbor or parametric (see octree)", str,
           choices=("point", "neighbor", "parametric")),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),

@@ -514,7 +514,7 @@ class _Builder:
             # Lathrop's lazy octree: one leaf now, subdivided between passes of rays
             from .aggregates.lazyoctree import build_lazy
             tree, stats, boxes = build_lazy(bounds, depth=params["depth"], rays=params["rays"], k=params["k"],
-                                            rule60=params["rule60"], name=name)
+                                            rule60=params["rule60"], budget=params["budget"], name=name)
             arr.lazy.append(dict(params, octree=len(arr.oct["root"]), node=arr.n_oct_nodes, ref=arr.n_refs,
                                  refs=refs, boxes=boxes, stats=stats))
             self._append_octree(tree, params, refs)

@@ -15,9 +15,11 @@ pixel centre and rays whose weight falls below 1/512 are not cast.
 The image is traced in tiles of TILE x TILE samples, in parallel; each
 tile owns one row of counters, so counts and image bytes do not depend on
 the number of threads. The tiles are traced in batches of n_tiles // 32 (at
-least one), in a fixed order. With lazy octrees (aggregates/lazyoctree.py)
-the passes start smaller (one row of the first tile, then as many rows as
-before, up to a batch) and the trees are refined after each from its pass counts.
+least one), in a fixed order. With lazy structures (aggregates/lazyoctree.py,
+rc.py) the image is traced coarse to fine (lazy_passes): one sample per tile
+first, in passes that start with one tile, then the samples between them
+level by level, so that the trees, refined after each pass from its counts,
+are deepened wherever the image looks before most of its rays are cast.
 """
 
 from __future__ import annotations
@@ -258,10 +260,12 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
 
 @njit(parallel=True)
 def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, first, last,
-                  max_depth, cutoff, out, counters, passes):
-    """Trace tiles first..last-1 of the sample grid into `out`, one counter row per tile.
+                  max_depth, cutoff, out, counters, passes, step, coarse):
+    """Trace tiles first..last-1 of the sample grid into `out`, adding into one counter row per tile.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
-    passes[tile - first]: the tile's pass counts of lazy octree leaves (aggregates/lazyoctree.py)."""
+    Within each tile only the samples on the lattice of `step` (every step-th row and column),
+    less those on the coarser lattice of `coarse` (0: none) traced before.
+    passes[tile - first]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py)."""
     for ti in prange(last - first):
         tile = np.int64(ti) + first
         ws = workspace()
@@ -269,8 +273,10 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         x0 = tile_x[tile]
         y0 = tile_y[tile]
-        for j in range(y0, min(y0 + TILE, samples_h)):
-            for i in range(x0, min(x0 + TILE, samples_w)):
+        for j in range(y0, min(y0 + TILE, samples_h), step):
+            for i in range(x0, min(x0 + TILE, samples_w), step):
+                if coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0:
+                    continue
                 dx = cam[3] + i * cam[6] + j * cam[9]
                 dy = cam[4] + i * cam[7] + j * cam[10]
                 dz = cam[5] + i * cam[8] + j * cam[11]
@@ -281,9 +287,22 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
                 out[j, i, 1] = g
                 out[j, i, 2] = b
         for k in range(C.N_COUNTERS):
-            counters[tile, k] = cnt[k]
+            counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
             passes[ti, k] = cnt[C.N_COUNTERS + k]
+
+
+def lazy_passes(n_tiles: int, batch: int) -> list[tuple[int, int, int, int]]:
+    """The passes of a render with lazy structures, as (step, coarse, first tile, last tile):
+    the image's samples on a lattice of every TILE-th row and column first (one per tile), in
+    runs of 1, 1, 2, 4, ... tiles up to `batch`; then the lattice halved (the samples not yet
+    traced) level by level down to every sample, in runs of `batch` tiles."""
+    out = [(TILE, 0, a, b) for a, b in pass_ranges(n_tiles, 1, batch)]
+    step = TILE // 2
+    while step >= 1:
+        out += [(step, 2 * step, a, min(n_tiles, a + batch)) for a in range(0, n_tiles, batch)]
+        step //= 2
+    return out
 
 
 def camera_vectors(camera, width: int, height: int, corners: bool) -> np.ndarray:
@@ -344,7 +363,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     resolution: square image size (default: the scene camera's).
     spd: follow the SPD test procedure (corner rays, no cut-off).
     threads: worker threads (default: all cores).
-    progress: callable(done_tiles, total_tiles) called between batches.
+    progress: callable(done, total) called after each of the `total` passes.
     """
     if isinstance(max_depth, bool) or not isinstance(max_depth, (int, np.integer)) or not 1 <= max_depth <= 32:
         raise OptionError(f"max_depth must be an integer in [1, 32], got {max_depth!r}")
@@ -376,30 +395,20 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     cutoff = 0.0 if spd else CUTOFF
 
     t1 = time.perf_counter()
-    lazy = build.get("lazy")     # lazy octrees: refined after each pass
+    lazy = build.get("lazy")     # lazy structures: refined after each pass
     batch = max(1, n_tiles // 32)
     if lazy is None:
-        ranges = [(a * TILE, min(n_tiles, a + batch) * TILE) for a in range(0, n_tiles, batch)]
+        passes = [(1, 0, a, min(n_tiles, a + batch)) for a in range(0, n_tiles, batch)]
     else:
-        # passes in rows of tiles: one row of the first tile, then as many as before, up to a batch
-        ranges = pass_ranges(n_tiles * TILE, 1, batch * TILE)
-    for a, b in ranges:
-        first, last = a // TILE, -(-b // TILE)
-        passes = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
-        if a % TILE or b % TILE:
-            # rows of one tile: that tile moved down to its first row, the samples cut below its last
-            part = np.zeros((1, C.N_COUNTERS), np.int64)
-            below = min(sh, tile_y[first] + (b - 1) % TILE + 1)
-            _render_tiles(geo, mats, lights, scene.background, cam, sw, below, tile_x[first:last],
-                          tile_y[first:last] + a % TILE, 0, 1, max_depth, cutoff, samples, part, passes)
-            counts[first] += part[0]
-        else:
-            _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first, last,
-                          max_depth, cutoff, samples, counts, passes)
+        passes = lazy_passes(n_tiles, batch)
+    for done, (step, coarse, first, last) in enumerate(passes, 1):
+        pass_counts = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
+        _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first, last, max_depth,
+                      cutoff, samples, counts, pass_counts, step, coarse)
         if lazy is not None:
-            geo = lazy.refine(geo, passes)
-        if progress is not None and b % TILE == 0:
-            progress(last, n_tiles)
+            geo = lazy.refine(geo, pass_counts)
+        if progress is not None:
+            progress(done, len(passes))
     trace = time.perf_counter() - t1
     if lazy is not None:
         lazy.update_stats(build, geo)

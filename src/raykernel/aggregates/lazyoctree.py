@@ -1,7 +1,7 @@
 """Lazy octree (Lathrop, Ray Tracing News 2(1), 1988): one leaf at first,
 subdivided between passes of rays where rays pass.
 
-    geo, build = flatten(scene, default_accel="lazyoctree(rays=4, k=0.1)")
+    geo, build = flatten(scene, default_accel="lazyoctree(rays=2, k=0)")
     lazy = build.get("lazy")     # LazyOctrees of the scene, None without lazy octrees
     geo = lazy.refine(geo, pass_counts)   # after each pass: (work items, lazy.columns) int64
 
@@ -28,10 +28,22 @@ A leaf is subdivided when all of these hold:
   IV   at least ``rays`` rays have passed through it without a hit in it since
        it was made (N >= rays);
   V    M * k < N: a leaf of many items needs more evidence (``k`` weighs one
-       item against one ray pass; k=0 leaves criterion IV alone);
+       item against one ray pass; k=0, the default, leaves criterion IV alone);
   VI   with ``rule60`` on, Haines's problem-voxel rule: not when its largest
        child would still hold at least 60% of its items, unless that child is
        the only occupied one. A leaf this keeps stays a leaf for good.
+and, as for the octree, ``budget``: the split does not take the references
+held by the tree's leaves past budget * items + 4096 (0: no budget); a leaf
+the budget cannot pay for stays a leaf for good.
+
+Defaults: depth 16, rays 2, k 0, budget 16, rule60 off. Criterion V is off
+by default because it delays exactly the leaves that cost most: every ray
+that reaches a leaf of M items tests M of them, so waiting for k*M passes
+costs about k*M^2 tests (k=0.1 on SPD balls: 200 tests per ray at 96x96,
+against 11 with k=0). The budget stands in for it: where two items' boxes
+overlap, no split separates them, and rays passing between them would
+split their cells down to the depth limit (SPD balls at 512x512 without a
+budget: 11.5 million nodes; with it 87k, and `octree` 62k).
 A ray *passes through* a leaf when, after the leaf's items are tested, its
 closest hit so far (or its tmax) is not before the leaf's exit distance; a
 ray that stops in the leaf, meets its end there or, as an any-hit ray, finds
@@ -62,14 +74,17 @@ its coarse leaves pass after pass.
 Passes and determinism
 ----------------------
 The tree changes only between passes, never while rays are in flight.
-Passes start small and grow (pass_ranges): the first is a few rays, each
-later one as long as all before it, up to a cap; the first rays meet the
-one-leaf tree a few at a time, and the tree is refined once a doubling
-before the passes reach their full length. The renderer traces the rows of
-its first tile in passes of 1, 1, 2, 4 and 8 rows (16 samples a row), then
-1, 2, 4, ... tiles up to its usual batch of n_tiles // 32 (render.py);
-RayScene's passes are FIRST_PASS = 16 rays, 16, 32, ... up to PASS_CHUNKS
-chunks of CHUNK rays (8192). Boundaries depend only on tile and ray
+The renderer traces its image coarse to fine (render.lazy_passes): first
+one sample per 16 x 16 tile, in passes of 1, 1, 2, 4, ... tiles up to its
+usual batch of n_tiles // 32, so the tree is deepened over the whole view
+by a few rays at a time; then the samples halfway between those traced,
+level by level (steps of 8, 4, 2 and 1 sample), in batches of tiles. Each
+ray then meets a tree that the rays of its neighbours have already
+refined; traced tile by tile instead, each new tile's rays met the coarse
+leaves of a region seen for the first time (at 96x96, tests per ray tile
+by tile -> coarse to fine: SPD balls 205 -> 10.9, the stadium 388 -> 24.7). RayScene's passes (pass_ranges) are
+FIRST_PASS = 16 rays, 16, 32, ... up to PASS_CHUNKS chunks of CHUNK rays
+(8192), in the rays' own order. Boundaries depend only on tile and ray
 indices. During a pass, every tile or chunk counts passes into its
 own columns after the N_COUNTERS ordinary counters; refine() sums them
 (integer sums: any order) and splits every leaf that meets the criteria, in
@@ -107,17 +122,17 @@ import numpy as np
 from ..config import njit
 from ..errors import OptionError
 from .grid import grid_box
-from .octree import ADDRESS_BITS, MAX_DEPTH, MAX_NODES, OctreeArrays
+from .octree import ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays
 
 __all__ = ["LazyOctrees", "build_lazy", "pass_ranges", "FIRST_PASS", "PASS_CHUNKS"]
 
-FIRST_PASS = 16            # units of work (rays; rows of a render tile) in the first pass
+FIRST_PASS = 16            # RayScene: rays in the first pass
 PASS_CHUNKS = 8            # RayScene: at most this many chunks of rays (of rayscene.CHUNK) per pass
 CHILD_SHARE = 8            # a split leaf's surplus passes are shared out among its 8 children
 # bytes of one node in the octree arrays: bounds 48, first 8, count 8, loc 24,
 # level 8, slot 8, neighbours 48, pass column 8
 NODE_BYTES = 160
-_KEPT, _SPLIT = 0, 1           # _split's status of a chosen leaf
+_KEPT, _SPLIT, _BUDGET = 0, 1, 2   # _split's status of a chosen leaf
 _NODE_FIELDS = ("oct_bounds", "oct_first", "oct_count", "oct_loc", "oct_level", "oct_slot", "oct_nbr", "oct_pass")
 
 
@@ -127,12 +142,15 @@ def _check(value, name, lo, hi, kind):
         raise OptionError(f"lazyoctree {name} must be {what} in [{lo}, {hi}], got {value!r}")
 
 
-def build_lazy(bounds, *, depth=8, rays=4, k=0.1, rule60=False, name=None):
+def build_lazy(bounds, *, depth=16, rays=2, k=0.0, rule60=False, budget=16.0, name=None):
     """The one-leaf start of a lazy octree over item boxes (at least one finite box).
 
     Returns (OctreeArrays with one node, stats, widened item boxes for later splits)."""
     t0 = time.perf_counter()
     _check(depth, "depth", 0, MAX_DEPTH, int)
+    if isinstance(budget, int) and not isinstance(budget, bool):
+        budget = float(budget)
+    _check(budget, "budget", 0.0, 1e6, float)
     _check(rays, "rays", 1, 1 << 40, int)
     if isinstance(k, int) and not isinstance(k, bool):
         k = float(k)
@@ -160,18 +178,20 @@ def build_lazy(bounds, *, depth=8, rays=4, k=0.1, rule60=False, name=None):
                         order=np.arange(n, dtype=np.int64))
     stats = {"nodes": 1, "inner": 0, "leaves": 1, "empty_leaves": 0, "refs": n,
              "bytes": NODE_BYTES + 8 * n + 48, "max_depth": 0, "passes": 0, "subdivisions": 0,
-             "refine_seconds": 0.0, "budget_reached": False, "seconds": time.perf_counter() - t0}
+             "refine_seconds": 0.0, "budget_reached": False, "seconds": time.perf_counter() - t0,
+             "budget_refs": int(budget * n) + BUDGET_SLACK if budget > 0 else 0}
     return tree, stats, np.ascontiguousarray(widened)
 
 
 # ----------------------------------------------------------------- kernels
 
 @njit
-def _split(nodes, owner, origin, unit, rule60, boxes, item_ref, ref_item, refs, first, count, loc, level, slot,
-           bounds, n_nodes, n_refs):
+def _split(nodes, owner, origin, unit, rule60, live_refs, max_refs, boxes, item_ref, ref_item, refs, first, count,
+           loc, level, slot, bounds, n_nodes, n_refs):
     """Subdivide each leaf of `nodes` one level in place, appending its 8 children at
-    n_nodes and their references at n_refs. Returns (status per node: _SPLIT, or
-    _KEPT by rule60), the new n_nodes and n_refs."""
+    n_nodes and their references at n_refs. Returns (status per node: _SPLIT, _KEPT by
+    rule60, or _BUDGET when the children would take its tree's leaf references,
+    live_refs, past max_refs), the new n_nodes and n_refs."""
     n_split = nodes.shape[0]
     status = np.zeros(n_split, np.int64)
     clo = np.empty((8, 3))
@@ -215,6 +235,13 @@ def _split(nodes, owner, origin, unit, rule60, boxes, item_ref, ref_item, refs, 
             if biggest * 10 >= 6 * m and occupied > 1:
                 status[s] = _KEPT
                 continue
+        added = -m
+        for c in range(8):
+            added += child_n[c]
+        if max_refs[r] > 0 and live_refs[r] + added > max_refs[r]:
+            status[s] = _BUDGET
+            continue
+        live_refs[r] += added
         base = n_nodes
         n_nodes += 8
         pos = n_refs
@@ -327,6 +354,8 @@ class LazyOctrees:
         self.rule60 = np.array([rec["rule60"] for rec in records], np.int64)
         self.subdivisions = np.zeros(len(records), np.int64)
         self.budget_reached = np.zeros(len(records), np.bool_)
+        self.live_refs = np.array([len(rec["refs"]) for rec in records], np.int64)
+        self.max_refs = np.array([rec["stats"]["budget_refs"] for rec in records], np.int64)
         self.passes = 0
         self.seconds = 0.0
         roots = self.roots
@@ -394,13 +423,14 @@ class LazyOctrees:
         b = self.buf
         old_n = self.n_nodes
         surplus = self.acc[chosen] - self._need(chosen)
-        status, n_nodes, n_refs = _split(chosen, self.owner, self.origin, self.unit, self.rule60, self.boxes,
-                                         self.item_ref, self.ref_item, self.refs, b["oct_first"], b["oct_count"],
-                                         b["oct_loc"], b["oct_level"], b["oct_slot"], b["oct_bounds"],
-                                         np.int64(self.n_nodes), np.int64(self.n_refs))
+        status, n_nodes, n_refs = _split(chosen, self.owner, self.origin, self.unit, self.rule60, self.live_refs,
+                                         self.max_refs, self.boxes, self.item_ref, self.ref_item, self.refs,
+                                         b["oct_first"], b["oct_count"], b["oct_loc"], b["oct_level"], b["oct_slot"],
+                                         b["oct_bounds"], np.int64(self.n_nodes), np.int64(self.n_refs))
         self.n_nodes, self.n_refs = int(n_nodes), int(n_refs)
         split = chosen[status == _SPLIT]
-        self.final[chosen[status == _KEPT]] = True
+        self.final[chosen[status != _SPLIT]] = True
+        self.budget_reached[np.unique(self.owner[chosen[status == _BUDGET]])] = True
         np.add.at(self.subdivisions, self.owner[split], 1)
         # the passes after the one that split it would have met the children (split's order is theirs)
         self.acc[old_n:self.n_nodes] = np.repeat(surplus[status == _SPLIT] // CHILD_SHARE, 8)
@@ -457,6 +487,7 @@ class LazyOctrees:
         n, b = self.n_nodes, self.buf
         return dict(n_nodes=n, n_refs=self.n_refs, cand=self.cand.copy(), passes=self.passes,
                     subdivisions=self.subdivisions.copy(), budget=self.budget_reached.copy(),
+                    live_refs=self.live_refs.copy(),
                     arrays={name: b[name][:n].copy() for name in ("oct_first", "oct_count", "oct_nbr", "oct_pass")},
                     acc=self.acc[:n].copy(), final=self.final[:n].copy())
 
@@ -472,6 +503,7 @@ class LazyOctrees:
         self.passes = mark["passes"]
         self.subdivisions = mark["subdivisions"]
         self.budget_reached = mark["budget"]
+        self.live_refs = mark["live_refs"].copy()
         return self._view(geo)
 
     # ------------------------------------------------------------- statistics
