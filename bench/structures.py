@@ -5,8 +5,10 @@
 For each scene and each kind (default parameters) it renders in SPD mode and
 records N_IT (tests per ray), N_TS (traversal steps per ray), N_ETS, N_EETS,
 build nodes, bytes, build and trace seconds; a second table compares the
-octree's subdivision criteria and traversals on a few scenes. Writes the
-`structures` section of BENCHMARKS.md. Ray counts must agree across kinds;
+octree's subdivision criteria and traversals on a few scenes, and a third
+the lazy structures against the octree as the image grows (their trees are
+built by the rays, so the early rays' cost is shared by more rays). Writes
+the `structures` section of BENCHMARKS.md. Ray counts must agree across kinds;
 a disagreement aborts the run.
 """
 
@@ -28,6 +30,8 @@ OCTREE_VARIANTS = ("octree", "octree(walk=point)", "octree(walk=parametric)", "o
                    "octree(density=0.3)", "octree(vertexcount=on)", "octree(collapse=off)", "octree(mailbox=off)",
                    "octree(leaf=1)", "octree(leaf=8)", "octree(depth=8)", "octree(depth=24)", "octree(budget=8)",
                    "octree(budget=32)", "octree(depth=8, budget=0)")
+# the lazy structures beside the eager octree, at several image sizes
+LAZY_SPECS = ("octree", "lazyoctree", "rc")
 
 
 def run(scenes, specs, resolution):
@@ -64,6 +68,8 @@ def main():
     parser.add_argument("--scenes", default=",".join(spd.NAMES) + ",stadium")
     parser.add_argument("--kinds", default=",".join(k for k in accel.KINDS if k != "list"))
     parser.add_argument("--octree-scenes", default="balls,teapot,stadium")
+    parser.add_argument("--lazy-scenes", default="balls,teapot,stadium")
+    parser.add_argument("--lazy-sizes", default="96,256,512")
     args = parser.parse_args()
 
     def load(name):
@@ -82,6 +88,13 @@ def main():
             [(n, load(n)) for n in args.octree_scenes.split(",")]
         lines += ["", "### Octree criteria and traversals", ""] + table(run(oct_scenes, OCTREE_VARIANTS,
                                                                           args.resolution))
+    lazy_scenes = [(n, s) for n, s in scenes if n in args.lazy_scenes.split(",")] or \
+        [(n, load(n)) for n in args.lazy_scenes.split(",")]
+    lines += ["", "### Lazy structures and image size", "",
+              "The same in SPD mode at each size; build s is the build before the first ray, and the lazy "
+              "structures' refinement between passes is part of their trace s."]
+    for size in (int(x) for x in args.lazy_sizes.split(",")):
+        lines += ["", f"{size}x{size}:", ""] + table(run(lazy_scenes, LAZY_SPECS, size))
     replace_section("structures", "\n".join(lines))
 
 

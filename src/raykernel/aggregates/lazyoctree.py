@@ -39,11 +39,12 @@ the budget cannot pay for stays a leaf for good.
 Defaults: depth 16, rays 2, k 0, budget 16, rule60 off. Criterion V is off
 by default because it delays exactly the leaves that cost most: every ray
 that reaches a leaf of M items tests M of them, so waiting for k*M passes
-costs about k*M^2 tests (k=0.1 on SPD balls: 200 tests per ray at 96x96,
+costs about k*M^2 tests (k=0.1 on SPD balls: 198 tests per ray at 96x96,
 against 11 with k=0). The budget stands in for it: where two items' boxes
 overlap, no split separates them, and rays passing between them would
 split their cells down to the depth limit (SPD balls at 512x512 without a
-budget: 11.5 million nodes; with it 87k, and `octree` 62k).
+budget: 20 million nodes, MAX_NODES, and 3.5 GB; with it 87k and 16 MB,
+and `octree` 62k).
 A ray *passes through* a leaf when, after the leaf's items are tested, its
 closest hit so far (or its tmax) is not before the leaf's exit distance; a
 ray that stops in the leaf, meets its end there or, as an any-hit ray, finds
