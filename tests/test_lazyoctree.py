@@ -24,7 +24,7 @@ from raykernel.aggregates.lazyoctree import PASS_CHUNKS, build_lazy, pass_ranges
 from raykernel.aggregates.octree import ADDRESS_BITS, BUDGET_SLACK
 from raykernel.errors import OptionError
 from raykernel.flatten import OCTREE, flatten
-from raykernel.rayscene import CHUNK
+from raykernel.rayscene import CHUNK, coarse_to_fine
 from raykernel.scene import Group, Instance
 from raykernel.traverse import cast_rays
 from test_grid import assert_same_hits, fill_group, nested_scene, new_scene, random_rays, rotation_scale
@@ -575,6 +575,44 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
     seen.clear()
     raykernel.render(scene, accel="bvh", resolution=48, spd=True)
     assert [s[4] for s in seen] == [256, 256, 256, 16] * 3 + [16, 16, 16, 1]
+
+
+def test_rayscene_casts_lazy_queries_coarse_to_fine():
+    assert coarse_to_fine(8).tolist() == [0, 4, 2, 6, 1, 3, 5, 7]
+    assert coarse_to_fine(1).tolist() == [0] and coarse_to_fine(0).tolist() == []
+    for n in (2, 3, 13, 1000, 4097):
+        order = coarse_to_fine(n)
+        assert sorted(order.tolist()) == list(range(n))
+        # every prefix of 2^k indices spreads over the whole array, one in each run of n / 2^k
+        for k in range(1, n.bit_length()):
+            head = np.sort(order[:1 << k])
+            assert np.diff(head).max() <= 2 * -(-n // (1 << k))
+
+
+def test_rayscene_lazy_passes_take_the_rays_coarse_to_fine(monkeypatch):
+    """The rays each pass casts are those of coarse_to_fine, in pass_ranges' cuts; the hits come
+    back in the rays' own order (checked against list)."""
+    module = importlib.import_module("raykernel.rayscene")
+    kernel = module._query
+    passes = []
+
+    def recording(geo, o, *rest):
+        passes.append(o.copy())
+        return kernel(geo, o, *rest)
+
+    monkeypatch.setattr(module, "_query", recording)
+    o, d = rays_past(100, np.random.default_rng(16))
+    o[:, 2] = np.arange(100) * 0.008 - 0.4          # tell the rays apart
+    o[::3, 0] = 2.0 * (np.arange(34) % 5)           # a third through the spheres, at different t
+    rs = RayScene.from_scene(sphere_row(5), "lazyoctree(rays=1)")
+    got = rs.intersect(o, d)
+    order = coarse_to_fine(100)
+    assert [len(p) for p in passes] == [b - a for a, b in pass_ranges(100, 16, PASS)] == [16, 16, 32, 36]
+    np.testing.assert_array_equal(np.vstack(passes), o[order])
+    want = RayScene.from_scene(sphere_row(5), "list").intersect(o, d)
+    assert np.isfinite(want.t).sum() == 34 and len(np.unique(want.t)) > 20
+    np.testing.assert_array_equal(got.t, want.t)
+    np.testing.assert_array_equal(got.prim_id, want.prim_id)
 
 
 def test_rayscene_passes_shorter_than_a_chunk_count_every_ray():

@@ -202,6 +202,17 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
 
 # ----------------------------------------------------------------- the scene
 
+def coarse_to_fine(n: int) -> np.ndarray:
+    """Ray indices 0..n-1 coarse to fine: 0, then the odd multiples of 2^k for k from high to
+    low (with n = 8: 0, 4, 2, 6, 1, 3, 5, 7), so that every prefix samples the whole array."""
+    parts = [np.zeros(min(n, 1), np.int64)]
+    step = 1 << max(0, (n - 1).bit_length())
+    while step > 1:
+        parts.append(np.arange(step // 2, n, step, dtype=np.int64))
+        step //= 2
+    return np.concatenate(parts)
+
+
 class RayScene:
     """Geometry built once into flat arrays and aggregates, queried with batches of rays.
 
@@ -329,15 +340,34 @@ class RayScene:
             meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom, idx, inst,
                            uv, gn, sn, with_surface, offsets, all_t, all_i, counters)
         elif n and self._lazy is not None:
-            # passes from a few rays up to PASS_CHUNKS chunks (lazyoctree.pass_ranges); the lazy octrees
-            # refine after each; passes shorter than a chunk add into the first chunk's row
+            # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
+            # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
+            # than a chunk add into the first chunk's row. Results go back to the rays' own order.
+            order = coarse_to_fine(n)
+            ins = [a[order] for a in (o, d, lo, hi)]
+            outs = [np.empty_like(a) for a in (t, kind, idx, inst, uv, gn, sn)]
+            p_offsets, p_all_t, p_all_i = offsets, all_t, all_i
+            if len(offsets):
+                counts = np.diff(offsets)
+                p_offsets = np.zeros(n + 1, np.int64)
+                np.cumsum(counts[order], out=p_offsets[1:])
+                p_all_t, p_all_i = np.empty_like(all_t), np.empty_like(all_i)
             for a, b in self._lazy.ranges(n, CHUNK):
                 rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + self._lazy.columns), np.int64)
-                _query(self.geo, o[a:b], d[a:b], lo[a:b], hi[a:b], np.int64(mode), CHUNK, t[a:b], kind[a:b],
-                       idx[a:b], inst[a:b], uv[a:b], gn[a:b], sn[a:b], with_surface,
-                       offsets[a:b + 1] if len(offsets) else offsets, all_t, all_i, rows)
+                _query(self.geo, *(x[a:b] for x in ins), np.int64(mode), CHUNK, *(x[a:b] for x in outs),
+                       with_surface, p_offsets[a:b + 1] if len(offsets) else offsets, p_all_t, p_all_i, rows)
                 counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
                 self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
+            for mine, theirs in zip((t, kind, idx, inst, uv, gn, sn), outs):
+                if len(mine):       # surfaces only when asked for
+                    mine[order] = theirs
+            if len(offsets):
+                # ray order[k]'s hits lie at p_offsets[k]..p_offsets[k + 1]
+                start = np.empty(n, np.int64)
+                start[order] = p_offsets[:-1]
+                src = np.repeat(start - offsets[:-1], counts) + np.arange(offsets[-1])
+                all_t[:] = p_all_t[src]
+                all_i[:] = p_all_i[src]
             self._lazy.update_stats(self.build_stats, self.geo)
         elif n:
             _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv, gn, sn,

@@ -83,10 +83,11 @@ level by level (steps of 8, 4, 2 and 1 sample), in batches of tiles. Each
 ray then meets a tree that the rays of its neighbours have already
 refined; traced tile by tile instead, each new tile's rays met the coarse
 leaves of a region seen for the first time (at 96x96, tests per ray tile
-by tile -> coarse to fine: SPD balls 205 -> 10.9, the stadium 388 -> 24.7). RayScene's passes (pass_ranges) are
-FIRST_PASS = 16 rays, 16, 32, ... up to PASS_CHUNKS chunks of CHUNK rays
-(8192), in the rays' own order. Boundaries depend only on tile and ray
-indices. During a pass, every tile or chunk counts passes into its
+by tile -> coarse to fine: SPD balls 205 -> 10.9, the stadium 388 -> 24.7). RayScene takes its rays coarse to fine
+too (rayscene.coarse_to_fine: ray 0, then every odd multiple of 2^k for k
+from high to low) in passes (pass_ranges) of FIRST_PASS = 16 rays, 16, 32,
+... up to PASS_CHUNKS chunks of CHUNK rays (8192). Boundaries depend only
+on tile and ray indices. During a pass, every tile or chunk counts passes into its
 own columns after the N_COUNTERS ordinary counters; refine() sums them
 (integer sums: any order) and splits every leaf that meets the criteria, in
 node order. So images, hits and every counter are the same at any thread
