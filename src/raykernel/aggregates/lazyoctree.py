@@ -123,8 +123,7 @@ import numpy as np
 
 from ..config import njit
 from ..errors import OptionError
-from .grid import grid_box
-from .octree import ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays
+from .octree import ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, octree_frame
 
 __all__ = ["LazyOctrees", "build_lazy", "pass_ranges", "FIRST_PASS", "PASS_CHUNKS"]
 
@@ -159,18 +158,8 @@ def build_lazy(bounds, *, depth=16, rays=2, k=0.0, rule60=False, budget=16.0, na
     _check(k, "k", 0.0, 1e9, float)
     if not isinstance(rule60, (bool, np.bool_)):
         raise OptionError(f"lazyoctree rule60 must be on or off, got {rule60!r}")
-    items = np.ascontiguousarray(np.asarray(bounds, np.float64)).reshape(-1, 6)
-    solid = np.all(items[:, :3] <= items[:, 3:], axis=1) & np.all(np.isfinite(items), axis=1)
-    if not solid.any():
-        raise ValueError("a lazy octree needs at least one item with a box")
-    # the octree's root box, address unit and margin (build_octree), so a fully
-    # refined lazy octree holds what octree(leaf=1, collapse=off) holds
-    origin, extent = grid_box(items[solid])
-    unit = extent / float(1 << ADDRESS_BITS)
-    finest = extent / float(1 << depth)
-    margin = 1e-9 * max(float(extent.max()), float(np.abs(origin).max())) + 1e-7 * finest
-    widened = np.hstack([items[:, :3] - margin, items[:, 3:] + margin])
-    widened[~solid] = np.array([np.inf] * 3 + [-np.inf] * 3)
+    # the octree's frame, so a fully refined lazy octree holds what octree(leaf=1, collapse=off) holds
+    items, _, origin, unit, widened = octree_frame(bounds, depth, "a lazy octree")
     n = len(items)
     full = float(1 << ADDRESS_BITS)
     tree = OctreeArrays(origin=origin, unit=unit, first=np.zeros(1, np.int64), count=np.full(1, n, np.int64),

@@ -397,6 +397,23 @@ def _check(value, name, lo, hi, kind):
                           f"[{lo}, {hi}], got {value!r}")
 
 
+def octree_frame(bounds, depth, what):
+    """The frame every octree (and lazy octree) builds in: item boxes as (n, 6), which of them
+    are solid (finite, lo <= hi), the root's origin and 28-bit address unit, and the boxes
+    widened by the margin cells get (an item without a box overlaps nothing)."""
+    items = np.ascontiguousarray(np.asarray(bounds, np.float64)).reshape(-1, 6)
+    solid = np.all(items[:, :3] <= items[:, 3:], axis=1) & np.all(np.isfinite(items), axis=1)
+    if not solid.any():
+        raise ValueError(f"{what} needs at least one item with a box")
+    origin, extent = grid_box(items[solid])
+    unit = extent / float(1 << ADDRESS_BITS)
+    finest = extent / float(1 << depth)
+    margin = 1e-9 * max(float(extent.max()), float(np.abs(origin).max())) + 1e-7 * finest
+    widened = np.hstack([items[:, :3] - margin, items[:, 3:] + margin])
+    widened[~solid] = np.array([np.inf] * 3 + [-np.inf] * 3)
+    return items, solid, origin, unit, widened
+
+
 def build_octree(bounds, *, depth=16, leaf=3, rule60=False, density=0.0, vertexcount=False, weights=None,
                  collapse=True, budget=16.0, name=None):
     """Build an octree over item boxes (n >= 1 finite boxes; the empty box
@@ -410,17 +427,7 @@ def build_octree(bounds, *, depth=16, leaf=3, rule60=False, density=0.0, vertexc
     _check(leaf, "leaf", 1, 1 << 30, int)
     _check(float(density), "density", 0.0, 1e6, float)
     _check(float(budget), "budget", 0.0, 1e6, float)
-    items = np.ascontiguousarray(np.asarray(bounds, np.float64)).reshape(-1, 6)
-    solid = np.all(items[:, :3] <= items[:, 3:], axis=1) & np.all(np.isfinite(items), axis=1)
-    if not solid.any():
-        raise ValueError("an octree needs at least one item with a box")
-    origin, extent = grid_box(items[solid])
-    unit = extent / float(1 << ADDRESS_BITS)
-    finest = extent / float(1 << depth)
-    margin = 1e-9 * max(float(extent.max()), float(np.abs(origin).max())) + 1e-7 * finest
-    widened = np.hstack([items[:, :3] - margin, items[:, 3:] + margin])
-    # an item without a box overlaps nothing
-    widened[~solid] = np.array([np.inf] * 3 + [-np.inf] * 3)
+    items, solid, origin, unit, widened = octree_frame(bounds, depth, "an octree")
     vols = np.where(solid[:, None], items, 0.0)
     if vertexcount and weights is not None:
         w = np.asarray(weights, np.int64)
