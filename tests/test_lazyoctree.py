@@ -577,6 +577,17 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
     assert [s[4] for s in seen] == [256, 256, 256, 16] * 3 + [16, 16, 16, 1]
 
 
+@pytest.mark.parametrize("spec", ["lazyoctree", "bvh"])
+def test_render_progress_counts_samples(spec):
+    """48 x 48 SPD: 4 x 4 tiles of 256 samples (counted whole); one sample per tile first when lazy."""
+    seen = []
+    raykernel.render(raykernel.load("spd:balls:1"), accel=spec, resolution=48, spd=True,
+                     progress=lambda done, total: seen.append((done, total)))
+    assert all(total == 16 * 256 for _, total in seen) and seen[-1][0] == 16 * 256
+    assert all(a[0] < b[0] for a, b in zip(seen, seen[1:]))
+    assert seen[0][0] == (1 if spec == "lazyoctree" else 256)
+
+
 def test_rayscene_casts_lazy_queries_coarse_to_fine():
     assert coarse_to_fine(8).tolist() == [0, 4, 2, 6, 1, 3, 5, 7]
     assert coarse_to_fine(1).tolist() == [0] and coarse_to_fine(0).tolist() == []

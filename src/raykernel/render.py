@@ -363,7 +363,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     resolution: square image size (default: the scene camera's).
     spd: follow the SPD test procedure (corner rays, no cut-off).
     threads: worker threads (default: all cores).
-    progress: callable(done, total) called after each of the `total` passes.
+    progress: callable(done, total) called after each pass, in samples (of full tiles).
     """
     if isinstance(max_depth, bool) or not isinstance(max_depth, (int, np.integer)) or not 1 <= max_depth <= 32:
         raise OptionError(f"max_depth must be an integer in [1, 32], got {max_depth!r}")
@@ -401,14 +401,19 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
         passes = [(1, 0, a, min(n_tiles, a + batch)) for a in range(0, n_tiles, batch)]
     else:
         passes = lazy_passes(n_tiles, batch)
-    for done, (step, coarse, first, last) in enumerate(passes, 1):
+    # samples of full tiles each pass traces, for the progress report
+    work = [(last - first) * ((TILE // step) ** 2 - (TILE // coarse) ** 2 if coarse else (TILE // step) ** 2)
+            for step, coarse, first, last in passes]
+    done, total = 0, sum(work)
+    for (step, coarse, first, last), part in zip(passes, work):
         pass_counts = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
         _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first, last, max_depth,
                       cutoff, samples, counts, pass_counts, step, coarse)
         if lazy is not None:
             geo = lazy.refine(geo, pass_counts)
+        done += part
         if progress is not None:
-            progress(done, len(passes))
+            progress(done, total)
     trace = time.perf_counter() - t1
     if lazy is not None:
         lazy.update_stats(build, geo)
