@@ -128,8 +128,8 @@ def test_spec_defaults_and_listing():
     kind, params = parse_spec("hybrid")
     assert kind == "hybrid"
     assert params == {"depth": 8, "leaf": 3, "rule60": True, "density": 0.0, "vertexcount": False,
-                      "collapse": True, "threshold": 8, "order": "file", "seed": 1, "walk": "neighbor",
-                      "mailbox": True}
+                      "collapse": True, "budget": 16.0, "threshold": 8, "order": "file", "seed": 1,
+                      "walk": "neighbor", "mailbox": True}
     text = describe()
     assert "hybrid: " in text and "threshold=8" in text and "Goldsmith-Salmon" in text
 
@@ -139,8 +139,9 @@ def test_spec_defaults_and_listing():
     ("hybrid(leaf=0)", ["leaf"]), ("hybrid(order=random)", ["order", "file, shuffle, curve"]),
     ("hybrid(walk=sideways)", ["walk", "point, neighbor, parametric"]), ("hybrid(rule60=maybe)", ["on or off"]),
     ("hybrid(seed=-1)", ["seed"]), ("hybrid(density=-1)", ["density"]), ("hybrid(threshold=many)", ["threshold"]),
-    ("hybrid(bins=4)", ["depth, leaf, rule60, density, vertexcount, collapse, threshold, order, seed, walk, "
-                        "mailbox"]),
+    ("hybrid(budget=-1)", ["budget", "[0.0, "]),
+    ("hybrid(bins=4)", ["depth, leaf, rule60, density, vertexcount, collapse, budget, threshold, order, seed, "
+                        "walk, mailbox"]),
     ("hybrid(threshold)", ["key=value"])])
 def test_bad_parameters_are_option_errors(text, words):
     with pytest.raises(OptionError) as err:
@@ -597,3 +598,18 @@ def test_spd_render_matches_bvh(name):
         assert got.stats["cells.visited"] > 0
     _, stats = flatten(scene, "hybrid(depth=3, threshold=2)")
     assert hybrid_stats(stats)[0]["bvhs"] > 0
+
+
+def test_budget_is_the_octrees():
+    """The stadium's octree without rule60 at depth 10: a budget of 1 reference per item (+ 4096)
+    keeps it smaller than no budget, and the hits stay those of the list."""
+    scene = pathological.stadium()
+    plain = copy.deepcopy(scene)
+    _, free = flatten(scene, "hybrid(depth=10, rule60=off, budget=0)")
+    geo, held = flatten(scene, "hybrid(depth=10, rule60=off, budget=1)")
+    (f,), (h,) = hybrid_stats(free), hybrid_stats(held)
+    items = f["items"]
+    assert f["octree_refs"] > items + 4096 and h["octree_nodes"] < f["octree_nodes"]
+    ref, _ = flatten(plain, "list")
+    o, d = random_rays(np.random.default_rng(31), 3000, spread=300.0)
+    assert_same_hits(cast_rays(geo, o, d), cast_rays(ref, o, d))

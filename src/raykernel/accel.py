@@ -214,6 +214,8 @@ register(Kind("hybrid", "Haines's hybrid (RTN 2(1), 1988): an octree whose probl
     Param("density", 0.0, "Glassner's density criterion, 0: off (see octree)", float, 0.0, 1e6),
     Param("vertexcount", False, "count vertices instead of items against leaf (see octree)", bool),
     Param("collapse", True, "collapse single-child chains (see octree)", bool),
+    Param("budget", 16.0, "the octree's leaves hold at most budget * items + 4096 references, 0: no limit "
+          "(see octree)", float, 0.0, 1e6),
     Param("threshold", 8, "a leaf holding more items than this is a problem voxel and gets a BVH", int, 1,
           1 << 30),
     Param("order", "file", "insertion order of the voxels' BVHs: file, shuffle or curve (see bvh, build=gs)",

@@ -390,7 +390,7 @@ class _Builder:
         tree, octree_stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"],
                                           rule60=params["rule60"], density=params["density"],
                                           vertexcount=params["vertexcount"], weights=weights,
-                                          collapse=params["collapse"], name=name)
+                                          collapse=params["collapse"], budget=params["budget"], name=name)
         voxels = problem_voxels(tree, params["threshold"])
         n_problem = len(voxels)
         if getattr(self, "_nesting", 1) >= MAX_NESTING:

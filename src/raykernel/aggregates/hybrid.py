@@ -15,9 +15,10 @@ through that voxel tests them all. Haines's proposal: subdivide as an octree
 to some level, and give every such *problem voxel* a Goldsmith-Salmon BVH
 over its objects. Here a problem voxel is a leaf of the octree (built by
 octree.build_octree with the same criteria as the ``octree`` kind: depth,
-leaf, rule60, density, vertexcount, collapse) holding more than
-``threshold`` items; only the depth limit, the 60% rule or the density
-criterion leave a leaf that full when ``threshold`` >= ``leaf``.
+leaf, rule60, density, vertexcount, collapse, budget) holding more than
+``threshold`` items; only the depth limit, the 60% rule, the density
+criterion or the reference budget leave a leaf that full when ``threshold``
+>= ``leaf``.
 
 How
 ---
