@@ -507,23 +507,31 @@ class LazyOctrees:
         level = b["oct_level"][:n]
         for r, rec in enumerate(self.records):
             sel = owner == r
-            cnt = count[sel]
-            leaves = cnt >= 0
-            refs = int(cnt[cnt > 0].sum())
-            nodes = int(sel.sum())
-            rec["stats"].update(nodes=nodes, inner=int(np.count_nonzero(~leaves)),
-                                leaves=int(np.count_nonzero(leaves)), empty_leaves=int(np.count_nonzero(cnt == 0)),
-                                refs=refs, bytes=nodes * NODE_BYTES + 8 * refs + 48,
+            tree = tree_counts(count[sel])
+            rec["stats"].update(tree, bytes=tree["nodes"] * NODE_BYTES + 8 * tree["refs"] + 48,
                                 max_depth=int(level[sel].max()), passes=self.passes,
                                 subdivisions=int(self.subdivisions[r]), refine_seconds=self.seconds,
                                 budget_reached=bool(self.budget_reached[r]))
-        aggs = build.get("aggregates", [])
-        for key, name in (("build.nodes", "nodes"), ("build.empty_leaves", "empty_leaves"), ("build.refs", "refs")):
-            build[key] = int(sum(s.get(name, 0) for s in aggs))
-        build["build.bytes"] = int(sum(a.nbytes for a in geo if isinstance(a, np.ndarray)))
-        build["build.refine_passes"] = self.passes
-        build["build.subdivisions"] = int(self.subdivisions.sum())
-        build["build.refine_seconds"] = self.seconds
+        scene_totals(build, geo, self.passes, int(self.subdivisions.sum()), self.seconds)
+
+
+def tree_counts(count) -> dict:
+    """N_IN + N_V, N_IN, N_V, N_EV and N_OIV of a lazy tree from its nodes' counts (a leaf's
+    item count, negative for an inner node)."""
+    leaves = count >= 0
+    return {"nodes": len(count), "inner": int(np.count_nonzero(~leaves)), "leaves": int(np.count_nonzero(leaves)),
+            "empty_leaves": int(np.count_nonzero(count == 0)), "refs": int(count[leaves].sum())}
+
+
+def scene_totals(build, geo, passes, subdivisions, seconds):
+    """The scene's build figures once its lazy aggregates' own statistics are up to date."""
+    aggs = build.get("aggregates", [])
+    for key, name in (("build.nodes", "nodes"), ("build.empty_leaves", "empty_leaves"), ("build.refs", "refs")):
+        build[key] = int(sum(s.get(name, 0) for s in aggs))
+    build["build.bytes"] = int(sum(a.nbytes for a in geo if isinstance(a, np.ndarray)))
+    build["build.refine_passes"] = passes
+    build["build.subdivisions"] = subdivisions
+    build["build.refine_seconds"] = seconds
 
 
 def pass_ranges(n: int, first: int, most: int) -> list[tuple[int, int]]:

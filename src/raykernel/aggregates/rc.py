@@ -140,6 +140,7 @@ from numba import prange
 from ..config import njit
 from ..errors import OptionError
 from .grid import grid_box
+from .lazyoctree import scene_totals, tree_counts
 
 __all__ = ["RcArrays", "RcBudgetWarning", "LazyRC", "build_rc", "start_rc", "face_of", "NODE_BYTES",
            "CANDIDATE_BYTES", "VIRTUAL_LEVELS"]
@@ -884,19 +885,9 @@ class LazyRC:
         node_b = b["node_b"][:n]
         for r, rec in enumerate(self.records):
             sel = owner == r
-            cnt = node_b[sel]
-            leaves = cnt >= 0
-            nodes, refs = int(sel.sum()), int(cnt[leaves].sum())
-            rec["stats"].update(nodes=nodes, inner=int(np.count_nonzero(~leaves)),
-                                leaves=int(np.count_nonzero(leaves)), empty_leaves=int(np.count_nonzero(cnt == 0)),
-                                refs=refs, bytes=NODE_BYTES * nodes + CANDIDATE_BYTES * refs,
+            tree = tree_counts(node_b[sel])
+            rec["stats"].update(tree, bytes=NODE_BYTES * tree["nodes"] + CANDIDATE_BYTES * tree["refs"],
                                 max_depth=int(b["state"][:n, _DEPTH][sel].max()), passes=self.passes,
                                 subdivisions=int(self.subdivisions[r]), refine_seconds=self.seconds,
                                 budget_exceeded=bool(self.exhausted[r]))
-        aggs = build.get("aggregates", [])
-        for key, name in (("build.nodes", "nodes"), ("build.empty_leaves", "empty_leaves"), ("build.refs", "refs")):
-            build[key] = int(sum(s.get(name, 0) for s in aggs))
-        build["build.bytes"] = int(sum(a.nbytes for a in geo if isinstance(a, np.ndarray)))
-        build["build.refine_passes"] = self.passes
-        build["build.subdivisions"] = int(self.subdivisions.sum())
-        build["build.refine_seconds"] = self.seconds
+        scene_totals(build, geo, self.passes, int(self.subdivisions.sum()), self.seconds)
