@@ -36,9 +36,8 @@ from .flatten import BVH, Geometry
 from .hitsurface import store_miss, store_surface
 from .primitives import INDEX_MASK, TRIANGLE
 from .primitives import _edge_sign as edge_sign
-from .traverse import _CONSERVATIVE as CONSERVATIVE
-from .traverse import ALL_HITS, box_entry
-from .traverse import _inverse as inverse
+from .boxes import CONSERVATIVE, box_entry, inverse
+from .traverse import ALL_HITS
 
 INF = np.inf
 STACK = 192                  # a BVH is at most 96 nodes deep (flatten.MAX_TREE_DEPTH): 2 entries per level

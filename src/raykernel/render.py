@@ -8,7 +8,7 @@
 Shading follows NFF: Kd diffuse and Ks Phong highlight (exponent Shine)
 from point lights of intensity 1/sqrt(number of lights), Ks mirror
 reflection, T transmission by Snell's law with total internal reflection.
-`spd=True` follows the SPD test procedure (DESIGN.md): one eye ray per pixel
+`spd=True` follows the SPD test procedure (README, "Shading"): one eye ray per pixel
 corner averaged into pixels, no adaptive cut-off; otherwise one ray per
 pixel centre and rays whose weight falls below 1/512 are not cast.
 
@@ -40,7 +40,7 @@ from .flatten import flatten
 from .primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal
 from .scene import Scene
 from .stats import Stats
-from .traverse import intersect, workspace
+from .traverse import ANY_HIT, CLOSEST, intersect, workspace
 
 TILE = 16
 CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change an 8-bit pixel
@@ -162,7 +162,7 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
         depth = int(rays[top, 9])
         ray_kind = int(rays[top, 10])
         cnt[C.RAYS_EYE + 2 * ray_kind] += 1
-        if not intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, False,
+        if not intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, CLOSEST,
                          ws, cnt):
             r_out += wr * background[0]
             g_out += wg * background[1]
@@ -208,7 +208,7 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
             if n_dot_l <= 0.0 or _dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
                 continue        # the surface faces away from this light: no shadow ray
             cnt[C.RAYS_SHADOW] += 1
-            if intersect(geo, ax, ay, az, tlx, tly, tlz, 0.0, 1.0, True,
+            if intersect(geo, ax, ay, az, tlx, tly, tlz, 0.0, 1.0, ANY_HIT,
                          ws, cnt):
                 cnt[C.RAYS_SHADOW_BLOCKED] += 1
                 continue

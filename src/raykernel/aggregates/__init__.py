@@ -1,1 +1,26 @@
-"""Acceleration structures: each module builds one kind of aggregate as flat arrays."""
+"""Acceleration structures: one module per kind, each with its builder, its flat layout and its walk.
+
+    from raykernel.aggregates import WALKS
+    from raykernel.accel import KINDS
+    KINDS["bvh"].flatten(builder, params, refs, bounds, name, box)   # what flatten.py calls
+
+The registry. KINDS (raykernel.accel) maps each spec name to its Kind: help,
+parameters, and `flatten`, which builds the aggregate into the flat arrays
+and returns (aggregate index, build statistics). WALKS lists the modules
+that own a walk, each with its CODE (agg_kind and stack-entry kind), the
+Geometry FIELDS it stores and its compiled `step`, which the driver
+(traverse.py) calls; kinds without a walk of their own store themselves
+with another's (hgrid as grids, hybrid and lazyoctree as octrees).
+docs/adding-a-kind.md is the checklist for a new one.
+"""
+
+from ..accel import register
+from . import bruteforce, bvh, grid, hgrid, hybrid, lazyoctree, octree, rc
+
+WALKS = (bruteforce, bvh, grid, octree, rc)
+
+for _module in (bruteforce, bvh, grid, hgrid, rc, octree, hybrid, lazyoctree):
+    register(_module.KIND)
+
+if sorted(w.CODE for w in WALKS) != list(range(len(WALKS))):
+    raise ImportError("aggregates: walk CODEs must be 0, 1, ... with none twice")

@@ -493,3 +493,88 @@ def refit(bvh: BVHArrays, item_bounds) -> None:
     if b.dtype != np.float64 or not b.flags.c_contiguous or not b.flags.writeable:
         raise ValueError("bvh.bounds must be a writeable C-contiguous float64 array")
     _refit_kernel(b, bvh.first, bvh.count, bvh.order, items)
+
+
+# ----------------------------------------------------------------- flat layout and walk
+#
+# Fields of Geometry a BVH owns (N nodes of all BVHs):
+#   node_bounds  (N, 6) float64  node box, widened by flatten's culling margin   48 B a node
+#   node_first   (N,)   int64    inner: left child (right = left + 1, global); leaf: first ref   8 B
+#   node_count   (N,)   int64    0 for an inner node, else refs in the leaf       8 B
+# The aggregate's agg_start is its root node. Every stack entry of a BVH is a
+# node to visit (step START), entered at stack_t.
+
+from .. import counters as C  # noqa: E402
+from ..accel import Kind, Param  # noqa: E402
+from ..boxes import INF, box_entry, cull_margin  # noqa: E402
+from ..errors import SceneError  # noqa: E402
+from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push  # noqa: E402
+
+CODE = 1
+FIELDS = (Field("node_bounds", np.float64, (6,)), Field("node_first", np.int64, ()),
+          Field("node_count", np.int64, ()))
+
+
+def append_bvh(flat, tree: BVHArrays, refs, box, margin: float) -> int:
+    """Store a built BVH over refs as the next aggregate; its node boxes grow by `margin`."""
+    first_node = flat.size("node_count")
+    first_ref = flat.add_refs(refs[tree.order])
+    inner = tree.count == 0
+    bounds = tree.bounds.copy()
+    bounds[:, :3] -= margin
+    bounds[:, 3:] += margin
+    flat.append(node_bounds=bounds, node_first=np.where(inner, tree.first + first_node, tree.first + first_ref),
+                node_count=tree.count)
+    return flat.add_aggregate(CODE, first_node, len(tree.count), box)
+
+
+@njit
+def step(geo, node, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt):
+    """Descend from `node` to the nearest leaf the ray enters, pushing the farther child
+    of every inner node passed; returns (sp, s, e): the leaf's references (none: s == e)."""
+    while True:
+        cnt[C.CELLS_VISITED] += 1
+        n_items = geo.node_count[node]
+        if n_items > 0:
+            cnt[C.CELLS_LEAVES] += 1
+            s = geo.node_first[node]
+            return sp, s, s + n_items
+        # inner node: test both children, go on with the nearer
+        left = geo.node_first[node]
+        right = left + 1
+        cnt[C.BOUNDS_TESTS] += 2
+        tl = box_entry(geo.node_bounds, left, ox, oy, oz, ix, iy, iz, tmin, best_t)
+        tr = box_entry(geo.node_bounds, right, ox, oy, oz, ix, iy, iz, tmin, best_t)
+        if tl <= tr:
+            if tl == INF:
+                return sp, 0, 0
+            if tr != INF:
+                sp = push(stack_a, stack_b, stack_t, sp, right, entry_tag(CODE, START), tr)
+            node = left
+        else:
+            if tl != INF:
+                sp = push(stack_a, stack_b, stack_t, sp, left, entry_tag(CODE, START), tl)
+            node = right
+
+
+def flatten(builder, params, refs, bounds, name, box):
+    if params.get("build", "sah") == "gs":
+        from .gsbvh import build_gs
+        tree, stats = build_gs(bounds, order=params["order"], seed=params["seed"])
+    else:
+        tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"])
+    if stats.get("max_depth", 0) > MAX_TREE_DEPTH:
+        raise SceneError(f"group {name or '(unnamed)'}: BVH depth {stats['max_depth']} exceeds {MAX_TREE_DEPTH}")
+    return append_bvh(builder.flat, tree, refs, box, cull_margin(box)), dict(stats)
+
+
+KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (build=sah) or "
+              "Goldsmith-Salmon insertion (build=gs)", (
+    Param("leaf", 4, "maximum items in a leaf the SAH may keep (sah only; gs leaves hold one item)", int, 1, 64),
+    Param("bins", 16, "SAH bins per axis (sah only)", int, 2, 256),
+    Param("build", "sah", "sah: top-down binned SAH; gs: Goldsmith-Salmon 1987 incremental insertion",
+          str, choices=("sah", "gs")),
+    Param("order", "file", "gs insertion order: file (as given), shuffle (seeded permutation) or curve "
+          "(Morton order of the box centres); ignored by sah", str, choices=("file", "shuffle", "curve")),
+    Param("seed", 1, "seed of order=shuffle (gs only)", int, 0, 2 ** 31 - 1),
+), flatten=flatten)

@@ -268,3 +268,134 @@ def build_grid(bounds, *, res_rule="regular", density=2.0, max_res=256, max_cell
         "res": tuple(int(r) for r in res),
     }
     return grid, stats
+
+
+# ----------------------------------------------------------------- flat layout and walk
+#
+# Fields of Geometry a grid owns (G grids, C cells of all grids):
+#   grid_origin       (G, 3) float64  lower corner                              24 B a grid
+#   grid_cell_size    (G, 3) float64  cell side per axis                         24 B
+#   grid_inv_cell     (G, 3) float64  1 / cell side                              24 B
+#   grid_res          (G, 3) int64    cells per axis                             24 B
+#   grid_cell_offset  (G,)   int64    first entry of the grid's cells in grid_cells  8 B
+#   grid_mailbox      (G,)   int64    1: skip refs already tested in an earlier cell  8 B
+#   grid_cells        (C + G,) int64  cell c of grid g holds refs[grid_cells[o + c]:grid_cells[o + c + 1]],
+#                                     o = grid_cell_offset[g]                    8 B a cell
+# The aggregate's agg_start is its grid index. The walk keeps the current cell and
+# the next crossing per axis in its frame (CELL, TNEXT), so a child aggregate found
+# in a cell can open frames above it.
+
+from ..accel import Kind, Param  # noqa: E402
+from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push  # noqa: E402
+from .. import counters as C  # noqa: E402
+
+CODE = 2
+FIELDS = (
+    Field("grid_origin", np.float64, (3,)), Field("grid_cell_size", np.float64, (3,)),
+    Field("grid_inv_cell", np.float64, (3,)), Field("grid_res", np.int64, (3,)),
+    Field("grid_cell_offset", np.int64, ()), Field("grid_mailbox", np.int64, ()),
+    Field("grid_cells", np.int64, ()),
+)
+NEXT = 1                    # step: visit the frame's next cell (stack_a: the grid), entered at stack_t
+CELL, TNEXT = F_STATE, F_STATE + 3
+INF = np.inf
+
+
+def append_grid(flat, grid, cell_start, cell_refs, mailbox: bool, box) -> int:
+    """Store a built grid whose cell c holds cell_refs[cell_start[c]:cell_start[c + 1]] as the next aggregate."""
+    ncells = len(cell_start) - 1
+    first = flat.add_refs(cell_refs)
+    g = flat.size("grid_res")
+    flat.append(grid_origin=grid.origin[None], grid_cell_size=grid.cell_size[None],
+                grid_inv_cell=1.0 / grid.cell_size[None], grid_res=grid.res[None],
+                grid_cell_offset=[flat.size("grid_cells")], grid_mailbox=[int(mailbox)], grid_cells=cell_start + first)
+    return flat.add_aggregate(CODE, g, ncells, box)
+
+
+def flatten(builder, params, refs, bounds, name, box):
+    grid, stats = build_grid(bounds, res_rule=params["res"], density=params["density"], max_res=params["max_res"],
+                             name=name or "(unnamed)")
+    return append_grid(builder.flat, grid, grid.cell_start, refs[grid.items], params["mailbox"], box), dict(stats)
+
+
+@njit
+def step(geo, kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
+         stack_a, stack_b, stack_t, sp, cnt):
+    """The 3D-DDA (Amanatides and Woo 1987) from the entry point (START) or the frame's
+    next cell (NEXT) to the next non-empty cell; empty cells are stepped over in one go.
+    Returns (sp, s, e): that cell's references, with a NEXT entry pushed below them
+    unless it is the last cell."""
+    if gt > best_t:
+        return sp, 0, 0
+    rx, ry, rz = geo.grid_res[gi, 0], geo.grid_res[gi, 1], geo.grid_res[gi, 2]
+    gox, goy, goz = geo.grid_origin[gi, 0], geo.grid_origin[gi, 1], geo.grid_origin[gi, 2]
+    csx, csy, csz = geo.grid_cell_size[gi, 0], geo.grid_cell_size[gi, 1], geo.grid_cell_size[gi, 2]
+    sx = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
+    sy = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
+    sz = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
+    if kind_step == START:
+        # the cell holding the entry point, clamped into the grid
+        u = (ox + gt * dx - gox) * geo.grid_inv_cell[gi, 0]
+        cx = np.int64(u) if u >= 0.0 and u < rx else (rx - 1 if u >= rx else 0)
+        u = (oy + gt * dy - goy) * geo.grid_inv_cell[gi, 1]
+        cy = np.int64(u) if u >= 0.0 and u < ry else (ry - 1 if u >= ry else 0)
+        u = (oz + gt * dz - goz) * geo.grid_inv_cell[gi, 2]
+        cz = np.int64(u) if u >= 0.0 and u < rz else (rz - 1 if u >= rz else 0)
+        # crossings are computed from the boundary planes, so they never drift
+        tx = (gox + (cx + (sx > 0)) * csx - ox) * ix if sx != 0 else INF
+        ty = (goy + (cy + (sy > 0)) * csy - oy) * iy if sy != 0 else INF
+        tz = (goz + (cz + (sz > 0)) * csz - oz) * iz if sz != 0 else INF
+        if geo.grid_mailbox[gi] != 0:
+            mailbox_reset(frame_f, f)
+    else:
+        cx = np.int64(frame_f[f, CELL])
+        cy = np.int64(frame_f[f, CELL + 1])
+        cz = np.int64(frame_f[f, CELL + 2])
+        tx, ty, tz = frame_f[f, TNEXT], frame_f[f, TNEXT + 1], frame_f[f, TNEXT + 2]
+    off = geo.grid_cell_offset[gi]
+    while True:
+        cnt[C.CELLS_VISITED] += 1
+        cnt[C.CELLS_LEAVES] += 1
+        cell = off + (cz * ry + cy) * rx + cx
+        s = geo.grid_cells[cell]
+        e = geo.grid_cells[cell + 1]
+        # leave the cell across its nearest boundary
+        if tx <= ty and tx <= tz:
+            texit = tx
+            cx += sx
+            out = cx < 0 or cx >= rx
+            tx = (gox + (cx + (sx > 0)) * csx - ox) * ix
+        elif ty <= tz:
+            texit = ty
+            cy += sy
+            out = cy < 0 or cy >= ry
+            ty = (goy + (cy + (sy > 0)) * csy - oy) * iy
+        else:
+            texit = tz
+            cz += sz
+            out = cz < 0 or cz >= rz
+            tz = (goz + (cz + (sz > 0)) * csz - oz) * iz
+        if texit == INF:
+            out = True
+        if s == e:
+            cnt[C.CELLS_EMPTY] += 1
+            if out or texit > best_t:
+                return sp, 0, 0
+            continue
+        if not out:
+            # come back for the next cell after this one's references
+            frame_f[f, CELL], frame_f[f, CELL + 1], frame_f[f, CELL + 2] = cx, cy, cz
+            frame_f[f, TNEXT], frame_f[f, TNEXT + 1], frame_f[f, TNEXT + 2] = tx, ty, tz
+            sp = push(stack_a, stack_b, stack_t, sp, gi, entry_tag(CODE, NEXT), texit)
+        return sp, s, e
+
+
+KIND = Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatides-Woo)", (
+    Param("res", "regular", "resolution rule: regular (about density*N cubic cells), woo "
+          "(longest side density*N^(1/3) cells) or klimaszewski (our reading of Klimaszewski's heterogeneous "
+          "rule: per axis, cells about the items' mean extent, scaled down to at most density*N cells; "
+          "regular where the items have no extent)", str, choices=("regular", "woo", "klimaszewski")),
+    Param("density", 2.0, "cells per item (regular) or per cube root of the item count (woo)", float, 0.001, 1000.0),
+    Param("max_res", 256, "most cells along any axis", int, 1, 4096),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier cell", bool),
+), flatten=flatten)

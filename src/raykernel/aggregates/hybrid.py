@@ -65,7 +65,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .octree import ADDRESS_BITS, OctreeArrays
+from ..accel import Kind, Param, parse_spec
+from ..primitives import AGGREGATE, make_ref
+from .octree import ADDRESS_BITS, OctreeArrays, append_octree, build_octree
+from .walk import MAX_NESTING
 
 __all__ = ["problem_voxels", "clipped_bounds", "clip_margin", "replace_leaves", "hybrid_stats", "STAT_KEYS"]
 
@@ -142,3 +145,53 @@ def hybrid_stats(octree_stats: dict, tree: OctreeArrays, bvh_stats: list[dict], 
     stats["bvhs"] = len(bvh_stats)
     stats["nested_aggregates"] = len(bvh_stats)
     return stats
+
+
+def flatten(builder, params, refs, bounds, name, box):
+    """An octree whose problem voxels (leaves holding more than `threshold` items) hold one
+    reference to a Goldsmith-Salmon BVH over their items cut to the voxel."""
+    weights = builder.vertex_weights(refs) if params["vertexcount"] else None
+    tree, octree_stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"], rule60=params["rule60"],
+                                      density=params["density"], vertexcount=params["vertexcount"], weights=weights,
+                                      collapse=params["collapse"], budget=params["budget"], name=name)
+    voxels = problem_voxels(tree, params["threshold"])
+    n_problem = len(voxels)
+    if builder.nesting >= MAX_NESTING:
+        voxels = voxels[:0]     # a BVH would be one aggregate too many on a ray's path
+    bvh_spec = parse_spec(f"bvh(build=gs, order={params['order']}, seed={params['seed']})")
+    subs, bvh_stats = [], []
+    for node in voxels:
+        items = tree.order[tree.first[node]:tree.first[node] + tree.count[node]]
+        subs.append(builder.build(bvh_spec, refs[items], clipped_bounds(tree, bounds, node, items, params["depth"]),
+                                  name))
+        bvh_stats.append(builder.agg_stats.pop())
+    leaf_refs = refs
+    if len(subs):
+        tree = replace_leaves(tree, voxels, len(refs))
+        leaf_refs = np.concatenate([refs, make_ref(AGGREGATE, subs)])
+        builder.extra_nesting = max(builder.extra_nesting, 1)
+    box = np.concatenate([bounds[:, :3].min(axis=0), bounds[:, 3:].max(axis=0)])
+    agg = append_octree(builder.flat, tree, leaf_refs, params["walk"], params["mailbox"], box)
+    return agg, hybrid_stats(octree_stats, tree, bvh_stats, n_problem)
+
+
+KIND = Kind("hybrid", "Haines's hybrid (RTN 2(1), 1988): an octree whose problem voxels (leaves the "
+              "subdivision left holding more than threshold items: depth limit, rule60, density) each hold "
+              "a Goldsmith-Salmon BVH over their items, cut to the voxel", (
+    Param("depth", 8, "maximum octree depth (see octree)", int, 0, 24),
+    Param("leaf", 3, "an octree node holding at most this many items is a leaf (see octree)", int, 1, 1 << 20),
+    Param("rule60", True, "Haines's 60% problem-voxel rule (see octree)", bool),
+    Param("density", 0.0, "Glassner's density criterion, 0: off (see octree)", float, 0.0, 1e6),
+    Param("vertexcount", False, "count vertices instead of items against leaf (see octree)", bool),
+    Param("collapse", True, "collapse single-child chains (see octree)", bool),
+    Param("budget", 16.0, "the octree's leaves hold at most budget * items + 4096 references, 0: no limit "
+          "(see octree)", float, 0.0, 1e6),
+    Param("threshold", 8, "a leaf holding more items than this is a problem voxel and gets a BVH", int, 1,
+          1 << 30),
+    Param("order", "file", "insertion order of the voxels' BVHs: file, shuffle or curve (see bvh, build=gs)",
+          str, choices=("file", "shuffle", "curve")),
+    Param("seed", 1, "seed of order=shuffle", int, 0, 2 ** 31 - 1),
+    Param("walk", "neighbor", "octree traversal: point, neighbor or parametric (see octree)", str,
+          choices=("point", "neighbor", "parametric")),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier leaf of the octree", bool),
+), flatten=flatten)

@@ -121,9 +121,11 @@ import time
 
 import numpy as np
 
+from ..accel import Kind, Param
 from ..config import njit
 from ..errors import OptionError
-from .octree import ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, octree_frame
+from .octree import (ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, append_octree,
+                     octree_frame)
 
 __all__ = ["LazyOctrees", "build_lazy", "pass_ranges", "FIRST_PASS", "PASS_CHUNKS"]
 
@@ -556,3 +558,34 @@ def _grown(a, cap, used):
     b = np.empty((cap,) + a.shape[1:], a.dtype)
     b[:used] = a[:used]
     return b
+
+
+def flatten(builder, params, refs, bounds, name, box):
+    # Lathrop's lazy octree: one leaf now, subdivided between passes of rays
+    flat = builder.flat
+    tree, stats, boxes = build_lazy(bounds, depth=params["depth"], rays=params["rays"], k=params["k"],
+                                    rule60=params["rule60"], budget=params["budget"], name=name)
+    flat.lazy.append(dict(params, octree=flat.size("oct_root"), node=flat.size("oct_count"), ref=flat.size("refs"),
+                          refs=refs, boxes=boxes, stats=stats))
+    return append_octree(flat, tree, refs, params["walk"], params["mailbox"], box), stats
+
+
+KIND = Kind("lazyoctree", "lazy octree (Lathrop 1988): one leaf at first; between passes of rays (passes "
+              "that trace a render coarse to fine: one sample per tile, then the samples between, level by "
+              "level; RayScene from 16 rays up to 8 chunks of 8192) a leaf is split, as the octree splits, when "
+              "it meets I-V (and VI with rule60) and the reference budget allows: I level < depth, II not empty, III more than one item (M > 1), IV at least `rays` rays passed through it "
+              "without a hit in it since it was made (N >= rays), V M*k < N; passes beyond what a split needed "
+              "are shared among the children, which may split in the same refinement", (
+    Param("depth", 16, "criterion I: most levels (the root is level 0; 0 never refines)", int, 0, 24),
+    Param("rays", 2, "criterion IV: rays that must pass through a leaf without a hit in it before it may split",
+          int, 1, 1 << 40),
+    Param("k", 0.0, "criterion V: a leaf of M items splits only after more than k*M passes (0: off)", float,
+          0.0, 1e9),
+    Param("rule60", False, "criterion VI, Haines's problem-voxel rule: a leaf whose largest child would still "
+          "hold >= 60% of its items (unless the only occupied one) stays a leaf for good", bool),
+    Param("budget", 16.0, "the leaves hold at most budget * items + 4096 references; a split past it is not made "
+          "and its leaf stays a leaf (0: no budget)", float, 0.0, 1e6),
+    Param("walk", "neighbor", "traversal: point, neighbor or parametric (see octree)", str,
+          choices=("point", "neighbor", "parametric")),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
+), flatten=flatten)

@@ -455,3 +455,331 @@ def build_octree(bounds, *, depth=16, leaf=3, rule60=False, density=0.0, vertexc
         "budget_refs": int(max_refs),
     }
     return tree, stats
+
+
+# ----------------------------------------------------------------- flat layout and walk
+#
+# Fields of Geometry an octree owns (ON nodes of all octrees, O octrees):
+#   oct_bounds   (ON, 6) float64  node box                                        48 B a node
+#   oct_first    (ON,)   int64    inner: first of 8 children (global); leaf: first ref   8 B
+#   oct_count    (ON,)   int64    refs in a leaf; -1 for an inner node            8 B
+#   oct_loc      (ON, 3) int64    lower 28-bit address of the node's box         24 B
+#   oct_level    (ON,)   int64    level of the node's box                         8 B
+#   oct_slot     (ON,)   int64    level of the octant the node occupies in its parent   8 B
+#   oct_nbr      (ON, 6) int64    neighbour across -x, +x, -y, +y, -z, +z (global), -1: none   48 B
+#   oct_pass     (ON,)   int64    lazy octree leaf that may split: its pass counter column, else -1   8 B
+#   oct_root     (O,)    int64    root node                                       8 B an octree
+#   oct_origin   (O, 3)  float64  lower corner of the root box                   24 B
+#   oct_unit     (O, 3)  float64  side of one address unit                       24 B
+#   oct_scale    (O, 3)  float64  1 / oct_unit                                   24 B
+#   oct_walk     (O,)    int64    0 point, 1 neighbor, 2 parametric               8 B
+#   oct_mailbox  (O,)    int64    1: skip refs already tested in an earlier leaf  8 B
+# The aggregate's agg_start is its octree index. The point and neighbor walks
+# keep the address of the point they go on from in their frame (POINT).
+
+from .. import counters as C  # noqa: E402
+from ..boxes import CONSERVATIVE, INF, STILL, slab  # noqa: E402
+from ..accel import Kind, Param  # noqa: E402
+from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push  # noqa: E402
+
+CODE = 3
+FIELDS = (
+    Field("oct_bounds", np.float64, (6,)), Field("oct_first", np.int64, ()), Field("oct_count", np.int64, ()),
+    Field("oct_loc", np.int64, (3,)), Field("oct_level", np.int64, ()), Field("oct_slot", np.int64, ()),
+    Field("oct_nbr", np.int64, (6,)), Field("oct_pass", np.int64, ()), Field("oct_root", np.int64, ()),
+    Field("oct_origin", np.float64, (3,)), Field("oct_unit", np.float64, (3,)), Field("oct_scale", np.float64, (3,)),
+    Field("oct_walk", np.int64, ()), Field("oct_mailbox", np.int64, ()),
+)
+NEXT = 1        # step: go on with the point/neighbor walk by descending from node stack_a
+PARAM = 2       # step: the parametric walk visits node stack_a, entered at stack_t
+PASS = 3        # step: a lazy octree leaf left at stack_t without a closer hit: count a pass in
+#                 cnt[N_COUNTERS + stack_a] (aggregates/lazyoctree.py)
+POINT = F_STATE
+FULL = 1 << ADDRESS_BITS
+
+
+def append_octree(flat, tree: OctreeArrays, refs, walk: str, mailbox: bool, box) -> int:
+    """Store a built octree whose leaves hold refs[tree.order] as the next aggregate."""
+    n0 = flat.size("oct_count")
+    first_ref = flat.add_refs(refs[tree.order])
+    inner = tree.count < 0
+    o = flat.size("oct_root")
+    flat.append(oct_bounds=tree.bounds, oct_first=np.where(inner, tree.first + n0, tree.first + first_ref),
+                oct_count=tree.count, oct_loc=tree.loc, oct_level=tree.level, oct_slot=tree.slot,
+                oct_nbr=np.where(tree.nbr >= 0, tree.nbr + n0, -1), oct_pass=np.full(len(tree.count), -1),
+                oct_root=[n0], oct_origin=tree.origin[None], oct_unit=tree.unit[None], oct_scale=1.0 / tree.unit[None],
+                oct_walk=[WALKS.index(walk)], oct_mailbox=[int(mailbox)])
+    return flat.add_aggregate(CODE, o, len(tree.count), box)
+
+
+@njit(inline="always")
+def _cell_slab(lo, hi, o, inv, top):
+    """slab for an octree cell: a still ray on the wall between two cells is in the upper
+    one only, as a point's address puts it (the items there are in both), unless the wall is
+    the octree's upper wall `top`."""
+    if inv == STILL:
+        if lo <= o and (o < hi or o == top):
+            return -INF, INF
+        return INF, -INF
+    return slab(lo, hi, o, inv)
+
+
+@njit(inline="always")
+def _address(x, origin, scale, lo, hi):
+    """The octree address of coordinate x, clamped to [lo, hi]."""
+    u = (x - origin) * scale
+    q = np.int64(u) if u >= 0.0 and u < FULL else (np.int64(FULL - 1) if u >= FULL else np.int64(0))
+    return min(max(q, lo), hi)
+
+
+@njit
+def step(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, tmin, best_t, frame_f, f,
+         stack_a, stack_b, stack_t, sp, cnt):
+    """One step of octree `oi`'s walk; returns (sp, s, e), the references of the next
+    non-empty leaf (none: s == e).
+
+    point (Lathrop): the leaf holding a point is found from the root by the point's
+    28-bit address, its exit distance computed, and the point moved just past the exit
+    wall. neighbor: the same, but the next descent starts from the neighbour across the
+    exit wall (Glassner's pointers). Both put a NEXT entry back before a non-empty leaf's
+    references. A point outside a collapsed node's shrunk box lies in an empty octant the
+    collapse removed; its address bits give that octant, visited as an empty leaf.
+    parametric (Revelles et al. 2000): PARAM entries with their entry distance, the
+    children a ray crosses pushed farthest first. A lazy octree's candidate leaf gets a
+    PASS entry at its exit distance above the walk's continuation."""
+    if kind_step == PASS:
+        if te <= best_t:
+            cnt[C.N_COUNTERS + a] += 1
+        return sp, 0, 0
+    if te > best_t:
+        return sp, 0, 0
+    if kind_step == START and geo.oct_mailbox[oi] != 0:
+        mailbox_reset(frame_f, f)
+    if kind_step == PARAM or (kind_step == START and geo.oct_walk[oi] == 2):
+        return _parametric(geo, a if kind_step == PARAM else geo.oct_root[oi], oi, ox, oy, oz, ix, iy, iz,
+                           tmin, best_t, stack_a, stack_b, stack_t, sp, cnt)
+    return _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
+                       stack_a, stack_b, stack_t, sp, cnt)
+
+
+@njit(inline="always")
+def _parametric(geo, node, oi, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt):
+    # Revelles, Urena and Lastra 2000: node parameters with the ray reflected
+    # onto positive directions (amask: the reflected axes)
+    cnt[C.CELLS_VISITED] += 1
+    cnt[C.BOUNDS_TESTS] += 1
+    nb = geo.oct_bounds
+    top = geo.oct_root[oi]
+    amask = 0
+    if ix >= 0.0:
+        tx0, tx1 = _cell_slab(nb[node, 0], nb[node, 3], ox, ix, nb[top, 3])
+    else:
+        tx0, tx1 = (nb[node, 3] - ox) * ix, (nb[node, 0] - ox) * ix
+        amask |= 1
+    if iy >= 0.0:
+        ty0, ty1 = _cell_slab(nb[node, 1], nb[node, 4], oy, iy, nb[top, 4])
+    else:
+        ty0, ty1 = (nb[node, 4] - oy) * iy, (nb[node, 1] - oy) * iy
+        amask |= 2
+    if iz >= 0.0:
+        tz0, tz1 = _cell_slab(nb[node, 2], nb[node, 5], oz, iz, nb[top, 5])
+    else:
+        tz0, tz1 = (nb[node, 5] - oz) * iz, (nb[node, 2] - oz) * iz
+        amask |= 4
+    ot0 = max(max(tx0, ty0), tz0)
+    ot1 = min(min(tx1, ty1), tz1)
+    if ot0 > (ot1 * CONSERVATIVE if ot1 > 0.0 else ot1) or ot1 < tmin or ot0 > best_t:
+        return sp, 0, 0     # a collapsed node's shrunk box the ray misses
+    n_items = geo.oct_count[node]
+    if n_items >= 0:
+        cnt[C.CELLS_LEAVES] += 1
+        if n_items == 0:
+            cnt[C.CELLS_EMPTY] += 1
+            return sp, 0, 0
+        s = geo.oct_first[node]
+        col = geo.oct_pass[node]
+        if col >= 0 and C.N_COUNTERS + col < cnt.shape[0]:
+            sp = push(stack_a, stack_b, stack_t, sp, col, entry_tag(CODE, PASS), ot1)
+        return sp, s, s + n_items
+    # the centre planes
+    half = np.int64(1) << (ADDRESS_BITS - 1 - geo.oct_level[node])
+    txm = (geo.oct_origin[oi, 0] + geo.oct_unit[oi, 0] * (geo.oct_loc[node, 0] + half) - ox) * ix
+    tym = (geo.oct_origin[oi, 1] + geo.oct_unit[oi, 1] * (geo.oct_loc[node, 1] + half) - oy) * iy
+    tzm = (geo.oct_origin[oi, 2] + geo.oct_unit[oi, 2] * (geo.oct_loc[node, 2] + half) - oz) * iz
+    # first child (their table 1): entry plane, then the centre planes crossed before it
+    cur = 0
+    if tx0 >= ty0 and tx0 >= tz0:
+        cur = (2 if tym < tx0 else 0) | (4 if tzm < tx0 else 0)
+    elif ty0 >= tz0:
+        cur = (1 if txm < ty0 else 0) | (4 if tzm < ty0 else 0)
+    else:
+        cur = (1 if txm < tz0 else 0) | (2 if tym < tz0 else 0)
+    child0 = geo.oct_first[node]
+    sp0 = sp
+    tag = entry_tag(CODE, PARAM)
+    while True:
+        # child interval per axis: [t0, tm] below the centre plane, [tm, t1] above
+        cx0, cx1 = (txm, tx1) if cur & 1 else (tx0, txm)
+        cy0, cy1 = (tym, ty1) if cur & 2 else (ty0, tym)
+        cz0, cz1 = (tzm, tz1) if cur & 4 else (tz0, tzm)
+        centry = max(max(cx0, cy0), cz0)
+        if centry > best_t:
+            break
+        if min(min(cx1, cy1), cz1) >= tmin:
+            sp = push(stack_a, stack_b, stack_t, sp, child0 + (cur ^ amask), tag, centry)
+        # next child (their table 3): across the nearest exit plane; the node's own wall ends it
+        if cx1 <= cy1 and cx1 <= cz1:
+            if cur & 1:
+                break
+            cur |= 1
+        elif cy1 <= cz1:
+            if cur & 2:
+                break
+            cur |= 2
+        else:
+            if cur & 4:
+                break
+            cur |= 4
+    # nearest child on top
+    lo_i, hi_i = sp0, sp - 1
+    while lo_i < hi_i:
+        stack_a[lo_i], stack_a[hi_i] = stack_a[hi_i], stack_a[lo_i]
+        stack_t[lo_i], stack_t[hi_i] = stack_t[hi_i], stack_t[lo_i]
+        lo_i += 1
+        hi_i -= 1
+    return sp, 0, 0
+
+
+@njit(inline="always")
+def _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
+                stack_a, stack_b, stack_t, sp, cnt):
+    # point (Lathrop) or neighbor (Glassner): find the leaf holding the point p
+    # by its 28-bit address, leave it across its nearest wall, repeat
+    walk = geo.oct_walk[oi]
+    gox, goy, goz = geo.oct_origin[oi, 0], geo.oct_origin[oi, 1], geo.oct_origin[oi, 2]
+    gux, guy, guz = geo.oct_unit[oi, 0], geo.oct_unit[oi, 1], geo.oct_unit[oi, 2]
+    gsx, gsy, gsz = geo.oct_scale[oi, 0], geo.oct_scale[oi, 1], geo.oct_scale[oi, 2]
+    top = np.int64(FULL - 1)
+    if kind_step == START:
+        px = _address(ox + te * dx, gox, gsx, 0, top)
+        py = _address(oy + te * dy, goy, gsy, 0, top)
+        pz = _address(oz + te * dz, goz, gsz, 0, top)
+        node = geo.oct_root[oi]
+    else:
+        px = np.int64(frame_f[f, POINT])
+        py = np.int64(frame_f[f, POINT + 1])
+        pz = np.int64(frame_f[f, POINT + 2])
+        node = a
+    while True:
+        # descend from node; it stays the container of the cell found
+        leaf = np.int64(-1)
+        while True:
+            cnt[C.CELLS_VISITED] += 1
+            sh = ADDRESS_BITS - geo.oct_level[node]
+            lx, ly, lz = geo.oct_loc[node, 0], geo.oct_loc[node, 1], geo.oct_loc[node, 2]
+            diff = (px ^ lx) | (py ^ ly) | (pz ^ lz)
+            if diff >> sh != 0:
+                # p lies in an empty octant a collapse removed: the one its highest
+                # differing address bit selects
+                sh = 0
+                while diff >> (sh + 1) != 0:
+                    sh += 1
+                break
+            if geo.oct_count[node] >= 0:
+                leaf = node
+                break
+            bit = sh - 1
+            node = geo.oct_first[node] + ((px >> bit) & 1) + 2 * ((py >> bit) & 1) + 4 * ((pz >> bit) & 1)
+        side = np.int64(1) << sh
+        clx, cly, clz = (px >> sh) << sh, (py >> sh) << sh, (pz >> sh) << sh
+        cnt[C.CELLS_LEAVES] += 1
+        if leaf >= 0 and geo.oct_count[leaf] > 0:
+            s = geo.oct_first[leaf]
+            e = s + geo.oct_count[leaf]
+        else:
+            s = e = 0
+            cnt[C.CELLS_EMPTY] += 1
+        # leave the cell across its nearest wall
+        cnt[C.BOUNDS_TESTS] += 1
+        tx = (gox + gux * (clx + side) - ox) * ix if dx > 0.0 else \
+            ((gox + gux * clx - ox) * ix if dx < 0.0 else INF)
+        ty = (goy + guy * (cly + side) - oy) * iy if dy > 0.0 else \
+            ((goy + guy * cly - oy) * iy if dy < 0.0 else INF)
+        tz = (goz + guz * (clz + side) - oz) * iz if dz > 0.0 else \
+            ((goz + guz * clz - oz) * iz if dz < 0.0 else INF)
+        axis = 0 if tx <= ty and tx <= tz else (1 if ty <= tz else 2)
+        texit = min(min(tx, ty), tz)
+        out = texit == INF
+        # the point just past the exit: across the wall on the exit axis, in the cell on the others
+        px = _address(ox + texit * dx, gox, gsx, clx, clx + side - 1)
+        py = _address(oy + texit * dy, goy, gsy, cly, cly + side - 1)
+        pz = _address(oz + texit * dz, goz, gsz, clz, clz + side - 1)
+        if axis == 0:
+            px = clx + side if dx > 0.0 else clx - 1
+            out = out or px < 0 or px > top
+            pa = px
+        elif axis == 1:
+            py = cly + side if dy > 0.0 else cly - 1
+            out = out or py < 0 or py > top
+            pa = py
+        else:
+            pz = clz + side if dz > 0.0 else clz - 1
+            out = out or pz < 0 or pz > top
+            pa = pz
+        if walk == 0:
+            node = geo.oct_root[oi]
+        elif not out:
+            # still inside the container's slot, or across its wall to the neighbour
+            ssh = ADDRESS_BITS - geo.oct_slot[node]
+            if pa >> ssh != geo.oct_loc[node, axis] >> ssh:
+                up = (dx > 0.0) if axis == 0 else ((dy > 0.0) if axis == 1 else (dz > 0.0))
+                node = geo.oct_nbr[node, 2 * axis + (1 if up else 0)]
+                out = node < 0
+        if s == e:
+            if out or texit > best_t:
+                return sp, 0, 0
+            continue
+        if not out:
+            # come back for the next leaf after this one's references
+            frame_f[f, POINT], frame_f[f, POINT + 1], frame_f[f, POINT + 2] = px, py, pz
+            sp = push(stack_a, stack_b, stack_t, sp, node, entry_tag(CODE, NEXT), texit)
+        col = geo.oct_pass[leaf]
+        if col >= 0 and C.N_COUNTERS + col < cnt.shape[0]:
+            # a lazy octree's candidate leaf: see whether the ray leaves it without a hit
+            sp = push(stack_a, stack_b, stack_t, sp, col, entry_tag(CODE, PASS), texit)
+        return sp, s, e
+
+
+def flatten(builder, params, refs, bounds, name, box):
+    weights = builder.vertex_weights(refs) if params["vertexcount"] else None
+    tree, stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"], rule60=params["rule60"],
+                               density=params["density"], vertexcount=params["vertexcount"], weights=weights,
+                               collapse=params["collapse"], budget=params["budget"], name=name)
+    return append_octree(builder.flat, tree, refs, params["walk"], params["mailbox"], box), dict(stats)
+
+
+KIND = Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
+              "objects in every child their box overlaps; nodes with the most items times box area are split "
+              "first, until depth, leaf, the criteria or the reference budget stop them. Defaults: depth 16 and "
+              "budget 16 keep memory proportional to the items (under 20 MB on every SPD default scene; without "
+              "a budget, items no split separates grow the tree as 8^depth: 11.6 GB on SPD shells at depth 8) "
+              "while small clusters in big boxes still get resolved; rule60 stays off, as it stops subdivision "
+              "early wherever a large floor polygon reaches into the other octants", (
+    Param("depth", 16, "maximum subdivision depth (the root is level 0)", int, 0, 24),
+    Param("leaf", 3, "a node holding at most this many items (or vertices, see vertexcount) is a leaf", int, 1,
+          1 << 20),
+    Param("rule60", False, "Haines's problem-voxel rule: keep a node a leaf when its largest child would "
+          "still hold >= 60% of its items (unless it is the only occupied child)", bool),
+    Param("density", 0.0, "Glassner's density criterion: subdivide only while the items' volume clipped to "
+          "the cell, over the cell volume, is under this ratio (0: off)", float, 0.0, 1e6),
+    Param("vertexcount", False, "count polygon/patch vertices and 3 per triangle instead of items against "
+          "leaf (Glassner's measure)", bool),
+    Param("collapse", True, "a node with one non-empty child takes that child's subtree and box; the walks "
+          "step through the removed empty octants using the address bits", bool),
+    Param("walk", "neighbor", "traversal: point (top-down point location with Lathrop's 28-bit addresses), "
+          "neighbor (Glassner's 6 neighbour pointers per node, then descent), parametric (Revelles, Urena and "
+          "Lastra 2000)", str, choices=("point", "neighbor", "parametric")),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
+    Param("budget", 16.0, "the leaves together hold at most budget * items + 4096 references; a split that "
+          "would exceed it is skipped (0: no limit)", float, 0.0, 1e6),
+), flatten=flatten)

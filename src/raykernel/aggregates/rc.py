@@ -891,3 +891,126 @@ class LazyRC:
                                 subdivisions=int(self.subdivisions[r]), refine_seconds=self.seconds,
                                 budget_exceeded=bool(self.exhausted[r]))
         scene_totals(build, geo, self.passes, int(self.subdivisions.sum()), self.seconds)
+
+
+# ----------------------------------------------------------------- flat layout and walk
+#
+# Fields of Geometry ray classification owns (RC aggregates, RN nodes, RK candidates of all of them):
+#   rc_face_root  (RC, 6) int64    root hypercube of each direction-cube face    48 B an aggregate
+#   rc_node_a     (RN,)   int64    inner: first child (global); leaf: first candidate in rc_ref   8 B a node
+#   rc_node_b     (RN,)   int64    inner: -(split dimension + 1) of x, y, z, u, v; leaf: candidates   8 B
+#   rc_split      (RN,)   float64  inner: split coordinate                        8 B
+#   rc_pass       (RN,)   int64    lazy leaf that may split: its row of rc_vinfo, else -1   8 B
+#   rc_key        (RK,)   float64  near-face key of each candidate, rising within a leaf   8 B a candidate
+#   rc_ref        (RK,)   int64    tagged reference of each candidate             8 B
+#   rc_vinfo      (RP, 3) int64    lazy candidate: first pass counter column, levels K, first entry
+#                                  in rc_vdim/rc_vsplit
+#   rc_vdim       (RS,)   int64    split dimension of each inner node of the virtual subtrees
+#   rc_vsplit     (RS,)   float64  split coordinate of each inner node of those subtrees
+# The aggregate's agg_start is its row of rc_face_root. A leaf's candidates are a
+# keyed list (aggregates/walk.py): the driver stops it once the next key puts the
+# earliest possible hit past the closest one.
+
+from .. import counters as C  # noqa: E402
+from ..accel import Kind, Param  # noqa: E402
+from .walk import F_KEY_D, F_KEY_END, F_KEY_O, Field  # noqa: E402
+
+CODE = 4
+FIELDS = (
+    Field("rc_face_root", np.int64, (6,)), Field("rc_node_a", np.int64, ()), Field("rc_node_b", np.int64, ()),
+    Field("rc_split", np.float64, ()), Field("rc_pass", np.int64, ()), Field("rc_key", np.float64, ()),
+    Field("rc_ref", np.int64, ()), Field("rc_vinfo", np.int64, (3,)), Field("rc_vdim", np.int64, ()),
+    Field("rc_vsplit", np.float64, ()),
+)
+
+
+def append_rc(flat, tree: RcArrays, refs, box) -> int:
+    """Store rc trees over refs as the next aggregate."""
+    n0, k0 = flat.size("rc_node_b"), flat.size("rc_key")
+    r = flat.size("rc_face_root")
+    flat.append(rc_face_root=tree.face_root[None] + n0,
+                rc_node_a=np.where(tree.node_b < 0, tree.node_a + n0, tree.node_a + k0), rc_node_b=tree.node_b,
+                rc_split=tree.split, rc_pass=np.full(len(tree.node_b), -1), rc_key=tree.keys, rc_ref=refs[tree.items])
+    return flat.add_aggregate(CODE, r, len(tree.node_b), box)
+
+
+@njit
+def step(geo, a, te, ox, oy, oz, dx, dy, dz, best_t, frame_f, f, cnt):
+    """Classify the ray (direction-cube face, u, v, and its entry point at te as origin),
+    descend its face's 5D tree to one hypercube and return (s, e, key_o, key_d): the
+    hypercube's keyed candidate list (none: s == e), also kept in the frame for resuming.
+    A lazy leaf that may still split (rc_pass >= 0) counts the ray's arrival in
+    cnt[N_COUNTERS + column], the column of the cell of its virtual subtree the ray's 5D
+    point falls in, where the kernel gave cnt room for it."""
+    if te > best_t:
+        return 0, 0, 0.0, 0.0
+    rax, ray_, raz = abs(dx), abs(dy), abs(dz)
+    if rax >= ray_ and rax >= raz:
+        face = 0 if dx > 0.0 else 1
+        key_d, key_o, u, v = rax, (ox if dx > 0.0 else -ox), dy / rax, dz / rax
+    elif ray_ >= raz:
+        face = 2 if dy > 0.0 else 3
+        key_d, key_o, u, v = ray_, (oy if dy > 0.0 else -oy), dz / ray_, dx / ray_
+    else:
+        face = 4 if dz > 0.0 else 5
+        key_d, key_o, u, v = raz, (oz if dz > 0.0 else -oz), dx / raz, dy / raz
+    px, py, pz = ox + te * dx, oy + te * dy, oz + te * dz
+    node = geo.rc_face_root[a, face]
+    while True:
+        cnt[C.CELLS_VISITED] += 1
+        nb = geo.rc_node_b[node]
+        if nb >= 0:
+            break
+        q = px if nb == -1 else (py if nb == -2 else (pz if nb == -3 else (u if nb == -4 else v)))
+        node = geo.rc_node_a[node] + (0 if q < geo.rc_split[node] else 1)
+    pj = geo.rc_pass[node]
+    if pj >= 0:
+        # a lazy leaf that may split: count the arrival in its virtual cell
+        col = C.N_COUNTERS + geo.rc_vinfo[pj, 0]
+        k = geo.rc_vinfo[pj, 1]
+        if col + (1 << k) <= cnt.shape[0]:
+            off = geo.rc_vinfo[pj, 2] - 1
+            h = 1
+            for _ in range(k):
+                dim = geo.rc_vdim[off + h]
+                q = px if dim == 0 else (py if dim == 1 else (pz if dim == 2 else (u if dim == 3 else v)))
+                h = 2 * h + (0 if q < geo.rc_vsplit[off + h] else 1)
+            cnt[col + h - (1 << k)] += 1
+    cnt[C.CELLS_LEAVES] += 1
+    if nb == 0:
+        cnt[C.CELLS_EMPTY] += 1
+        return 0, 0, 0.0, 0.0
+    s = geo.rc_node_a[node]
+    e = s + nb
+    frame_f[f, F_KEY_END], frame_f[f, F_KEY_O], frame_f[f, F_KEY_D] = e, key_o, key_d
+    return s, e, key_o, key_d
+
+
+def flatten(builder, params, refs, bounds, name, box):
+    flat = builder.flat
+    if params["lazy"]:
+        # six root leaves now, split between passes where rays arrive (LazyRC)
+        tree, stats, boxes, keys = start_rc(bounds, leaf=params["leaf"], depth=params["depth"],
+                                            budget_mb=params["budget_mb"], rays=params["rays"], name=name)
+        flat.lazy_rc.append(dict(params, node=flat.size("rc_node_b"), cand=flat.size("rc_key"), items=tree.items,
+                                 boxes=boxes, box=tree.box, stats=stats, name=name))
+    else:
+        tree, stats = build_rc(bounds, leaf=params["leaf"], depth=params["depth"], budget_mb=params["budget_mb"],
+                               name=name)
+    return append_rc(flat, tree, refs, box), stats
+
+
+KIND = Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (origin, direction-cube face and "
+              "u, v), six 5D bisection trees, candidate lists tested near first; lazy (default): each face's root "
+              "starts as one leaf, and between passes of rays (those of lazyoctree) a leaf where at least `rays` "
+              "rays arrived is split, several levels where the arrivals go on; lazy=off builds the whole trees "
+              "before any ray", (
+    Param("leaf", 8, "a hypercube with at most this many candidates is not split", int, 1, 1 << 20),
+    Param("depth", 40, "most splits below a face's root hypercube", int, 0, 200),
+    Param("budget_mb", 256.0, "MiB the trees and candidate lists may take; reaching it stops subdivision "
+          "with a warning (hits stay exact)", float, 0.0, 1 << 20),
+    Param("lazy", True, "on: subdivide lazily where rays arrive (Arvo and Kirk), a hypercube stopping after 40 "
+          "splits in a row that each keep more than 3/4 of its candidates; off: eagerly, breadth first over all "
+          "of 5D space until leaf, depth, 5 such splits or the budget stop it", bool),
+    Param("rays", 1, "lazy: rays that must arrive at a leaf before it is split", int, 1, 1 << 40),
+), flatten=flatten)

@@ -1,0 +1,119 @@
+"""Start-up: how long each entry point takes on an empty kernel cache (cold) and from the cache (warm).
+
+    .venv/bin/python bench/startup.py [--label after] [--only render-balls]
+
+Each entry point runs in a fresh process twice: first with an empty
+NUMBA_CACHE_DIR (everything compiles), then again with the cache the first
+run left (everything loads). numba's compile events (`numba:compile`) give
+the seconds spent compiling, per top-level function. Writes the `startup`
+section of BENCHMARKS.md, keeping the rows of other labels, so a table
+measured before a change and one after sit side by side.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _report import BENCHMARKS, machine, replace_section  # noqa: E402
+
+ENTRY_POINTS = {
+    "render-balls": "from raykernel.loading import load; from raykernel.render import render\n"
+                    "render(load('spd:balls'), resolution=32)",
+    "render-heckbert": "from raykernel.loading import load; from raykernel.render import render\n"
+                       "render(load('example:heckbert'), resolution=32)",
+    "rayscene-mesh": "import numpy as np, raykernel\n"
+                     "v = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = np.array([[0, 1, 2]])\n"
+                     "s = raykernel.RayScene.from_mesh(v, f)\n"
+                     "s.intersect(np.array([[0.2, 0.2, -1.]]), np.array([[0., 0, 1]]))",
+    "rayscene-scene": "import numpy as np, raykernel\nfrom raykernel.loading import load\n"
+                      "s = raykernel.RayScene(load('spd:balls'))\n"
+                      "s.intersect(np.array([[0., 0, 5]]), np.array([[0., 0, -1]]))",
+}
+
+CHILD = """
+import time, json, sys
+t0 = time.perf_counter()
+from numba.core import event
+rec = event.RecordingListener()
+event.register("numba:compile", rec)
+{code}
+total = time.perf_counter() - t0
+compile_s = {{}}
+inclusive = {{}}
+stack = []
+for ts, ev in rec.buffer:
+    name = ev.data["dispatcher"].py_func.__qualname__ if ev.data and "dispatcher" in ev.data else "?"
+    mod = ev.data["dispatcher"].py_func.__module__ if ev.data and "dispatcher" in ev.data else "?"
+    if ev.is_start:
+        stack.append((ts, mod + "." + name))
+    else:
+        start, key = stack.pop()
+        inclusive[key] = inclusive.get(key, 0.0) + ts - start
+        if not stack:                       # top-level compiles only: nested ones are inside them
+            compile_s[key] = compile_s.get(key, 0.0) + ts - start
+print(json.dumps({{"total": total, "compile": compile_s, "inclusive": inclusive}}))
+"""
+
+
+def run_child(code: str, cache: str) -> dict:
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    out = subprocess.run([sys.executable, "-c", CHILD.format(code=code)], env=env, capture_output=True, text=True,
+                         check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--label", default="now", help="row label, e.g. before or after")
+    ap.add_argument("--only", action="append", help="entry points to run (default: all)")
+    ap.add_argument("--no-write", action="store_true", help="print, do not write BENCHMARKS.md")
+    args = ap.parse_args()
+    rows = []
+    for name in args.only or ENTRY_POINTS:
+        with tempfile.TemporaryDirectory() as cache:
+            cold = run_child(ENTRY_POINTS[name], cache)
+            warm = run_child(ENTRY_POINTS[name], cache)
+        top = sorted(cold["inclusive"].items(), key=lambda kv: -kv[1])[:4]
+        row = dict(label=args.label, entry=name, cold=cold["total"], cold_compile=sum(cold["compile"].values()),
+                   warm=warm["total"], warm_compile=sum(warm["compile"].values()),
+                   top=", ".join(f"{k.split('.')[-1]} {v:.1f}" for k, v in top))
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    if args.no_write:
+        return 0
+    store = BENCHMARKS.with_name("bench") / "startup.json"
+    old = json.loads(store.read_text()) if store.exists() else {}
+    old.setdefault("rows", [])
+    keep = [r for r in old["rows"] if not (r["label"] == args.label and r["entry"] in {x["entry"] for x in rows})]
+    old["rows"] = keep + rows
+    old.setdefault("machines", {})[args.label] = machine()
+    store.write_text(json.dumps(old, indent=1) + "\n")
+    lines = ["## Start-up: compile time, cold and warm",
+             "",
+             "`.venv/bin/python bench/startup.py --label LABEL`. Each entry point runs in a fresh process on an "
+             "empty numba cache (cold), then again on the cache it left (warm). Seconds of the whole process "
+             "after interpreter start; `compile` is the time inside numba's compile events; the last column "
+             "names the functions whose compiles took longest, callees included. Targets: "
+             "render-balls cold compile at most 20 s, rayscene cold at most 10 s, every warm start under 1 s.",
+             "",
+             "| label | entry point | cold total s | cold compile s | warm total s | warm compile s | "
+             "largest compiles (s) |",
+             "|---|---|---|---|---|---|---|"]
+    for r in old["rows"]:
+        lines.append(f"| {r['label']} | {r['entry']} | {r['cold']:.1f} | {r['cold_compile']:.1f} | {r['warm']:.2f} | "
+                     f"{r['warm_compile']:.2f} | {r['top']} |")
+    lines += [""] + [f"- {label}: {m}" for label, m in old["machines"].items()]
+    replace_section("startup", "\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
