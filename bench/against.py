@@ -8,7 +8,10 @@ scenes with the same kinds in SPD mode, each in its own warm process (kernels
 compiled before timing), alternating revision by revision for every round;
 the table gives the best trace seconds of each side and their ratio, and
 checks that both sides made the same image bytes and the same ray and test
-counts. Writes the `against` section of BENCHMARKS.md.
+counts. The last rows time RayScene.intersect (the mesh kernel) on 512 x 512
+coherent and incoherent rays against an 80k-triangle sphere and SPD teapot,
+checking the same t and triangle ids. Writes the `against` section of
+BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -51,6 +54,35 @@ for name in scenes:
                   isinstance(v, int)}
         out[f"{name}|{k}"] = dict(trace=best, image=hashlib.sha1(np.ascontiguousarray(r.image).tobytes()).hexdigest(),
                                   counts=counts)
+# the mesh kernel: RayScene.intersect on meshes, coherent (a camera) and incoherent (random) rays
+rng = np.random.default_rng(7)
+import trimesh
+for name, mesh in (("sphere-80k", trimesh.creation.icosphere(subdivisions=6)),
+                   ("teapot", raykernel.load("spd:teapot"))):
+    rs = raykernel.RayScene.from_mesh(mesh.vertices, mesh.faces) if hasattr(mesh, "faces") else \
+        raykernel.RayScene(mesh)
+    n = 512 * 512
+    u, v = np.meshgrid(np.linspace(-0.6, 0.6, 512), np.linspace(-0.6, 0.6, 512))
+    lo, hi = (np.array([-1.0] * 3), np.array([1.0] * 3)) if hasattr(mesh, "faces") else (None, None)
+    if lo is None:
+        b = rs.geo.agg_bounds[rs.geo.root]
+        lo, hi = b[:3], b[3:]
+    c, r = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2
+    coherent = (np.tile(c + [0.0, -3.0 * r, 0.0], (n, 1)),
+                np.stack([u.ravel() * r, np.full(n, 3.0 * r), v.ravel() * r], 1))
+    o = c + rng.normal(size=(n, 3)) * r
+    incoherent = (o, c + rng.uniform(-0.5, 0.5, (n, 3)) * r - o)
+    rs.intersect(*coherent)
+    for label, (o, d) in (("coherent", coherent), ("incoherent", incoherent)):
+        best = None
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            h = rs.intersect(o, d)
+            dt = time.perf_counter() - t0
+            best = dt if best is None else min(best, dt)
+        out[f"{name} {label}|RayScene.intersect"] = dict(
+            trace=best, image=hashlib.sha1(np.ascontiguousarray(h.t).tobytes() + h.prim_id.tobytes()).hexdigest(),
+            counts={"rays": int(n), "hits": int(np.isfinite(h.t).sum())})
 print(json.dumps(out))
 """
 

@@ -57,7 +57,7 @@ def main():
             f"| {name} | {sf} | {prims:,} | {s['time.preprocess']:.3f} | {s['time.trace']:.2f} | "
             f"{s['rays.eye']:,} | {s['rays.reflect']:,} | {s['rays.refract']:,} | {s['rays.shadow']:,} | "
             f"{s['rays.shadow_blocked']:,} | {s['tests.per_ray']:.2f} | {s['bounds.per_ray']:.2f} | "
-            f"{s['cells.visited_per_ray']:.2f} | {s['rays.per_second'] / 1e6:.2f} |")
+            f"{s['cells.visited_per_ray']:.2f} | {s['time.rays_per_second'] / 1e6:.2f} |")
     total = sum(r[3]['time.trace'] for r in rows)
     lines += ["", f"Total trace time {total:.1f} s. Per-ray figures divide by all rays (eye, reflect, refract, "
               "shadow)."]

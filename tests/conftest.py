@@ -48,7 +48,7 @@ def add_square(scene: Scene, center, u, v, **material) -> int:
 
 def ray_counts(stats) -> dict:
     """The rays.* counters (exact integers) of a render's statistics."""
-    return {k: v for k, v in stats.items() if k.startswith("rays.") and k != "rays.per_second"}
+    return {k: v for k, v in stats.items() if k.startswith("rays.")}
 
 
 def work_counts(stats) -> dict:

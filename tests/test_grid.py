@@ -483,12 +483,3 @@ def test_counters_identical_across_runs_and_chunkings():
 
 # ---------------------------------------------------------------- renders
 
-@pytest.mark.parametrize("name", ["spd:balls:1", "spd:gears:1"])
-def test_spd_render_matches_bvh(name):
-    scene = raykernel.load(name)
-    bvh = raykernel.render(scene, accel="bvh", resolution=32, spd=True)
-    grid = raykernel.render(scene, accel="grid", resolution=32, spd=True)
-    np.testing.assert_array_equal(grid.image, bvh.image)
-    rays = {k: v for k, v in bvh.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
-    assert rays and {k: grid.stats[k] for k in rays} == rays
-    assert grid.stats["cells.visited"] > 0

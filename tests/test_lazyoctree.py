@@ -6,15 +6,12 @@ and results that do not depend on the thread count."""
 from __future__ import annotations
 
 import importlib
-import os
-import subprocess
-import sys
-import textwrap
 
 import numpy as np
 import pytest
 
 import raykernel
+from conftest import ray_counts
 from raykernel import RayScene
 from raykernel import counters as C
 from raykernel import pathological as P
@@ -550,9 +547,11 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
     kernel = RENDER._render_tiles
 
     def recording(*args):
-        before = args[14][:, C.RAYS_EYE].sum()
+        # (geo, mats, lights, background, cam, w, h, tile_x, tile_y, first, last, row0, max_depth, cutoff,
+        #  out, counters, passes, step, coarse)
+        before = args[15][:, C.RAYS_EYE].sum()
         kernel(*args)
-        seen.append((args[16], args[17], args[9], args[10], int(args[14][:, C.RAYS_EYE].sum() - before)))
+        seen.append((args[17], args[18], args[9], args[10], int(args[15][:, C.RAYS_EYE].sum() - before)))
 
     monkeypatch.setattr(RENDER, "_render_tiles", recording)
     scene = raykernel.load("spd:balls:1")
@@ -661,7 +660,7 @@ def stats_of_tree(geo, octree=0):
 def test_spd_render_matches_bvh(name):
     scene = raykernel.load(name)
     bvh = raykernel.render(scene, accel="bvh", resolution=48, spd=True)
-    rays = {k: v for k, v in bvh.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
+    rays = ray_counts(bvh.stats)
     # 49 x 49 corner samples: 4 x 4 tiles of 16, fewer than 32, so one tile per batch, at each of
     # the five lattice steps 16, 8, 4, 2, 1
     batches = 5 * 16
@@ -695,42 +694,3 @@ def test_render_stats_are_the_final_tree():
     assert rs.build_stats["build.bytes"] == sum(a.nbytes for a in rs.geo if isinstance(a, np.ndarray))
 
 
-SUBPROCESS = textwrap.dedent("""
-    import sys
-    import numpy as np
-    from raykernel import RayScene, load, render
-    scene = load("spd:balls:2")
-    r = render(scene, accel="lazyoctree(rays=2, k=0.05)", resolution=40, spd=True)
-    keys = sorted(k for k, v in r.stats.items() if isinstance(v, int) and not k.startswith("time."))
-    rng = np.random.default_rng(3)
-    o = rng.normal(0, 4, (20000, 3))
-    d = rng.normal(0, 1, (20000, 3)) - 0.1 * o
-    rs = RayScene.from_scene(scene, "lazyoctree(rays=2, k=0.05, walk=parametric)")
-    h = rs.intersect(o, d)
-    n = rs.count_hits(o, d)
-    q = [rs.last_stats[k] for k in sorted(rs.last_stats) if not k.startswith("time.")]
-    np.savez(sys.argv[1], image=r.image, keys=np.array(keys), values=np.array([r.stats[k] for k in keys]),
-             threads=r.stats.info["threads"], t=h.t, prim=h.prim_id, n=n, q=np.array(q),
-             nodes=rs.build_stats["build.nodes"])
-""")
-
-
-def test_thread_count_does_not_change_result(tmp_path):
-    out = {}
-    for n in (1, 2):
-        path = tmp_path / f"t{n}.npz"
-        env = dict(os.environ, NUMBA_NUM_THREADS=str(n))
-        proc = subprocess.run([sys.executable, "-c", SUBPROCESS, str(path)], env=env, capture_output=True,
-                              text=True)
-        assert proc.returncode == 0, proc.stderr
-        out[n] = np.load(path)
-        assert int(out[n]["threads"]) == n
-    assert out[1]["image"].tobytes() == out[2]["image"].tobytes()
-    assert list(out[1]["keys"]) == list(out[2]["keys"])
-    values = dict(zip(out[1]["keys"], out[1]["values"]))
-    # 41 x 41 samples in 3 x 3 tiles, one per batch, at each of five lattice steps
-    assert values["build.subdivisions"] > 0 and values["build.refine_passes"] == 5 * 9
-    np.testing.assert_array_equal(out[1]["values"], out[2]["values"])
-    for name in ("t", "prim", "n", "q", "nodes"):
-        np.testing.assert_array_equal(out[1][name], out[2][name])
-    assert int(out[1]["nodes"]) > 1

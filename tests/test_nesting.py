@@ -26,13 +26,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import raykernel
-from conftest import ray_counts
+from conftest import ray_counts, work_counts
 from raykernel import accel, pathological, spd
 from raykernel import counters as C
 from raykernel.aggregates.octree import BUDGET_SLACK, build_octree
@@ -365,6 +366,41 @@ def test_small_spd_scenes_render_identically_with_every_kind(name):
 @pytest.mark.parametrize("name", spd.NAMES)
 def test_default_spd_scenes_render_identically_with_every_kind(name):
     render_every_kind(raykernel.load(f"spd:{name}"), SPD_RESOLUTION)
+
+
+# ---------------------------------------------------------------- thread counts
+
+def work_and_hits(spec, threads):
+    """A render and two RayScene queries (the lazy kinds refine during both) at `threads` threads."""
+    scene = raykernel.load("spd:balls:2")
+    r = raykernel.render(scene, accel=spec, resolution=40, spd=True, threads=threads)
+    rng = np.random.default_rng(3)
+    o = rng.normal(0, 4, (20000, 3))
+    d = rng.normal(0, 1, (20000, 3)) - 0.1 * o
+    numba.set_num_threads(threads)
+    try:
+        rs = RayScene(scene, spec)
+        h = rs.intersect(o, d)
+        hit_stats = {k: v for k, v in rs.last_stats.items() if not k.startswith("time.")}
+        n = rs.count_hits(o, d)
+        count_stats = {k: v for k, v in rs.last_stats.items() if not k.startswith("time.")}
+    finally:
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    return r, work_counts(r.stats), h, hit_stats, n, count_stats, rs.build_stats["build.nodes"]
+
+
+@pytest.mark.parametrize("spec", SPECS)
+def test_every_kind_is_the_same_at_one_and_two_threads(spec):
+    one, two = work_and_hits(spec, 1), work_and_hits(spec, 2)
+    assert one[0].stats.info["threads"] == 1 and two[0].stats.info["threads"] == 2
+    assert one[0].image.tobytes() == two[0].image.tobytes()
+    assert one[1] == two[1] and one[1]["tests.total"] > 0
+    np.testing.assert_array_equal(one[2].t, two[2].t)
+    np.testing.assert_array_equal(one[2].prim_id, two[2].prim_id)
+    assert one[3] == two[3] and one[5] == two[5] and one[6] == two[6]
+    np.testing.assert_array_equal(one[4], two[4])
+    if spec.startswith(("lazyoctree", "rc")) and "lazy=off" not in spec:
+        assert one[1]["build.subdivisions"] > 0     # the lazy trees refined, the same way
 
 
 # ---------------------------------------------------------------- the octree's defaults stay sane

@@ -3,16 +3,13 @@ lazy refinement where rays arrive, nesting, budget, renders and thread counts.""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import textwrap
 import warnings
 
 import numpy as np
 import pytest
 
 import raykernel
+from conftest import ray_counts
 from raykernel import RayScene
 from raykernel import counters as C
 from raykernel.accel import parse_spec
@@ -362,17 +359,6 @@ def test_zero_budget_keeps_the_roots():
 
 # ---------------------------------------------------------------- renders
 
-def test_spd_render_matches_bvh():
-    scene = raykernel.load("spd:balls:1")
-    bvh = raykernel.render(scene, accel="bvh", resolution=32, spd=True)
-    rays = {k: v for k, v in bvh.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
-    for spec in ("rc", "rc(lazy=off)"):
-        rc = raykernel.render(scene, accel=spec, resolution=32, spd=True)
-        np.testing.assert_array_equal(rc.image, bvh.image)
-        assert rays and {k: rc.stats[k] for k in rays} == rays
-        assert rc.stats["cells.visited"] > 0
-
-
 # ---------------------------------------------------------------- lazy subdivision (Arvo and Kirk)
 
 def sphere_cloud(n=150, seed=20, spread=4.0, radius=0.3):
@@ -651,7 +637,7 @@ def test_lazy_nested_and_instanced_match_list(outer, inner, instanced):
 def test_lazy_spd_render_matches_bvh(name):
     scene = raykernel.load(name)
     bvh = raykernel.render(scene, accel="bvh", resolution=48, spd=True)
-    rays = {k: v for k, v in bvh.stats.items() if k.startswith("rays.") and k != "rays.per_second"}
+    rays = ray_counts(bvh.stats)
     got = raykernel.render(scene, accel="rc", resolution=48, spd=True)
     np.testing.assert_array_equal(got.image, bvh.image)
     assert {k: got.stats[k] for k in rays} == rays
@@ -662,41 +648,3 @@ def test_lazy_spd_render_matches_bvh(name):
     assert got.stats["tests.total"] < eager.stats["tests.total"]
 
 
-SUBPROCESS = textwrap.dedent("""
-    import sys
-    import numpy as np
-    from raykernel import RayScene, load, render
-    scene = load("spd:balls:2")
-    r = render(scene, accel="rc(rays=2)", resolution=40, spd=True)
-    keys = sorted(k for k, v in r.stats.items() if isinstance(v, int) and not k.startswith("time."))
-    rng = np.random.default_rng(3)
-    o = rng.normal(0, 4, (20000, 3))
-    d = rng.normal(0, 1, (20000, 3)) - 0.1 * o
-    rs = RayScene.from_scene(scene, "rc(leaf=4)")
-    h = rs.intersect(o, d)
-    n = rs.count_hits(o, d)
-    q = [rs.last_stats[k] for k in sorted(rs.last_stats) if not k.startswith("time.")]
-    np.savez(sys.argv[1], image=r.image, keys=np.array(keys), values=np.array([r.stats[k] for k in keys]),
-             threads=r.stats.info["threads"], t=h.t, prim=h.prim_id, n=n, q=np.array(q),
-             nodes=rs.build_stats["build.nodes"], node_b=rs.geo.rc_node_b, ref=rs.geo.rc_ref)
-""")
-
-
-def test_thread_count_does_not_change_result(tmp_path):
-    out = {}
-    for n in (1, 2):
-        path = tmp_path / f"t{n}.npz"
-        env = dict(os.environ, NUMBA_NUM_THREADS=str(n))
-        proc = subprocess.run([sys.executable, "-c", SUBPROCESS, str(path)], env=env, capture_output=True,
-                              text=True)
-        assert proc.returncode == 0, proc.stderr
-        out[n] = np.load(path)
-        assert int(out[n]["threads"]) == n
-    assert out[1]["image"].tobytes() == out[2]["image"].tobytes()
-    assert list(out[1]["keys"]) == list(out[2]["keys"])
-    values = dict(zip(out[1]["keys"], out[1]["values"]))
-    assert values["build.subdivisions"] > 0
-    np.testing.assert_array_equal(out[1]["values"], out[2]["values"])
-    for name in ("t", "prim", "n", "q", "nodes", "node_b", "ref"):
-        np.testing.assert_array_equal(out[1][name], out[2][name])
-    assert int(out[1]["nodes"]) > 6

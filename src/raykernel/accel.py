@@ -101,6 +101,7 @@ def parse_spec(spec: str) -> tuple[str, dict]:
     kind = KINDS[name]
     params = kind.defaults()
     allowed = {p.name: p for p in kind.params}
+    given = set()
     if body is not None and body.strip():
         for item in body.split(","):
             if "=" not in item:
@@ -110,6 +111,9 @@ def parse_spec(spec: str) -> tuple[str, dict]:
                 known = ", ".join(allowed) or "none"
                 raise OptionError(f"accelerator spec {spec!r}: {name} has no parameter {key!r}; "
                                   f"its parameters: {known}")
+            if key in given:
+                raise OptionError(f"accelerator spec {spec!r}: {key} is given twice")
+            given.add(key)
             params[key] = allowed[key].parse(value, spec)
     return name, params
 

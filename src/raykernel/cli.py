@@ -37,14 +37,22 @@ def _default_output(scene_arg: str) -> str:
 class _Progress:
     """A rich progress bar that appears only once a render has run for a second."""
 
-    def __init__(self, console, label: str):
+    def __init__(self, console, label: str, compiling: bool = False):
         self.console = console
         self.label = label
         self.start = time.perf_counter()
         self.bar = None
         self.task = None
+        self.status = None
+        if compiling:
+            # the first call compiles before any pass ends: a spinner until the bar can take over
+            self.status = console.status(f"{label}: compiling kernels", spinner="dots")
+            self.status.start()
 
     def __call__(self, done: int, total: int):
+        if self.status is not None:
+            self.status.stop()
+            self.status = None
         if self.bar is None:
             if time.perf_counter() - self.start < 1.0 or done >= total:
                 return
@@ -57,12 +65,16 @@ class _Progress:
         self.bar.update(self.task, completed=done)
 
     def close(self):
+        if self.status is not None:
+            self.status.stop()
         if self.bar is not None:
             self.bar.stop()
 
 
 def cmd_render(args, console) -> int:
     from . import examples
+    from .compiletime import FIRST_RUN_SECONDS, first_run
+    from .imageio import image_format
     from .loading import load
     from .render import render
 
@@ -73,10 +85,15 @@ def cmd_render(args, console) -> int:
     if args.max_depth is not None:
         options["max_depth"] = args.max_depth
     out = args.output or _default_output(args.scene)
-    progress = _Progress(console, f"rendering {args.scene}")
+    image_format(out)           # refuse an unknown format before the work
+    compiling = first_run()
+    if compiling:
+        console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
+                      "on 2 cores; later runs start from the cache.", markup=False, highlight=False)
+    progress = _Progress(console, f"rendering {args.scene}", compiling)
     try:
         result = render(scene, accel=args.accel, resolution=args.resolution, spd=args.spd,
-                        threads=args.threads, progress=progress, **options)
+                        threads=args.threads, progress=progress, max_memory=args.max_memory, **options)
     finally:
         progress.close()
     result.save(out)
@@ -208,7 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("render", help="render a scene to PNG and print its statistics")
     r.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
-    r.add_argument("-o", "--output", help="output PNG (default: the scene's name + .png)")
+    r.add_argument("-o", "--output", help="output image: .png, .jpg, .tif, .webp (8-bit) or .npy, .pfm, .exr "
+                   "(float); default: the scene's name + .png")
     r.add_argument("--resolution", type=_positive_int, help="square image size (default: the scene's)")
     r.add_argument("--accel", default="bvh", help="accelerator spec for groups that name none (default bvh); "
                    "see `raykernel accels`")
@@ -216,6 +234,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--max-depth", type=_positive_int, help="maximum ray-tree depth, eye ray = 1 (default 5)")
     r.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
     r.add_argument("--stats-json", help="write every counter to this JSON file")
+    r.add_argument("--max-memory", help="memory budget of every build, e.g. 8G or 512M (default: half of this "
+                   "machine's memory); a structure that needs more stops with an error")
     r.set_defaults(func=cmd_render)
 
     a = sub.add_parser("accels", help="list the accelerator kinds with their parameters and defaults")

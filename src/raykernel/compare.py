@@ -27,7 +27,7 @@ import numpy as np
 from .errors import OptionError
 from .render import render
 
-TIMING_KEYS = ("time.preprocess", "time.trace", "rays.per_second", "build.seconds")
+TIMING_KEYS = ("time.preprocess", "time.trace", "time.compile", "time.rays_per_second", "build.seconds")
 
 # (header, stats key or callable, format)
 COLUMNS = (
@@ -48,7 +48,7 @@ COLUMNS = (
 
 def ray_keys(stats) -> list:
     """The ray counts that must not depend on the structure."""
-    return sorted(k for k in stats if k.startswith("rays.") and k != "rays.per_second")
+    return sorted(k for k in stats if k.startswith("rays."))
 
 
 @dataclass
@@ -65,7 +65,7 @@ class Run:
         if key == "predicted.trace":
             return self.predicted
         if key == "mrays":
-            return self.stats.get("rays.per_second", 0.0) / 1e6
+            return self.stats.get("time.rays_per_second", 0.0) / 1e6
         return self.stats.get(key)
 
 

@@ -19,6 +19,8 @@ CELLS_EMPTY = 16          # empty leaves visited (N_EETS)
 MAILBOX_SAVED = 17
 SHADOW_CACHE_HITS = 18
 RAYS_CAST = 19            # rays given to the ray-casting API
+TRANSFORMS = 20           # + class (identity, translation, scale, affine): rays mapped into an instance
+TRANSFORM_MULTIPLIES = 24  # multiplies those mappings did
 N_COUNTERS = 32           # spare columns for structures to come
 
 NAMES = {
@@ -31,4 +33,7 @@ NAMES = {
     BOUNDS_TESTS: "bounds.tests", CELLS_VISITED: "cells.visited", CELLS_LEAVES: "cells.leaves",
     CELLS_EMPTY: "cells.empty", MAILBOX_SAVED: "mailbox.saved", SHADOW_CACHE_HITS: "shadow_cache.hits",
     RAYS_CAST: "rays.cast",
+    TRANSFORMS + 0: "transforms.identity", TRANSFORMS + 1: "transforms.translation",
+    TRANSFORMS + 2: "transforms.scale", TRANSFORMS + 3: "transforms.affine",
+    TRANSFORM_MULTIPLIES: "transforms.multiplies",
 }

@@ -41,6 +41,7 @@ from .aggregates.rc import CODE as RC
 from .boxes import cull_margin
 from .aggregates.walk import MAX_NESTING, MAX_TREE_DEPTH, STACK_SIZE, Field
 from .errors import SceneError
+from .memory import memory_limit
 from .primitives import AGGREGATE, CONE, INSTANCE, PATCH, POLYGON, SPHERE, TRIANGLE, make_ref
 from .primitives import INDEX_MASK, KIND_SHIFT
 from .scene import Group, Instance, Scene
@@ -80,6 +81,7 @@ AGGREGATE_FIELDS = (
     Field("refs", np.int64),              # (R,) tagged references of every list, leaf and cell
     Field("inst_agg", np.int64),          # (I,) aggregate an instance shows
     Field("inst_to_local", np.float64, (12,)),  # (I, 12) world-to-local affine map, row-major 3x4
+    Field("inst_class", np.int64),        # (I,) the map's class (transform_class): what mapping a ray needs
 ) + tuple(f for w in WALKS for f in w.FIELDS)
 
 Geometry = NamedTuple("Geometry", [(name, np.ndarray) for name in PRIMITIVE_FIELDS] +
@@ -90,6 +92,23 @@ Geometry.__doc__ = "Flat arrays of a built scene, read by the kernels (see the m
 
 def _box_of_points(points: np.ndarray) -> np.ndarray:
     return np.concatenate([points.min(axis=0), points.max(axis=0)])
+
+
+IDENTITY, TRANSLATION, SCALE, AFFINE = range(4)      # instance map classes (Arvo's sparse transforms)
+TRANSFORM_MULTIPLIES = (0, 0, 18, 54)   # multiplies per ray entering an instance, per class: mapping origin and
+#                                        direction (0, 0, 6, 18) and composing the frame's map (0, 0, 12, 36)
+
+
+def transform_class(m: np.ndarray) -> int:
+    """The class of a 3x4 affine map: IDENTITY, TRANSLATION (identity linear part), SCALE
+    (diagonal linear part: a scale, maybe a mirror, and a translation) or AFFINE. Exact
+    comparisons: a map that is the identity only within rounding is mapped in full."""
+    linear, shift = m[:, :3], m[:, 3]
+    if np.array_equal(linear, np.eye(3)):
+        return TRANSLATION if np.any(shift != 0.0) else IDENTITY
+    if np.count_nonzero(linear - np.diag(np.diag(linear))) == 0:
+        return SCALE
+    return AFFINE
 
 
 def transform_box(box: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -159,7 +178,7 @@ class FlatArrays:
         return np.ascontiguousarray(np.concatenate(parts).reshape((-1,) + f.shape), dtype=f.dtype)
 
 
-def _sphere_refs(arr: _Arrays, s):
+def _sphere_refs(arr: FlatArrays, s):
     if np.any(s.radius == 0.0) or not np.all(np.isfinite(s.radius)) or not np.all(np.isfinite(s.center)):
         bad = int(np.flatnonzero((s.radius == 0.0) | ~np.isfinite(s.radius))[0]) if np.any(
             (s.radius == 0.0) | ~np.isfinite(s.radius)) else 0
@@ -172,7 +191,7 @@ def _sphere_refs(arr: _Arrays, s):
     return make_ref(SPHERE, idx), np.hstack([s.center - r, s.center + r])
 
 
-def _cone_refs(arr: _Arrays, c):
+def _cone_refs(arr: FlatArrays, c):
     axis = c.apex - c.base
     length = np.linalg.norm(axis, axis=1)
     bad = (length == 0.0) | ((c.base_radius == 0.0) & (c.apex_radius == 0.0)) | \
@@ -194,7 +213,7 @@ def _cone_refs(arr: _Arrays, c):
     return make_ref(CONE, idx), np.hstack([lo, hi])
 
 
-def _polygon_refs(arr: _Arrays, p):
+def _polygon_refs(arr: FlatArrays, p):
     kind = PATCH if p.patches else POLYGON
     idx = np.arange(arr.n_poly, arr.n_poly + len(p))
     arr.geometries.append((kind, arr.n_poly, len(p)))
@@ -206,7 +225,7 @@ def _polygon_refs(arr: _Arrays, p):
     return make_ref(kind, idx), np.hstack([lo, hi])
 
 
-def _mesh_refs(arr: _Arrays, m):
+def _mesh_refs(arr: FlatArrays, m):
     idx = np.arange(arr.n_tri, arr.n_tri + len(m.faces))
     arr.geometries.append((TRIANGLE, arr.n_tri, len(m.faces)))
     arr.mesh.append((m, arr.n_tri_verts))
@@ -221,8 +240,9 @@ class Builder:
     flatten (see aggregates/__init__.py) gets the builder, to store its arrays, build
     nested aggregates (`build`) and read `nesting`, the aggregates on the path to it."""
 
-    def __init__(self, default_accel: str):
+    def __init__(self, default_accel: str, max_bytes: int):
         self.flat = FlatArrays()
+        self.max_bytes = max_bytes     # the memory budget every build keeps within (memory.py)
         self.default = accel.parse_spec(default_accel)
         self.built: dict[int, tuple[int, int]] = {}   # id(group) -> (aggregate, depth)
         self._active_groups: list[Group] = []           # the path being walked, to catch cycles
@@ -276,7 +296,8 @@ class Builder:
                 if not np.all(np.isfinite(flat.agg_box(agg))):
                     continue        # an empty group shows nothing: no reference to it
                 k = flat.size("inst_agg")
-                flat.append(inst_agg=[agg], inst_to_local=np.linalg.inv(child.matrix)[:3, :].reshape(1, 12))
+                to_local = np.linalg.inv(child.matrix)[:3, :]
+                flat.append(inst_agg=[agg], inst_to_local=to_local.reshape(1, 12), inst_class=[transform_class(to_local)])
                 refs.append(make_ref(INSTANCE, [k]))
                 bounds.append(transform_box(flat.agg_box(agg), child.matrix)[None, :])
             elif isinstance(child, Group) and child.accel is None:
@@ -349,10 +370,12 @@ def _polygon_planes(verts, start, count):
     return n, np.einsum("ij,ij->i", n, v0), np.argmax(np.abs(n), axis=1).astype(np.int64)
 
 
-def flatten(scene: Scene, default_accel: str = "bvh") -> tuple[Geometry, dict]:
-    """Build every aggregate of `scene` and return the flat arrays and the build statistics."""
+def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None) -> tuple[Geometry, dict]:
+    """Build every aggregate of `scene` and return the flat arrays and the build statistics.
+    max_memory: the memory budget of every build and refinement, in bytes or as "8G"
+    (default: memory.memory_limit()); a structure that would need more is a MemoryBudgetError."""
     t0 = time.perf_counter()
-    b = Builder(default_accel)
+    b = Builder(default_accel, memory_limit(max_memory))
     root, depth = b.build_group(scene.root)
     arr = b.flat
     fields = {f.name: arr.field(f) for f in AGGREGATE_FIELDS}

@@ -14,19 +14,11 @@ import math
 import numpy as np
 
 from .config import njit
-from .primitives import CONE, SPHERE, TRIANGLE
+from .primitives import CONE, SPHERE, TRIANGLE, normalize
 from .render import surface
 
 
-@njit(inline="always")
-def unit(x, y, z):
-    n = math.sqrt(x * x + y * y + z * z)
-    if n == 0.0:
-        return 0.0, 0.0, 0.0
-    return x / n, y / n, z / n
-
-
-@njit(inline="always")
+@njit(private=True)
 def surface_uv(geo, kind, idx, px, py, pz):
     """(u, v) of local point p on primitive (kind, idx)."""
     if kind == TRIANGLE:
@@ -42,7 +34,7 @@ def surface_uv(geo, kind, idx, px, py, pz):
         dx, dy, dz = e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx
         return (cx * gx + cy * gy + cz * gz) / area, (dx * gx + dy * gy + dz * gz) / area
     if kind == SPHERE:
-        x, y, z = unit(px - geo.sph_center[idx, 0], py - geo.sph_center[idx, 1], pz - geo.sph_center[idx, 2])
+        x, y, z = normalize(px - geo.sph_center[idx, 0], py - geo.sph_center[idx, 1], pz - geo.sph_center[idx, 2])
         u = math.atan2(y, x) / (2.0 * math.pi)
         if u < 0.0:
             u += 1.0
@@ -53,11 +45,11 @@ def surface_uv(geo, kind, idx, px, py, pz):
         s = wx * ax + wy * ay + wz * az
         # a frame across the axis: e1 = axis x (the coordinate axis least aligned with it)
         if abs(ax) <= abs(ay) and abs(ax) <= abs(az):
-            e1x, e1y, e1z = unit(0.0, az, -ay)
+            e1x, e1y, e1z = normalize(0.0, az, -ay)
         elif abs(ay) <= abs(az):
-            e1x, e1y, e1z = unit(-az, 0.0, ax)
+            e1x, e1y, e1z = normalize(-az, 0.0, ax)
         else:
-            e1x, e1y, e1z = unit(ay, -ax, 0.0)
+            e1x, e1y, e1z = normalize(ay, -ax, 0.0)
         e2x, e2y, e2z = ay * e1z - az * e1y, az * e1x - ax * e1z, ax * e1y - ay * e1x
         u = math.atan2(wx * e2x + wy * e2y + wz * e2z, wx * e1x + wy * e1y + wz * e1z) / (2.0 * math.pi)
         if u < 0.0:
@@ -66,7 +58,7 @@ def surface_uv(geo, kind, idx, px, py, pz):
     return np.nan, np.nan
 
 
-@njit(inline="always")
+@njit(private=True)
 def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out):
     """Write (u, v) and the world-space unit normals of the hit into row r."""
     # the hit point in the primitive's own frame; normals back by the transpose
@@ -74,9 +66,9 @@ def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out):
     ly = m[4] * px + m[5] * py + m[6] * pz + m[7]
     lz = m[8] * px + m[9] * py + m[10] * pz + m[11]
     gx, gy, gz, sx, sy, sz, _ = surface(geo, kind, idx, lx, ly, lz)
-    gx, gy, gz = unit(m[0] * gx + m[4] * gy + m[8] * gz, m[1] * gx + m[5] * gy + m[9] * gz,
+    gx, gy, gz = normalize(m[0] * gx + m[4] * gy + m[8] * gz, m[1] * gx + m[5] * gy + m[9] * gz,
                       m[2] * gx + m[6] * gy + m[10] * gz)
-    sx, sy, sz = unit(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
+    sx, sy, sz = normalize(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
                       m[2] * sx + m[6] * sy + m[10] * sz)
     if sx == 0.0 and sy == 0.0 and sz == 0.0:
         sx, sy, sz = gx, gy, gz

@@ -157,14 +157,11 @@ import numpy as np
 
 from .atomicfile import write_text
 from .errors import SceneError
-from .scene import Camera, Group, Instance, Light, Material, Scene, TriangleMesh
+from .scene import MAX_NESTING, Camera, Group, Instance, Light, Material, Scene, TriangleMesh
 
 __all__ = ["MAX_NESTING", "read_json", "parse_json", "scene_from_json", "scene_to_json",
            "write_json", "transform_matrix"]
 
-MAX_NESTING = 16
-"""Deepest level a group may sit at: the root is level 1, each group within
-a group or an instance one more (the renderer's limit on nested aggregates)."""
 
 PRIMITIVE_KINDS = ("sphere", "cone", "polygon", "patch")
 ITEM_KINDS = PRIMITIVE_KINDS + ("mesh", "include", "group", "instance")

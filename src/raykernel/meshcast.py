@@ -28,14 +28,12 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import prange
 
 from . import counters as C
 from .config import njit
 from .flatten import BVH, Geometry
 from .hitsurface import store_miss, store_surface
-from .primitives import INDEX_MASK, TRIANGLE
-from .primitives import _edge_sign as edge_sign
+from .primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
 from .boxes import CONSERVATIVE, box_entry, inverse
 from .traverse import ALL_HITS
 
@@ -67,68 +65,28 @@ class MeshKernel(NamedTuple):
 
 
 @njit(inline="always")
-def _ray_shear(dx, dy, dz):
-    """The watertight test's per-ray constants (primitives.hit_triangle):
-    the dominant axis kz, the other two (kx, ky) in winding order, shear sx, sy, sz."""
-    ax, ay, az = abs(dx), abs(dy), abs(dz)
-    if ax >= ay and ax >= az:
-        kz, kx, ky = 0, 1, 2
-        rz, rx, ry = dx, dy, dz
-    elif ay >= az:
-        kz, kx, ky = 1, 2, 0
-        rz, rx, ry = dy, dz, dx
-    else:
-        kz, kx, ky = 2, 0, 1
-        rz, rx, ry = dz, dx, dy
-    if rz < 0.0:
-        rx, ry = ry, rx
-        kx, ky = ky, kx
-    if rz == 0.0:
-        return kx, ky, kz, 0.0, 0.0, 0.0
-    return kx, ky, kz, rx / rz, ry / rz, 1.0 / rz
-
-
-@njit(inline="always")
 def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
     """primitives.hit_triangle for corners row j with the ray's shear precomputed."""
-    if sz == 0.0:
-        return INF
-    pz0, px0, py0 = c[j, kz] - o[kz], c[j, kx] - o[kx], c[j, ky] - o[ky]
-    pz1, px1, py1 = c[j, 3 + kz] - o[kz], c[j, 3 + kx] - o[kx], c[j, 3 + ky] - o[ky]
-    pz2, px2, py2 = c[j, 6 + kz] - o[kz], c[j, 6 + kx] - o[kx], c[j, 6 + ky] - o[ky]
-    ax0, ay0 = px0 - sx * pz0, py0 - sy * pz0
-    ax1, ay1 = px1 - sx * pz1, py1 - sy * pz1
-    ax2, ay2 = px2 - sx * pz2, py2 - sy * pz2
-    u, su = edge_sign(ax1, ay1, ax2, ay2)
-    v, sv = edge_sign(ax2, ay2, ax0, ay0)
-    w, sw = edge_sign(ax0, ay0, ax1, ay1)
-    if su == 0 or su != sv or su != sw:
-        return INF
-    det = u + v + w
-    if det == 0.0:
-        return INF
-    t = (u * pz0 + v * pz1 + w * pz2) * sz / det
-    if tmin <= t <= tmax:
-        return t
-    return INF
+    return hit_sheared(c[j, kx] - o[kx], c[j, ky] - o[ky], c[j, kz] - o[kz],
+                       c[j, 3 + kx] - o[kx], c[j, 3 + ky] - o[ky], c[j, 3 + kz] - o[kz],
+                       c[j, 6 + kx] - o[kx], c[j, 6 + ky] - o[ky], c[j, 6 + kz] - o[kz], sx, sy, sz, tmin, tmax)
 
 
-@njit(parallel=True)
+@njit
 def query(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out,
-          geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters):
+          geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
     outputs of rayscene._query, identities as the user sees them: geometry and
     index within it (-1 on a miss). All hits: with len(offsets) == 0 counts them
     into idx_out, else writes ray r's hits to rows offsets[r] .. offsets[r + 1]
-    of all_t / all_i as (kind, global index, instance), like the generic kernel."""
+    of all_t / all_i as (kind, global index, instance), like the generic kernel.
+    Chunks c0..c1-1 of `chunk` rays, counting into counters[c]."""
     n = origins.shape[0]
-    n_chunks = (n + chunk - 1) // chunk
     store = offsets.shape[0] > 0
     nb = geo.node_bounds
     first = geo.node_first
     count = geo.node_count
-    for ci in prange(n_chunks):
-        c = np.int64(ci)
+    for c in range(c0, c1):
         stack = np.empty(STACK, np.int64)
         stack_t = np.empty(STACK)
         o = np.empty(3)
@@ -140,7 +98,7 @@ def query(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax
             dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
             o[0], o[1], o[2] = ox, oy, oz
             ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
-            kx, ky, kz, sx, sy, sz = _ray_shear(dx, dy, dz)
+            kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
             lo = tmin[r]
             best = tmax[r]
             best_j = np.int64(-1)

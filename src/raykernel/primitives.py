@@ -5,7 +5,8 @@
 Every function takes the ray as scalars (origin o, direction d, not
 necessarily unit length, so that t stays comparable through instance
 transforms) and returns the ray parameter of the nearest hit in
-[tmin, tmax], or +inf. They inline into the traversal kernels.
+[tmin, tmax], or +inf. They are compiled once each, not inlined into every
+caller: LLVM inlines the small ones by itself.
 
 Kinds are tagged in references as `kind << KIND_SHIFT | index`.
 """
@@ -24,13 +25,12 @@ INF = np.inf
 
 
 @njit(inline="always")
-def ref_kind(ref):
-    return ref >> KIND_SHIFT
-
-
-@njit(inline="always")
-def ref_index(ref):
-    return ref & INDEX_MASK
+def normalize(x, y, z):
+    """(x, y, z) scaled to unit length; the zero vector stays zero."""
+    n = math.sqrt(x * x + y * y + z * z)
+    if n == 0.0:
+        return 0.0, 0.0, 0.0
+    return x / n, y / n, z / n
 
 
 def make_ref(kind, index):
@@ -38,7 +38,7 @@ def make_ref(kind, index):
     return (np.int64(kind) << KIND_SHIFT) | np.asarray(index, np.int64)
 
 
-@njit(inline="always")
+@njit
 def _quadratic_roots(a, half_b, c):
     """Roots of a t^2 + 2 half_b t + c = 0 (ordered), computed without
     cancellation; (inf, inf) when there are none."""
@@ -59,7 +59,7 @@ def _quadratic_roots(a, half_b, c):
     return t0, t1
 
 
-@njit(inline="always")
+@njit
 def hit_sphere(cx, cy, cz, r, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Nearest t in [tmin, tmax]. A negative radius shows only the inside:
     hits where the ray enters the sphere from outside are ignored."""
@@ -94,7 +94,7 @@ def hit_sphere(cx, cy, cz, r, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return INF
 
 
-@njit(inline="always")
+@njit
 def point_in_polygon(verts, start, count, axis, px, py, pz):
     """Crossing-number test in the plane that drops `axis`, with half-open
     edge rules so that a point on an edge shared by two coplanar polygons
@@ -126,7 +126,7 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
     return inside
 
 
-@njit(inline="always")
+@njit
 def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, dy, dz, tmin, tmax):
     # t from the first vertex, not the stored plane offset: (v0 - o) keeps its
     # digits when the polygon is far from the world origin but near the ray
@@ -144,7 +144,7 @@ def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, 
     return INF
 
 
-@njit(inline="always")
+@njit
 def _edge_sign(px, py, qx, qy):
     """Side of the ray (the origin of the sheared plane) relative to the
     directed edge p -> q: the sign of p x q, and where that is exactly 0 the
@@ -162,43 +162,35 @@ def _edge_sign(px, py, qx, qy):
     return e, 0
 
 
-@njit(inline="always")
-def hit_triangle(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Watertight ray/triangle test (Woop, Benthin and Wald 2013) in double
-    precision, two-sided. The vertices are moved to the ray origin, permuted
-    so that the ray's dominant axis is z, and sheared so that the ray runs
-    along +z; the 2D edge functions of a shared edge are then computed from
-    the same numbers in both triangles. An edge function that is exactly 0
-    is resolved by a consistent tie rule (_edge_sign) instead of the paper's
-    fallback to higher precision, so a ray through a shared edge or vertex of
-    a closed mesh hits exactly one of the triangles there."""
+@njit
+def ray_shear(dx, dy, dz):
+    """The watertight triangle test's per-ray constants: the dominant axis kz, the other two
+    (kx, ky) in the order that keeps the winding, and the shear sx, sy, sz (sz = 0: a zero
+    direction, which hits nothing)."""
     ax, ay, az = abs(dx), abs(dy), abs(dz)
-    # permute: kz the dominant axis, (kx, ky) keeps the winding for dz > 0
     if ax >= ay and ax >= az:
+        kz, kx, ky = 0, 1, 2
         rz, rx, ry = dx, dy, dz
-        pz0, px0, py0 = v0x - ox, v0y - oy, v0z - oz
-        pz1, px1, py1 = v1x - ox, v1y - oy, v1z - oz
-        pz2, px2, py2 = v2x - ox, v2y - oy, v2z - oz
     elif ay >= az:
+        kz, kx, ky = 1, 2, 0
         rz, rx, ry = dy, dz, dx
-        pz0, px0, py0 = v0y - oy, v0z - oz, v0x - ox
-        pz1, px1, py1 = v1y - oy, v1z - oz, v1x - ox
-        pz2, px2, py2 = v2y - oy, v2z - oz, v2x - ox
     else:
+        kz, kx, ky = 2, 0, 1
         rz, rx, ry = dz, dx, dy
-        pz0, px0, py0 = v0z - oz, v0x - ox, v0y - oy
-        pz1, px1, py1 = v1z - oz, v1x - ox, v1y - oy
-        pz2, px2, py2 = v2z - oz, v2x - ox, v2y - oy
-    if rz == 0.0:
-        return INF
     if rz < 0.0:
         rx, ry = ry, rx
-        px0, py0 = py0, px0
-        px1, py1 = py1, px1
-        px2, py2 = py2, px2
-    sx = rx / rz
-    sy = ry / rz
-    sz = 1.0 / rz
+        kx, ky = ky, kx
+    if rz == 0.0:
+        return kx, ky, kz, 0.0, 0.0, 0.0
+    return kx, ky, kz, rx / rz, ry / rz, 1.0 / rz
+
+
+@njit
+def hit_sheared(px0, py0, pz0, px1, py1, pz1, px2, py2, pz2, sx, sy, sz, tmin, tmax):
+    """The watertight test for corners already moved to the ray origin and permuted to
+    (kx, ky, kz) of ray_shear."""
+    if sz == 0.0:
+        return INF
     # shear: the ray becomes the +z axis through the origin
     ax0, ay0 = px0 - sx * pz0, py0 - sy * pz0
     ax1, ay1 = px1 - sx * pz1, py1 - sy * pz1
@@ -218,7 +210,25 @@ def hit_triangle(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy
     return INF
 
 
-@njit(inline="always")
+@njit
+def hit_triangle(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Watertight ray/triangle test (Woop, Benthin and Wald 2013) in double
+    precision, two-sided. The vertices are moved to the ray origin, permuted
+    so that the ray's dominant axis is z, and sheared so that the ray runs
+    along +z; the 2D edge functions of a shared edge are then computed from
+    the same numbers in both triangles. An edge function that is exactly 0
+    is resolved by a consistent tie rule (_edge_sign) instead of the paper's
+    fallback to higher precision, so a ray through a shared edge or vertex of
+    a closed mesh hits exactly one of the triangles there."""
+    kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
+    p0 = (v0x - ox, v0y - oy, v0z - oz)
+    p1 = (v1x - ox, v1y - oy, v1z - oz)
+    p2 = (v2x - ox, v2y - oy, v2z - oz)
+    return hit_sheared(p0[kx], p0[ky], p0[kz], p1[kx], p1[ky], p1[kz], p2[kx], p2[ky], p2[kz], sx, sy, sz,
+                       tmin, tmax)
+
+
+@njit
 def hit_cone(bx, by, bz, ax, ay, az, length, r0, r1, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Open cone or cylinder from base b along unit axis a for `length`,
     radius r0 at the base and r1 at the apex, no caps. Negative radii
@@ -257,7 +267,7 @@ def hit_cone(bx, by, bz, ax, ay, az, length, r0, r1, ox, oy, oz, dx, dy, dz, tmi
     return INF
 
 
-@njit(inline="always")
+@njit
 def cone_normal(bx, by, bz, ax, ay, az, r0, slope, px, py, pz):
     """Outward (unnormalised) normal of the cone surface at p."""
     wx, wy, wz = px - bx, py - by, pz - bz

@@ -38,15 +38,16 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from numba import prange
 
 from . import counters as C
+from .compiletime import CompileClock
 from .config import njit
 from .errors import RayKernelError
 from .flatten import BVH, LIST, flatten
 from . import meshcast
 from .hitsurface import store_miss, store_surface
 from .meshcast import MeshKernel
+from .parallel import for_ranges
 from .primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 from .scene import Scene, TriangleMesh
 from .traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
@@ -85,18 +86,17 @@ class Hits:
 
 # ----------------------------------------------------------------- kernel
 
-@njit(parallel=True)
+@njit
 def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, idx_out, inst_out,
-           uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters):
+           uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray.
     Closest/any fill t/kind/idx/inst (and uv, normals when with_surface).
     All hits: with len(offsets) == 0 only counts them into idx_out; else
-    writes ray r's hits to rows offsets[r] .. offsets[r + 1] of all_t/all_i."""
+    writes ray r's hits to rows offsets[r] .. offsets[r + 1] of all_t/all_i.
+    Chunks c0..c1-1 of `chunk` rays, counting into counters[c]."""
     n = origins.shape[0]
-    n_chunks = (n + chunk - 1) // chunk
     store = offsets.shape[0] > 0
-    for ci in prange(n_chunks):
-        c = np.int64(ci)
+    for c in range(c0, c1):
         r0 = c * chunk
         r1 = min(n, (c + 1) * chunk)
         ws0 = workspace()
@@ -226,11 +226,13 @@ class RayScene:
 
     SPHERE, POLYGON, PATCH, CONE, TRIANGLE = SPHERE, POLYGON, PATCH, CONE, TRIANGLE
 
-    def __init__(self, scene: Scene, accel: str = "bvh"):
+    def __init__(self, scene: Scene, accel: str = "bvh", max_memory=None):
+        """max_memory: the memory budget of the build and of lazy refinement, in bytes or as
+        "8G" (default: half of this machine's memory)."""
         if not isinstance(scene, Scene):
             raise RayInputError(f"scene must be a raykernel Scene, got {type(scene).__name__}")
         self.scene = scene
-        self.geo, self.build_stats = flatten(scene, accel)
+        self.geo, self.build_stats = flatten(scene, accel, max_memory)
         table = self.build_stats.pop("geometries")
         self.geometries = [{"kind": KIND_NAMES[k], "count": int(n)} for k, _, n in table]
         # per kind family (polygons and patches share one numbering): first global index of each geometry
@@ -335,50 +337,55 @@ class RayScene:
         all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
         start = time.perf_counter()
-        if n and self._mesh is not None:
-            mesh = self._mesh
-            meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom, idx, inst,
-                           uv, gn, sn, with_surface, offsets, all_t, all_i, counters)
-        elif n and self._lazy is not None:
-            # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
-            # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
-            # than a chunk add into the first chunk's row. Results go back to the rays' own order.
-            order = coarse_to_fine(n)
-            ins = [a[order] for a in (o, d, lo, hi)]
-            outs = [np.empty_like(a) for a in (t, kind, idx, inst, uv, gn, sn)]
-            p_offsets, p_all_t, p_all_i = offsets, all_t, all_i
-            if len(offsets):
-                counts = np.diff(offsets)
-                p_offsets = np.zeros(n + 1, np.int64)
-                np.cumsum(counts[order], out=p_offsets[1:])
-                p_all_t, p_all_i = np.empty_like(all_t), np.empty_like(all_i)
-            for a, b in self._lazy.ranges(n, CHUNK):
-                rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + self._lazy.columns), np.int64)
-                _query(self.geo, *(x[a:b] for x in ins), np.int64(mode), CHUNK, *(x[a:b] for x in outs),
-                       with_surface, p_offsets[a:b + 1] if len(offsets) else offsets, p_all_t, p_all_i, rows)
-                counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
-                self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
-            for mine, theirs in zip((t, kind, idx, inst, uv, gn, sn), outs):
-                if len(mine):       # surfaces only when asked for
-                    mine[order] = theirs
-            if len(offsets):
-                # ray order[k]'s hits lie at p_offsets[k]..p_offsets[k + 1]
-                start = np.empty(n, np.int64)
-                start[order] = p_offsets[:-1]
-                src = np.repeat(start - offsets[:-1], counts) + np.arange(offsets[-1])
-                all_t[:] = p_all_t[src]
-                all_i[:] = p_all_i[src]
-            self._lazy.update_stats(self.build_stats, self.geo)
-        elif n:
-            _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv, gn, sn,
-                   with_surface, offsets, all_t, all_i, counters)
-        seconds = time.perf_counter() - start
+        with CompileClock() as clock:
+            if n and self._mesh is not None:
+                mesh = self._mesh
+                for_ranges(lambda c0, c1: meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind,
+                                                         geom, idx, inst, uv, gn, sn, with_surface, offsets, all_t,
+                                                         all_i, counters, c0, c1), len(counters))
+            elif n and self._lazy is not None:
+                # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
+                # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
+                # than a chunk add into the first chunk's row. Results go back to the rays' own order.
+                order = coarse_to_fine(n)
+                ins = [a[order] for a in (o, d, lo, hi)]
+                outs = [np.empty_like(a) for a in (t, kind, idx, inst, uv, gn, sn)]
+                p_offsets, p_all_t, p_all_i = offsets, all_t, all_i
+                if len(offsets):
+                    counts = np.diff(offsets)
+                    p_offsets = np.zeros(n + 1, np.int64)
+                    np.cumsum(counts[order], out=p_offsets[1:])
+                    p_all_t, p_all_i = np.empty_like(all_t), np.empty_like(all_i)
+                for a, b in self._lazy.ranges(n, CHUNK):
+                    rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + self._lazy.columns), np.int64)
+                    args = (self.geo, *(x[a:b] for x in ins), np.int64(mode), CHUNK, *(x[a:b] for x in outs),
+                            with_surface, p_offsets[a:b + 1] if len(offsets) else offsets, p_all_t, p_all_i, rows)
+                    for_ranges(lambda c0, c1, args=args: _query(*args, c0, c1), len(rows))
+                    counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
+                    self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
+                for mine, theirs in zip((t, kind, idx, inst, uv, gn, sn), outs):
+                    if len(mine):       # surfaces only when asked for
+                        mine[order] = theirs
+                if len(offsets):
+                    # ray order[k]'s hits lie at p_offsets[k]..p_offsets[k + 1]
+                    start = np.empty(n, np.int64)
+                    start[order] = p_offsets[:-1]
+                    src = np.repeat(start - offsets[:-1], counts) + np.arange(offsets[-1])
+                    all_t[:] = p_all_t[src]
+                    all_i[:] = p_all_i[src]
+                self._lazy.update_stats(self.build_stats, self.geo)
+            elif n:
+                for_ranges(lambda c0, c1: _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv,
+                                                 gn, sn, with_surface, offsets, all_t, all_i, counters, c0, c1),
+                           len(counters))
+        seconds = time.perf_counter() - start - clock.seconds
         if self._mesh is None and mode != ALL_HITS:
             geom, idx = self._identify(kind, idx)
         totals = counters.sum(axis=0)
         stats = {name: int(totals[k]) for k, name in C.NAMES.items() if totals[k]}
         stats["rays.cast"] = n
         stats["time.trace"] = seconds
+        stats["time.compile"] = clock.seconds
         return t, kind, geom, idx, inst, uv, gn, sn, stats
 
     def intersect(self, origins, directions, tmin=0.0, tmax=np.inf) -> Hits:

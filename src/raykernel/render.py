@@ -30,14 +30,15 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
-from numba import prange
 
 from . import counters as C
 from .aggregates.lazyoctree import pass_ranges
+from .compiletime import CompileClock
 from .config import njit
 from .errors import OptionError
 from .flatten import flatten
-from .primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal
+from .parallel import default_threads, for_ranges
+from .primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal, normalize
 from .scene import Scene
 from .stats import Stats
 from .traverse import ANY_HIT, CLOSEST, intersect, workspace
@@ -56,15 +57,7 @@ def _dot(ax, ay, az, bx, by, bz):
     return ax * bx + ay * by + az * bz
 
 
-@njit(inline="always")
-def _normalize(x, y, z):
-    n = math.sqrt(x * x + y * y + z * z)
-    if n == 0.0:
-        return 0.0, 0.0, 0.0
-    return x / n, y / n, z / n
-
-
-@njit(inline="always")
+@njit(private=True)
 def _patch_normal(geo, idx, px, py, pz):
     """Interpolated vertex normal of patch idx at local point p: barycentric
     in the fan triangle (v0, vk, vk+1) that contains p."""
@@ -99,7 +92,7 @@ def _patch_normal(geo, idx, px, py, pz):
 
 
 
-@njit(inline="always")
+@njit(private=True)
 def surface(geo, kind, idx, px, py, pz):
     """Local geometric normal, local shading normal (both unnormalised) and
     material of primitive (kind, idx) at local point p."""
@@ -142,7 +135,7 @@ def surface(geo, kind, idx, px, py, pz):
     return gx, gy, gz, sx, sy, sz, geo.tri_mat[idx]
 
 
-@njit
+@njit(private=True)
 def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff,
            rays, ws, cnt):
     """Colour of one eye ray: the whole ray tree, depth first, on an explicit stack.
@@ -180,9 +173,9 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
         lz = m[8] * px + m[9] * py + m[10] * pz + m[11]
         gx, gy, gz, sx, sy, sz, mat = surface(geo, kind, idx, lx, ly, lz)
         # normals to world space by the transpose of the world-to-local map
-        gx, gy, gz = _normalize(m[0] * gx + m[4] * gy + m[8] * gz, m[1] * gx + m[5] * gy + m[9] * gz,
+        gx, gy, gz = normalize(m[0] * gx + m[4] * gy + m[8] * gz, m[1] * gx + m[5] * gy + m[9] * gz,
                                 m[2] * gx + m[6] * gy + m[10] * gz)
-        sx, sy, sz = _normalize(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
+        sx, sy, sz = normalize(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
                                 m[2] * sx + m[6] * sy + m[10] * sz)
         entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
         if not entering:
@@ -195,7 +188,7 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
         ax, ay, az = px + eps * gx, py + eps * gy, pz + eps * gz     # on the side the ray came from
         cr, cg, cb = mats[mat, 0], mats[mat, 1], mats[mat, 2]
         kd, ks, shine, tr, ior = mats[mat, 3], mats[mat, 4], mats[mat, 5], mats[mat, 6], mats[mat, 7]
-        ndx, ndy, ndz = _normalize(dx, dy, dz)
+        ndx, ndy, ndz = normalize(dx, dy, dz)
         cos_i = -_dot(ndx, ndy, ndz, sx, sy, sz)
         # mirror direction, also used for the Phong highlight
         rx, ry, rz = ndx + 2.0 * cos_i * sx, ndy + 2.0 * cos_i * sy, ndz + 2.0 * cos_i * sz
@@ -203,7 +196,7 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
         hr, hg, hb = 0.0, 0.0, 0.0
         for li in range(n_lights):
             tlx, tly, tlz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
-            ulx, uly, ulz = _normalize(tlx, tly, tlz)
+            ulx, uly, ulz = normalize(tlx, tly, tlz)
             n_dot_l = _dot(sx, sy, sz, ulx, uly, ulz)
             if n_dot_l <= 0.0 or _dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
                 continue        # the surface faces away from this light: no shadow ray
@@ -241,7 +234,7 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
                     c2 = eta * cos_i - math.sqrt(k)
                     bx, by, bz = px - eps * gx, py - eps * gy, pz - eps * gz   # the far side
                     rays[top, 0], rays[top, 1], rays[top, 2] = bx, by, bz
-                    tx, ty, tz = _normalize(eta * ndx + c2 * sx, eta * ndy + c2 * sy, eta * ndz + c2 * sz)
+                    tx, ty, tz = normalize(eta * ndx + c2 * sx, eta * ndy + c2 * sy, eta * ndz + c2 * sz)
                     rays[top, 3], rays[top, 4], rays[top, 5] = tx, ty, tz
                     rays[top, 6], rays[top, 7], rays[top, 8] = wr * tw, wg * tw, wb * tw
                     rays[top, 9] = depth + 1
@@ -249,7 +242,7 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
                     top += 1
         if cutoff == 0.0 or max(wr, max(wg, wb)) * reflect_weight >= cutoff:
             rays[top, 0], rays[top, 1], rays[top, 2] = ax, ay, az
-            rx, ry, rz = _normalize(rx, ry, rz)
+            rx, ry, rz = normalize(rx, ry, rz)
             rays[top, 3], rays[top, 4], rays[top, 5] = rx, ry, rz
             rays[top, 6], rays[top, 7], rays[top, 8] = wr * reflect_weight, wg * reflect_weight, wb * reflect_weight
             rays[top, 9] = depth + 1
@@ -258,16 +251,15 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
     return r_out, g_out, b_out
 
 
-@njit(parallel=True)
-def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, first, last,
+@njit
+def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, first, last, row0,
                   max_depth, cutoff, out, counters, passes, step, coarse):
     """Trace tiles first..last-1 of the sample grid into `out`, adding into one counter row per tile.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
     Within each tile only the samples on the lattice of `step` (every step-th row and column),
     less those on the coarser lattice of `coarse` (0: none) traced before.
-    passes[tile - first]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py)."""
-    for ti in prange(last - first):
-        tile = np.int64(ti) + first
+    passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py)."""
+    for tile in range(first, last):
         ws = workspace()
         rays = np.zeros((RAY_STACK, 11))
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
@@ -280,7 +272,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
                 dx = cam[3] + i * cam[6] + j * cam[9]
                 dy = cam[4] + i * cam[7] + j * cam[10]
                 dz = cam[5] + i * cam[8] + j * cam[11]
-                dx, dy, dz = _normalize(dx, dy, dz)
+                dx, dy, dz = normalize(dx, dy, dz)
                 r, g, b = _trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz,
                                  max_depth, cutoff, rays, ws, cnt)
                 out[j, i, 0] = r
@@ -289,7 +281,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
-            passes[ti, k] = cnt[C.N_COUNTERS + k]
+            passes[tile - row0, k] = cnt[C.N_COUNTERS + k]
 
 
 def lazy_passes(n_tiles: int, batch: int) -> list[tuple[int, int, int, int]]:
@@ -346,8 +338,9 @@ class RenderResult:
         return to_uint8(self.image)
 
     def save(self, path) -> None:
-        from .imageio import save_png
-        save_png(self.image, path)
+        """Write the image in the format the suffix names (imageio.save_image)."""
+        from .imageio import save_image
+        save_image(self.image, path)
 
     def _repr_html_(self) -> str:
         from .imageio import png_data_uri
@@ -356,7 +349,7 @@ class RenderResult:
 
 
 def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd: bool = False,
-           max_depth: int = 5, threads: int | None = None, progress=None) -> RenderResult:
+           max_depth: int = 5, threads: int | None = None, progress=None, max_memory=None) -> RenderResult:
     """Render `scene`; returns the float image and the statistics.
 
     accel: the default accelerator spec for groups that name none.
@@ -364,6 +357,8 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     spd: follow the SPD test procedure (corner rays, no cut-off).
     threads: worker threads (default: all cores).
     progress: callable(done, total) called after each pass, in samples (of full tiles).
+    max_memory: the memory budget of every build, in bytes or as "8G" (default: half of this
+    machine's memory); a structure that would need more is a MemoryBudgetError.
     """
     if isinstance(max_depth, bool) or not isinstance(max_depth, (int, np.integer)) or not 1 <= max_depth <= 32:
         raise OptionError(f"max_depth must be an integer in [1, 32], got {max_depth!r}")
@@ -374,12 +369,13 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
             raise OptionError(f"threads must be a positive integer, got {threads!r}")
         numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
+    n_threads = int(threads) if threads is not None else default_threads()
     width = height = resolution
     if resolution is None:
         width, height = scene.camera.width, scene.camera.height
 
     t0 = time.perf_counter()
-    geo, build = flatten(scene, accel)
+    geo, build = flatten(scene, accel, max_memory)
     preprocess = time.perf_counter() - t0
 
     sw, sh = (width + 1, height + 1) if spd else (width, height)
@@ -405,16 +401,20 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     work = [(last - first) * ((TILE // step) ** 2 - (TILE // coarse) ** 2 if coarse else (TILE // step) ** 2)
             for step, coarse, first, last in passes]
     done, total = 0, sum(work)
-    for (step, coarse, first, last), part in zip(passes, work):
-        pass_counts = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
-        _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first, last, max_depth,
-                      cutoff, samples, counts, pass_counts, step, coarse)
-        if lazy is not None:
-            geo = lazy.refine(geo, pass_counts)
-        done += part
-        if progress is not None:
-            progress(done, total)
-    trace = time.perf_counter() - t1
+    with CompileClock() as clock:
+        for (step, coarse, first, last), part in zip(passes, work):
+            pass_counts = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
+
+            def tiles(lo, hi, first=first, step=step, coarse=coarse, geo=geo, pass_counts=pass_counts):
+                _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first + lo, first + hi,
+                              first, max_depth, cutoff, samples, counts, pass_counts, step, coarse)
+            for_ranges(tiles, last - first, n_threads)
+            if lazy is not None:
+                geo = lazy.refine(geo, pass_counts)
+            done += part
+            if progress is not None:
+                progress(done, total)
+    trace = time.perf_counter() - t1 - clock.seconds
     if lazy is not None:
         lazy.update_stats(build, geo)
 
@@ -422,9 +422,9 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
         image = 0.25 * (samples[:-1, :-1] + samples[1:, :-1] + samples[:-1, 1:] + samples[1:, 1:])
     else:
         image = samples
-    stats = Stats.from_counters(counts.sum(axis=0), build, preprocess=preprocess, trace=trace,
+    stats = Stats.from_counters(counts.sum(axis=0), build, preprocess=preprocess, trace=trace, compile=clock.seconds,
                                 info={"scene": scene.source, "accel": accel, "resolution": [width, height],
                                       "spd": spd, "max_depth": max_depth,
-                                      "threads": numba.get_num_threads(),
+                                      "threads": n_threads,
                                       "primitives": scene.count_primitives()})
     return RenderResult(image=image, stats=stats)

@@ -17,6 +17,7 @@ import numpy as np
 from . import counters as C
 
 RAY_KINDS = ("eye", "reflect", "refract", "shadow")
+FULL_MAP_MULTIPLIES = 54    # mapping a ray into an instance and composing its frame's map with a general affine map
 
 
 class Stats(dict):
@@ -26,7 +27,9 @@ class Stats(dict):
     info: dict
 
     @classmethod
-    def from_counters(cls, totals: np.ndarray, build: dict, preprocess: float, trace: float, info: dict):
+    def from_counters(cls, totals: np.ndarray, build: dict, preprocess: float, trace: float, info: dict,
+                      compile: float = 0.0):
+        """compile: seconds spent compiling kernels during the trace, already left out of `trace`."""
         s = cls()
         for column, name in C.NAMES.items():
             s[name] = int(totals[column])
@@ -44,7 +47,10 @@ class Stats(dict):
                 s[key] = value
         s["time.preprocess"] = preprocess
         s["time.trace"] = trace
-        s["rays.per_second"] = rays / trace if trace > 0 else 0.0
+        s["time.compile"] = compile
+        mapped = sum(s[f"transforms.{k}"] for k in ("identity", "translation", "scale", "affine"))
+        s["transforms.multiplies_saved"] = FULL_MAP_MULTIPLIES * mapped - s["transforms.multiplies"]
+        s["time.rays_per_second"] = rays / trace if trace > 0 else 0.0
         s.aggregates = list(build.get("aggregates", []))
         s.info = dict(info)
         return s
@@ -85,7 +91,9 @@ class Stats(dict):
         out.append(("build", "bytes", f"{self.get('build.bytes', 0):,}", ""))
         out.append(("time", "preprocess", f"{self['time.preprocess']:.3f} s", ""))
         out.append(("time", "trace", f"{self['time.trace']:.3f} s",
-                    f"{self['rays.per_second'] / 1e6:.2f} Mrays/s"))
+                    f"{self['time.rays_per_second'] / 1e6:.2f} Mrays/s"))
+        if self.get("time.compile"):
+            out.append(("time", "compile", f"{self['time.compile']:.1f} s", "kernels compiled (first run only)"))
         return out
 
     def table(self, title: str | None = None):

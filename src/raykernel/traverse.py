@@ -18,7 +18,6 @@ one closest t shrinks through all.
 """
 
 import numpy as np
-from numba import prange
 
 from . import counters as C
 from .aggregates import bvh, grid, octree, rc
@@ -27,11 +26,14 @@ from .aggregates.walk import (F_DIR, F_KEY_D, F_KEY_END, F_KEY_O, F_MAP, F_MBOX,
                               entry_step, entry_tag, push)
 from .boxes import CONSERVATIVE, INF, box_entry, inverse
 from .config import njit
-from .flatten import LIST, MAX_NESTING, STACK_SIZE
+from .flatten import IDENTITY, LIST, MAX_NESTING, SCALE, STACK_SIZE, TRANSLATION
+from .parallel import for_ranges
 from .primitives import (AGGREGATE, CONE, INDEX_MASK, INSTANCE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE,
                          hit_cone, hit_polygon, hit_sphere, hit_triangle)
 
-CLOSEST, ANY_HIT, ALL_HITS = 0, 1, 2   # intersect's mode: the closest hit, any hit, every hit
+# intersect's mode: the closest hit, any hit, every hit. numpy integers, not Python ints: numba
+# compiles a function again for each literal int value it is passed
+CLOSEST, ANY_HIT, ALL_HITS = np.int64(0), np.int64(1), np.int64(2)
 HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that was hit
 HIT_I = 3                    # hit_i: kind, index, innermost instance (-1: none)
 KEYED = entry_tag(LIST, 1)   # stack entry: go on with the frame's keyed list at stack_a
@@ -59,7 +61,7 @@ def _enter(geo, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b, stack_t
     return push(stack_a, stack_b, stack_t, sp, geo.agg_start[a], entry_tag(kind, START), te)
 
 
-@njit
+@njit(private=True)
 def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     """Closest hit (mode CLOSEST) or the first hit found (ANY_HIT) of the ray with the
     scene in [tmin, tmax]. On a hit returns True and fills hit_f (t, world-to-local map
@@ -72,7 +74,7 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     best_inst = np.int64(-1)
     ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
     # frame 0: the root aggregate in world space, identity map
-    f = 0
+    f = np.int64(0)     # not the literal 0: that too would be compiled apart
     frame_f[0, F_ORIGIN], frame_f[0, F_ORIGIN + 1], frame_f[0, F_ORIGIN + 2] = ox, oy, oz
     frame_f[0, F_DIR], frame_f[0, F_DIR + 1], frame_f[0, F_DIR + 2] = dx, dy, dz
     for k in range(12):
@@ -180,7 +182,7 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                     break       # missed the child's bounds
                 frame_f[g, F_ORIGIN], frame_f[g, F_ORIGIN + 1], frame_f[g, F_ORIGIN + 2] = nox, noy, noz
                 frame_f[g, F_DIR], frame_f[g, F_DIR + 1], frame_f[g, F_DIR + 2] = ndx, ndy, ndz
-                _compose_map(geo, kind == INSTANCE, idx, frame_f, f, g)
+                _compose_map(geo, kind == INSTANCE, idx, frame_f, f, g, cnt)
                 frame_i[g, FI_AGG], frame_i[g, FI_BASE], frame_i[g, FI_INST] = child, sp, inst
                 frame_f[g, F_MBOX_ON] = 0.0
                 f = g
@@ -223,18 +225,44 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
 
 @njit(inline="always")
 def _map_ray(geo, idx, ox, oy, oz, dx, dy, dz, cnt):
-    """The ray in instance idx's space."""
+    """The ray in instance idx's space, with only the multiplies its map's class needs (Arvo's
+    sparse transforms); the same numbers as the full product, since the terms left out are
+    exact zeros and ones."""
     m = geo.inst_to_local[idx]
+    cls = geo.inst_class[idx]
+    cnt[C.TRANSFORMS + cls] += 1
+    if cls == IDENTITY:
+        return ox, oy, oz, dx, dy, dz
+    if cls == TRANSLATION:
+        return ox + m[3], oy + m[7], oz + m[11], dx, dy, dz
+    if cls == SCALE:
+        cnt[C.TRANSFORM_MULTIPLIES] += 6
+        return m[0] * ox + m[3], m[5] * oy + m[7], m[10] * oz + m[11], m[0] * dx, m[5] * dy, m[10] * dz
+    cnt[C.TRANSFORM_MULTIPLIES] += 18
     return (m[0] * ox + m[1] * oy + m[2] * oz + m[3], m[4] * ox + m[5] * oy + m[6] * oz + m[7],
             m[8] * ox + m[9] * oy + m[10] * oz + m[11],
             m[0] * dx + m[1] * dy + m[2] * dz, m[4] * dx + m[5] * dy + m[6] * dz, m[8] * dx + m[9] * dy + m[10] * dz)
 
 
 @njit(inline="always")
-def _compose_map(geo, instance, idx, frame_f, f, g):
-    """Frame g's world-to-local map: instance idx's map after frame f's, or frame f's."""
-    if instance:
+def _compose_map(geo, instance, idx, frame_f, f, g, cnt):
+    """Frame g's world-to-local map: instance idx's map after frame f's, or frame f's; with only
+    the multiplies the class needs, and the same numbers as the full product."""
+    cls = geo.inst_class[idx] if instance else IDENTITY
+    if cls == TRANSLATION:
         m = geo.inst_to_local[idx]
+        for r in range(3):
+            for c in range(4):
+                frame_f[g, F_MAP + 4 * r + c] = frame_f[f, F_MAP + 4 * r + c] + (m[4 * r + 3] if c == 3 else 0.0)
+    elif cls == SCALE:
+        m = geo.inst_to_local[idx]
+        cnt[C.TRANSFORM_MULTIPLIES] += 12
+        for r in range(3):
+            for c in range(4):
+                frame_f[g, F_MAP + 4 * r + c] = (m[4 * r + 3] if c == 3 else 0.0) + m[5 * r] * frame_f[f, F_MAP + 4 * r + c]
+    elif cls != IDENTITY:
+        m = geo.inst_to_local[idx]
+        cnt[C.TRANSFORM_MULTIPLIES] += 36
         for r in range(3):
             for c in range(4):
                 acc = m[4 * r + 3] if c == 3 else 0.0
@@ -246,13 +274,11 @@ def _compose_map(geo, instance, idx, frame_f, f, g):
             frame_f[g, F_MAP + k] = frame_f[f, F_MAP + k]
 
 
-@njit(parallel=True)
+@njit
 def _cast_chunks(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, index_out, inst_out,
-                 counters):
+                 counters, c0, c1):
     n = origins.shape[0]
-    n_chunks = (n + chunk - 1) // chunk
-    for ci in prange(n_chunks):
-        c = np.int64(ci)
+    for c in range(c0, c1):
         ws = workspace()
         hit_f, hit_i = ws[5], ws[6]
         cnt = np.zeros(C.N_COUNTERS, np.int64)
@@ -295,6 +321,7 @@ def cast_rays(geo, origins, directions, tmin=0.0, tmax=np.inf, any_hit=False):
     inst = np.empty(n, np.int64)
     counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
     if n:
-        _cast_chunks(geo, origins, directions, tmin, tmax, np.int64(ANY_HIT if any_hit else CLOSEST), CHUNK, t,
-                     kind, index, inst, counters)
+        mode = ANY_HIT if any_hit else CLOSEST
+        for_ranges(lambda c0, c1: _cast_chunks(geo, origins, directions, tmin, tmax, mode, CHUNK, t, kind, index,
+                                               inst, counters, c0, c1), len(counters))
     return t, kind, index, inst, counters.sum(axis=0)

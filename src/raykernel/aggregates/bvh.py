@@ -150,7 +150,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost):
     scale = np.zeros(3, dtype=np.float64)
     cmin = np.zeros(3, dtype=np.float64)
 
-    _range_bounds(data, 0, n, box, cbox)
+    _range_bounds(data, np.int64(0), n, box, cbox)
     for k in range(6):
         bounds[0, k] = box[k]
         st_cb[0, k] = cbox[k]
@@ -528,7 +528,7 @@ def append_bvh(flat, tree: BVHArrays, refs, box, margin: float) -> int:
     return flat.add_aggregate(CODE, first_node, len(tree.count), box)
 
 
-@njit
+@njit(private=True)
 def step(geo, node, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt):
     """Descend from `node` to the nearest leaf the ray enters, pushing the farther child
     of every inner node passed; returns (sp, s, e): the leaf's references (none: s == e)."""

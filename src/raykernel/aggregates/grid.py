@@ -58,6 +58,7 @@ import numpy as np
 
 from ..config import njit
 from ..errors import OptionError, SceneError
+from ..memory import check, memory_limit
 
 __all__ = ["GridArrays", "RULES", "build_grid", "grid_resolution"]
 
@@ -211,7 +212,7 @@ def _check_bounds(bounds) -> np.ndarray:
 
 
 def build_grid(bounds, *, res_rule="regular", density=2.0, max_res=256, max_cells=MAX_CELLS,
-               max_refs=MAX_REFS, name=None):
+               max_refs=MAX_REFS, name=None, max_bytes=None):
     """Build a uniform grid over item boxes.
 
     bounds: (n, 6) item boxes (xmin, ymin, zmin, xmax, ymax, zmax), finite,
@@ -252,6 +253,9 @@ def build_grid(bounds, *, res_rule="regular", density=2.0, max_res=256, max_cell
     lo[~solid] = 0
     hi[~solid] = -1
     n_refs = int(np.prod(hi - lo + 1, axis=1).sum())
+    # cell offsets and references: the builder's, the flat arrays' and a copy of each
+    check(24.0 * (ncells + 1) + 24.0 * n_refs, memory_limit() if max_bytes is None else int(max_bytes),
+          f"the grid of {what}", "lower density or max_res")
     if n_refs > max_refs:
         raise SceneError(f"{what}: the grid would hold {n_refs} references, more than the limit of "
                          f"{max_refs}; lower density or max_res")
@@ -314,11 +318,11 @@ def append_grid(flat, grid, cell_start, cell_refs, mailbox: bool, box) -> int:
 
 def flatten(builder, params, refs, bounds, name, box):
     grid, stats = build_grid(bounds, res_rule=params["res"], density=params["density"], max_res=params["max_res"],
-                             name=name or "(unnamed)")
+                             name=name or "(unnamed)", max_bytes=builder.max_bytes)
     return append_grid(builder.flat, grid, grid.cell_start, refs[grid.items], params["mailbox"], box), dict(stats)
 
 
-@njit
+@njit(private=True)
 def step(geo, kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
          stack_a, stack_b, stack_t, sp, cnt):
     """The 3D-DDA (Amanatides and Woo 1987) from the entry point (START) or the frame's

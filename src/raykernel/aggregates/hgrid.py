@@ -103,7 +103,7 @@ def _level(builder, params, refs, bounds, name, level, levels, budget):
     to a sub-grid over those items instead; returns (aggregate, statistics). Sub-levels record
     their statistics themselves. budget[0]: references the levels may still take."""
     grid, stats = build_grid(bounds, res_rule=params["res"], density=params["density"], max_res=params["max_res"],
-                             name=name or "(unnamed)")
+                             name=name or "(unnamed)", max_bytes=builder.max_bytes)
     if budget[0] is None:
         budget[0] = BUDGET * len(grid.items) + 4096
     cells = dense_cells(grid, params["threshold"]) if level < levels else np.zeros(0, np.int64)

@@ -153,7 +153,8 @@ def flatten(builder, params, refs, bounds, name, box):
     weights = builder.vertex_weights(refs) if params["vertexcount"] else None
     tree, octree_stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"], rule60=params["rule60"],
                                       density=params["density"], vertexcount=params["vertexcount"], weights=weights,
-                                      collapse=params["collapse"], budget=params["budget"], name=name)
+                                      collapse=params["collapse"], budget=params["budget"], name=name,
+                                      max_bytes=builder.max_bytes)
     voxels = problem_voxels(tree, params["threshold"])
     n_problem = len(voxels)
     if builder.nesting >= MAX_NESTING:

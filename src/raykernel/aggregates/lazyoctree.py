@@ -124,6 +124,7 @@ import numpy as np
 from ..accel import Kind, Param
 from ..config import njit
 from ..errors import OptionError
+from ..memory import check
 from .octree import (ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, append_octree,
                      octree_frame)
 
@@ -311,6 +312,7 @@ class LazyOctrees:
         stats dict). Returns (geo viewing the growable arrays, LazyOctrees)."""
         self = object.__new__(cls)
         self.records = records
+        self.max_bytes = min(rec["max_bytes"] for rec in records)
         n, nr = len(geo.oct_count), len(geo.refs)
         self.n0, self.n_nodes, self.n_refs = n, n, nr
         self.buf = {}
@@ -455,6 +457,15 @@ class LazyOctrees:
         self.buf["oct_pass"][self.cand] = np.arange(len(self.cand), dtype=np.int64)
 
     def _reserve(self, nodes, refs):
+        node_cap = max(len(self.owner), self.n_nodes + nodes)
+        ref_cap = max(len(self.refs), self.n_refs + refs)
+        if node_cap > len(self.owner):
+            node_cap = max(node_cap, 2 * len(self.owner))
+        if ref_cap > len(self.refs):
+            ref_cap = max(ref_cap, 2 * len(self.refs))
+        node_bytes = sum(a.itemsize * (a.size // len(a)) for a in self.buf.values()) + 17
+        check(node_cap * node_bytes * 2 + ref_cap * 16 * 2, self.max_bytes, "the lazy octrees' refinement",
+              "lower depth or give them a reference budget (budget=16)")
         need = self.n_nodes + nodes
         if need > len(self.owner):
             cap = max(need, 2 * len(self.owner))
@@ -566,7 +577,7 @@ def flatten(builder, params, refs, bounds, name, box):
     tree, stats, boxes = build_lazy(bounds, depth=params["depth"], rays=params["rays"], k=params["k"],
                                     rule60=params["rule60"], budget=params["budget"], name=name)
     flat.lazy.append(dict(params, octree=flat.size("oct_root"), node=flat.size("oct_count"), ref=flat.size("refs"),
-                          refs=refs, boxes=boxes, stats=stats))
+                          refs=refs, boxes=boxes, stats=stats, max_bytes=builder.max_bytes))
     return append_octree(flat, tree, refs, params["walk"], params["mailbox"], box), stats
 
 

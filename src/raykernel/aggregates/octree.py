@@ -92,6 +92,7 @@ import numpy as np
 
 from ..config import njit
 from ..errors import OptionError, SceneError
+from ..memory import check, memory_limit
 from .grid import grid_box
 
 __all__ = ["OctreeArrays", "build_octree", "ADDRESS_BITS", "MAX_DEPTH"]
@@ -101,6 +102,8 @@ WALKS = ("point", "neighbor", "parametric")   # oct_walk codes 0, 1, 2
 MAX_DEPTH = 24             # the parametric walk keeps up to 3 siblings per level on the kernel's stack
 MAX_NODES = 20_000_000
 BUDGET_SLACK = 4096        # references a budget allows on top of budget * items (small scenes stay free)
+PEAK_NODE_BYTES = 512      # memory a node takes at the peak of a build: the builder's arrays, the flat ones, copies
+PEAK_REF_BYTES = 32        # the same for a reference
 
 
 class OctreeArrays(NamedTuple):
@@ -161,8 +164,10 @@ def _heap_pop(keys, nodes, size):
 
 
 @njit
-def _subdivide(items, vols, weights, origin, unit, depth, leaf, rule60, density, max_refs):
-    """Centre subdivision, most items times area first (a heap); returns the raw tree.
+def _subdivide(items, vols, weights, origin, unit, depth, leaf, rule60, density, max_refs, max_bytes):
+    """Centre subdivision, most items times area first (a heap); returns the raw tree and 0, or,
+    when its arrays would grow past max_bytes (estimated at PEAK_NODE_BYTES a node and
+    PEAK_REF_BYTES a reference, the flat copies included), the part built and the bytes needed.
     max_refs > 0 caps the references all leaves hold together."""
     n = items.shape[0]
     cap = 1024
@@ -225,6 +230,9 @@ def _subdivide(items, vols, weights, origin, unit, depth, leaf, rule60, density,
                 chi[c, a] = origin[a] + unit[a] * (lo + half)
         # child lists after the used part of the list buffer, m slots each, packed below
         while top_list + 8 * m > lists.shape[0]:
+            need = first.shape[0] * PEAK_NODE_BYTES + 2 * lists.shape[0] * PEAK_REF_BYTES
+            if need > max_bytes:
+                return first[:n_nodes], count[:n_nodes], loc[:n_nodes], level[:n_nodes], lists, need
             bigger = np.empty(2 * lists.shape[0], np.int64)
             bigger[:top_list] = lists[:top_list]
             lists = bigger
@@ -263,6 +271,9 @@ def _subdivide(items, vols, weights, origin, unit, depth, leaf, rule60, density,
             pos += child_n[c]
         if n_nodes + 8 > first.shape[0]:
             new_cap = 2 * first.shape[0]
+            need = new_cap * PEAK_NODE_BYTES + lists.shape[0] * PEAK_REF_BYTES
+            if need > max_bytes:
+                return first[:n_nodes], count[:n_nodes], loc[:n_nodes], level[:n_nodes], lists, need
             f2 = np.empty(new_cap, np.int64)
             c2 = np.empty(new_cap, np.int64)
             l2 = np.empty((new_cap, 3), np.int64)
@@ -293,7 +304,7 @@ def _subdivide(items, vols, weights, origin, unit, depth, leaf, rule60, density,
         top_list = pos
         first[node] = base
         count[node] = -1
-    return first[:n_nodes], count[:n_nodes], loc[:n_nodes], level[:n_nodes], lists
+    return first[:n_nodes], count[:n_nodes], loc[:n_nodes], level[:n_nodes], lists, np.int64(0)
 
 
 @njit
@@ -415,13 +426,15 @@ def octree_frame(bounds, depth, what):
 
 
 def build_octree(bounds, *, depth=16, leaf=3, rule60=False, density=0.0, vertexcount=False, weights=None,
-                 collapse=True, budget=16.0, name=None):
+                 collapse=True, budget=16.0, name=None, max_bytes=None):
     """Build an octree over item boxes (n >= 1 finite boxes; the empty box
     +inf..-inf is in no leaf). weights: per-item vertex counts, used against
     `leaf` when vertexcount is on. budget: the leaves hold at most budget * n
     + BUDGET_SLACK references (0: no limit). Returns (OctreeArrays, stats) with
     stats = {"nodes", "inner", "leaves", "empty_leaves", "refs", "bytes",
-    "seconds", "max_depth", "budget_refs"} (budget_refs: the cap, 0 for none)."""
+    "seconds", "max_depth", "budget_refs"} (budget_refs: the cap, 0 for none). max_bytes:
+    the memory budget (memory.memory_limit() when None); a tree that would need more is a
+    MemoryBudgetError."""
     t0 = time.perf_counter()
     _check(depth, "depth", 0, MAX_DEPTH, int)
     _check(leaf, "leaf", 1, 1 << 30, int)
@@ -434,8 +447,11 @@ def build_octree(bounds, *, depth=16, leaf=3, rule60=False, density=0.0, vertexc
     else:
         w = np.ones(len(items), np.int64)
     max_refs = int(float(budget) * len(items)) + BUDGET_SLACK if budget > 0 else 0
-    first, count, loc, level, lists = _subdivide(widened, vols, w, origin, unit, int(depth), int(leaf),
-                                                 bool(rule60), float(density), max_refs)
+    limit = memory_limit() if max_bytes is None else int(max_bytes)
+    first, count, loc, level, lists, need = _subdivide(widened, vols, w, origin, unit, int(depth), int(leaf),
+                                                       bool(rule60), float(density), max_refs, limit)
+    check(need, limit, f"the octree of group {name or '(unnamed)'}",
+          "lower depth, raise leaf or give it a reference budget (budget=16)")
     if len(first) > MAX_NODES:
         raise SceneError(f"group {name or '(unnamed)'}: the octree has {len(first)} nodes, more than the limit "
                          f"of {MAX_NODES}; lower depth or raise leaf")
@@ -532,7 +548,7 @@ def _address(x, origin, scale, lo, hi):
     return min(max(q, lo), hi)
 
 
-@njit
+@njit(private=True)
 def step(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, tmin, best_t, frame_f, f,
          stack_a, stack_b, stack_t, sp, cnt):
     """One step of octree `oi`'s walk; returns (sp, s, e), the references of the next
@@ -562,7 +578,7 @@ def step(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, tmin, be
                        stack_a, stack_b, stack_t, sp, cnt)
 
 
-@njit(inline="always")
+@njit(private=True)
 def _parametric(geo, node, oi, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt):
     # Revelles, Urena and Lastra 2000: node parameters with the ray reflected
     # onto positive directions (amask: the reflected axes)
@@ -650,7 +666,7 @@ def _parametric(geo, node, oi, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, st
     return sp, 0, 0
 
 
-@njit(inline="always")
+@njit(private=True)
 def _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
                 stack_a, stack_b, stack_t, sp, cnt):
     # point (Lathrop) or neighbor (Glassner): find the leaf holding the point p
@@ -754,7 +770,8 @@ def flatten(builder, params, refs, bounds, name, box):
     weights = builder.vertex_weights(refs) if params["vertexcount"] else None
     tree, stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"], rule60=params["rule60"],
                                density=params["density"], vertexcount=params["vertexcount"], weights=weights,
-                               collapse=params["collapse"], budget=params["budget"], name=name)
+                               collapse=params["collapse"], budget=params["budget"], name=name,
+                               max_bytes=builder.max_bytes)
     return append_octree(builder.flat, tree, refs, params["walk"], params["mailbox"], box), dict(stats)
 
 

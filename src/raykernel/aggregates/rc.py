@@ -139,6 +139,7 @@ from numba import prange
 
 from ..config import njit
 from ..errors import OptionError
+from ..memory import memory_limit, over_budget
 from .grid import grid_box
 from .lazyoctree import scene_totals, tree_counts
 
@@ -154,6 +155,7 @@ BOX_MARGIN = 1e-8           # item boxes widened by this fraction of the aggrega
 UV_MARGIN = 1e-9            # direction cells widened by this much in u and v
 VIRTUAL_LEVELS = 5          # lazy: most levels of a candidate's virtual subtree (one round over x, y, z, u, v)
 PARALLEL_LIST = 256        # lazy: a list at least this long is beam-tested by all threads when split
+PEAK_FACTOR = 4            # memory at the peak of a build per byte of the finished trees (doubling, copies)
 # lazy: per-node state columns (owner aggregate, face, depth, progress-free splits in a row, arrivals,
 # arrivals expected in a pass)
 _OWNER, _FACE, _DEPTH, _STALE, _ARRIVED, _RATE = range(6)
@@ -442,7 +444,14 @@ def _budget_warning(name, budget_mb, nodes, cands, nbytes):
                   f"or lower depth", RcBudgetWarning, stacklevel=3)
 
 
-def build_rc(bounds, *, leaf=8, depth=40, budget_mb=256.0, name=None):
+def _memory_budget(budget_mb, max_bytes):
+    """(bytes the trees may take, whether the memory budget rather than budget_mb sets them)."""
+    limit = (memory_limit() if max_bytes is None else int(max_bytes)) // PEAK_FACTOR
+    budget = int(float(budget_mb) * (1 << 20))
+    return min(budget, limit), limit < budget
+
+
+def build_rc(bounds, *, leaf=8, depth=40, budget_mb=256.0, name=None, max_bytes=None):
     """Build the ray-classification trees over item boxes, eagerly (lazy=off).
 
     bounds: (n, 6) item boxes, finite (or the empty box +inf..-inf, which no
@@ -452,17 +461,22 @@ def build_rc(bounds, *, leaf=8, depth=40, budget_mb=256.0, name=None):
 
     Returns (RcArrays, stats) with stats = {"nodes" (hypercubes), "inner",
     "leaves", "empty_leaves", "refs" (candidates in all lists), "bytes",
-    "seconds", "max_depth", "budget_exceeded"}.
+    "seconds", "max_depth", "budget_exceeded"}. max_bytes: the memory budget
+    (memory.memory_limit() when None); trees that reach it rather than budget_mb are a
+    MemoryBudgetError.
     """
     t0 = time.perf_counter()
     _check_all(leaf, depth, budget_mb)
     box, bx, keys, orders, root_lo, root_hi = _prepare(bounds)
-    budget = int(float(budget_mb) * (1 << 20))
+    budget, by_memory = _memory_budget(budget_mb, max_bytes)
     node_a, node_b, split, cand, ckeys, deepest, exceeded = _build_kernel(
         bx, keys, orders, root_lo, root_hi, int(leaf), int(depth), budget, KEEP)
     tree = RcArrays(box, np.arange(6, dtype=np.int64), node_a, node_b, split, cand, ckeys)
     leaves = node_b >= 0
     nbytes = NODE_BYTES * len(node_a) + CANDIDATE_BYTES * len(cand)
+    if exceeded and by_memory:
+        over_budget(budget * PEAK_FACTOR, f"the ray classification of group {name or '(unnamed)'}",
+              f"give it a budget_mb under {budget / (1 << 20):.0f} (hits stay exact) or lower depth")
     if exceeded:
         _budget_warning(name, budget_mb, len(node_a), len(cand), nbytes)
     stats = {
@@ -742,7 +756,9 @@ class LazyRC:
         self.rays = np.array([rec["rays"] for rec in records], np.int64)
         self.stale = np.full(len(records), LAZY_STALE_SPLITS, np.int64)
         self.budget_mb = [rec["budget_mb"] for rec in records]
-        self.budget = np.array([int(float(m) * (1 << 20)) for m in self.budget_mb], np.int64)
+        budgets = [_memory_budget(rec["budget_mb"], rec["max_bytes"]) for rec in records]
+        self.budget = np.array([b for b, _ in budgets], np.int64)
+        self.by_memory = np.array([m for _, m in budgets], np.bool_)
         self.used = np.array([rec["stats"]["bytes"] for rec in records], np.int64)
         self.exhausted = np.array([rec["stats"]["budget_exceeded"] for rec in records], np.bool_)
         self.warned = self.exhausted.copy()      # start_rc warned already
@@ -823,6 +839,10 @@ class LazyRC:
     def _warn(self):
         for r in np.flatnonzero(self.exhausted & ~self.warned):
             rec = self.records[r]
+            if self.by_memory[r]:
+                over_budget(int(self.budget[r]) * PEAK_FACTOR,
+                      f"the lazy ray classification of group {rec['name'] or '(unnamed)'}",
+                      f"give it a budget_mb under {self.budget[r] / (1 << 20):.0f} (hits stay exact) or lower depth")
             sel = self.buf["state"][:self.n_nodes, _OWNER] == r
             refs = int(self.buf["node_b"][:self.n_nodes][sel & (self.buf["node_b"][:self.n_nodes] >= 0)].sum())
             _budget_warning(rec["name"], self.budget_mb[r], int(sel.sum()), refs, int(self.used[r]))
@@ -934,7 +954,7 @@ def append_rc(flat, tree: RcArrays, refs, box) -> int:
     return flat.add_aggregate(CODE, r, len(tree.node_b), box)
 
 
-@njit
+@njit(private=True)
 def step(geo, a, te, ox, oy, oz, dx, dy, dz, best_t, frame_f, f, cnt):
     """Classify the ray (direction-cube face, u, v, and its entry point at te as origin),
     descend its face's 5D tree to one hypercube and return (s, e, key_o, key_d): the
@@ -993,10 +1013,10 @@ def flatten(builder, params, refs, bounds, name, box):
         tree, stats, boxes, keys = start_rc(bounds, leaf=params["leaf"], depth=params["depth"],
                                             budget_mb=params["budget_mb"], rays=params["rays"], name=name)
         flat.lazy_rc.append(dict(params, node=flat.size("rc_node_b"), cand=flat.size("rc_key"), items=tree.items,
-                                 boxes=boxes, box=tree.box, stats=stats, name=name))
+                                 boxes=boxes, box=tree.box, stats=stats, name=name, max_bytes=builder.max_bytes))
     else:
         tree, stats = build_rc(bounds, leaf=params["leaf"], depth=params["depth"], budget_mb=params["budget_mb"],
-                               name=name)
+                               name=name, max_bytes=builder.max_bytes)
     return append_rc(flat, tree, refs, box), stats
 
 

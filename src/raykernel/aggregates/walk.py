@@ -42,8 +42,8 @@ pushes the step's resume tag at the next candidate instead of a plain range.
 from typing import NamedTuple
 
 from ..config import njit
+from ..scene import MAX_NESTING  # noqa: F401  (aggregates along any path from the root: the frames)
 
-MAX_NESTING = 16          # aggregates along any path from the root (the frames)
 MAX_TREE_DEPTH = 96       # nodes along any path within one hierarchy (the stack)
 STACK_SIZE = MAX_NESTING * (MAX_TREE_DEPTH + 2)
 STEP_BITS = 4

@@ -1,0 +1,44 @@
+"""Work items spread over threads, each thread running a compiled kernel (which releases the GIL).
+
+    for_ranges(lambda lo, hi: kernel(..., lo, hi, ...), n_items, threads=2)
+
+Why not numba's prange: a parallel=True kernel is compiled twice over (the
+loop body as a gufunc, then the kernel around it), with everything it calls
+optimised again each time; on the render and the ray queries that was about
+a third of the first call's compile time. Threads over a serial kernel
+cost one call per range instead (a few microseconds, plus unboxing the
+arguments). Ranges are handed out as threads become free, so uneven work
+balances; each item's results have their own place (a tile's counter row),
+so results do not depend on the thread count or the order.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
+
+CHUNKS_PER_THREAD = 8       # ranges per thread: enough for balance, few enough to keep the call overhead small
+WORKER_PREFIX = "raykernel-worker"
+
+
+def default_threads() -> int:
+    """Threads a call uses unless told: numba's thread count for this thread (every core,
+    NUMBA_NUM_THREADS, or numba.set_num_threads), so one setting governs every kernel."""
+    return numba.get_num_threads()
+
+
+def for_ranges(fn, n: int, threads: int | None = None, min_size: int = 1) -> None:
+    """Call fn(lo, hi) over ranges covering 0..n, on up to `threads` threads at once."""
+    threads = max(1, int(threads or default_threads()))
+    if n <= 0:
+        return
+    n_ranges = min(-(-n // max(1, min_size)), threads * CHUNKS_PER_THREAD)
+    if threads == 1 or n_ranges <= 1:
+        fn(0, n)
+        return
+    size = -(-n // n_ranges)
+    bounds = [(lo, min(n, lo + size)) for lo in range(0, n, size)]
+    with ThreadPoolExecutor(max_workers=min(threads, len(bounds)), thread_name_prefix=WORKER_PREFIX) as pool:
+        for future in [pool.submit(fn, lo, hi) for lo, hi in bounds]:
+            future.result()
