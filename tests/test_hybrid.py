@@ -6,9 +6,10 @@ import copy
 
 import numpy as np
 import pytest
+from conftest import ray_counts
+from test_grid import assert_same_hits, cast, fill_group, new_scene, random_rays
 
 import raykernel
-from conftest import ray_counts
 from raykernel import counters as C
 from raykernel import pathological
 from raykernel.accel import describe, parse_spec
@@ -21,7 +22,6 @@ from raykernel.primitives import AGGREGATE, INDEX_MASK, KIND_SHIFT, POLYGON, SPH
 from raykernel.rayscene import RayScene
 from raykernel.scene import Group
 from raykernel.traverse import cast_rays
-from test_grid import assert_same_hits, cast, fill_group, new_scene, random_rays
 
 WALKS = ("point", "neighbor", "parametric")
 

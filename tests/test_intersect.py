@@ -16,8 +16,8 @@ import textwrap
 
 import numpy as np
 import pytest
-
 import reference as ref
+
 from raykernel import Group, Instance, Scene, SceneError, TriangleMesh
 from raykernel import counters as C
 from raykernel.flatten import MAX_NESTING, Geometry, flatten

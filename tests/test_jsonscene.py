@@ -16,8 +16,15 @@ import numpy as np
 import pytest
 
 from raykernel.errors import SceneError
-from raykernel.jsonscene import (MAX_NESTING, parse_json, read_json, scene_from_json, scene_to_json,
-                                 transform_matrix, write_json)
+from raykernel.jsonscene import (
+    MAX_NESTING,
+    parse_json,
+    read_json,
+    scene_from_json,
+    scene_to_json,
+    transform_matrix,
+    write_json,
+)
 from raykernel.scene import Camera, Group, Instance, Material, Scene, TriangleMesh
 
 REPO = Path(__file__).resolve().parents[1]

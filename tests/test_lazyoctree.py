@@ -9,9 +9,11 @@ import importlib
 
 import numpy as np
 import pytest
+from conftest import ray_counts
+from test_grid import assert_same_hits, fill_group, nested_scene, new_scene, random_rays, rotation_scale
+from test_pathological import child, points
 
 import raykernel
-from conftest import ray_counts
 from raykernel import RayScene
 from raykernel import counters as C
 from raykernel import pathological as P
@@ -24,8 +26,6 @@ from raykernel.flatten import OCTREE, flatten
 from raykernel.rayscene import CHUNK, coarse_to_fine
 from raykernel.scene import Group, Instance
 from raykernel.traverse import cast_rays
-from test_grid import assert_same_hits, fill_group, nested_scene, new_scene, random_rays, rotation_scale
-from test_pathological import child, points
 
 WALKS = ("point", "neighbor", "parametric")
 PASS = PASS_CHUNKS * CHUNK          # rays of RayScene's longest pass (8192)
@@ -549,9 +549,10 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
     def recording(*args):
         # (geo, mats, lights, background, cam, w, h, tile_x, tile_y, first, last, row0, max_depth, cutoff,
         #  out, counters, passes, step, coarse)
-        before = args[15][:, C.RAYS_EYE].sum()
+        rows = args[15][args[9]:args[10], C.RAYS_EYE]      # this call's tiles (others may run at once)
+        before = rows.sum()
         kernel(*args)
-        seen.append((args[17], args[18], args[9], args[10], int(args[15][:, C.RAYS_EYE].sum() - before)))
+        seen.append((args[17], args[18], args[9], args[10], int(rows.sum() - before)))
 
     monkeypatch.setattr(RENDER, "_render_tiles", recording)
     scene = raykernel.load("spd:balls:1")
@@ -570,10 +571,11 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
     assert [s[0] for s in seen] == [16] * 16 + [8] * 16 + [4] * 16 + [2] * 16 + [1] * 16
     assert [s[4] for s in seen[:16]] == [1] * 16      # one sample per tile first
     assert got.stats["rays.eye"] == 49 * 49 and got.stats["build.refine_passes"] == len(seen)
-    # other structures keep their batches: here one tile each, every sample at once
+    # other structures trace whole tiles, every sample at once, each sample once
     seen.clear()
     raykernel.render(scene, accel="bvh", resolution=48, spd=True)
-    assert [s[4] for s in seen] == [256, 256, 256, 16] * 3 + [16, 16, 16, 1]
+    assert all(step == 1 and coarse == 0 for step, coarse, *_ in seen)
+    assert sum(s[4] for s in seen) == 49 * 49 and sum(s[3] - s[2] for s in seen) == 16
 
 
 @pytest.mark.parametrize("spec", ["lazyoctree", "bvh"])
@@ -584,7 +586,10 @@ def test_render_progress_counts_samples(spec):
                      progress=lambda done, total: seen.append((done, total)))
     assert all(total == 16 * 256 for _, total in seen) and seen[-1][0] == 16 * 256
     assert all(a[0] < b[0] for a, b in zip(seen, seen[1:]))
-    assert seen[0][0] == (1 if spec == "lazyoctree" else 256)
+    if spec == "lazyoctree":
+        assert seen[0][0] == 1          # one sample per tile first
+    else:
+        assert seen[0][0] % 256 == 0    # whole tiles (as many per pass as keep every thread busy)
 
 
 def test_rayscene_casts_lazy_queries_coarse_to_fine():

@@ -11,10 +11,10 @@ import copy
 
 import numpy as np
 import pytest
+from test_watertight import MESHES, rays_through, targets
 
 from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
 from raykernel.primitives import SPHERE, TRIANGLE
-from test_watertight import MESHES, rays_through, targets
 
 
 def generic(scene: RayScene) -> RayScene:

@@ -29,11 +29,12 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import pytest
+from conftest import ray_counts, work_counts
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_intersect import affine, fill_group, similarity
 
 import raykernel
-from conftest import ray_counts, work_counts
 from raykernel import accel, pathological, spd
 from raykernel import counters as C
 from raykernel.aggregates.octree import BUDGET_SLACK, build_octree
@@ -43,7 +44,6 @@ from raykernel.primitives import PATCH
 from raykernel.rayscene import RayScene
 from raykernel.scene import Group, Instance, Polygons, Scene, TriangleMesh
 from raykernel.traverse import cast_rays
-from test_intersect import affine, fill_group, similarity
 
 VARIANTS = ("bvh(build=gs)", "octree(walk=point)", "octree(walk=parametric)", "octree(mailbox=off)",
             "grid(mailbox=off)", "hgrid(threshold=2)")

@@ -4,6 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_grid import (
+    assert_same_hits,
+    axis_and_boundary_rays,
+    cast,
+    fill_group,
+    lattice_scene,
+    nested_scene,
+    new_scene,
+    random_rays,
+    rotation_scale,
+)
 
 from raykernel import counters as C
 from raykernel.accel import parse_spec
@@ -12,8 +23,6 @@ from raykernel.errors import OptionError
 from raykernel.flatten import OCTREE, flatten
 from raykernel.scene import Group, Instance
 from raykernel.traverse import cast_rays
-from test_grid import (assert_same_hits, axis_and_boundary_rays, cast, fill_group, lattice_scene, nested_scene,
-                       new_scene, random_rays, rotation_scale)
 
 WALKS = ("point", "neighbor", "parametric")
 CRITERIA = ["", "collapse=off", "mailbox=off", "rule60=on", "density=0.3", "vertexcount=on, leaf=8",

@@ -391,6 +391,7 @@ def test_cli_renders_the_stadium(tmp_path):
 
 def test_stadium_teapot_bvh_nests_a_bvh_and_keeps_the_hits():
     import numpy as np
+
     from raykernel.flatten import flatten
     from raykernel.traverse import cast_rays
     plain = P.load("stadium", ratio=1000, stadium_prims=600, teapot_prims=200)

@@ -14,14 +14,13 @@ import math
 
 import numpy as np
 import pytest
+import reference as ref
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import reference as ref
 from raykernel import Scene, TriangleMesh
 from raykernel.flatten import flatten
-from raykernel.primitives import (CONE, PATCH, POLYGON, SPHERE, TRIANGLE, hit_cone, hit_polygon, hit_sphere,
-                                  hit_triangle)
+from raykernel.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE, hit_cone, hit_polygon, hit_sphere, hit_triangle
 from raykernel.traverse import cast_rays
 
 RTOL = 1e-9          # t agreement on stable rays

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference import all_hits, world_primitives
 
 from raykernel import Group, Instance, RayInputError, RayScene, Scene, TriangleMesh
 from raykernel.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
-from reference import all_hits, world_primitives
 
 
 def random_mesh(rng, n=150):

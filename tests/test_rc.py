@@ -7,23 +7,30 @@ import warnings
 
 import numpy as np
 import pytest
+from conftest import ray_counts
+from test_grid import (
+    assert_same_hits,
+    axis_and_boundary_rays,
+    fill_group,
+    lattice_scene,
+    nested_scene,
+    new_scene,
+    random_rays,
+    rotation_scale,
+)
+from test_lazyoctree import same_hits_as_list
 
 import raykernel
-from conftest import ray_counts
 from raykernel import RayScene
 from raykernel import counters as C
 from raykernel.accel import parse_spec
 from raykernel.aggregates.lazyoctree import PASS_CHUNKS
-from raykernel.aggregates.rc import (NODE_BYTES, VIRTUAL_LEVELS, RcBudgetWarning, build_rc, face_of, meets_beam,
-                                     start_rc)
+from raykernel.aggregates.rc import NODE_BYTES, VIRTUAL_LEVELS, RcBudgetWarning, build_rc, face_of, meets_beam, start_rc
 from raykernel.errors import OptionError
 from raykernel.flatten import RC, flatten
 from raykernel.rayscene import CHUNK
 from raykernel.scene import Group, Instance
 from raykernel.traverse import cast_rays
-from test_lazyoctree import same_hits_as_list
-from test_grid import (assert_same_hits, axis_and_boundary_rays, fill_group, lattice_scene, nested_scene, new_scene,
-                       random_rays, rotation_scale)
 
 # lazy (the default) and eager alike
 RC_SPECS = ["rc", "rc(lazy=off)", "rc(leaf=2, depth=30)", "rc(leaf=2, depth=30, lazy=off)", "rc(leaf=1, depth=6, rays=3)",
@@ -374,6 +381,7 @@ def tree_of(geo, box, rc=0):
     """Node arrays of rc aggregate `rc` as an RcArrays-like namespace for leaf_of (candidates as sphere
     indices), with the depth of every node reachable from the face roots."""
     from types import SimpleNamespace
+
     from raykernel.primitives import INDEX_MASK
     depth = {}
     for f in range(6):

@@ -11,8 +11,8 @@ import textwrap
 import numba
 import numpy as np
 import pytest
-
 from conftest import add_sphere, add_square, make_scene, ray_counts, work_counts
+
 from raykernel import OptionError, load, render
 from raykernel.scene import Polygons
 

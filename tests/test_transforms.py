@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from raykernel import counters as C
-from raykernel.flatten import TRANSFORM_MULTIPLIES, flatten, transform_class
+from raykernel.flatten import flatten
+from raykernel.transforms import TRANSFORM_MULTIPLIES, transform_class
 from raykernel.scene import Group, Instance, Material, Scene
 from raykernel.traverse import cast_rays
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from reference import all_hits, world_primitives
 
 from raykernel import RayScene
 from raykernel.primitives import hit_triangle
-from reference import all_hits, world_primitives
 
 GRID = 2.0 ** -20     # vertex coordinates are multiples of this
 

@@ -201,9 +201,9 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
     """Render the calibration set with every structure kind and fit the costs."""
     import numba
 
-    from .render import render
     from .accel import KINDS
     from .loading import load
+    from .render import render
     kinds = list(kinds or KINDS)
     loaded = [(name, load(name)) for name in scenes]
     rows, times, runs = [], [], []

@@ -38,13 +38,13 @@ from .aggregates.bvh import CODE as BVH
 from .aggregates.grid import CODE as GRID
 from .aggregates.octree import CODE as OCTREE
 from .aggregates.rc import CODE as RC
-from .boxes import cull_margin
 from .aggregates.walk import MAX_NESTING, MAX_TREE_DEPTH, STACK_SIZE, Field
+from .boxes import cull_margin
 from .errors import SceneError
 from .memory import memory_limit
-from .primitives import AGGREGATE, CONE, INSTANCE, PATCH, POLYGON, SPHERE, TRIANGLE, make_ref
-from .primitives import INDEX_MASK, KIND_SHIFT
+from .primitives import AGGREGATE, CONE, INDEX_MASK, INSTANCE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE, make_ref
 from .scene import Group, Instance, Scene
+from .transforms import transform_class
 
 __all__ = ["Geometry", "flatten", "transform_box", "LIST", "BVH", "GRID", "OCTREE", "RC", "MAX_NESTING",
            "MAX_TREE_DEPTH", "STACK_SIZE"]
@@ -92,23 +92,6 @@ Geometry.__doc__ = "Flat arrays of a built scene, read by the kernels (see the m
 
 def _box_of_points(points: np.ndarray) -> np.ndarray:
     return np.concatenate([points.min(axis=0), points.max(axis=0)])
-
-
-IDENTITY, TRANSLATION, SCALE, AFFINE = range(4)      # instance map classes (Arvo's sparse transforms)
-TRANSFORM_MULTIPLIES = (0, 0, 18, 54)   # multiplies per ray entering an instance, per class: mapping origin and
-#                                        direction (0, 0, 6, 18) and composing the frame's map (0, 0, 12, 36)
-
-
-def transform_class(m: np.ndarray) -> int:
-    """The class of a 3x4 affine map: IDENTITY, TRANSLATION (identity linear part), SCALE
-    (diagonal linear part: a scale, maybe a mirror, and a translation) or AFFINE. Exact
-    comparisons: a map that is the identity only within rounding is mapped in full."""
-    linear, shift = m[:, :3], m[:, 3]
-    if np.array_equal(linear, np.eye(3)):
-        return TRANSLATION if np.any(shift != 0.0) else IDENTITY
-    if np.count_nonzero(linear - np.diag(np.diag(linear))) == 0:
-        return SCALE
-    return AFFINE
 
 
 def transform_box(box: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -296,8 +279,9 @@ class Builder:
                 if not np.all(np.isfinite(flat.agg_box(agg))):
                     continue        # an empty group shows nothing: no reference to it
                 k = flat.size("inst_agg")
-                to_local = np.linalg.inv(child.matrix)[:3, :]
-                flat.append(inst_agg=[agg], inst_to_local=to_local.reshape(1, 12), inst_class=[transform_class(to_local)])
+                to_local = np.linalg.inv(child.matrix)[:3, :]   # classified for sparse mapping (transforms.py)
+                flat.append(inst_agg=[agg], inst_to_local=to_local.reshape(1, 12),
+                            inst_class=[transform_class(to_local)])
                 refs.append(make_ref(INSTANCE, [k]))
                 bounds.append(transform_box(flat.agg_box(agg), child.matrix)[None, :])
             elif isinstance(child, Group) and child.accel is None:

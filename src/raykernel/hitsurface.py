@@ -18,7 +18,7 @@ from .primitives import CONE, SPHERE, TRIANGLE, normalize
 from .render import surface
 
 
-@njit(private=True)
+@njit(inline="always")
 def surface_uv(geo, kind, idx, px, py, pz):
     """(u, v) of local point p on primitive (kind, idx)."""
     if kind == TRIANGLE:
@@ -58,7 +58,7 @@ def surface_uv(geo, kind, idx, px, py, pz):
     return np.nan, np.nan
 
 
-@njit(private=True)
+@njit(inline="always")
 def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out):
     """Write (u, v) and the world-space unit normals of the hit into row r."""
     # the hit point in the primitive's own frame; normals back by the transpose

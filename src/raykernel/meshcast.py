@@ -30,11 +30,11 @@ from typing import NamedTuple
 import numpy as np
 
 from . import counters as C
+from .boxes import CONSERVATIVE, box_entry, inverse
 from .config import njit
 from .flatten import BVH, Geometry
 from .hitsurface import store_miss, store_surface
 from .primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
-from .boxes import CONSERVATIVE, box_entry, inverse
 from .traverse import ALL_HITS
 
 INF = np.inf

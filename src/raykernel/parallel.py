@@ -14,6 +14,7 @@ so results do not depend on the thread count or the order.
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
@@ -28,17 +29,28 @@ def default_threads() -> int:
     return numba.get_num_threads()
 
 
+_pools: dict[int, ThreadPoolExecutor] = {}
+_pools_lock = threading.Lock()
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    # one pool per thread count, kept: starting threads for every call would cost more than small calls take
+    with _pools_lock:
+        if threads not in _pools:
+            _pools[threads] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=WORKER_PREFIX)
+        return _pools[threads]
+
+
 def for_ranges(fn, n: int, threads: int | None = None, min_size: int = 1) -> None:
     """Call fn(lo, hi) over ranges covering 0..n, on up to `threads` threads at once."""
     threads = max(1, int(threads or default_threads()))
     if n <= 0:
         return
     n_ranges = min(-(-n // max(1, min_size)), threads * CHUNKS_PER_THREAD)
-    if threads == 1 or n_ranges <= 1:
-        fn(0, n)
+    if threads == 1 or n_ranges <= 1 or threading.current_thread().name.startswith(WORKER_PREFIX):
+        fn(0, n)            # (a worker never waits on its own pool)
         return
     size = -(-n // n_ranges)
-    bounds = [(lo, min(n, lo + size)) for lo in range(0, n, size)]
-    with ThreadPoolExecutor(max_workers=min(threads, len(bounds)), thread_name_prefix=WORKER_PREFIX) as pool:
-        for future in [pool.submit(fn, lo, hi) for lo, hi in bounds]:
-            future.result()
+    futures = [_pool(threads).submit(fn, lo, min(n, lo + size)) for lo in range(0, n, size)]
+    for future in futures:
+        future.result()

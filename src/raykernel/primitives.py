@@ -6,7 +6,7 @@ Every function takes the ray as scalars (origin o, direction d, not
 necessarily unit length, so that t stays comparable through instance
 transforms) and returns the ray parameter of the nearest hit in
 [tmin, tmax], or +inf. They are compiled once each, not inlined into every
-caller: LLVM inlines the small ones by itself.
+caller at the IR level: LLVM inlines the small ones by itself.
 
 Kinds are tagged in references as `kind << KIND_SHIFT | index`.
 """
@@ -144,7 +144,7 @@ def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, 
     return INF
 
 
-@njit
+@njit(inline="always")
 def _edge_sign(px, py, qx, qy):
     """Side of the ray (the origin of the sheared plane) relative to the
     directed edge p -> q: the sign of p x q, and where that is exactly 0 the

@@ -40,11 +40,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import counters as C
+from . import meshcast
 from .compiletime import CompileClock
 from .config import njit
 from .errors import RayKernelError
 from .flatten import BVH, LIST, flatten
-from . import meshcast
 from .hitsurface import store_miss, store_surface
 from .meshcast import MeshKernel
 from .parallel import for_ranges

@@ -57,7 +57,7 @@ def _dot(ax, ay, az, bx, by, bz):
     return ax * bx + ay * by + az * bz
 
 
-@njit(private=True)
+@njit(inline="always")
 def _patch_normal(geo, idx, px, py, pz):
     """Interpolated vertex normal of patch idx at local point p: barycentric
     in the fan triangle (v0, vk, vk+1) that contains p."""
@@ -92,7 +92,7 @@ def _patch_normal(geo, idx, px, py, pz):
 
 
 
-@njit(private=True)
+@njit(inline="always")
 def surface(geo, kind, idx, px, py, pz):
     """Local geometric normal, local shading normal (both unnormalised) and
     material of primitive (kind, idx) at local point p."""
@@ -392,9 +392,11 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
 
     t1 = time.perf_counter()
     lazy = build.get("lazy")     # lazy structures: refined after each pass
-    batch = max(1, n_tiles // 32)
+    batch = max(1, n_tiles // 32)     # lazy: the pass schedule, which must not depend on the threads
     if lazy is None:
-        passes = [(1, 0, a, min(n_tiles, a + batch)) for a in range(0, n_tiles, batch)]
+        # passes of about 1/32 of the image (the progress bar's steps), with enough tiles for every thread
+        size = max(batch, 4 * n_threads)
+        passes = [(1, 0, a, min(n_tiles, a + size)) for a in range(0, n_tiles, size)]
     else:
         passes = lazy_passes(n_tiles, batch)
     # samples of full tiles each pass traces, for the progress report

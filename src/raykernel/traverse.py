@@ -21,15 +21,48 @@ import numpy as np
 
 from . import counters as C
 from .aggregates import bvh, grid, octree, rc
-from .aggregates.walk import (F_DIR, F_KEY_D, F_KEY_END, F_KEY_O, F_MAP, F_MBOX, F_MBOX_ON, F_ORIGIN, FI_AGG,
-                              FI_BASE, FI_INST, FRAME_F, FRAME_I, KEY_SLACK, MBOX_SLOTS, START, entry_kind,
-                              entry_step, entry_tag, push)
+from .aggregates.walk import (
+    F_DIR,
+    F_KEY_D,
+    F_KEY_END,
+    F_KEY_O,
+    F_MAP,
+    F_MBOX,
+    F_MBOX_ON,
+    F_ORIGIN,
+    FI_AGG,
+    FI_BASE,
+    FI_INST,
+    FRAME_F,
+    FRAME_I,
+    KEY_SLACK,
+    MBOX_SLOTS,
+    START,
+    entry_kind,
+    entry_step,
+    entry_tag,
+    push,
+)
 from .boxes import CONSERVATIVE, INF, box_entry, inverse
 from .config import njit
-from .flatten import IDENTITY, LIST, MAX_NESTING, SCALE, STACK_SIZE, TRANSLATION
+from .flatten import LIST, MAX_NESTING, STACK_SIZE
 from .parallel import for_ranges
-from .primitives import (AGGREGATE, CONE, INDEX_MASK, INSTANCE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE,
-                         hit_cone, hit_polygon, hit_sphere, hit_triangle)
+from .primitives import (
+    AGGREGATE,
+    CONE,
+    INDEX_MASK,
+    INSTANCE,
+    KIND_SHIFT,
+    PATCH,
+    POLYGON,
+    SPHERE,
+    TRIANGLE,
+    hit_cone,
+    hit_polygon,
+    hit_sphere,
+    hit_triangle,
+)
+from .transforms import compose_map, map_ray
 
 # intersect's mode: the closest hit, any hit, every hit. numpy integers, not Python ints: numba
 # compiles a function again for each literal int value it is passed
@@ -49,16 +82,17 @@ def workspace():
 
 
 @njit(inline="always")
-def _enter(geo, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b, stack_t, sp, cnt):
+def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b,
+           stack_t, sp, cnt):
     """Test aggregate a's bounds and push its first entry; returns the new stack pointer."""
     cnt[C.BOUNDS_TESTS] += 1
-    te = box_entry(geo.agg_bounds, a, ox, oy, oz, ix, iy, iz, tmin, tmax)
+    te = box_entry(agg_bounds, a, ox, oy, oz, ix, iy, iz, tmin, tmax)
     if te == INF:
         return sp
-    kind = geo.agg_kind[a]
+    kind = agg_kind[a]
     if kind == LIST:
-        return push(stack_a, stack_b, stack_t, sp, geo.agg_start[a], geo.agg_start[a] + geo.agg_count[a], te)
-    return push(stack_a, stack_b, stack_t, sp, geo.agg_start[a], entry_tag(kind, START), te)
+        return push(stack_a, stack_b, stack_t, sp, agg_start[a], agg_start[a] + agg_count[a], te)
+    return push(stack_a, stack_b, stack_t, sp, agg_start[a], entry_tag(kind, START), te)
 
 
 @njit(private=True)
@@ -82,7 +116,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     frame_i[0, FI_AGG], frame_i[0, FI_BASE], frame_i[0, FI_INST] = geo.root, 0, -1
     frame_f[0, F_MBOX_ON] = 0.0
     base = 0
-    sp = _enter(geo, geo.root, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, 0, cnt)
+    sp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.agg_count, geo.root, ox, oy, oz, ix, iy, iz, tmin,
+                best_t, stack_a, stack_b, stack_t, base, cnt)
     while True:
         if sp == base:
             if f == 0:
@@ -109,16 +144,22 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
             # a step of the frame's walk: its kind, then which step
             kind, step = entry_kind(b), entry_step(b)
             if kind == bvh.CODE:
-                sp, s, e = bvh.step(geo, a, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, sp,
-                                    cnt)
+                sp, s, e = bvh.step(geo.node_bounds, geo.node_first, geo.node_count, a, ox, oy, oz, ix, iy, iz, tmin,
+                                    best_t, stack_a, stack_b, stack_t, sp, cnt)
             elif kind == grid.CODE:
-                sp, s, e = grid.step(geo, step, a, te, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
-                                     stack_a, stack_b, stack_t, sp, cnt)
+                sp, s, e = grid.step(geo.grid_cell_offset, geo.grid_cell_size, geo.grid_cells, geo.grid_inv_cell,
+                                     geo.grid_mailbox, geo.grid_origin, geo.grid_res, step, a, te, ox, oy, oz, dx, dy,
+                                     dz, ix, iy, iz, best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
             elif kind == octree.CODE:
-                sp, s, e = octree.step(geo, step, a, te, geo.agg_start[frame_i[f, FI_AGG]], ox, oy, oz, dx, dy,
-                                       dz, ix, iy, iz, tmin, best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
+                sp, s, e = octree.step(geo.oct_bounds, geo.oct_count, geo.oct_first, geo.oct_level, geo.oct_loc,
+                                       geo.oct_mailbox, geo.oct_nbr, geo.oct_origin, geo.oct_pass, geo.oct_root,
+                                       geo.oct_scale, geo.oct_slot, geo.oct_unit, geo.oct_walk, step, a, te,
+                                       geo.agg_start[frame_i[f, FI_AGG]], (ox, oy, oz, dx, dy, dz, ix, iy, iz), tmin,
+                                       best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
             elif kind == rc.CODE:
-                s, e, key_o, key_d = rc.step(geo, a, te, ox, oy, oz, dx, dy, dz, best_t, frame_f, f, cnt)
+                s, e, key_o, key_d = rc.step(geo.rc_face_root, geo.rc_node_a, geo.rc_node_b, geo.rc_pass, geo.rc_split,
+                                             geo.rc_vdim, geo.rc_vinfo, geo.rc_vsplit, a, te, ox, oy, oz, dx, dy, dz,
+                                             best_t, frame_f, f, cnt)
                 keyed = True
             else:
                 s = e = 0
@@ -174,15 +215,16 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 else:
                     child = geo.inst_agg[idx]
                     inst = idx
-                    nox, noy, noz, ndx, ndy, ndz = _map_ray(geo, idx, ox, oy, oz, dx, dy, dz, cnt)
+                    nox, noy, noz, ndx, ndy, ndz = map_ray(geo.inst_to_local, geo.inst_class, idx, ox, oy, oz, dx, dy,
+                                                           dz, cnt)
                 nix, niy, niz = inverse(ndx), inverse(ndy), inverse(ndz)
-                nsp = _enter(geo, child, nox, noy, noz, nix, niy, niz, tmin, best_t, stack_a, stack_b, stack_t,
-                             sp, cnt)
+                nsp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.agg_count, child, nox, noy, noz, nix, niy,
+                             niz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt)
                 if nsp == sp:
                     break       # missed the child's bounds
                 frame_f[g, F_ORIGIN], frame_f[g, F_ORIGIN + 1], frame_f[g, F_ORIGIN + 2] = nox, noy, noz
                 frame_f[g, F_DIR], frame_f[g, F_DIR + 1], frame_f[g, F_DIR + 2] = ndx, ndy, ndz
-                _compose_map(geo, kind == INSTANCE, idx, frame_f, f, g, cnt)
+                compose_map(geo.inst_to_local, geo.inst_class, kind == INSTANCE, idx, frame_f, f, g, cnt)
                 frame_i[g, FI_AGG], frame_i[g, FI_BASE], frame_i[g, FI_INST] = child, sp, inst
                 frame_f[g, F_MBOX_ON] = 0.0
                 f = g
@@ -221,57 +263,6 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                     if mode == ANY_HIT:
                         return True
     return found
-
-
-@njit(inline="always")
-def _map_ray(geo, idx, ox, oy, oz, dx, dy, dz, cnt):
-    """The ray in instance idx's space, with only the multiplies its map's class needs (Arvo's
-    sparse transforms); the same numbers as the full product, since the terms left out are
-    exact zeros and ones."""
-    m = geo.inst_to_local[idx]
-    cls = geo.inst_class[idx]
-    cnt[C.TRANSFORMS + cls] += 1
-    if cls == IDENTITY:
-        return ox, oy, oz, dx, dy, dz
-    if cls == TRANSLATION:
-        return ox + m[3], oy + m[7], oz + m[11], dx, dy, dz
-    if cls == SCALE:
-        cnt[C.TRANSFORM_MULTIPLIES] += 6
-        return m[0] * ox + m[3], m[5] * oy + m[7], m[10] * oz + m[11], m[0] * dx, m[5] * dy, m[10] * dz
-    cnt[C.TRANSFORM_MULTIPLIES] += 18
-    return (m[0] * ox + m[1] * oy + m[2] * oz + m[3], m[4] * ox + m[5] * oy + m[6] * oz + m[7],
-            m[8] * ox + m[9] * oy + m[10] * oz + m[11],
-            m[0] * dx + m[1] * dy + m[2] * dz, m[4] * dx + m[5] * dy + m[6] * dz, m[8] * dx + m[9] * dy + m[10] * dz)
-
-
-@njit(inline="always")
-def _compose_map(geo, instance, idx, frame_f, f, g, cnt):
-    """Frame g's world-to-local map: instance idx's map after frame f's, or frame f's; with only
-    the multiplies the class needs, and the same numbers as the full product."""
-    cls = geo.inst_class[idx] if instance else IDENTITY
-    if cls == TRANSLATION:
-        m = geo.inst_to_local[idx]
-        for r in range(3):
-            for c in range(4):
-                frame_f[g, F_MAP + 4 * r + c] = frame_f[f, F_MAP + 4 * r + c] + (m[4 * r + 3] if c == 3 else 0.0)
-    elif cls == SCALE:
-        m = geo.inst_to_local[idx]
-        cnt[C.TRANSFORM_MULTIPLIES] += 12
-        for r in range(3):
-            for c in range(4):
-                frame_f[g, F_MAP + 4 * r + c] = (m[4 * r + 3] if c == 3 else 0.0) + m[5 * r] * frame_f[f, F_MAP + 4 * r + c]
-    elif cls != IDENTITY:
-        m = geo.inst_to_local[idx]
-        cnt[C.TRANSFORM_MULTIPLIES] += 36
-        for r in range(3):
-            for c in range(4):
-                acc = m[4 * r + 3] if c == 3 else 0.0
-                for k in range(3):
-                    acc += m[4 * r + k] * frame_f[f, F_MAP + 4 * k + c]
-                frame_f[g, F_MAP + 4 * r + c] = acc
-    else:
-        for k in range(12):
-            frame_f[g, F_MAP + k] = frame_f[f, F_MAP + k]
 
 
 @njit

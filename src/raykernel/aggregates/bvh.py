@@ -4,6 +4,15 @@
     # bvh.bounds (N, 6), bvh.first (N,), bvh.count (N,), bvh.order (n,)
     refit(bvh, moved_item_bounds)   # same topology, new node boxes
 
+Flat layout (the Geometry fields it owns)
+-----------------------------------------
+N nodes of all BVHs:
+  node_bounds  (N, 6) float64  node box, widened by flatten's culling margin   48 B a node
+  node_first   (N,)   int64    inner: left child (right = left + 1, global); leaf: first ref   8 B
+  node_count   (N,)   int64    0 for an inner node, else refs in the leaf       8 B
+The aggregate's agg_start is its root node. Every stack entry of a BVH is a
+node to visit (step START), entered at stack_t.
+
 Layout
 ------
 Node 0 is the root. A box is stored as xmin, ymin, zmin, xmax, ymax, zmax.
@@ -57,8 +66,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import counters as C
+from ..accel import Kind, Param
+from ..boxes import INF, box_entry, cull_margin
 from ..config import njit
-from ..errors import OptionError
+from ..errors import OptionError, SceneError
+from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push
 
 __all__ = ["BVHArrays", "build_bvh", "refit", "is_leaf"]
 
@@ -495,20 +508,8 @@ def refit(bvh: BVHArrays, item_bounds) -> None:
     _refit_kernel(b, bvh.first, bvh.count, bvh.order, items)
 
 
-# ----------------------------------------------------------------- flat layout and walk
-#
-# Fields of Geometry a BVH owns (N nodes of all BVHs):
-#   node_bounds  (N, 6) float64  node box, widened by flatten's culling margin   48 B a node
-#   node_first   (N,)   int64    inner: left child (right = left + 1, global); leaf: first ref   8 B
-#   node_count   (N,)   int64    0 for an inner node, else refs in the leaf       8 B
-# The aggregate's agg_start is its root node. Every stack entry of a BVH is a
-# node to visit (step START), entered at stack_t.
+# ----------------------------------------------------------------- flat layout (see the module docstring) and walk
 
-from .. import counters as C  # noqa: E402
-from ..accel import Kind, Param  # noqa: E402
-from ..boxes import INF, box_entry, cull_margin  # noqa: E402
-from ..errors import SceneError  # noqa: E402
-from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push  # noqa: E402
 
 CODE = 1
 FIELDS = (Field("node_bounds", np.float64, (6,)), Field("node_first", np.int64, ()),
@@ -529,22 +530,23 @@ def append_bvh(flat, tree: BVHArrays, refs, box, margin: float) -> int:
 
 
 @njit(private=True)
-def step(geo, node, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt):
+def step(node_bounds, node_first, node_count, node, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t,
+         sp, cnt):
     """Descend from `node` to the nearest leaf the ray enters, pushing the farther child
     of every inner node passed; returns (sp, s, e): the leaf's references (none: s == e)."""
     while True:
         cnt[C.CELLS_VISITED] += 1
-        n_items = geo.node_count[node]
+        n_items = node_count[node]
         if n_items > 0:
             cnt[C.CELLS_LEAVES] += 1
-            s = geo.node_first[node]
+            s = node_first[node]
             return sp, s, s + n_items
         # inner node: test both children, go on with the nearer
-        left = geo.node_first[node]
+        left = node_first[node]
         right = left + 1
         cnt[C.BOUNDS_TESTS] += 2
-        tl = box_entry(geo.node_bounds, left, ox, oy, oz, ix, iy, iz, tmin, best_t)
-        tr = box_entry(geo.node_bounds, right, ox, oy, oz, ix, iy, iz, tmin, best_t)
+        tl = box_entry(node_bounds, left, ox, oy, oz, ix, iy, iz, tmin, best_t)
+        tr = box_entry(node_bounds, right, ox, oy, oz, ix, iy, iz, tmin, best_t)
         if tl <= tr:
             if tl == INF:
                 return sp, 0, 0

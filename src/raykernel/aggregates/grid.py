@@ -4,6 +4,21 @@
     # grid.origin (3,), grid.cell_size (3,), grid.res (3,), grid.cell_start (ncells + 1,), grid.items (R,)
     items_of_cell = grid.items[grid.cell_start[c]:grid.cell_start[c + 1]]
 
+Flat layout (the Geometry fields it owns)
+-----------------------------------------
+G grids, C cells of all grids:
+  grid_origin       (G, 3) float64  lower corner                              24 B a grid
+  grid_cell_size    (G, 3) float64  cell side per axis                         24 B
+  grid_inv_cell     (G, 3) float64  1 / cell side                              24 B
+  grid_res          (G, 3) int64    cells per axis                             24 B
+  grid_cell_offset  (G,)   int64    first entry of the grid's cells in grid_cells  8 B
+  grid_mailbox      (G,)   int64    1: skip refs already tested in an earlier cell  8 B
+  grid_cells        (C + G,) int64  cell c of grid g holds refs[grid_cells[o + c]:grid_cells[o + c + 1]],
+                                    o = grid_cell_offset[g]                    8 B a cell
+The aggregate's agg_start is its grid index. The walk keeps the current cell and
+the next crossing per axis in its frame (CELL, TNEXT), so a child aggregate found
+in a cell can open frames above it.
+
 Layout
 ------
 The grid covers the union of the item boxes, split into res[0] x res[1] x
@@ -56,9 +71,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import counters as C
+from ..accel import Kind, Param
 from ..config import njit
 from ..errors import OptionError, SceneError
 from ..memory import check, memory_limit
+from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push
 
 __all__ = ["GridArrays", "RULES", "build_grid", "grid_resolution"]
 
@@ -274,24 +292,8 @@ def build_grid(bounds, *, res_rule="regular", density=2.0, max_res=256, max_cell
     return grid, stats
 
 
-# ----------------------------------------------------------------- flat layout and walk
-#
-# Fields of Geometry a grid owns (G grids, C cells of all grids):
-#   grid_origin       (G, 3) float64  lower corner                              24 B a grid
-#   grid_cell_size    (G, 3) float64  cell side per axis                         24 B
-#   grid_inv_cell     (G, 3) float64  1 / cell side                              24 B
-#   grid_res          (G, 3) int64    cells per axis                             24 B
-#   grid_cell_offset  (G,)   int64    first entry of the grid's cells in grid_cells  8 B
-#   grid_mailbox      (G,)   int64    1: skip refs already tested in an earlier cell  8 B
-#   grid_cells        (C + G,) int64  cell c of grid g holds refs[grid_cells[o + c]:grid_cells[o + c + 1]],
-#                                     o = grid_cell_offset[g]                    8 B a cell
-# The aggregate's agg_start is its grid index. The walk keeps the current cell and
-# the next crossing per axis in its frame (CELL, TNEXT), so a child aggregate found
-# in a cell can open frames above it.
+# ----------------------------------------------------------------- flat layout (see the module docstring) and walk
 
-from ..accel import Kind, Param  # noqa: E402
-from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push  # noqa: E402
-from .. import counters as C  # noqa: E402
 
 CODE = 2
 FIELDS = (
@@ -322,8 +324,9 @@ def flatten(builder, params, refs, bounds, name, box):
     return append_grid(builder.flat, grid, grid.cell_start, refs[grid.items], params["mailbox"], box), dict(stats)
 
 
-@njit(private=True)
-def step(geo, kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
+@njit(inline="always")
+def step(grid_cell_offset, grid_cell_size, grid_cells, grid_inv_cell, grid_mailbox, grid_origin, grid_res,
+         kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
          stack_a, stack_b, stack_t, sp, cnt):
     """The 3D-DDA (Amanatides and Woo 1987) from the entry point (START) or the frame's
     next cell (NEXT) to the next non-empty cell; empty cells are stepped over in one go.
@@ -331,38 +334,38 @@ def step(geo, kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, fra
     unless it is the last cell."""
     if gt > best_t:
         return sp, 0, 0
-    rx, ry, rz = geo.grid_res[gi, 0], geo.grid_res[gi, 1], geo.grid_res[gi, 2]
-    gox, goy, goz = geo.grid_origin[gi, 0], geo.grid_origin[gi, 1], geo.grid_origin[gi, 2]
-    csx, csy, csz = geo.grid_cell_size[gi, 0], geo.grid_cell_size[gi, 1], geo.grid_cell_size[gi, 2]
+    rx, ry, rz = grid_res[gi, 0], grid_res[gi, 1], grid_res[gi, 2]
+    gox, goy, goz = grid_origin[gi, 0], grid_origin[gi, 1], grid_origin[gi, 2]
+    csx, csy, csz = grid_cell_size[gi, 0], grid_cell_size[gi, 1], grid_cell_size[gi, 2]
     sx = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
     sy = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
     sz = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
     if kind_step == START:
         # the cell holding the entry point, clamped into the grid
-        u = (ox + gt * dx - gox) * geo.grid_inv_cell[gi, 0]
+        u = (ox + gt * dx - gox) * grid_inv_cell[gi, 0]
         cx = np.int64(u) if u >= 0.0 and u < rx else (rx - 1 if u >= rx else 0)
-        u = (oy + gt * dy - goy) * geo.grid_inv_cell[gi, 1]
+        u = (oy + gt * dy - goy) * grid_inv_cell[gi, 1]
         cy = np.int64(u) if u >= 0.0 and u < ry else (ry - 1 if u >= ry else 0)
-        u = (oz + gt * dz - goz) * geo.grid_inv_cell[gi, 2]
+        u = (oz + gt * dz - goz) * grid_inv_cell[gi, 2]
         cz = np.int64(u) if u >= 0.0 and u < rz else (rz - 1 if u >= rz else 0)
         # crossings are computed from the boundary planes, so they never drift
         tx = (gox + (cx + (sx > 0)) * csx - ox) * ix if sx != 0 else INF
         ty = (goy + (cy + (sy > 0)) * csy - oy) * iy if sy != 0 else INF
         tz = (goz + (cz + (sz > 0)) * csz - oz) * iz if sz != 0 else INF
-        if geo.grid_mailbox[gi] != 0:
+        if grid_mailbox[gi] != 0:
             mailbox_reset(frame_f, f)
     else:
         cx = np.int64(frame_f[f, CELL])
         cy = np.int64(frame_f[f, CELL + 1])
         cz = np.int64(frame_f[f, CELL + 2])
         tx, ty, tz = frame_f[f, TNEXT], frame_f[f, TNEXT + 1], frame_f[f, TNEXT + 2]
-    off = geo.grid_cell_offset[gi]
+    off = grid_cell_offset[gi]
     while True:
         cnt[C.CELLS_VISITED] += 1
         cnt[C.CELLS_LEAVES] += 1
         cell = off + (cz * ry + cy) * rx + cx
-        s = geo.grid_cells[cell]
-        e = geo.grid_cells[cell + 1]
+        s = grid_cells[cell]
+        e = grid_cells[cell + 1]
         # leave the cell across its nearest boundary
         if tx <= ty and tx <= tz:
             texit = tx

@@ -125,8 +125,7 @@ from ..accel import Kind, Param
 from ..config import njit
 from ..errors import OptionError
 from ..memory import check
-from .octree import (ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, append_octree,
-                     octree_frame)
+from .octree import ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, append_octree, octree_frame
 
 __all__ = ["LazyOctrees", "build_lazy", "pass_ranges", "FIRST_PASS", "PASS_CHUNKS"]
 
@@ -584,7 +583,8 @@ def flatten(builder, params, refs, bounds, name, box):
 KIND = Kind("lazyoctree", "lazy octree (Lathrop 1988): one leaf at first; between passes of rays (passes "
               "that trace a render coarse to fine: one sample per tile, then the samples between, level by "
               "level; RayScene from 16 rays up to 8 chunks of 8192) a leaf is split, as the octree splits, when "
-              "it meets I-V (and VI with rule60) and the reference budget allows: I level < depth, II not empty, III more than one item (M > 1), IV at least `rays` rays passed through it "
+              "it meets I-V (and VI with rule60) and the reference budget allows: I level < depth, II not empty, "
+              "III more than one item (M > 1), IV at least `rays` rays passed through it "
               "without a hit in it since it was made (N >= rays), V M*k < N; passes beyond what a split needed "
               "are shared among the children, which may split in the same refinement", (
     Param("depth", 16, "criterion I: most levels (the root is level 0; 0 never refines)", int, 0, 24),

@@ -4,6 +4,26 @@
     # tree.first, tree.count, tree.loc, tree.level, tree.slot, tree.nbr, tree.bounds, tree.order
     items_of_leaf = tree.order[tree.first[n]:tree.first[n] + tree.count[n]]
 
+Flat layout (the Geometry fields it owns)
+-----------------------------------------
+ON nodes of all octrees, O octrees:
+  oct_bounds   (ON, 6) float64  node box                                        48 B a node
+  oct_first    (ON,)   int64    inner: first of 8 children (global); leaf: first ref   8 B
+  oct_count    (ON,)   int64    refs in a leaf; -1 for an inner node            8 B
+  oct_loc      (ON, 3) int64    lower 28-bit address of the node's box         24 B
+  oct_level    (ON,)   int64    level of the node's box                         8 B
+  oct_slot     (ON,)   int64    level of the octant the node occupies in its parent   8 B
+  oct_nbr      (ON, 6) int64    neighbour across -x, +x, -y, +y, -z, +z (global), -1: none   48 B
+  oct_pass     (ON,)   int64    lazy octree leaf that may split: its pass counter column, else -1   8 B
+  oct_root     (O,)    int64    root node                                       8 B an octree
+  oct_origin   (O, 3)  float64  lower corner of the root box                   24 B
+  oct_unit     (O, 3)  float64  side of one address unit                       24 B
+  oct_scale    (O, 3)  float64  1 / oct_unit                                   24 B
+  oct_walk     (O,)    int64    0 point, 1 neighbor, 2 parametric               8 B
+  oct_mailbox  (O,)    int64    1: skip refs already tested in an earlier leaf  8 B
+The aggregate's agg_start is its octree index. The point and neighbor walks
+keep the address of the point they go on from in their frame (POINT).
+
 Root box and addresses
 ----------------------
 The root box is the union of the item boxes, with flat axes padded as the
@@ -90,10 +110,14 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .. import counters as C
+from ..accel import Kind, Param
+from ..boxes import CONSERVATIVE, INF, STILL, slab
 from ..config import njit
 from ..errors import OptionError, SceneError
 from ..memory import check, memory_limit
 from .grid import grid_box
+from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push
 
 __all__ = ["OctreeArrays", "build_octree", "ADDRESS_BITS", "MAX_DEPTH"]
 
@@ -473,30 +497,8 @@ def build_octree(bounds, *, depth=16, leaf=3, rule60=False, density=0.0, vertexc
     return tree, stats
 
 
-# ----------------------------------------------------------------- flat layout and walk
-#
-# Fields of Geometry an octree owns (ON nodes of all octrees, O octrees):
-#   oct_bounds   (ON, 6) float64  node box                                        48 B a node
-#   oct_first    (ON,)   int64    inner: first of 8 children (global); leaf: first ref   8 B
-#   oct_count    (ON,)   int64    refs in a leaf; -1 for an inner node            8 B
-#   oct_loc      (ON, 3) int64    lower 28-bit address of the node's box         24 B
-#   oct_level    (ON,)   int64    level of the node's box                         8 B
-#   oct_slot     (ON,)   int64    level of the octant the node occupies in its parent   8 B
-#   oct_nbr      (ON, 6) int64    neighbour across -x, +x, -y, +y, -z, +z (global), -1: none   48 B
-#   oct_pass     (ON,)   int64    lazy octree leaf that may split: its pass counter column, else -1   8 B
-#   oct_root     (O,)    int64    root node                                       8 B an octree
-#   oct_origin   (O, 3)  float64  lower corner of the root box                   24 B
-#   oct_unit     (O, 3)  float64  side of one address unit                       24 B
-#   oct_scale    (O, 3)  float64  1 / oct_unit                                   24 B
-#   oct_walk     (O,)    int64    0 point, 1 neighbor, 2 parametric               8 B
-#   oct_mailbox  (O,)    int64    1: skip refs already tested in an earlier leaf  8 B
-# The aggregate's agg_start is its octree index. The point and neighbor walks
-# keep the address of the point they go on from in their frame (POINT).
+# ----------------------------------------------------------------- flat layout (see the module docstring) and walk
 
-from .. import counters as C  # noqa: E402
-from ..boxes import CONSERVATIVE, INF, STILL, slab  # noqa: E402
-from ..accel import Kind, Param  # noqa: E402
-from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push  # noqa: E402
 
 CODE = 3
 FIELDS = (
@@ -548,9 +550,10 @@ def _address(x, origin, scale, lo, hi):
     return min(max(q, lo), hi)
 
 
-@njit(private=True)
-def step(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, tmin, best_t, frame_f, f,
-         stack_a, stack_b, stack_t, sp, cnt):
+@njit(inline="always")   # one call site; a call per step would cost the parametric walk 2x
+def step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_nbr, oct_origin, oct_pass, oct_root,
+         oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, tmin, best_t, frame_f, f, stack_a, stack_b,
+         stack_t, sp, cnt):
     """One step of octree `oi`'s walk; returns (sp, s, e), the references of the next
     non-empty leaf (none: s == e).
 
@@ -562,125 +565,139 @@ def step(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, tmin, be
     collapse removed; its address bits give that octant, visited as an empty leaf.
     parametric (Revelles et al. 2000): PARAM entries with their entry distance, the
     children a ray crosses pushed farthest first. A lazy octree's candidate leaf gets a
-    PASS entry at its exit distance above the walk's continuation."""
+    PASS entry at its exit distance above the walk's continuation. ray: (ox, oy, oz, dx, dy,
+    dz, ix, iy, iz), one argument so that the call stays under 30 (CPython passes longer
+    calls as *args, which numba cannot inline)."""
     if kind_step == PASS:
         if te <= best_t:
             cnt[C.N_COUNTERS + a] += 1
         return sp, 0, 0
     if te > best_t:
         return sp, 0, 0
-    if kind_step == START and geo.oct_mailbox[oi] != 0:
+    if kind_step == START and oct_mailbox[oi] != 0:
         mailbox_reset(frame_f, f)
-    if kind_step == PARAM or (kind_step == START and geo.oct_walk[oi] == 2):
-        return _parametric(geo, a if kind_step == PARAM else geo.oct_root[oi], oi, ox, oy, oz, ix, iy, iz,
-                           tmin, best_t, stack_a, stack_b, stack_t, sp, cnt)
-    return _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
-                       stack_a, stack_b, stack_t, sp, cnt)
+    if kind_step == PARAM or (kind_step == START and oct_walk[oi] == 2):
+        return _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin, oct_pass, oct_root,
+                           oct_unit, a if kind_step == PARAM else oct_root[oi], oi,
+                           ray, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt)
+    return _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_root, oct_scale,
+                       oct_slot, oct_unit, oct_walk, kind_step, a, te, oi,
+                       ray, best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
 
 
-@njit(private=True)
-def _parametric(geo, node, oi, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt):
+@njit(inline="always")
+def _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin, oct_pass, oct_root, oct_unit,
+                node, oi, ray, tmin, best_t,
+                stack_a, stack_b, stack_t, sp, cnt):
+    ox, oy, oz, _, _, _, ix, iy, iz = ray
     # Revelles, Urena and Lastra 2000: node parameters with the ray reflected
     # onto positive directions (amask: the reflected axes)
-    cnt[C.CELLS_VISITED] += 1
-    cnt[C.BOUNDS_TESTS] += 1
-    nb = geo.oct_bounds
-    top = geo.oct_root[oi]
-    amask = 0
-    if ix >= 0.0:
-        tx0, tx1 = _cell_slab(nb[node, 0], nb[node, 3], ox, ix, nb[top, 3])
-    else:
-        tx0, tx1 = (nb[node, 3] - ox) * ix, (nb[node, 0] - ox) * ix
-        amask |= 1
-    if iy >= 0.0:
-        ty0, ty1 = _cell_slab(nb[node, 1], nb[node, 4], oy, iy, nb[top, 4])
-    else:
-        ty0, ty1 = (nb[node, 4] - oy) * iy, (nb[node, 1] - oy) * iy
-        amask |= 2
-    if iz >= 0.0:
-        tz0, tz1 = _cell_slab(nb[node, 2], nb[node, 5], oz, iz, nb[top, 5])
-    else:
-        tz0, tz1 = (nb[node, 5] - oz) * iz, (nb[node, 2] - oz) * iz
-        amask |= 4
-    ot0 = max(max(tx0, ty0), tz0)
-    ot1 = min(min(tx1, ty1), tz1)
-    if ot0 > (ot1 * CONSERVATIVE if ot1 > 0.0 else ot1) or ot1 < tmin or ot0 > best_t:
-        return sp, 0, 0     # a collapsed node's shrunk box the ray misses
-    n_items = geo.oct_count[node]
-    if n_items >= 0:
-        cnt[C.CELLS_LEAVES] += 1
-        if n_items == 0:
-            cnt[C.CELLS_EMPTY] += 1
-            return sp, 0, 0
-        s = geo.oct_first[node]
-        col = geo.oct_pass[node]
-        if col >= 0 and C.N_COUNTERS + col < cnt.shape[0]:
-            sp = push(stack_a, stack_b, stack_t, sp, col, entry_tag(CODE, PASS), ot1)
-        return sp, s, s + n_items
-    # the centre planes
-    half = np.int64(1) << (ADDRESS_BITS - 1 - geo.oct_level[node])
-    txm = (geo.oct_origin[oi, 0] + geo.oct_unit[oi, 0] * (geo.oct_loc[node, 0] + half) - ox) * ix
-    tym = (geo.oct_origin[oi, 1] + geo.oct_unit[oi, 1] * (geo.oct_loc[node, 1] + half) - oy) * iy
-    tzm = (geo.oct_origin[oi, 2] + geo.oct_unit[oi, 2] * (geo.oct_loc[node, 2] + half) - oz) * iz
-    # first child (their table 1): entry plane, then the centre planes crossed before it
-    cur = 0
-    if tx0 >= ty0 and tx0 >= tz0:
-        cur = (2 if tym < tx0 else 0) | (4 if tzm < tx0 else 0)
-    elif ty0 >= tz0:
-        cur = (1 if txm < ty0 else 0) | (4 if tzm < ty0 else 0)
-    else:
-        cur = (1 if txm < tz0 else 0) | (2 if tym < tz0 else 0)
-    child0 = geo.oct_first[node]
-    sp0 = sp
-    tag = entry_tag(CODE, PARAM)
     while True:
-        # child interval per axis: [t0, tm] below the centre plane, [tm, t1] above
-        cx0, cx1 = (txm, tx1) if cur & 1 else (tx0, txm)
-        cy0, cy1 = (tym, ty1) if cur & 2 else (ty0, tym)
-        cz0, cz1 = (tzm, tz1) if cur & 4 else (tz0, tzm)
-        centry = max(max(cx0, cy0), cz0)
-        if centry > best_t:
-            break
-        if min(min(cx1, cy1), cz1) >= tmin:
-            sp = push(stack_a, stack_b, stack_t, sp, child0 + (cur ^ amask), tag, centry)
-        # next child (their table 3): across the nearest exit plane; the node's own wall ends it
-        if cx1 <= cy1 and cx1 <= cz1:
-            if cur & 1:
-                break
-            cur |= 1
-        elif cy1 <= cz1:
-            if cur & 2:
-                break
-            cur |= 2
+        cnt[C.CELLS_VISITED] += 1
+        cnt[C.BOUNDS_TESTS] += 1
+        nb = oct_bounds
+        top = oct_root[oi]
+        amask = 0
+        if ix >= 0.0:
+            tx0, tx1 = _cell_slab(nb[node, 0], nb[node, 3], ox, ix, nb[top, 3])
         else:
-            if cur & 4:
+            tx0, tx1 = (nb[node, 3] - ox) * ix, (nb[node, 0] - ox) * ix
+            amask |= 1
+        if iy >= 0.0:
+            ty0, ty1 = _cell_slab(nb[node, 1], nb[node, 4], oy, iy, nb[top, 4])
+        else:
+            ty0, ty1 = (nb[node, 4] - oy) * iy, (nb[node, 1] - oy) * iy
+            amask |= 2
+        if iz >= 0.0:
+            tz0, tz1 = _cell_slab(nb[node, 2], nb[node, 5], oz, iz, nb[top, 5])
+        else:
+            tz0, tz1 = (nb[node, 5] - oz) * iz, (nb[node, 2] - oz) * iz
+            amask |= 4
+        ot0 = max(max(tx0, ty0), tz0)
+        ot1 = min(min(tx1, ty1), tz1)
+        if ot0 > (ot1 * CONSERVATIVE if ot1 > 0.0 else ot1) or ot1 < tmin or ot0 > best_t:
+            return sp, 0, 0     # a collapsed node's shrunk box the ray misses
+        n_items = oct_count[node]
+        if n_items >= 0:
+            cnt[C.CELLS_LEAVES] += 1
+            if n_items == 0:
+                cnt[C.CELLS_EMPTY] += 1
+                return sp, 0, 0
+            s = oct_first[node]
+            col = oct_pass[node]
+            if col >= 0 and C.N_COUNTERS + col < cnt.shape[0]:
+                sp = push(stack_a, stack_b, stack_t, sp, col, entry_tag(CODE, PASS), ot1)
+            return sp, s, s + n_items
+        # the centre planes
+        half = np.int64(1) << (ADDRESS_BITS - 1 - oct_level[node])
+        txm = (oct_origin[oi, 0] + oct_unit[oi, 0] * (oct_loc[node, 0] + half) - ox) * ix
+        tym = (oct_origin[oi, 1] + oct_unit[oi, 1] * (oct_loc[node, 1] + half) - oy) * iy
+        tzm = (oct_origin[oi, 2] + oct_unit[oi, 2] * (oct_loc[node, 2] + half) - oz) * iz
+        # first child (their table 1): entry plane, then the centre planes crossed before it
+        cur = 0
+        if tx0 >= ty0 and tx0 >= tz0:
+            cur = (2 if tym < tx0 else 0) | (4 if tzm < tx0 else 0)
+        elif ty0 >= tz0:
+            cur = (1 if txm < ty0 else 0) | (4 if tzm < ty0 else 0)
+        else:
+            cur = (1 if txm < tz0 else 0) | (2 if tym < tz0 else 0)
+        child0 = oct_first[node]
+        sp0 = sp
+        tag = entry_tag(CODE, PARAM)
+        while True:
+            # child interval per axis: [t0, tm] below the centre plane, [tm, t1] above
+            cx0, cx1 = (txm, tx1) if cur & 1 else (tx0, txm)
+            cy0, cy1 = (tym, ty1) if cur & 2 else (ty0, tym)
+            cz0, cz1 = (tzm, tz1) if cur & 4 else (tz0, tzm)
+            centry = max(max(cx0, cy0), cz0)
+            if centry > best_t:
                 break
-            cur |= 4
-    # nearest child on top
-    lo_i, hi_i = sp0, sp - 1
-    while lo_i < hi_i:
-        stack_a[lo_i], stack_a[hi_i] = stack_a[hi_i], stack_a[lo_i]
-        stack_t[lo_i], stack_t[hi_i] = stack_t[hi_i], stack_t[lo_i]
-        lo_i += 1
-        hi_i -= 1
-    return sp, 0, 0
+            if min(min(cx1, cy1), cz1) >= tmin:
+                sp = push(stack_a, stack_b, stack_t, sp, child0 + (cur ^ amask), tag, centry)
+            # next child (their table 3): across the nearest exit plane; the node's own wall ends it
+            if cx1 <= cy1 and cx1 <= cz1:
+                if cur & 1:
+                    break
+                cur |= 1
+            elif cy1 <= cz1:
+                if cur & 2:
+                    break
+                cur |= 2
+            else:
+                if cur & 4:
+                    break
+                cur |= 4
+        # nearest child on top
+        lo_i, hi_i = sp0, sp - 1
+        while lo_i < hi_i:
+            stack_a[lo_i], stack_a[hi_i] = stack_a[hi_i], stack_a[lo_i]
+            stack_t[lo_i], stack_t[hi_i] = stack_t[hi_i], stack_t[lo_i]
+            lo_i += 1
+            hi_i -= 1
+        if sp == sp0:
+            return sp, 0, 0
+        # go on with the nearest child at once (its entry is within best_t), as the driver would
+        sp -= 1
+        node = stack_a[sp]
 
 
-@njit(private=True)
-def _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
-                stack_a, stack_b, stack_t, sp, cnt):
+@njit(inline="always")
+def _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_root, oct_scale, oct_slot,
+                oct_unit, oct_walk, kind_step, a, te, oi, ray,
+                best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt):
+    ox, oy, oz, dx, dy, dz, ix, iy, iz = ray
     # point (Lathrop) or neighbor (Glassner): find the leaf holding the point p
     # by its 28-bit address, leave it across its nearest wall, repeat
-    walk = geo.oct_walk[oi]
-    gox, goy, goz = geo.oct_origin[oi, 0], geo.oct_origin[oi, 1], geo.oct_origin[oi, 2]
-    gux, guy, guz = geo.oct_unit[oi, 0], geo.oct_unit[oi, 1], geo.oct_unit[oi, 2]
-    gsx, gsy, gsz = geo.oct_scale[oi, 0], geo.oct_scale[oi, 1], geo.oct_scale[oi, 2]
+    walk = oct_walk[oi]
+    gox, goy, goz = oct_origin[oi, 0], oct_origin[oi, 1], oct_origin[oi, 2]
+    gux, guy, guz = oct_unit[oi, 0], oct_unit[oi, 1], oct_unit[oi, 2]
+    gsx, gsy, gsz = oct_scale[oi, 0], oct_scale[oi, 1], oct_scale[oi, 2]
     top = np.int64(FULL - 1)
     if kind_step == START:
         px = _address(ox + te * dx, gox, gsx, 0, top)
         py = _address(oy + te * dy, goy, gsy, 0, top)
         pz = _address(oz + te * dz, goz, gsz, 0, top)
-        node = geo.oct_root[oi]
+        node = oct_root[oi]
     else:
         px = np.int64(frame_f[f, POINT])
         py = np.int64(frame_f[f, POINT + 1])
@@ -691,8 +708,8 @@ def _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, b
         leaf = np.int64(-1)
         while True:
             cnt[C.CELLS_VISITED] += 1
-            sh = ADDRESS_BITS - geo.oct_level[node]
-            lx, ly, lz = geo.oct_loc[node, 0], geo.oct_loc[node, 1], geo.oct_loc[node, 2]
+            sh = ADDRESS_BITS - oct_level[node]
+            lx, ly, lz = oct_loc[node, 0], oct_loc[node, 1], oct_loc[node, 2]
             diff = (px ^ lx) | (py ^ ly) | (pz ^ lz)
             if diff >> sh != 0:
                 # p lies in an empty octant a collapse removed: the one its highest
@@ -701,17 +718,17 @@ def _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, b
                 while diff >> (sh + 1) != 0:
                     sh += 1
                 break
-            if geo.oct_count[node] >= 0:
+            if oct_count[node] >= 0:
                 leaf = node
                 break
             bit = sh - 1
-            node = geo.oct_first[node] + ((px >> bit) & 1) + 2 * ((py >> bit) & 1) + 4 * ((pz >> bit) & 1)
+            node = oct_first[node] + ((px >> bit) & 1) + 2 * ((py >> bit) & 1) + 4 * ((pz >> bit) & 1)
         side = np.int64(1) << sh
         clx, cly, clz = (px >> sh) << sh, (py >> sh) << sh, (pz >> sh) << sh
         cnt[C.CELLS_LEAVES] += 1
-        if leaf >= 0 and geo.oct_count[leaf] > 0:
-            s = geo.oct_first[leaf]
-            e = s + geo.oct_count[leaf]
+        if leaf >= 0 and oct_count[leaf] > 0:
+            s = oct_first[leaf]
+            e = s + oct_count[leaf]
         else:
             s = e = 0
             cnt[C.CELLS_EMPTY] += 1
@@ -743,13 +760,13 @@ def _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, b
             out = out or pz < 0 or pz > top
             pa = pz
         if walk == 0:
-            node = geo.oct_root[oi]
+            node = oct_root[oi]
         elif not out:
             # still inside the container's slot, or across its wall to the neighbour
-            ssh = ADDRESS_BITS - geo.oct_slot[node]
-            if pa >> ssh != geo.oct_loc[node, axis] >> ssh:
+            ssh = ADDRESS_BITS - oct_slot[node]
+            if pa >> ssh != oct_loc[node, axis] >> ssh:
                 up = (dx > 0.0) if axis == 0 else ((dy > 0.0) if axis == 1 else (dz > 0.0))
-                node = geo.oct_nbr[node, 2 * axis + (1 if up else 0)]
+                node = oct_nbr[node, 2 * axis + (1 if up else 0)]
                 out = node < 0
         if s == e:
             if out or texit > best_t:
@@ -759,7 +776,7 @@ def _point_walk(geo, kind_step, a, te, oi, ox, oy, oz, dx, dy, dz, ix, iy, iz, b
             # come back for the next leaf after this one's references
             frame_f[f, POINT], frame_f[f, POINT + 1], frame_f[f, POINT + 2] = px, py, pz
             sp = push(stack_a, stack_b, stack_t, sp, node, entry_tag(CODE, NEXT), texit)
-        col = geo.oct_pass[leaf]
+        col = oct_pass[leaf]
         if col >= 0 and C.N_COUNTERS + col < cnt.shape[0]:
             # a lazy octree's candidate leaf: see whether the ray leaves it without a hit
             sp = push(stack_a, stack_b, stack_t, sp, col, entry_tag(CODE, PASS), texit)

@@ -6,6 +6,24 @@
     geo, build = flatten(scene, "rc")              # lazy (the default): six root leaves, grown by
     geo = build["lazy"].refine(geo, pass_counts)   # LazyRC between passes of rays (render, RayScene)
 
+Flat layout (the Geometry fields it owns)
+-----------------------------------------
+RC aggregates, RN nodes, RK candidates of all of them:
+  rc_face_root  (RC, 6) int64    root hypercube of each direction-cube face    48 B an aggregate
+  rc_node_a     (RN,)   int64    inner: first child (global); leaf: first candidate in rc_ref   8 B a node
+  rc_node_b     (RN,)   int64    inner: -(split dimension + 1) of x, y, z, u, v; leaf: candidates   8 B
+  rc_split      (RN,)   float64  inner: split coordinate                        8 B
+  rc_pass       (RN,)   int64    lazy leaf that may split: its row of rc_vinfo, else -1   8 B
+  rc_key        (RK,)   float64  near-face key of each candidate, rising within a leaf   8 B a candidate
+  rc_ref        (RK,)   int64    tagged reference of each candidate             8 B
+  rc_vinfo      (RP, 3) int64    lazy candidate: first pass counter column, levels K, first entry
+                                 in rc_vdim/rc_vsplit
+  rc_vdim       (RS,)   int64    split dimension of each inner node of the virtual subtrees
+  rc_vsplit     (RS,)   float64  split coordinate of each inner node of those subtrees
+The aggregate's agg_start is its row of rc_face_root. A leaf's candidates are a
+keyed list (aggregates/walk.py): the driver stops it once the next key puts the
+earliest possible hit past the closest one.
+
 Rays as points in 5D
 --------------------
 A ray is classified by its origin (x, y, z) and its direction. The direction
@@ -137,11 +155,14 @@ from typing import NamedTuple
 import numpy as np
 from numba import prange
 
+from .. import counters as C
+from ..accel import Kind, Param
 from ..config import njit
 from ..errors import OptionError
 from ..memory import memory_limit, over_budget
 from .grid import grid_box
 from .lazyoctree import scene_totals, tree_counts
+from .walk import F_KEY_D, F_KEY_END, F_KEY_O, Field
 
 __all__ = ["RcArrays", "RcBudgetWarning", "LazyRC", "build_rc", "start_rc", "face_of", "NODE_BYTES",
            "CANDIDATE_BYTES", "VIRTUAL_LEVELS"]
@@ -913,27 +934,8 @@ class LazyRC:
         scene_totals(build, geo, self.passes, int(self.subdivisions.sum()), self.seconds)
 
 
-# ----------------------------------------------------------------- flat layout and walk
-#
-# Fields of Geometry ray classification owns (RC aggregates, RN nodes, RK candidates of all of them):
-#   rc_face_root  (RC, 6) int64    root hypercube of each direction-cube face    48 B an aggregate
-#   rc_node_a     (RN,)   int64    inner: first child (global); leaf: first candidate in rc_ref   8 B a node
-#   rc_node_b     (RN,)   int64    inner: -(split dimension + 1) of x, y, z, u, v; leaf: candidates   8 B
-#   rc_split      (RN,)   float64  inner: split coordinate                        8 B
-#   rc_pass       (RN,)   int64    lazy leaf that may split: its row of rc_vinfo, else -1   8 B
-#   rc_key        (RK,)   float64  near-face key of each candidate, rising within a leaf   8 B a candidate
-#   rc_ref        (RK,)   int64    tagged reference of each candidate             8 B
-#   rc_vinfo      (RP, 3) int64    lazy candidate: first pass counter column, levels K, first entry
-#                                  in rc_vdim/rc_vsplit
-#   rc_vdim       (RS,)   int64    split dimension of each inner node of the virtual subtrees
-#   rc_vsplit     (RS,)   float64  split coordinate of each inner node of those subtrees
-# The aggregate's agg_start is its row of rc_face_root. A leaf's candidates are a
-# keyed list (aggregates/walk.py): the driver stops it once the next key puts the
-# earliest possible hit past the closest one.
+# ----------------------------------------------------------------- flat layout (see the module docstring) and walk
 
-from .. import counters as C  # noqa: E402
-from ..accel import Kind, Param  # noqa: E402
-from .walk import F_KEY_D, F_KEY_END, F_KEY_O, Field  # noqa: E402
 
 CODE = 4
 FIELDS = (
@@ -955,7 +957,8 @@ def append_rc(flat, tree: RcArrays, refs, box) -> int:
 
 
 @njit(private=True)
-def step(geo, a, te, ox, oy, oz, dx, dy, dz, best_t, frame_f, f, cnt):
+def step(rc_face_root, rc_node_a, rc_node_b, rc_pass, rc_split, rc_vdim, rc_vinfo, rc_vsplit, a, te, ox, oy, oz, dx,
+         dy, dz, best_t, frame_f, f, cnt):
     """Classify the ray (direction-cube face, u, v, and its entry point at te as origin),
     descend its face's 5D tree to one hypercube and return (s, e, key_o, key_d): the
     hypercube's keyed candidate list (none: s == e), also kept in the frame for resuming.
@@ -975,32 +978,32 @@ def step(geo, a, te, ox, oy, oz, dx, dy, dz, best_t, frame_f, f, cnt):
         face = 4 if dz > 0.0 else 5
         key_d, key_o, u, v = raz, (oz if dz > 0.0 else -oz), dx / raz, dy / raz
     px, py, pz = ox + te * dx, oy + te * dy, oz + te * dz
-    node = geo.rc_face_root[a, face]
+    node = rc_face_root[a, face]
     while True:
         cnt[C.CELLS_VISITED] += 1
-        nb = geo.rc_node_b[node]
+        nb = rc_node_b[node]
         if nb >= 0:
             break
         q = px if nb == -1 else (py if nb == -2 else (pz if nb == -3 else (u if nb == -4 else v)))
-        node = geo.rc_node_a[node] + (0 if q < geo.rc_split[node] else 1)
-    pj = geo.rc_pass[node]
+        node = rc_node_a[node] + (0 if q < rc_split[node] else 1)
+    pj = rc_pass[node]
     if pj >= 0:
         # a lazy leaf that may split: count the arrival in its virtual cell
-        col = C.N_COUNTERS + geo.rc_vinfo[pj, 0]
-        k = geo.rc_vinfo[pj, 1]
+        col = C.N_COUNTERS + rc_vinfo[pj, 0]
+        k = rc_vinfo[pj, 1]
         if col + (1 << k) <= cnt.shape[0]:
-            off = geo.rc_vinfo[pj, 2] - 1
+            off = rc_vinfo[pj, 2] - 1
             h = 1
             for _ in range(k):
-                dim = geo.rc_vdim[off + h]
+                dim = rc_vdim[off + h]
                 q = px if dim == 0 else (py if dim == 1 else (pz if dim == 2 else (u if dim == 3 else v)))
-                h = 2 * h + (0 if q < geo.rc_vsplit[off + h] else 1)
+                h = 2 * h + (0 if q < rc_vsplit[off + h] else 1)
             cnt[col + h - (1 << k)] += 1
     cnt[C.CELLS_LEAVES] += 1
     if nb == 0:
         cnt[C.CELLS_EMPTY] += 1
         return 0, 0, 0.0, 0.0
-    s = geo.rc_node_a[node]
+    s = rc_node_a[node]
     e = s + nb
     frame_f[f, F_KEY_END], frame_f[f, F_KEY_O], frame_f[f, F_KEY_D] = e, key_o, key_d
     return s, e, key_o, key_d

@@ -15,8 +15,18 @@ import math
 import numpy as np
 
 from ..nffwriter import NffWriter
-from ._common import (PI, SKY_BLUE, Y_AXIS, Z_AXIS, axis_rotation, identity, material, normalize, rotation,
-                      transform_vectors)
+from ._common import (
+    PI,
+    SKY_BLUE,
+    Y_AXIS,
+    Z_AXIS,
+    axis_rotation,
+    identity,
+    material,
+    normalize,
+    rotation,
+    transform_vectors,
+)
 
 DEFAULT_SIZE = 4
 SIZE_RULE = "1 + 9 + ... + 9^SF spheres and 1 floor quad"

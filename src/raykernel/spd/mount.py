@@ -20,8 +20,7 @@ from __future__ import annotations
 import math
 
 from ..nffwriter import NffWriter
-from ._common import (PI, SKY_BLUE, Z_AXIS, axis_rotation, gauss_rand, material, normalize, rotation,
-                      transform_vectors)
+from ._common import PI, SKY_BLUE, Z_AXIS, axis_rotation, gauss_rand, material, normalize, rotation, transform_vectors
 
 DEFAULT_SIZE = 6
 SIZE_RULE = "2*4^SF terrain triangles plus 4 spheres"
