@@ -41,8 +41,11 @@ def _pool(threads: int) -> ThreadPoolExecutor:
         return _pools[threads]
 
 
-def for_ranges(fn, n: int, threads: int | None = None, min_size: int = 1) -> None:
-    """Call fn(lo, hi) over ranges covering 0..n, on up to `threads` threads at once."""
+def for_ranges(fn, n: int, threads: int | None = None, min_size: int = 1, kernel=None) -> None:
+    """Call fn(lo, hi) over ranges covering 0..n, on up to `threads` threads at once.
+    kernel: the compiled function fn calls; until it has been compiled (or loaded from the
+    cache) the first range runs alone on this thread, since threads calling an uncompiled
+    kernel at once compile it once each (a first render took 52 s instead of 30)."""
     threads = max(1, int(threads or default_threads()))
     if n <= 0:
         return
@@ -51,6 +54,10 @@ def for_ranges(fn, n: int, threads: int | None = None, min_size: int = 1) -> Non
         fn(0, n)            # (a worker never waits on its own pool)
         return
     size = -(-n // n_ranges)
-    futures = [_pool(threads).submit(fn, lo, min(n, lo + size)) for lo in range(0, n, size)]
+    start = 0
+    if kernel is not None and not kernel.signatures:
+        fn(0, size)
+        start = size
+    futures = [_pool(threads).submit(fn, lo, min(n, lo + size)) for lo in range(start, n, size)]
     for future in futures:
         future.result()

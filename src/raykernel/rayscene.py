@@ -342,7 +342,8 @@ class RayScene:
                 mesh = self._mesh
                 for_ranges(lambda c0, c1: meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind,
                                                          geom, idx, inst, uv, gn, sn, with_surface, offsets, all_t,
-                                                         all_i, counters, c0, c1), len(counters))
+                                                         all_i, counters, c0, c1), len(counters),
+                       kernel=meshcast.query)
             elif n and self._lazy is not None:
                 # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
                 # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
@@ -360,7 +361,7 @@ class RayScene:
                     rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + self._lazy.columns), np.int64)
                     args = (self.geo, *(x[a:b] for x in ins), np.int64(mode), CHUNK, *(x[a:b] for x in outs),
                             with_surface, p_offsets[a:b + 1] if len(offsets) else offsets, p_all_t, p_all_i, rows)
-                    for_ranges(lambda c0, c1, args=args: _query(*args, c0, c1), len(rows))
+                    for_ranges(lambda c0, c1, args=args: _query(*args, c0, c1), len(rows), kernel=_query)
                     counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
                     self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
                 for mine, theirs in zip((t, kind, idx, inst, uv, gn, sn), outs):
@@ -377,7 +378,7 @@ class RayScene:
             elif n:
                 for_ranges(lambda c0, c1: _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv,
                                                  gn, sn, with_surface, offsets, all_t, all_i, counters, c0, c1),
-                           len(counters))
+                           len(counters), kernel=_query)
         seconds = time.perf_counter() - start - clock.seconds
         if self._mesh is None and mode != ALL_HITS:
             geom, idx = self._identify(kind, idx)

@@ -410,7 +410,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
             def tiles(lo, hi, first=first, step=step, coarse=coarse, geo=geo, pass_counts=pass_counts):
                 _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first + lo, first + hi,
                               first, max_depth, cutoff, samples, counts, pass_counts, step, coarse)
-            for_ranges(tiles, last - first, n_threads)
+            for_ranges(tiles, last - first, n_threads, kernel=_render_tiles)
             if lazy is not None:
                 geo = lazy.refine(geo, pass_counts)
             done += part

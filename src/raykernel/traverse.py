@@ -314,5 +314,5 @@ def cast_rays(geo, origins, directions, tmin=0.0, tmax=np.inf, any_hit=False):
     if n:
         mode = ANY_HIT if any_hit else CLOSEST
         for_ranges(lambda c0, c1: _cast_chunks(geo, origins, directions, tmin, tmax, mode, CHUNK, t, kind, index,
-                                               inst, counters, c0, c1), len(counters))
+                                               inst, counters, c0, c1), len(counters), kernel=_cast_chunks)
     return t, kind, index, inst, counters.sum(axis=0)
