@@ -74,9 +74,10 @@ def main() -> int:
     ap.add_argument("--label", default="now", help="row label, e.g. before or after")
     ap.add_argument("--only", action="append", help="entry points to run (default: all)")
     ap.add_argument("--no-write", action="store_true", help="print, do not write BENCHMARKS.md")
+    ap.add_argument("--table-only", action="store_true", help="rewrite the section from bench/startup.json, run nothing")
     args = ap.parse_args()
     rows = []
-    for name in args.only or ENTRY_POINTS:
+    for name in [] if args.table_only else (args.only or ENTRY_POINTS):
         with tempfile.TemporaryDirectory() as cache:
             cold = run_child(ENTRY_POINTS[name], cache)
             warm = run_child(ENTRY_POINTS[name], cache)
@@ -93,7 +94,8 @@ def main() -> int:
     old.setdefault("rows", [])
     keep = [r for r in old["rows"] if not (r["label"] == args.label and r["entry"] in {x["entry"] for x in rows})]
     old["rows"] = keep + rows
-    old.setdefault("machines", {})[args.label] = machine()
+    if rows:
+        old.setdefault("machines", {})[args.label] = machine()
     store.write_text(json.dumps(old, indent=1) + "\n")
     lines = ["## Start-up: compile time, cold and warm",
              "",
