@@ -28,7 +28,7 @@ SPD_MESHES = ["gears-sf4", "mount-sf6", "teapot-sf6", "tetra-sf6"]
 
 def scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
     """Every polygon (fan-triangulated) and mesh triangle of a scene, in world space."""
-    from raykernel.convert import walk
+    from raykernel.scene.convert import walk
     verts, faces, n = [], [], 0
     for group, m, _ in walk(scene):
         for s in group.primitive_sets():
@@ -52,7 +52,7 @@ def obj_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
 
     import trimesh
 
-    from raykernel.convert import scene_to_obj
+    from raykernel.scene.convert import scene_to_obj
     obj, _ = scene_to_obj(scene)
     m = trimesh.load(io.StringIO(obj), file_type="obj", force="mesh", process=False)
     return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)

@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import ROOT, SHARED_SPD, machine, replace_section  # noqa: E402
 
 import raykernel  # noqa: E402
-from raykernel import spd  # noqa: E402
+from raykernel.scene import spd
 
 RAYKERNEL = [sys.executable, "-m", "raykernel.cli"]
 

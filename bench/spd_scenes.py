@@ -13,10 +13,10 @@ import argparse
 import sys
 import time
 
-import raykernel
-from raykernel import spd
-
 from _report import machine, replace_section
+
+import raykernel
+from raykernel.scene import spd
 
 
 def main():

@@ -24,15 +24,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import BENCHMARKS, machine, replace_section  # noqa: E402
 
 ENTRY_POINTS = {
-    "render-balls": "from raykernel.loading import load; from raykernel.render import render\n"
+    "render-balls": "from raykernel.scene.loading import load; from raykernel.rendering.render import render\n"
                     "render(load('spd:balls'), resolution=32)",
-    "render-heckbert": "from raykernel.loading import load; from raykernel.render import render\n"
+    "render-heckbert": "from raykernel.scene.loading import load; from raykernel.rendering.render import render\n"
                        "render(load('example:heckbert'), resolution=32)",
     "rayscene-mesh": "import numpy as np, raykernel\n"
                      "v = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = np.array([[0, 1, 2]])\n"
                      "s = raykernel.RayScene.from_mesh(v, f)\n"
                      "s.intersect(np.array([[0.2, 0.2, -1.]]), np.array([[0., 0, 1]]))",
-    "rayscene-scene": "import numpy as np, raykernel\nfrom raykernel.loading import load\n"
+    "rayscene-scene": "import numpy as np, raykernel\nfrom raykernel.scene.loading import load\n"
                       "s = raykernel.RayScene(load('spd:balls'))\n"
                       "s.intersect(np.array([[0., 0, 5]]), np.array([[0., 0, -1]]))",
 }

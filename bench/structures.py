@@ -17,10 +17,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-import raykernel
-from raykernel import accel, spd
-
 from _report import machine, replace_section
+
+import raykernel
+from raykernel.scene import accel, spd
 
 RAY_KEYS = ("rays.eye", "rays.eye_hit", "rays.reflect", "rays.reflect_hit", "rays.refract", "rays.refract_hit",
             "rays.shadow", "rays.shadow_blocked")

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from raykernel.primitives import CONE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE
+from raykernel.geometry.primitives import CONE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE
 from raykernel.scene import Group, Instance, Polygons, Scene, TriangleMesh
 
 REAL = np.longdouble
@@ -465,7 +465,7 @@ def _closest_t(hits, which):
 
 def cast(prims, origins, directions, tmin=0.0, tmax=INF):
     """Closest hit of each ray: (t, kind, index, instance), t float64 (inf on a miss)
-    and identities -1 on a miss, like raykernel.traverse.cast_rays."""
+    and identities -1 on a miss, like raykernel.engine.traverse.cast_rays."""
     hits = all_hits(prims, origins, directions, tmin, tmax)
     which = closest(prims, hits)
     return (_closest_t(hits, which).astype(np.float64), *identities(prims, which))

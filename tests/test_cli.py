@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from raykernel import accel
 from raykernel.cli import main
+from raykernel.scene import accel
 
 RAYKERNEL = Path(sys.executable).parent / "raykernel"
-render_module = importlib.import_module("raykernel.render")   # the package re-exports the function under the same name
+render_module = importlib.import_module("raykernel.rendering.render")   # the package re-exports the function under the same name
 
 COUNTER_KEYS = [
     "rays.eye", "rays.eye_hit", "rays.reflect", "rays.reflect_hit", "rays.refract", "rays.refract_hit",
@@ -218,7 +218,7 @@ def test_stats_json_into_missing_directory(tmp_path, capsys):
 
 
 def interrupt_after_start(monkeypatch):
-    """Make raykernel.render.render raise KeyboardInterrupt from its first progress report,
+    """Make raykernel.rendering.render.render raise KeyboardInterrupt from its first progress report,
     i.e. after the scene was built and the first tiles were traced."""
     real = render_module.render
     started = []

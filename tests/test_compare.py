@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import raykernel
-from raykernel import compare as cm
-from raykernel import costmodel
+from raykernel.analysis import compare as cm
+from raykernel.analysis import costmodel
 from raykernel.cli import main
 
 SCENES = ["spd:balls:1", "spd:tetra:1"]

@@ -4,7 +4,7 @@ import shutil
 
 import numba
 
-from raykernel import config
+from raykernel.geometry import config
 
 
 def _copy_package(tmp_path):
@@ -17,7 +17,7 @@ def test_hash_changes_with_a_kernel_source(tmp_path):
     pkg = _copy_package(tmp_path)
     before = config.kernel_source_hash(pkg)
     assert before == config.kernel_source_hash(config.PACKAGE)
-    prims = pkg / "primitives.py"
+    prims = pkg / "geometry" / "primitives.py"
     prims.write_text(prims.read_text() + "\n# changed\n")
     assert config.kernel_source_hash(pkg) != before
 

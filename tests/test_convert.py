@@ -13,11 +13,11 @@ from PIL import Image
 
 import raykernel
 from raykernel.cli import main
-from raykernel.convert import convert, scene_to_obj, scene_to_pov
 from raykernel.errors import OptionError, SceneError
-from raykernel.jsonscene import read_json
-from raykernel.nff import read_nff
 from raykernel.scene import Camera, Group, Instance, Material, Scene, TriangleMesh
+from raykernel.scene.convert import convert, scene_to_obj, scene_to_pov
+from raykernel.scene.jsonscene import read_json
+from raykernel.scene.nff import read_nff
 
 POVRAY = shutil.which("povray")
 needs_povray = pytest.mark.skipif(POVRAY is None, reason="povray is not installed (Debian package `povray`); "

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 import raykernel
-from raykernel import counters as C
-from raykernel.accel import parse_spec
 from raykernel.aggregates.grid import build_grid, grid_resolution
+from raykernel.engine.flatten import GRID, flatten
+from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError, SceneError
-from raykernel.flatten import GRID, flatten
+from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance, Scene, TriangleMesh
-from raykernel.traverse import cast_rays
+from raykernel.scene.accel import parse_spec
 
 GRID_SPECS = ["grid", "grid(mailbox=off)", "grid(res=woo)", "grid(res=woo, mailbox=off)",
               "grid(density=0.25)", "grid(density=8, max_res=7)", "grid(res=klimaszewski)",

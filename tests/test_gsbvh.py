@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from raykernel.accel import parse_spec
 from raykernel.aggregates.bvh import BVHArrays, build_bvh, is_leaf
 from raykernel.aggregates.gsbvh import MAX_DEPTH, ORDERS, build_gs, insertion_order, morton_codes
+from raykernel.engine.flatten import BVH, flatten
+from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
-from raykernel.flatten import BVH, flatten
 from raykernel.scene import Group, Material, Scene, TriangleMesh
-from raykernel.traverse import cast_rays
+from raykernel.scene.accel import parse_spec
 
 EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
 

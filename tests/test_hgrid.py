@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from raykernel import counters as C
-from raykernel.accel import parse_spec
 from raykernel.aggregates.grid import build_grid
 from raykernel.aggregates.hgrid import clipped_bounds, dense_cells, replace_cells
+from raykernel.engine.flatten import GRID, MAX_NESTING, flatten
+from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError, SceneError
-from raykernel.flatten import GRID, MAX_NESTING, flatten
+from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance, Material, Scene, TriangleMesh
-from raykernel.traverse import cast_rays
+from raykernel.scene.accel import parse_spec
 
 
 def new_scene() -> Scene:

@@ -8,7 +8,7 @@ from PIL import Image
 
 from raykernel.cli import main
 from raykernel.errors import OptionError
-from raykernel.imageio import FORMATS, save_image, to_uint8
+from raykernel.rendering.imageio import FORMATS, save_image, to_uint8
 
 
 def gradient(h=6, w=5):

@@ -1,4 +1,4 @@
-"""Whole scenes through raykernel.traverse.cast_rays.
+"""Whole scenes through raykernel.engine.traverse.cast_rays.
 
 Every accelerator against "list" (same primitive, same t), nested aggregates
 against the same scene merged into one aggregate, instances against scenes
@@ -19,10 +19,10 @@ import pytest
 import reference as ref
 
 from raykernel import Group, Instance, Scene, SceneError, TriangleMesh
-from raykernel import counters as C
-from raykernel.flatten import MAX_NESTING, Geometry, flatten
-from raykernel.primitives import CONE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE
-from raykernel.traverse import cast_rays
+from raykernel.engine.flatten import MAX_NESTING, Geometry, flatten
+from raykernel.engine.traverse import cast_rays
+from raykernel.geometry import counters as C
+from raykernel.geometry.primitives import CONE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE
 
 RTOL = 1e-9
 ACCELS = ["bvh", "bvh(leaf=1)", "bvh(leaf=8, bins=4)"]
@@ -565,8 +565,8 @@ def _geometry_npz(geo: Geometry, path, **extra):
 CAST_IN_SUBPROCESS = textwrap.dedent("""
     import sys
     import numpy as np
-    from raykernel.flatten import Geometry
-    from raykernel.traverse import cast_rays
+    from raykernel.engine.flatten import Geometry
+    from raykernel.engine.traverse import cast_rays
     data = np.load(sys.argv[1])
     fields = {k[4:]: data[k] for k in data.files if k.startswith("geo_")}
     fields["root"] = int(fields["root"])

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from raykernel.errors import SceneError
-from raykernel.jsonscene import (
+from raykernel.scene import Camera, Group, Instance, Material, Scene, TriangleMesh
+from raykernel.scene.jsonscene import (
     MAX_NESTING,
     parse_json,
     read_json,
@@ -25,7 +26,6 @@ from raykernel.jsonscene import (
     transform_matrix,
     write_json,
 )
-from raykernel.scene import Camera, Group, Instance, Material, Scene, TriangleMesh
 
 REPO = Path(__file__).resolve().parents[1]
 SPD_DIR = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "spd"
@@ -525,7 +525,7 @@ def test_nesting_limit_named_groups_and_transforms():
 
 
 def test_limit_matches_the_renderer():
-    flatten = pytest.importorskip("raykernel.flatten")
+    flatten = pytest.importorskip("raykernel.engine.flatten")
     assert MAX_NESTING == flatten.MAX_NESTING
 
 

@@ -15,21 +15,21 @@ from test_pathological import child, points
 
 import raykernel
 from raykernel import RayScene
-from raykernel import counters as C
-from raykernel import pathological as P
-from raykernel.accel import describe, parse_spec
 from raykernel.aggregates import lazyoctree
 from raykernel.aggregates.lazyoctree import PASS_CHUNKS, build_lazy, pass_ranges
 from raykernel.aggregates.octree import ADDRESS_BITS, BUDGET_SLACK
+from raykernel.casting.rayscene import CHUNK, coarse_to_fine
+from raykernel.engine.flatten import OCTREE, flatten
+from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
-from raykernel.flatten import OCTREE, flatten
-from raykernel.rayscene import CHUNK, coarse_to_fine
+from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance
-from raykernel.traverse import cast_rays
+from raykernel.scene import pathological as P
+from raykernel.scene.accel import describe, parse_spec
 
 WALKS = ("point", "neighbor", "parametric")
 PASS = PASS_CHUNKS * CHUNK          # rays of RayScene's longest pass (8192)
-RENDER = importlib.import_module("raykernel.render")
+RENDER = importlib.import_module("raykernel.rendering.render")
 
 
 def lazy_of(rs: RayScene):
@@ -607,7 +607,7 @@ def test_rayscene_casts_lazy_queries_coarse_to_fine():
 def test_rayscene_lazy_passes_take_the_rays_coarse_to_fine(monkeypatch):
     """The rays each pass casts are those of coarse_to_fine, in pass_ranges' cuts; the hits come
     back in the rays' own order (checked against list)."""
-    module = importlib.import_module("raykernel.rayscene")
+    module = importlib.import_module("raykernel.casting.rayscene")
     kernel = module._query
     passes = []
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 import raykernel
+from raykernel.aggregates.memory import MemoryBudgetError, memory_limit, parse_size, physical_memory
 from raykernel.cli import main
+from raykernel.engine.flatten import flatten
 from raykernel.errors import OptionError
-from raykernel.flatten import flatten
-from raykernel.memory import MemoryBudgetError, memory_limit, parse_size, physical_memory
 
 
 @pytest.mark.parametrize("text,expected", [("512M", 512 << 20), ("8G", 8 << 30), ("1.5g", int(1.5 * (1 << 30))),

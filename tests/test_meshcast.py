@@ -14,7 +14,7 @@ import pytest
 from test_watertight import MESHES, rays_through, targets
 
 from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
-from raykernel.primitives import SPHERE, TRIANGLE
+from raykernel.geometry.primitives import SPHERE, TRIANGLE
 
 
 def generic(scene: RayScene) -> RayScene:

@@ -35,15 +35,14 @@ from hypothesis import strategies as st
 from test_intersect import affine, fill_group, similarity
 
 import raykernel
-from raykernel import accel, pathological, spd
-from raykernel import counters as C
 from raykernel.aggregates.octree import BUDGET_SLACK, build_octree
+from raykernel.casting.rayscene import RayScene
+from raykernel.engine.flatten import flatten
+from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
-from raykernel.flatten import flatten
-from raykernel.primitives import PATCH
-from raykernel.rayscene import RayScene
-from raykernel.scene import Group, Instance, Polygons, Scene, TriangleMesh
-from raykernel.traverse import cast_rays
+from raykernel.geometry import counters as C
+from raykernel.geometry.primitives import PATCH
+from raykernel.scene import Group, Instance, Polygons, Scene, TriangleMesh, accel, pathological, spd
 
 VARIANTS = ("bvh(build=gs)", "octree(walk=point)", "octree(walk=parametric)", "octree(mailbox=off)",
             "grid(mailbox=off)", "hgrid(threshold=2)")

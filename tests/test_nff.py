@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from raykernel.errors import SceneError
-from raykernel.nff import parse_nff, read_nff, scene_to_nff, write_nff
 from raykernel.scene import Camera, Group, Instance, Material, Scene, TriangleMesh
+from raykernel.scene.nff import parse_nff, read_nff, scene_to_nff, write_nff
 
 SPD_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "scenes" / "spd"
 needs_spd = pytest.mark.skipif(not SPD_DIR.is_dir(), reason=f"SPD scene directory not found at {SPD_DIR}")

@@ -16,13 +16,13 @@ from test_grid import (
     rotation_scale,
 )
 
-from raykernel import counters as C
-from raykernel.accel import parse_spec
 from raykernel.aggregates.octree import ADDRESS_BITS, build_octree
+from raykernel.engine.flatten import OCTREE, flatten
+from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
-from raykernel.flatten import OCTREE, flatten
+from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance
-from raykernel.traverse import cast_rays
+from raykernel.scene.accel import parse_spec
 
 WALKS = ("point", "neighbor", "parametric")
 CRITERIA = ["", "collapse=off", "mailbox=off", "rule60=on", "density=0.3", "vertexcount=on, leaf=8",

@@ -10,13 +10,13 @@ import pytest
 from PIL import Image
 
 import raykernel
-from raykernel import pathological as P
 from raykernel.cli import main
+from raykernel.engine.flatten import flatten
 from raykernel.errors import OptionError
-from raykernel.flatten import flatten
-from raykernel.jsonscene import read_json, write_json
-from raykernel.nff import read_nff, write_nff
 from raykernel.scene import Group, Instance
+from raykernel.scene import pathological as P
+from raykernel.scene.jsonscene import read_json, write_json
+from raykernel.scene.nff import read_nff, write_nff
 
 FT = P.FEET_PER_MILE
 
@@ -392,8 +392,8 @@ def test_cli_renders_the_stadium(tmp_path):
 def test_stadium_teapot_bvh_nests_a_bvh_and_keeps_the_hits():
     import numpy as np
 
-    from raykernel.flatten import flatten
-    from raykernel.traverse import cast_rays
+    from raykernel.engine.flatten import flatten
+    from raykernel.engine.traverse import cast_rays
     plain = P.load("stadium", ratio=1000, stadium_prims=600, teapot_prims=200)
     nested = P.load("stadium", ratio=1000, stadium_prims=600, teapot_prims=200, teapot_bvh=1)
     assert [g.accel for g in nested.root.children if g.name == "teapot"] == ["bvh"]

@@ -1,7 +1,7 @@
 """Every primitive kind against the brute-force reference (tests/reference.py).
 
 Each test builds a scene of one or a few primitives with a "list" root, casts
-rays with raykernel.traverse.cast_rays and compares with the reference: the
+rays with raykernel.engine.traverse.cast_rays and compares with the reference: the
 same hit or miss and t within 1e-9 relative, on every ray that is not within
 1e-6 (relative to the primitive's size) of a silhouette, edge, rim or apex
 (see reference.unstable). Those near-grazing rays, and rays built to graze on
@@ -19,9 +19,19 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from raykernel import Scene, TriangleMesh
-from raykernel.flatten import flatten
-from raykernel.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE, hit_cone, hit_polygon, hit_sphere, hit_triangle
-from raykernel.traverse import cast_rays
+from raykernel.engine.flatten import flatten
+from raykernel.engine.traverse import cast_rays
+from raykernel.geometry.primitives import (
+    CONE,
+    PATCH,
+    POLYGON,
+    SPHERE,
+    TRIANGLE,
+    hit_cone,
+    hit_polygon,
+    hit_sphere,
+    hit_triangle,
+)
 
 RTOL = 1e-9          # t agreement on stable rays
 EDGE = 1e-6          # rays closer than this (relative to the primitive's size) to an edge are "grazing"

@@ -7,7 +7,7 @@ import pytest
 from reference import all_hits, world_primitives
 
 from raykernel import Group, Instance, RayInputError, RayScene, Scene, TriangleMesh
-from raykernel.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
+from raykernel.geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 
 
 def random_mesh(rng, n=150):

@@ -22,15 +22,15 @@ from test_lazyoctree import same_hits_as_list
 
 import raykernel
 from raykernel import RayScene
-from raykernel import counters as C
-from raykernel.accel import parse_spec
 from raykernel.aggregates.lazyoctree import PASS_CHUNKS
 from raykernel.aggregates.rc import NODE_BYTES, VIRTUAL_LEVELS, RcBudgetWarning, build_rc, face_of, meets_beam, start_rc
+from raykernel.casting.rayscene import CHUNK
+from raykernel.engine.flatten import RC, flatten
+from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
-from raykernel.flatten import RC, flatten
-from raykernel.rayscene import CHUNK
+from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance
-from raykernel.traverse import cast_rays
+from raykernel.scene.accel import parse_spec
 
 # lazy (the default) and eager alike
 RC_SPECS = ["rc", "rc(lazy=off)", "rc(leaf=2, depth=30)", "rc(leaf=2, depth=30, lazy=off)", "rc(leaf=1, depth=6, rays=3)",
@@ -189,7 +189,7 @@ def test_bad_builder_arguments_are_option_errors():
 
 
 def test_rc_is_listed_with_its_help():
-    text = raykernel.accel.describe()
+    text = raykernel.scene.accel.describe()
     assert "rc: ray classification" in text and "budget_mb=256.0" in text
     assert "lazy=on" in text and "rays=1" in text
     assert parse_spec("rc") == ("rc", {"leaf": 8, "depth": 40, "budget_mb": 256.0, "lazy": True, "rays": 1})
@@ -382,7 +382,7 @@ def tree_of(geo, box, rc=0):
     indices), with the depth of every node reachable from the face roots."""
     from types import SimpleNamespace
 
-    from raykernel.primitives import INDEX_MASK
+    from raykernel.geometry.primitives import INDEX_MASK
     depth = {}
     for f in range(6):
         todo = [(int(geo.rc_face_root[rc, f]), 0)]

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from raykernel import accel
 from raykernel.aggregates import WALKS
 from raykernel.aggregates.walk import STEP_BITS, entry_kind, entry_step, entry_tag
+from raykernel.engine.flatten import AGGREGATE_FIELDS, PRIMITIVE_FIELDS, Geometry
 from raykernel.errors import OptionError
-from raykernel.flatten import AGGREGATE_FIELDS, PRIMITIVE_FIELDS, Geometry
+from raykernel.scene import accel
 
 
 def test_walk_codes_are_unique_and_dense():

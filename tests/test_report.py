@@ -9,8 +9,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from raykernel import compare as cm
-from raykernel.report import render_html, write_report
+from raykernel.analysis import compare as cm
+from raykernel.analysis.report import render_html, write_report
 
 
 @pytest.fixture(scope="module")

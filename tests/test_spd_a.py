@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from raykernel import spd
 from raykernel.errors import OptionError
+from raykernel.scene import spd
 
 SPD_DIR = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "spd"
 TOLERANCE = 1e-4
@@ -210,7 +210,7 @@ def test_default_size_generates_the_default_file():
 # ---------------------------------------------------------------- shared helpers
 
 def test_shine_from_highlight_angle():
-    from raykernel.spd._common import shine
+    from raykernel.scene.spd._common import shine
     assert shine(0.0) == 100000.0
     assert shine(90.0) == 1.0
     assert math.isclose(shine(37.0), 3.0827, rel_tol=1e-4)
@@ -219,7 +219,7 @@ def test_shine_from_highlight_angle():
 
 
 def test_clean_polygon_merges_repeated_vertices():
-    from raykernel.spd._common import clean_polygon
+    from raykernel.scene.spd._common import clean_polygon
     square = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
     assert clean_polygon(square) == [tuple(map(float, v)) for v in square]
     expected = [tuple(map(float, v)) for v in square]
@@ -230,7 +230,7 @@ def test_clean_polygon_merges_repeated_vertices():
 
 
 def test_mount_hash_uses_64_bit_shifts():
-    from raykernel.spd.mount import hash_rand
+    from raykernel.scene.spd.mount import hash_rand
     assert hash_rand(1, 0, 6) == 2
     assert hash_rand(0, 1, 6) == 1 << 9
     assert hash_rand(3, 0, 8) == 0x8000
@@ -239,7 +239,7 @@ def test_mount_hash_uses_64_bit_shifts():
 
 
 def test_gauss_rand_is_a_deterministic_normal_deviate():
-    from raykernel.spd._common import gauss_rand
+    from raykernel.scene.spd._common import gauss_rand
     values = [gauss_rand(seed) for seed in range(21, 21 + 4000)]
     assert gauss_rand(21) == values[0]
     mean = sum(values) / len(values)

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from raykernel import spd
 from raykernel.errors import OptionError
-from raykernel.spd import jacks, lattice, nurbtst, sample, sombrero, teapot
+from raykernel.scene import spd
+from raykernel.scene.spd import jacks, lattice, nurbtst, sample, sombrero, teapot
 
 SPD_DIR = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "spd"
 TOLERANCE = 1.0e-4

@@ -4,11 +4,11 @@ the multiplies each class needs, and the transforms.* counters."""
 import numpy as np
 import pytest
 
-from raykernel import counters as C
-from raykernel.flatten import flatten
-from raykernel.transforms import TRANSFORM_MULTIPLIES, transform_class
+from raykernel.engine.flatten import flatten
+from raykernel.engine.transforms import TRANSFORM_MULTIPLIES, transform_class
+from raykernel.engine.traverse import cast_rays
+from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance, Material, Scene
-from raykernel.traverse import cast_rays
 
 IDENTITY, TRANSLATION, SCALE, AFFINE = range(4)
 

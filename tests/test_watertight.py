@@ -15,7 +15,7 @@ import pytest
 from reference import all_hits, world_primitives
 
 from raykernel import RayScene
-from raykernel.primitives import hit_triangle
+from raykernel.geometry.primitives import hit_triangle
 
 GRID = 2.0 ** -20     # vertex coordinates are multiples of this
 

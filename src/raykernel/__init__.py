@@ -6,13 +6,13 @@
     result.image, result.stats
 """
 
+from .casting.rayscene import Hits, RayInputError, RayScene
 from .errors import OptionError, RayKernelError, SceneError
-from .jsonscene import read_json, write_json
-from .loading import load
-from .nff import parse_nff, read_nff, write_nff
-from .rayscene import Hits, RayInputError, RayScene
-from .render import RenderResult, render
-from .scene import Camera, Cones, Group, Instance, Light, Material, Polygons, Scene, Spheres, TriangleMesh
+from .rendering.render import RenderResult, render
+from .scene.jsonscene import read_json, write_json
+from .scene.loading import load
+from .scene.model import Camera, Cones, Group, Instance, Light, Material, Polygons, Scene, Spheres, TriangleMesh
+from .scene.nff import parse_nff, read_nff, write_nff
 
 __version__ = "0.1.0"
 

@@ -72,11 +72,11 @@ class _Progress:
 
 
 def cmd_render(args, console) -> int:
-    from . import examples
-    from .compiletime import FIRST_RUN_SECONDS, first_run
-    from .imageio import image_format
-    from .loading import load
-    from .render import render
+    from .engine.compiletime import FIRST_RUN_SECONDS, first_run
+    from .rendering.imageio import image_format
+    from .rendering.render import render
+    from .scene import examples
+    from .scene.loading import load
 
     scene = load(args.scene)
     options = {}
@@ -106,14 +106,14 @@ def cmd_render(args, console) -> int:
 
 
 def cmd_accels(args, console) -> int:
-    from .accel import describe
+    from .scene.accel import describe
     console.print(describe(), markup=False, highlight=False)
     return 0
 
 
 def cmd_spd(args, console) -> int:
-    from . import spd
     from .atomicfile import atomic_write
+    from .scene import spd
     text = spd.generate(args.name, args.size)
     if args.output:
         with atomic_write(args.output) as f:
@@ -124,8 +124,8 @@ def cmd_spd(args, console) -> int:
 
 
 def cmd_scene(args, console) -> int:
-    from . import pathological
     from .errors import OptionError
+    from .scene import pathological
     if args.list or args.name == "list":
         console.print(pathological.describe(), markup=False, highlight=False, soft_wrap=True)
         return 0
@@ -138,7 +138,7 @@ def cmd_scene(args, console) -> int:
         raise OptionError(f"{args.output}: unknown output format {suffix or '(no suffix)'!r}; "
                           "use .json (groups kept) or .nff (flattened)")
     from .atomicfile import check_output_directory
-    from .convert import convert
+    from .scene.convert import convert
     check_output_directory(args.output)
     params = {}
     for item in args.param:
@@ -157,7 +157,7 @@ def cmd_scene(args, console) -> int:
 
 
 def cmd_convert(args, console) -> int:
-    from .convert import convert
+    from .scene.convert import convert
     written = convert(args.scene, args.output, segments=args.segments)
     console.print(f"{args.scene} -> " + ", ".join(str(p) for p in written), markup=False, highlight=False,
                   emoji=False)
@@ -165,7 +165,7 @@ def cmd_convert(args, console) -> int:
 
 
 def _finish_comparison(cmp, args, console, title, plots) -> int:
-    from . import compare as cm
+    from .analysis import compare as cm
     console.print(cm.table(cmp, title=title))
     for accel, worst, mean, n in cm.prediction_summary(cmp):
         console.print(f"cost model, {accel}: mean |error| {mean:.0%}, worst {worst:+.0%} over {n} run(s)",
@@ -175,7 +175,7 @@ def _finish_comparison(cmp, args, console, title, plots) -> int:
     if args.csv:
         cm.write_csv(cmp, args.csv)
     if args.report:
-        from .report import write_report
+        from .analysis.report import write_report
         write_report(cmp, args.report, title=title, plots=[(name, make()) for name, make in plots])
     if cmp.disagreements:
         cm.print_disagreements(cmp, console)
@@ -184,7 +184,7 @@ def _finish_comparison(cmp, args, console, title, plots) -> int:
 
 
 def cmd_compare(args, console) -> int:
-    from . import compare as cm
+    from .analysis import compare as cm
     cmp = cm.compare(args.scene, args.accel, spd=args.spd, resolution=args.resolution, threads=args.threads,
                      model=args.calibration or "default", command=cm.command_from_args("compare", args))
     return _finish_comparison(cmp, args, console, "raykernel compare",
@@ -192,7 +192,7 @@ def cmd_compare(args, console) -> int:
 
 
 def cmd_sweep(args, console) -> int:
-    from . import compare as cm
+    from .analysis import compare as cm
     from .errors import OptionError
     params = cm.parse_params(args.param)
     if not params:
@@ -207,7 +207,7 @@ def cmd_sweep(args, console) -> int:
 
 
 def cmd_calibrate(args, console) -> int:
-    from . import costmodel
+    from .analysis import costmodel
     out = args.output or costmodel.default_path()
     model = costmodel.calibrate(threads=args.threads,
                                 log=lambda line: console.print(line, markup=False, highlight=False))

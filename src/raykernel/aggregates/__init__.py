@@ -1,10 +1,10 @@
 """Acceleration structures: one module per kind, each with its builder, its flat layout and its walk.
 
     from raykernel.aggregates import WALKS
-    from raykernel.accel import KINDS
+    from raykernel.scene.accel import KINDS
     KINDS["bvh"].flatten(builder, params, refs, bounds, name, box)   # what flatten.py calls
 
-The registry. KINDS (raykernel.accel) maps each spec name to its Kind: help,
+The registry. KINDS (raykernel.scene.accel) maps each spec name to its Kind: help,
 parameters, and `flatten`, which builds the aggregate into the flat arrays
 and returns (aggregate index, build statistics). WALKS lists the modules
 that own a walk, each with its CODE (agg_kind and stack-entry kind), the
@@ -14,7 +14,7 @@ with another's (hgrid as grids, hybrid and lazyoctree as octrees).
 docs/adding-a-kind.md is the checklist for a new one.
 """
 
-from ..accel import register
+from ..scene.accel import register
 from . import bruteforce, bvh, grid, hgrid, hybrid, lazyoctree, octree, rc
 
 WALKS = (bruteforce, bvh, grid, octree, rc)

@@ -7,7 +7,7 @@ agg_count how many. It owns no fields and no walk: the driver (traverse.py)
 tests a range itself. Every aggregate with no items is stored as a list.
 """
 
-from ..accel import Kind
+from ..scene.accel import Kind
 
 CODE = 0
 FIELDS = ()

@@ -66,11 +66,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import counters as C
-from ..accel import Kind, Param
-from ..boxes import INF, box_entry, cull_margin
-from ..config import njit
 from ..errors import OptionError, SceneError
+from ..geometry import counters as C
+from ..geometry.boxes import INF, box_entry, cull_margin
+from ..geometry.config import njit
+from ..scene.accel import Kind, Param
 from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push
 
 __all__ = ["BVHArrays", "build_bvh", "refit", "is_leaf"]

@@ -71,11 +71,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import counters as C
-from ..accel import Kind, Param
-from ..config import njit
 from ..errors import OptionError, SceneError
-from ..memory import check, memory_limit
+from ..geometry import counters as C
+from ..geometry.config import njit
+from ..scene.accel import Kind, Param
+from .memory import check, memory_limit
 from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push
 
 __all__ = ["GridArrays", "RULES", "build_grid", "grid_resolution"]

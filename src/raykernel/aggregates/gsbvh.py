@@ -62,8 +62,8 @@ import time
 
 import numpy as np
 
-from ..config import njit
 from ..errors import OptionError
+from ..geometry.config import njit
 from .bvh import BVHArrays, _as_item_bounds, _int_option, is_leaf
 
 __all__ = ["build_gs", "insertion_order", "morton_codes", "ORDERS", "MAX_DEPTH"]

@@ -38,8 +38,8 @@ import time
 
 import numpy as np
 
-from ..accel import Kind, Param, format_spec
-from ..primitives import AGGREGATE, make_ref
+from ..geometry.primitives import AGGREGATE, make_ref
+from ..scene.accel import Kind, Param, format_spec
 from .grid import GridArrays, append_grid, build_grid
 from .walk import MAX_NESTING
 

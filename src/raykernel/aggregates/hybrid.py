@@ -25,7 +25,7 @@ How
 Nothing new is traversed. Each problem voxel's BVH is an ordinary nested
 aggregate (bvh, build=gs, with the hybrid's ``order`` and ``seed``), and the
 voxel's item list becomes a single reference to it, the mechanism hgrid uses
-for its sub-grids. flatten.py builds the BVHs, calls replace_leaves, and
+for its sub-grids. `flatten` here builds the BVHs, calls replace_leaves, and
 stores the octree as usual; the one intersection routine walks the octree
 and opens a frame for the BVH when it meets the reference.
 
@@ -54,7 +54,7 @@ merges the repeats, as it does for grids.
 
 Each BVH adds one aggregate to the nesting on paths through a problem
 voxel. Where the hybrid and the aggregates below it already nest
-MAX_NESTING (flatten.py) deep, the problem voxels keep their items and the
+MAX_NESTING (scene.model) deep, the problem voxels keep their items and the
 statistics say so (``bvhs`` < ``problem_voxels``). Groups are built from the
 leaves up, so a hybrid placed so deep below the root that its BVHs would be
 one aggregate too many on a path is rejected with the nesting SceneError,
@@ -65,8 +65,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..accel import Kind, Param, parse_spec
-from ..primitives import AGGREGATE, make_ref
+from ..geometry.primitives import AGGREGATE, make_ref
+from ..scene.accel import Kind, Param, parse_spec
 from .octree import ADDRESS_BITS, OctreeArrays, append_octree, build_octree
 from .walk import MAX_NESTING
 

@@ -121,10 +121,10 @@ import time
 
 import numpy as np
 
-from ..accel import Kind, Param
-from ..config import njit
 from ..errors import OptionError
-from ..memory import check
+from ..geometry.config import njit
+from ..scene.accel import Kind, Param
+from .memory import check
 from .octree import ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, append_octree, octree_frame
 
 __all__ = ["LazyOctrees", "build_lazy", "pass_ranges", "FIRST_PASS", "PASS_CHUNKS"]

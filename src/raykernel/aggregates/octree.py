@@ -110,13 +110,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .. import counters as C
-from ..accel import Kind, Param
-from ..boxes import CONSERVATIVE, INF, STILL, slab
-from ..config import njit
 from ..errors import OptionError, SceneError
-from ..memory import check, memory_limit
+from ..geometry import counters as C
+from ..geometry.boxes import CONSERVATIVE, INF, STILL, slab
+from ..geometry.config import njit
+from ..scene.accel import Kind, Param
 from .grid import grid_box
+from .memory import check, memory_limit
 from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push
 
 __all__ = ["OctreeArrays", "build_octree", "ADDRESS_BITS", "MAX_DEPTH"]

@@ -155,13 +155,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import prange
 
-from .. import counters as C
-from ..accel import Kind, Param
-from ..config import njit
 from ..errors import OptionError
-from ..memory import memory_limit, over_budget
+from ..geometry import counters as C
+from ..geometry.config import njit
+from ..scene.accel import Kind, Param
 from .grid import grid_box
 from .lazyoctree import scene_totals, tree_counts
+from .memory import memory_limit, over_budget
 from .walk import F_KEY_D, F_KEY_END, F_KEY_O, Field
 
 __all__ = ["RcArrays", "RcBudgetWarning", "LazyRC", "build_rc", "start_rc", "face_of", "NODE_BYTES",

@@ -41,8 +41,8 @@ pushes the step's resume tag at the next candidate instead of a plain range.
 
 from typing import NamedTuple
 
-from ..config import njit
-from ..scene import MAX_NESTING  # noqa: F401  (aggregates along any path from the root: the frames)
+from ..geometry.config import njit
+from ..scene.model import MAX_NESTING  # noqa: F401  (aggregates along any path from the root: the frames)
 
 MAX_TREE_DEPTH = 96       # nodes along any path within one hierarchy (the stack)
 STACK_SIZE = MAX_NESTING * (MAX_TREE_DEPTH + 2)

@@ -1,0 +1,232 @@
+"""A linear cost model of trace time: seconds per counted operation, fitted on this machine.
+
+    model = costmodel.calibrate()                   # renders the calibration set, ~1 minute
+    model.save(costmodel.default_path())
+    model.predict(result.stats, "bvh")              # predicted trace seconds
+
+Trace time is modelled as  sum(count * cost)  over these features:
+
+  render         one per render: fixed overhead (tile dispatch, allocation)
+  ray.shaded     eye + reflection + refraction rays (camera, shading, spawning)
+  ray.shadow     shadow rays (no shading)
+  test.KIND      ray/primitive tests, one cost per primitive kind
+  step.S         traversal steps (cells.visited, N_TS) of structure kind S
+  bound.S        ray/bounding-volume tests of structure kind S
+
+The structure kind S is the kind of the accelerator spec given to the render
+(`grid(density=4)` counts as `grid`); a scene whose groups name their own
+structures charges all their steps to that kind. Costs are wall-clock
+seconds at the thread count of the calibration, so a model only predicts
+renders made with that many threads on that machine.
+
+Calibration set (CALIBRATION_SCENES): small SPD scenes and one triangle
+scene, rendered in SPD mode at two resolutions with every structure kind
+(the brute-force list only on scenes of at most LIST_MAX_PRIMS primitives);
+each render is repeated REPEATS times and its shortest trace time kept, since
+other work on the machine only ever adds time.
+The fit is least squares on relative error (each render weighs the same,
+whatever its length), with costs held non-negative and a small ridge term
+so that features that always move together (a grid's one root bound test
+per ray and the ray count) split their cost evenly instead of wildly.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import socket
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import OptionError
+
+PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
+
+CALIBRATION_SCENES = (
+    "spd:balls:1", "spd:balls:2", "spd:gears:1", "spd:gears:2", "spd:tetra:3", "spd:tetra:4",
+    "spd:tree:4", "spd:tree:6", "spd:teapot:2", "spd:teapot:3", "spd:mount:2", "spd:mount:3",
+    "spd:rings:1", "spd:rings:2", "spd:shells:2", "spd:lattice:2", "spd:jacks:1",
+    "scene:diamond:facets=300",
+)
+CALIBRATION_RESOLUTIONS = (32, 64)
+LIST_MAX_PRIMS = 1500
+REPEATS = 3
+RIDGE = 1e-4
+
+
+def structure_kind(accel: str) -> str:
+    """'grid(density=4)' -> 'grid'; any spec string, whether or not its kind is registered."""
+    text = str(accel).strip()
+    head = text.split("(", 1)[0].strip().lower()
+    return head or text
+
+
+def features(stats, accel: str) -> dict:
+    """The counted operations of one render, named as the model's features."""
+    kind = structure_kind(accel)
+    f = {
+        "render": 1.0,
+        "ray.shaded": float(stats["rays.eye"] + stats["rays.reflect"] + stats["rays.refract"]
+                            + stats.get("rays.cast", 0)),
+        "ray.shadow": float(stats["rays.shadow"]),
+    }
+    for k in PRIMITIVE_KINDS:
+        f[f"test.{k}"] = float(stats.get(f"tests.{k}", 0))
+    f[f"step.{kind}"] = float(stats.get("cells.visited", 0))
+    f[f"bound.{kind}"] = float(stats.get("bounds.tests", 0))
+    return f
+
+
+def fit(rows: list[dict], times, ridge: float = RIDGE) -> dict:
+    """Non-negative costs (seconds per operation) minimising the relative error of
+    sum(count * cost) against `times`; features never counted get no cost."""
+    names = sorted({k for r in rows for k, v in r.items() if v})
+    if not names:
+        raise OptionError("cannot fit a cost model: no counted operations")
+    y = np.asarray(times, float)
+    if len(y) != len(rows) or np.any(y <= 0):
+        raise OptionError("cannot fit a cost model: need one positive time per row")
+    X = np.array([[r.get(n, 0.0) for n in names] for r in rows], float)
+    X = X / y[:, None]                       # relative error: each row's target becomes 1
+    target = np.ones(len(y))
+    scale = np.abs(X).max(axis=0)
+    scale[scale == 0] = 1.0
+    Xs = X / scale
+    active = list(range(len(names)))
+    coef = np.zeros(len(names))
+    lam = np.sqrt(ridge)
+    while active:
+        A = np.vstack([Xs[:, active], lam * np.eye(len(active))])
+        b = np.concatenate([target, np.zeros(len(active))])
+        sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+        if np.all(sol >= 0):
+            coef[:] = 0.0
+            coef[active] = sol
+            break
+        # drop the most negative feature and refit (an active-set step towards NNLS)
+        worst = active[int(np.argmin(sol))]
+        active.remove(worst)
+    return {n: float(c / s) for n, c, s in zip(names, coef, scale)}
+
+
+@dataclass
+class CostModel:
+    costs: dict                       # feature name -> seconds per operation
+    threads: int
+    machine: dict = field(default_factory=dict)
+    calibration: list = field(default_factory=list)   # the renders it was fitted on
+
+    def kinds(self) -> set:
+        return {n.split(".", 1)[1] for n in self.costs if n.startswith(("step.", "bound."))}
+
+    def covers(self, accel: str) -> bool:
+        return structure_kind(accel) in self.kinds()
+
+    def predict(self, stats, accel: str) -> float | None:
+        """Predicted trace seconds, or None when the structure kind was not calibrated."""
+        if not self.covers(accel):
+            return None
+        return sum(count * self.costs.get(name, 0.0) for name, count in features(stats, accel).items())
+
+    def breakdown(self, stats, accel: str) -> dict:
+        """Predicted seconds per feature group (rays, tests, traversal)."""
+        out = {"rays": 0.0, "tests": 0.0, "traversal": 0.0}
+        for name, count in features(stats, accel).items():
+            group = {"ray": "rays", "render": "rays", "test": "tests"}.get(name.split(".")[0], "traversal")
+            out[group] += count * self.costs.get(name, 0.0)
+        return out
+
+    def to_dict(self) -> dict:
+        return {"costs": self.costs, "threads": self.threads, "machine": self.machine,
+                "calibration": self.calibration}
+
+    def save(self, path) -> None:
+        from ..atomicfile import atomic_write
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_write(path) as f:
+            json.dump(self.to_dict(), f, indent=2)
+            f.write("\n")
+
+    @classmethod
+    def load(cls, path) -> CostModel:
+        try:
+            data = json.loads(Path(path).read_text())
+            return cls(costs={k: float(v) for k, v in data["costs"].items()}, threads=int(data["threads"]),
+                       machine=data.get("machine", {}), calibration=data.get("calibration", []))
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise OptionError(f"{path}: not a cost-model calibration file ({err})") from None
+
+
+def default_path() -> Path:
+    """Per-machine calibration file: $XDG_CACHE_HOME/raykernel/calibration-HOST.json."""
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "raykernel" / f"calibration-{socket.gethostname() or 'machine'}.json"
+
+
+def load_default() -> CostModel | None:
+    path = default_path()
+    return CostModel.load(path) if path.exists() else None
+
+
+def machine_info() -> dict:
+    """CPU model, cores, threads and versions."""
+    import sys
+
+    import numba
+    import numpy
+
+    import raykernel
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "threads": numba.get_num_threads(),
+            "host": socket.gethostname(), "system": f"{platform.system()} {platform.release()}",
+            "python": sys.version.split()[0], "numpy": numpy.__version__, "numba": numba.__version__,
+            "raykernel": raykernel.__version__}
+
+
+def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RESOLUTIONS,
+              threads: int | None = None, log=None, repeats: int = REPEATS) -> CostModel:
+    """Render the calibration set with every structure kind and fit the costs."""
+    import numba
+
+    from ..rendering.render import render
+    from ..scene.accel import KINDS
+    from ..scene.loading import load
+    kinds = list(kinds or KINDS)
+    loaded = [(name, load(name)) for name in scenes]
+    rows, times, runs = [], [], []
+    for kind in kinds:
+        # compile (or load from the cache) before anything is timed
+        render(loaded[0][1], accel=kind, resolution=4, spd=True, threads=threads)
+        for name, scene in loaded:
+            if kind == "list" and scene.count_primitives() > LIST_MAX_PRIMS:
+                continue
+            for res in resolutions:
+                t0 = time.perf_counter()
+                stats = min((render(scene, accel=kind, resolution=res, spd=True, threads=threads).stats
+                             for _ in range(max(1, repeats))), key=lambda s: s["time.trace"])
+                if log:
+                    log(f"{kind:8s} {name:28s} {res:4d}  trace {stats['time.trace']:.4f} s "
+                        f"({time.perf_counter() - t0:.2f} s)")
+                if stats["time.trace"] <= 0:
+                    continue
+                rows.append(features(stats, kind))
+                times.append(stats["time.trace"])
+                runs.append({"scene": name, "accel": kind, "resolution": res, "trace": stats["time.trace"]})
+    costs = fit(rows, times)
+    model = CostModel(costs=costs, threads=numba.get_num_threads(), machine=machine_info(), calibration=runs)
+    for run, row in zip(runs, rows):
+        run["predicted"] = sum(c * costs.get(n, 0.0) for n, c in row.items())
+    return model

@@ -1,0 +1,90 @@
+"""Surface quantities of a hit, shared by every ray-casting kernel.
+
+    store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out)
+
+`m` is the world-to-local 3x4 map (row-major, 12 numbers) of the frame the
+hit was found in; p is the world hit point. Row r of the outputs receives
+the surface (u, v) and the unit geometric and shading normals in world space.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..geometry.config import njit
+from ..geometry.primitives import CONE, SPHERE, TRIANGLE, normalize
+from ..rendering.render import surface
+
+
+@njit(inline="always")
+def surface_uv(geo, kind, idx, px, py, pz):
+    """(u, v) of local point p on primitive (kind, idx)."""
+    if kind == TRIANGLE:
+        f = geo.tri_faces
+        v = geo.tri_verts
+        a, b, c = f[idx, 0], f[idx, 1], f[idx, 2]
+        e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        area = gx * gx + gy * gy + gz * gz
+        wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
+        cx, cy, cz = wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x
+        dx, dy, dz = e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx
+        return (cx * gx + cy * gy + cz * gz) / area, (dx * gx + dy * gy + dz * gz) / area
+    if kind == SPHERE:
+        x, y, z = normalize(px - geo.sph_center[idx, 0], py - geo.sph_center[idx, 1], pz - geo.sph_center[idx, 2])
+        u = math.atan2(y, x) / (2.0 * math.pi)
+        if u < 0.0:
+            u += 1.0
+        return u, math.acos(min(1.0, max(-1.0, z))) / math.pi
+    if kind == CONE:
+        ax, ay, az = geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2]
+        wx, wy, wz = px - geo.cone_base[idx, 0], py - geo.cone_base[idx, 1], pz - geo.cone_base[idx, 2]
+        s = wx * ax + wy * ay + wz * az
+        # a frame across the axis: e1 = axis x (the coordinate axis least aligned with it)
+        if abs(ax) <= abs(ay) and abs(ax) <= abs(az):
+            e1x, e1y, e1z = normalize(0.0, az, -ay)
+        elif abs(ay) <= abs(az):
+            e1x, e1y, e1z = normalize(-az, 0.0, ax)
+        else:
+            e1x, e1y, e1z = normalize(ay, -ax, 0.0)
+        e2x, e2y, e2z = ay * e1z - az * e1y, az * e1x - ax * e1z, ax * e1y - ay * e1x
+        u = math.atan2(wx * e2x + wy * e2y + wz * e2z, wx * e1x + wy * e1y + wz * e1z) / (2.0 * math.pi)
+        if u < 0.0:
+            u += 1.0
+        return u, s / geo.cone_length[idx]
+    return np.nan, np.nan
+
+
+@njit(inline="always")
+def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out):
+    """Write (u, v) and the world-space unit normals of the hit into row r."""
+    # the hit point in the primitive's own frame; normals back by the transpose
+    lx = m[0] * px + m[1] * py + m[2] * pz + m[3]
+    ly = m[4] * px + m[5] * py + m[6] * pz + m[7]
+    lz = m[8] * px + m[9] * py + m[10] * pz + m[11]
+    gx, gy, gz, sx, sy, sz, _ = surface(geo, kind, idx, lx, ly, lz)
+    gx, gy, gz = normalize(m[0] * gx + m[4] * gy + m[8] * gz, m[1] * gx + m[5] * gy + m[9] * gz,
+                      m[2] * gx + m[6] * gy + m[10] * gz)
+    sx, sy, sz = normalize(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
+                      m[2] * sx + m[6] * sy + m[10] * sz)
+    if sx == 0.0 and sy == 0.0 and sz == 0.0:
+        sx, sy, sz = gx, gy, gz
+    gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz
+    sn_out[r, 0], sn_out[r, 1], sn_out[r, 2] = sx, sy, sz
+    u, v = surface_uv(geo, kind, idx, lx, ly, lz)
+    uv_out[r, 0] = u
+    uv_out[r, 1] = v
+
+
+@njit(inline="always")
+def store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface):
+    t_out[r] = np.inf
+    idx_out[r] = -1
+    if with_surface:
+        uv_out[r, 0] = uv_out[r, 1] = np.nan
+        for k in range(3):
+            gn_out[r, k] = np.nan
+            sn_out[r, k] = np.nan

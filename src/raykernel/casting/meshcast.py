@@ -1,0 +1,182 @@
+"""The fast path of RayScene: one triangle mesh (or several) under one BVH.
+
+    mesh = MeshKernel.of(geo, geometries)   # None unless geo is triangles under a single BVH, no instances
+    query(geo, *mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayscene's generic kernel
+
+The generic intersection routine (traverse.py) carries every aggregate kind,
+nesting frames, instances and mailboxes through one loop; for the common
+case of ray casting against a plain mesh that generality costs several
+times the work. This kernel walks the same BVH (same nodes, same order,
+same conservative box test) and runs the same watertight triangle test, so
+its hits, ties and counters are identical to the generic kernel's (tested),
+with three changes that make it fast:
+
+* the ray's permutation and shear for the watertight test are computed once
+  per ray instead of once per triangle (the same arithmetic, bit for bit);
+* the triangles' corners are copied into leaf order, nine numbers per
+  reference, so a leaf's triangles are read from one contiguous block;
+* the loop knows only BVH nodes and triangles.
+
+Tracing large incoherent batches in Morton order of origin and direction
+octant was tried and dropped: the scattered reads and writes cost more than
+the better cache use of the traversal saved (bench/raycast.py numbers in
+BENCHMARKS.md).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..engine.flatten import BVH, Geometry
+from ..engine.traverse import ALL_HITS
+from ..geometry import counters as C
+from ..geometry.boxes import CONSERVATIVE, box_entry, inverse
+from ..geometry.config import njit
+from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
+from .hitsurface import store_miss, store_surface
+
+INF = np.inf
+STACK = 192                  # a BVH is at most 96 nodes deep (flatten.MAX_TREE_DEPTH): 2 entries per level
+_IDENTITY = np.array([1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0])
+
+
+class MeshKernel(NamedTuple):
+    corners: np.ndarray      # (R, 9) float64: v0, v1, v2 of the triangle of each leaf reference
+    prim: np.ndarray         # (R,) int64 global triangle index of each leaf reference
+    geom: np.ndarray         # (R,) int64 geometry (mesh) of each leaf reference
+    local: np.ndarray        # (R,) int64 face index within that mesh
+    root: int                # root node of the BVH
+
+    @classmethod
+    def of(cls, geo: Geometry, geometries: np.ndarray) -> "MeshKernel | None":
+        """The fast-path arrays, or None when geo holds anything but triangles under one BVH.
+        geometries: flatten's (kind, first global index, count) rows, all triangle meshes here."""
+        if (len(geo.agg_kind) != 1 or geo.agg_kind[0] != BVH or len(geo.inst_agg) or len(geo.sph_radius)
+                or len(geo.cone_length) or len(geo.poly_start) or not len(geo.tri_faces)):
+            return None
+        prim = (geo.refs & INDEX_MASK).astype(np.int64)
+        corners = geo.tri_verts[geo.tri_faces[prim]].reshape(-1, 9)
+        geom = np.searchsorted(geometries[:, 1], prim, side="right") - 1
+        local = prim - geometries[geom, 1]
+        return cls(np.ascontiguousarray(corners), prim, geom.astype(np.int64), local.astype(np.int64),
+                   int(geo.agg_start[geo.root]))
+
+
+@njit(inline="always")
+def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
+    """primitives.hit_triangle for corners row j with the ray's shear precomputed."""
+    return hit_sheared(c[j, kx] - o[kx], c[j, ky] - o[ky], c[j, kz] - o[kz],
+                       c[j, 3 + kx] - o[kx], c[j, 3 + ky] - o[ky], c[j, 3 + kz] - o[kz],
+                       c[j, 6 + kx] - o[kx], c[j, 6 + ky] - o[ky], c[j, 6 + kz] - o[kz], sx, sy, sz, tmin, tmax)
+
+
+@njit
+def query(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out,
+          geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c0, c1):
+    """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
+    outputs of rayscene._query, identities as the user sees them: geometry and
+    index within it (-1 on a miss). All hits: with len(offsets) == 0 counts them
+    into idx_out, else writes ray r's hits to rows offsets[r] .. offsets[r + 1]
+    of all_t / all_i as (kind, global index, instance), like the generic kernel.
+    Chunks c0..c1-1 of `chunk` rays, counting into counters[c]."""
+    n = origins.shape[0]
+    store = offsets.shape[0] > 0
+    nb = geo.node_bounds
+    first = geo.node_first
+    count = geo.node_count
+    for c in range(c0, c1):
+        stack = np.empty(STACK, np.int64)
+        stack_t = np.empty(STACK)
+        o = np.empty(3)
+        # counters in locals (registers), written once per chunk
+        n_bounds = n_nodes = n_leaves = n_tests = np.int64(0)
+        r0, r1 = c * chunk, min(n, (c + 1) * chunk)
+        for r in range(r0, r1):
+            ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+            dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+            o[0], o[1], o[2] = ox, oy, oz
+            ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+            kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
+            lo = tmin[r]
+            best = tmax[r]
+            best_j = np.int64(-1)
+            n_all = np.int64(0)
+            base = offsets[r] if store else 0
+            sp = 0
+            n_bounds += 1
+            te = box_entry(geo.agg_bounds, geo.root, ox, oy, oz, ix, iy, iz, lo, best)
+            if te != INF:
+                stack[0] = root
+                stack_t[0] = te
+                sp = 1
+            while sp > 0:
+                sp -= 1
+                if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
+                    continue        # entered beyond the closest hit, beyond rounding (ties need the node)
+                node = stack[sp]
+                n_nodes += 1
+                k = count[node]
+                if k == 0:
+                    left = first[node]
+                    n_bounds += 2
+                    tl = box_entry(nb, left, ox, oy, oz, ix, iy, iz, lo, best)
+                    tr = box_entry(nb, left + 1, ox, oy, oz, ix, iy, iz, lo, best)
+                    if tl <= tr:
+                        if tr != INF:
+                            stack[sp], stack_t[sp] = left + 1, tr
+                            sp += 1
+                        if tl != INF:
+                            stack[sp], stack_t[sp] = left, tl
+                            sp += 1
+                    else:
+                        if tl != INF:
+                            stack[sp], stack_t[sp] = left, tl
+                            sp += 1
+                        stack[sp], stack_t[sp] = left + 1, tr
+                        sp += 1
+                    continue
+                n_leaves += 1
+                s = first[node]
+                for j in range(s, s + k):
+                    n_tests += 1
+                    t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best)
+                    if t == INF:
+                        continue
+                    if mode == ALL_HITS:
+                        if store and n_all < offsets[r + 1] - base:
+                            all_t[base + n_all] = t
+                            all_i[base + n_all, 0] = TRIANGLE
+                            all_i[base + n_all, 1] = prim[j]
+                            all_i[base + n_all, 2] = -1
+                        n_all += 1
+                        continue
+                    # ties at equal t go to the smaller triangle index, as in the generic kernel
+                    if best_j < 0 or t < best or prim[j] < prim[best_j]:
+                        best = t
+                        best_j = j
+                        if mode != 0:
+                            sp = 0
+                            break
+            if mode == ALL_HITS:
+                if not store:
+                    idx_out[r] = n_all
+                continue
+            if best_j < 0:
+                store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
+                kind_out[r] = geom_out[r] = inst_out[r] = -1
+                continue
+            t_out[r] = best
+            kind_out[r] = TRIANGLE
+            geom_out[r] = geom[best_j]
+            idx_out[r] = local[best_j]
+            inst_out[r] = -1
+            if with_surface:
+                store_surface(geo, r, TRIANGLE, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz,
+                              _IDENTITY, uv_out, gn_out, sn_out)
+        counters[c, C.RAYS_CAST] = r1 - r0
+        counters[c, C.BOUNDS_TESTS] = n_bounds
+        counters[c, C.CELLS_VISITED] = n_nodes
+        counters[c, C.CELLS_LEAVES] = n_leaves
+        counters[c, C.TESTS + TRIANGLE] = n_tests

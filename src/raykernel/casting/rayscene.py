@@ -1,0 +1,460 @@
+"""Ray casting against your own geometry: numpy arrays in, numpy arrays out.
+
+    scene = RayScene.from_mesh(vertices, faces)          # built once
+    hits = scene.intersect(origins, directions)          # closest hits: hits.t, hits.prim_id, hits.normal ...
+    blocked = scene.occluded(origins, directions, tmax=1.0)
+    ray, t, prim = scene.intersect_all(origins, directions)
+
+Rays are rows of (N, 3) arrays (a single (3,) row is broadcast against the
+other argument); directions need not be unit length, t is measured in units
+of the direction given. Queries run in parallel over chunks of rays, with
+watertight ray/triangle tests: a scene of triangles under one BVH (every
+from_mesh) takes the fast kernel of meshcast.py, any other scene the one
+traversal of traverse.py; both give the same hits and counters.
+
+Identities of a hit:
+
+* `geom_id`: which geometry was hit: one mesh, or one set of spheres,
+  polygons, patches or cones, numbered in build order (`RayScene.geometries`
+  describes each); a RayScene from one mesh or one sphere set has geom_id 0.
+  -1 on a miss.
+* `prim_id`: the primitive's index within its geometry (the face index of a
+  mesh, the sphere index of a sphere set). -1 on a miss.
+* `inst_id`: the innermost Instance the primitive was reached through
+  (instances numbered in flatten order), -1 outside instances.
+* `kind`: the primitive kind (SPHERE 0, POLYGON 1, PATCH 2, CONE 3,
+  TRIANGLE 4), -1 on a miss.
+
+Geometry is stored in float64 whatever the input dtype: float32 vertices are
+widened exactly, and the intersection and traversal arithmetic stays in
+double precision, so that hits stay exact (watertight, t to ~1e-16
+relative) on scenes spanning 1e7 in scale, where float32 (7 digits) would
+already round a vertex by more than the smallest feature.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..engine.compiletime import CompileClock
+from ..engine.flatten import BVH, LIST, flatten
+from ..engine.parallel import for_ranges
+from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
+from ..errors import RayKernelError
+from ..geometry import counters as C
+from ..geometry.config import njit
+from ..geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
+from ..scene.model import Scene, TriangleMesh
+from . import meshcast
+from .hitsurface import store_miss, store_surface
+from .meshcast import MeshKernel
+
+CHUNK = 1024
+CLOSEST, ANY = 0, 1
+KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone", TRIANGLE: "triangle"}
+
+
+class RayInputError(RayKernelError, ValueError):
+    """Rays or geometry given to RayScene are not valid; the message names the argument."""
+
+
+@dataclass
+class Hits:
+    """Closest hits of a batch of N rays (one row per ray)."""
+
+    t: np.ndarray               # (N,) ray parameter of the hit, inf on a miss
+    prim_id: np.ndarray         # (N,) index within its geometry (face index for a mesh), -1 on a miss
+    geom_id: np.ndarray         # (N,) geometry (mesh or primitive set) in RayScene.geometries, -1 on a miss
+    inst_id: np.ndarray         # (N,) innermost instance, -1 outside instances or on a miss
+    kind: np.ndarray            # (N,) primitive kind (0 sphere, 1 polygon, 2 patch, 3 cone, 4 triangle), -1
+    uv: np.ndarray              # (N, 2) triangles: barycentric (p = (1-u-v) v0 + u v1 + v v2);
+    #                             spheres: (longitude / 2pi, colatitude / pi) in the sphere's frame;
+    #                             cones: (angle around the axis / 2pi, height / length); NaN otherwise
+    normal: np.ndarray          # (N, 3) unit geometric normal in world space (winding / outward), NaN on a miss
+    shading_normal: np.ndarray  # (N, 3) unit interpolated normal (vertex normals, patches), else = normal
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def hit(self) -> np.ndarray:
+        return np.isfinite(self.t)
+
+
+# ----------------------------------------------------------------- kernel
+
+@njit
+def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, idx_out, inst_out,
+           uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c0, c1):
+    """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray.
+    Closest/any fill t/kind/idx/inst (and uv, normals when with_surface).
+    All hits: with len(offsets) == 0 only counts them into idx_out; else
+    writes ray r's hits to rows offsets[r] .. offsets[r + 1] of all_t/all_i.
+    Chunks c0..c1-1 of `chunk` rays, counting into counters[c]."""
+    n = origins.shape[0]
+    store = offsets.shape[0] > 0
+    for c in range(c0, c1):
+        r0 = c * chunk
+        r1 = min(n, (c + 1) * chunk)
+        ws0 = workspace()
+        cap = 0
+        if mode == ALL_HITS and store:
+            for r in range(r0, r1):
+                cap = max(cap, offsets[r + 1] - offsets[r])
+        hit_f = np.zeros(HIT_F + cap)
+        hit_i = np.zeros(HIT_I + 3 * cap, np.int64)
+        ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i)
+        cnt = np.zeros(counters.shape[1], np.int64)     # columns past N_COUNTERS: lazy octree passes
+        for r in range(r0, r1):
+            cnt[C.RAYS_CAST] += 1
+            ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+            dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+            if mode == ALL_HITS:
+                hit_i[0] = 0
+                intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt)
+                k = hit_i[0]
+                if store:
+                    base = offsets[r]
+                    for j in range(min(k, offsets[r + 1] - base)):
+                        all_t[base + j] = hit_f[HIT_F + j]
+                        all_i[base + j, 0] = hit_i[HIT_I + 3 * j]
+                        all_i[base + j, 1] = hit_i[HIT_I + 3 * j + 1]
+                        all_i[base + j, 2] = hit_i[HIT_I + 3 * j + 2]
+                else:
+                    idx_out[r] = k
+                continue
+            if not intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt):
+                store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
+                kind_out[r] = -1
+                inst_out[r] = -1
+                continue
+            t = hit_f[0]
+            kind = hit_i[0]
+            idx = hit_i[1]
+            t_out[r] = t
+            kind_out[r] = kind
+            idx_out[r] = idx
+            inst_out[r] = hit_i[2]
+            if with_surface:
+                store_surface(geo, r, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f[1:13],
+                              uv_out, gn_out, sn_out)
+        for k in range(counters.shape[1]):
+            counters[c, k] = cnt[k]
+
+
+# ----------------------------------------------------------------- input checks
+
+def _real_array(value, name: str) -> np.ndarray:
+    arr = np.asarray(value)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise RayInputError(f"{name} must be an array of real numbers, got dtype {arr.dtype}")
+    return arr.astype(np.float64, copy=False)
+
+
+def _vectors(value, name: str) -> np.ndarray:
+    arr = _real_array(value, name)
+    if arr.ndim == 1 and arr.shape[0] == 3:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise RayInputError(f"{name} must have shape (N, 3) or (3,), got {arr.shape}")
+    if not np.isfinite(arr).all():        # (whole-array test first: reductions along rows are slow)
+        i = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
+        raise RayInputError(f"{name}[{i}] is not finite: {arr[i].tolist()}")
+    return arr
+
+
+def _interval(value, name: str, n: int) -> np.ndarray:
+    arr = _real_array(value, name)
+    if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != n):
+        raise RayInputError(f"{name} must be a number or have shape ({n},), got {arr.shape}")
+    if np.isnan(arr).any():
+        i = int(np.flatnonzero(np.isnan(np.atleast_1d(arr)))[0])
+        raise RayInputError(f"{name}[{i}] is NaN")
+    return np.ascontiguousarray(np.broadcast_to(arr, (n,)))
+
+
+def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
+    """Validated float64 copies: origins (N, 3), directions (N, 3), tmin (N,), tmax (N,)."""
+    o = _vectors(origins, "origins")
+    d = _vectors(directions, "directions")
+    if len(o) != len(d):
+        if len(o) == 1:
+            o = np.broadcast_to(o, d.shape)
+        elif len(d) == 1:
+            d = np.broadcast_to(d, o.shape)
+        else:
+            raise RayInputError(f"origins and directions differ in length: {len(o)} vs {len(d)}")
+    zero = (d[:, 0] == 0.0) & (d[:, 1] == 0.0) & (d[:, 2] == 0.0)
+    if zero.any():
+        raise RayInputError(f"directions[{int(np.flatnonzero(zero)[0])}] has zero length")
+    n = len(o)
+    lo = _interval(tmin, "tmin", n)
+    hi = _interval(tmax, "tmax", n)
+    bad = lo > hi
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise RayInputError(f"tmin > tmax for ray {i}: {lo[i]} > {hi[i]}")
+    return np.ascontiguousarray(o), np.ascontiguousarray(d), lo, hi
+
+
+# ----------------------------------------------------------------- the scene
+
+def coarse_to_fine(n: int) -> np.ndarray:
+    """Ray indices 0..n-1 coarse to fine: 0, then the odd multiples of 2^k for k from high to
+    low (with n = 8: 0, 4, 2, 6, 1, 3, 5, 7), so that every prefix samples the whole array."""
+    parts = [np.zeros(min(n, 1), np.int64)]
+    step = 1 << max(0, (n - 1).bit_length())
+    while step > 1:
+        parts.append(np.arange(step // 2, n, step, dtype=np.int64))
+        step //= 2
+    return np.concatenate(parts)
+
+
+class RayScene:
+    """Geometry built once into flat arrays and aggregates, queried with batches of rays.
+
+    Build with from_mesh, from_spheres or from_scene. Queries take origins and
+    directions ((N, 3) or (3,), any real dtype) and optional tmin/tmax (numbers
+    or (N,) arrays); a hit counts when tmin <= t <= tmax. Invalid input raises
+    RayInputError (a ValueError) naming the argument. After each query,
+    `last_stats` holds the counters of that query (rays.cast, tests.triangle,
+    bounds.tests, cells.visited, ...) and its time.trace in seconds.
+    """
+
+    SPHERE, POLYGON, PATCH, CONE, TRIANGLE = SPHERE, POLYGON, PATCH, CONE, TRIANGLE
+
+    def __init__(self, scene: Scene, accel: str = "bvh", max_memory=None):
+        """max_memory: the memory budget of the build and of lazy refinement, in bytes or as
+        "8G" (default: half of this machine's memory)."""
+        if not isinstance(scene, Scene):
+            raise RayInputError(f"scene must be a raykernel Scene, got {type(scene).__name__}")
+        self.scene = scene
+        self.geo, self.build_stats = flatten(scene, accel, max_memory)
+        table = self.build_stats.pop("geometries")
+        self.geometries = [{"kind": KIND_NAMES[k], "count": int(n)} for k, _, n in table]
+        # per kind family (polygons and patches share one numbering): first global index of each geometry
+        family = np.where(table[:, 0] == PATCH, POLYGON, table[:, 0]) if len(table) else table[:, 0]
+        self._geom_of = {int(k): (np.flatnonzero(family == k), table[family == k, 1]) for k in np.unique(family)}
+        # a primitive can be met twice along a ray through a group nested twice, or in several cells
+        # of any structure but a list or a BVH (a grid or an octree holds an item in every cell it overlaps)
+        self._may_repeat = bool(np.any((self.geo.agg_kind != LIST) & (self.geo.agg_kind != BVH))) or \
+            len(self.geo.agg_kind) > 1
+        # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
+        self._lazy = self.build_stats.get("lazy")
+        self._may_repeat = self._may_repeat or self._lazy is not None
+        self._mesh = MeshKernel.of(self.geo, table)
+        self.last_stats: dict = {}
+
+    def _identify(self, kind: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(geometry, index within it) of global (kind, index) pairs; -1 where kind is -1."""
+        geom = np.full(len(kind), -1, np.int64)
+        local = np.full(len(kind), -1, np.int64)
+        family = np.where(kind == PATCH, POLYGON, kind)
+        for k, (ids, starts) in self._geom_of.items():
+            sel = family == k
+            if np.any(sel):
+                g = np.searchsorted(starts, index[sel], side="right") - 1
+                geom[sel] = ids[g]
+                local[sel] = index[sel] - starts[g]
+        return geom, local
+
+    @classmethod
+    def from_mesh(cls, vertices, faces, normals=None, accel: str = "bvh") -> "RayScene":
+        """A triangle mesh: vertices (V, 3) float32/float64, faces (F, 3) integer vertex
+        indices, optional per-vertex normals (V, 3) for shading_normal."""
+        v = _real_array(vertices, "vertices")
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise RayInputError(f"vertices must have shape (V, 3), got {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise RayInputError(f"vertices[{int(np.flatnonzero(~np.all(np.isfinite(v), axis=1))[0])}] is not finite")
+        f = np.asarray(faces)
+        if not np.issubdtype(f.dtype, np.integer):
+            raise RayInputError(f"faces must be integer vertex indices, got dtype {f.dtype}")
+        if f.ndim != 2 or f.shape[1] != 3:
+            raise RayInputError(f"faces must have shape (F, 3), got {f.shape}")
+        if len(f) and (f.min() < 0 or f.max() >= len(v)):
+            raise RayInputError(f"faces refer to vertex {int(f.max() if f.max() >= len(v) else f.min())}, "
+                                f"but there are {len(v)} vertices")
+        n = None
+        if normals is not None:
+            n = _real_array(normals, "normals")
+            if n.shape != v.shape:
+                raise RayInputError(f"normals must have the shape of vertices {v.shape}, got {n.shape}")
+            if not np.all(np.isfinite(n)):
+                raise RayInputError("normals must be finite")
+        scene = Scene()
+        scene.root.add(TriangleMesh(v, f.astype(np.int64), normals=n))
+        return cls(scene, accel)
+
+    @classmethod
+    def from_spheres(cls, centers, radii, accel: str = "bvh") -> "RayScene":
+        """Spheres: centers (N, 3), radii (N,) or one number, finite and positive."""
+        c = _real_array(centers, "centers")
+        if c.ndim == 1 and c.shape[0] == 3:
+            c = c[None, :]
+        if c.ndim != 2 or c.shape[1] != 3:
+            raise RayInputError(f"centers must have shape (N, 3), got {c.shape}")
+        r = _real_array(radii, "radii")
+        if r.ndim > 1 or (r.ndim == 1 and len(r) != len(c)):
+            raise RayInputError(f"radii must be a number or have shape ({len(c)},), got {r.shape}")
+        r = np.broadcast_to(r, (len(c),)).copy()
+        if not np.all(np.isfinite(c)):
+            raise RayInputError("centers must be finite")
+        if not np.all(np.isfinite(r) & (r > 0)):
+            raise RayInputError(f"radii[{int(np.flatnonzero(~(np.isfinite(r) & (r > 0)))[0])}] must be finite "
+                                "and positive")
+        scene = Scene()
+        sph = scene.root.spheres
+        sph.center, sph.radius, sph.material = c.copy(), r, np.zeros(len(c), np.int32)
+        return cls(scene, accel)
+
+    @classmethod
+    def from_scene(cls, scene: Scene, accel: str = "bvh") -> "RayScene":
+        """Any scene model (loaded NFF/JSON, SPD generator, pathological scenes):
+        all its primitive kinds, nested groups and instances; `accel` is the
+        default for groups without their own spec."""
+        return cls(scene, accel)
+
+    # ------------------------------------------------------------- queries
+
+    def _run(self, mode, o, d, lo, hi, with_surface=False, offsets=None, all_t=None, all_i=None):
+        """One query kernel over all rays: t, kind, geom, idx, inst, uv, normals, shading normals, stats.
+        Closest and any hits: idx counts within the geometry; all hits: idx holds the counts, or with
+        offsets the hits go to all_t / all_i as (kind, global index, instance)."""
+        n = len(o)
+        t = np.empty(n)
+        kind = np.empty(n, np.int64)
+        geom = np.empty(n, np.int64)
+        idx = np.empty(n, np.int64)
+        inst = np.empty(n, np.int64)
+        m = n if with_surface else 0
+        uv, gn, sn = np.empty((m, 2)), np.empty((m, 3)), np.empty((m, 3))
+        offsets = np.zeros(0, np.int64) if offsets is None else offsets
+        all_t = np.zeros(0) if all_t is None else all_t
+        all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
+        counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
+        start = time.perf_counter()
+        with CompileClock() as clock:
+            if n and self._mesh is not None:
+                mesh = self._mesh
+                for_ranges(lambda c0, c1: meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind,
+                                                         geom, idx, inst, uv, gn, sn, with_surface, offsets, all_t,
+                                                         all_i, counters, c0, c1), len(counters),
+                       kernel=meshcast.query)
+            elif n and self._lazy is not None:
+                # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
+                # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
+                # than a chunk add into the first chunk's row. Results go back to the rays' own order.
+                order = coarse_to_fine(n)
+                ins = [a[order] for a in (o, d, lo, hi)]
+                outs = [np.empty_like(a) for a in (t, kind, idx, inst, uv, gn, sn)]
+                p_offsets, p_all_t, p_all_i = offsets, all_t, all_i
+                if len(offsets):
+                    counts = np.diff(offsets)
+                    p_offsets = np.zeros(n + 1, np.int64)
+                    np.cumsum(counts[order], out=p_offsets[1:])
+                    p_all_t, p_all_i = np.empty_like(all_t), np.empty_like(all_i)
+                for a, b in self._lazy.ranges(n, CHUNK):
+                    rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + self._lazy.columns), np.int64)
+                    args = (self.geo, *(x[a:b] for x in ins), np.int64(mode), CHUNK, *(x[a:b] for x in outs),
+                            with_surface, p_offsets[a:b + 1] if len(offsets) else offsets, p_all_t, p_all_i, rows)
+                    for_ranges(lambda c0, c1, args=args: _query(*args, c0, c1), len(rows), kernel=_query)
+                    counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
+                    self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
+                for mine, theirs in zip((t, kind, idx, inst, uv, gn, sn), outs):
+                    if len(mine):       # surfaces only when asked for
+                        mine[order] = theirs
+                if len(offsets):
+                    # ray order[k]'s hits lie at p_offsets[k]..p_offsets[k + 1]
+                    start = np.empty(n, np.int64)
+                    start[order] = p_offsets[:-1]
+                    src = np.repeat(start - offsets[:-1], counts) + np.arange(offsets[-1])
+                    all_t[:] = p_all_t[src]
+                    all_i[:] = p_all_i[src]
+                self._lazy.update_stats(self.build_stats, self.geo)
+            elif n:
+                for_ranges(lambda c0, c1: _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv,
+                                                 gn, sn, with_surface, offsets, all_t, all_i, counters, c0, c1),
+                           len(counters), kernel=_query)
+        seconds = time.perf_counter() - start - clock.seconds
+        if self._mesh is None and mode != ALL_HITS:
+            geom, idx = self._identify(kind, idx)
+        totals = counters.sum(axis=0)
+        stats = {name: int(totals[k]) for k, name in C.NAMES.items() if totals[k]}
+        stats["rays.cast"] = n
+        stats["time.trace"] = seconds
+        stats["time.compile"] = clock.seconds
+        return t, kind, geom, idx, inst, uv, gn, sn, stats
+
+    def intersect(self, origins, directions, tmin=0.0, tmax=np.inf) -> Hits:
+        """Closest hit of every ray in [tmin, tmax]. Ties at equal t go to the
+        smaller (geom_id, prim_id, inst_id), whatever the traversal order."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        t, kind, geom, prim, inst, uv, gn, sn, stats = self._run(CLOSEST, o, d, lo, hi, with_surface=True)
+        self.last_stats = stats
+        return Hits(t=t, prim_id=prim, geom_id=geom, inst_id=inst, kind=kind, uv=uv, normal=gn, shading_normal=sn)
+
+    def occluded(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+        """True where the ray meets anything in [tmin, tmax] (stops at the first hit found)."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        t, *_, stats = self._run(ANY, o, d, lo, hi)
+        self.last_stats = stats
+        return np.isfinite(t)
+
+    def _all(self, o, d, lo, hi):
+        mark = self._lazy.checkpoint() if self._lazy is not None else None
+        _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+        if mark is not None:
+            self.geo = self._lazy.restore(mark, self.geo)   # the second run must meet the same trees
+        offsets = np.zeros(len(o) + 1, np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        all_t = np.empty(offsets[-1])
+        all_i = np.empty((offsets[-1], 3), np.int64)
+        *_, stats2 = self._run(ALL_HITS, o, d, lo, hi, offsets=offsets, all_t=all_t, all_i=all_i)
+        for k, v in stats2.items():
+            stats[k] = stats.get(k, 0) + v
+        stats["rays.cast"] = len(o)
+        ray = np.repeat(np.arange(len(o), dtype=np.int64), counts)
+        # identities as the user sees them: (geometry, index within it, instance)
+        all_i[:, 0], all_i[:, 1] = self._identify(all_i[:, 0], all_i[:, 1])
+        order = np.lexsort((all_i[:, 2], all_i[:, 1], all_i[:, 0], all_t, ray))
+        ray, all_t, all_i = ray[order], all_t[order], all_i[order]
+        if self._may_repeat and len(ray) > 1:
+            # the same primitive met again in a later grid cell: same ray, t and identity
+            keep = np.ones(len(ray), bool)
+            keep[1:] = (ray[1:] != ray[:-1]) | (all_t[1:] != all_t[:-1]) | np.any(all_i[1:] != all_i[:-1], axis=1)
+            ray, all_t, all_i = ray[keep], all_t[keep], all_i[keep]
+        return ray, all_t, all_i, counts, stats
+
+    def intersect_all(self, origins, directions, tmin=0.0, tmax=np.inf, ids: bool = False):
+        """Every primitive each ray meets in [tmin, tmax], once, at its first
+        crossing in the interval (a sphere the ray passes through counts once,
+        where it enters): (ray_index, t, prim_id) sorted by ray, then t, then
+        (geom_id, prim_id, inst_id). With ids=True also geom_id and inst_id.
+        A ray through a shared edge or vertex of a mesh meets exactly one of
+        the triangles there (watertight tests)."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        ray, t, ident, _, stats = self._all(o, d, lo, hi)
+        self.last_stats = stats
+        if ids:
+            return ray, t, ident[:, 1].copy(), ident[:, 0].copy(), ident[:, 2].copy()
+        return ray, t, ident[:, 1].copy()
+
+    def count_hits(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+        """Number of primitives each ray meets in [tmin, tmax] (the lengths of intersect_all's lists)."""
+        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        if self._may_repeat:
+            ray, _, _, _, stats = self._all(o, d, lo, hi)
+            counts = np.bincount(ray, minlength=len(o)).astype(np.int64)
+        else:
+            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+        self.last_stats = stats
+        return counts
+
+    def __repr__(self) -> str:
+        g = self.geo
+        return (f"RayScene({len(g.tri_faces)} triangles, {len(g.sph_radius)} spheres, {len(g.poly_start)} polygons, "
+                f"{len(g.cone_length)} cones, {len(g.inst_agg)} instances)")

@@ -1,0 +1,318 @@
+"""The intersection driver: one routine for every aggregate, nested to any depth.
+
+    ws = workspace()                    # per thread: stacks, frames, hit record
+    found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, CLOSEST, ws, cnt)
+    t = ws[5][0]; kind, index, instance = ws[6]
+
+The driver owns the stack, the frames, the reference loop, instances and
+the hit rule; each aggregate kind owns its walk, a step function in its
+module under aggregates/ (the registry in aggregates/__init__.py ties
+them together). An explicit stack replaces recursion: a range of
+references, or a step of a kind's walk (aggregates/walk.py says how entries
+are tagged). When a reference names an aggregate or an instance, the rest of
+the current range is pushed, a frame is opened for the child (the ray mapped
+into its space for an instance) and the child's START entry pushed above. A
+frame ends when the stack falls to its base. Instance maps are affine and
+the direction is not renormalised, so t means the same in every frame and
+one closest t shrinks through all.
+"""
+
+import numpy as np
+
+from ..aggregates import bvh, grid, octree, rc
+from ..aggregates.walk import (
+    F_DIR,
+    F_KEY_D,
+    F_KEY_END,
+    F_KEY_O,
+    F_MAP,
+    F_MBOX,
+    F_MBOX_ON,
+    F_ORIGIN,
+    FI_AGG,
+    FI_BASE,
+    FI_INST,
+    FRAME_F,
+    FRAME_I,
+    KEY_SLACK,
+    MBOX_SLOTS,
+    START,
+    entry_kind,
+    entry_step,
+    entry_tag,
+    push,
+)
+from ..geometry import counters as C
+from ..geometry.boxes import CONSERVATIVE, INF, box_entry, inverse
+from ..geometry.config import njit
+from ..geometry.primitives import (
+    AGGREGATE,
+    CONE,
+    INDEX_MASK,
+    INSTANCE,
+    KIND_SHIFT,
+    PATCH,
+    POLYGON,
+    SPHERE,
+    TRIANGLE,
+    hit_cone,
+    hit_polygon,
+    hit_sphere,
+    hit_triangle,
+)
+from .flatten import LIST, MAX_NESTING, STACK_SIZE
+from .parallel import for_ranges
+from .transforms import compose_map, map_ray
+
+# intersect's mode: the closest hit, any hit, every hit. numpy integers, not Python ints: numba
+# compiles a function again for each literal int value it is passed
+CLOSEST, ANY_HIT, ALL_HITS = np.int64(0), np.int64(1), np.int64(2)
+HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that was hit
+HIT_I = 3                    # hit_i: kind, index, innermost instance (-1: none)
+KEYED = entry_tag(LIST, 1)   # stack entry: go on with the frame's keyed list at stack_a
+
+
+@njit
+def workspace():
+    """Scratch arrays for one thread, allocated once per tile or chunk:
+    (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i)."""
+    return (np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
+            np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, FRAME_I), np.int64),
+            np.zeros(HIT_F), np.zeros(HIT_I, np.int64))
+
+
+@njit(inline="always")
+def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b,
+           stack_t, sp, cnt):
+    """Test aggregate a's bounds and push its first entry; returns the new stack pointer."""
+    cnt[C.BOUNDS_TESTS] += 1
+    te = box_entry(agg_bounds, a, ox, oy, oz, ix, iy, iz, tmin, tmax)
+    if te == INF:
+        return sp
+    kind = agg_kind[a]
+    if kind == LIST:
+        return push(stack_a, stack_b, stack_t, sp, agg_start[a], agg_start[a] + agg_count[a], te)
+    return push(stack_a, stack_b, stack_t, sp, agg_start[a], entry_tag(kind, START), te)
+
+
+@njit(private=True)
+def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
+    """Closest hit (mode CLOSEST) or the first hit found (ANY_HIT) of the ray with the
+    scene in [tmin, tmax]. On a hit returns True and fills hit_f (t, world-to-local map
+    of the hit's frame) and hit_i (kind, index, innermost instance). Counts tests, bounds
+    tests and steps into cnt. ALL_HITS records every hit instead (see the hit rule)."""
+    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i = ws
+    best_t = tmax
+    found = False
+    best_ref = np.int64(-1)
+    best_inst = np.int64(-1)
+    ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+    # frame 0: the root aggregate in world space, identity map
+    f = np.int64(0)     # not the literal 0: that too would be compiled apart
+    frame_f[0, F_ORIGIN], frame_f[0, F_ORIGIN + 1], frame_f[0, F_ORIGIN + 2] = ox, oy, oz
+    frame_f[0, F_DIR], frame_f[0, F_DIR + 1], frame_f[0, F_DIR + 2] = dx, dy, dz
+    for k in range(12):
+        frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
+    frame_i[0, FI_AGG], frame_i[0, FI_BASE], frame_i[0, FI_INST] = geo.root, 0, -1
+    frame_f[0, F_MBOX_ON] = 0.0
+    base = 0
+    sp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.agg_count, geo.root, ox, oy, oz, ix, iy, iz, tmin,
+                best_t, stack_a, stack_b, stack_t, base, cnt)
+    while True:
+        if sp == base:
+            if f == 0:
+                break
+            # this frame is done: back to the parent's ray
+            f -= 1
+            base = frame_i[f, FI_BASE]
+            ox, oy, oz = frame_f[f, F_ORIGIN], frame_f[f, F_ORIGIN + 1], frame_f[f, F_ORIGIN + 2]
+            dx, dy, dz = frame_f[f, F_DIR], frame_f[f, F_DIR + 1], frame_f[f, F_DIR + 2]
+            ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+            continue
+        sp -= 1
+        a, b, te = stack_a[sp], stack_b[sp], stack_t[sp]
+        if te > best_t and te > best_t * CONSERVATIVE:
+            continue        # entered beyond the closest hit (BVH nodes within rounding of it are kept: ties)
+        keyed = False
+        key_o = key_d = 0.0
+        if b >= 0:
+            s, e = a, b
+        elif b == KEYED:
+            s, e = a, np.int64(frame_f[f, F_KEY_END])
+            key_o, key_d, keyed = frame_f[f, F_KEY_O], frame_f[f, F_KEY_D], True
+        else:
+            # a step of the frame's walk: its kind, then which step
+            kind, step = entry_kind(b), entry_step(b)
+            if kind == bvh.CODE:
+                sp, s, e = bvh.step(geo.node_bounds, geo.node_first, geo.node_count, a, ox, oy, oz, ix, iy, iz, tmin,
+                                    best_t, stack_a, stack_b, stack_t, sp, cnt)
+            elif kind == grid.CODE:
+                sp, s, e = grid.step(geo.grid_cell_offset, geo.grid_cell_size, geo.grid_cells, geo.grid_inv_cell,
+                                     geo.grid_mailbox, geo.grid_origin, geo.grid_res, step, a, te, ox, oy, oz, dx, dy,
+                                     dz, ix, iy, iz, best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
+            elif kind == octree.CODE:
+                sp, s, e = octree.step(geo.oct_bounds, geo.oct_count, geo.oct_first, geo.oct_level, geo.oct_loc,
+                                       geo.oct_mailbox, geo.oct_nbr, geo.oct_origin, geo.oct_pass, geo.oct_root,
+                                       geo.oct_scale, geo.oct_slot, geo.oct_unit, geo.oct_walk, step, a, te,
+                                       geo.agg_start[frame_i[f, FI_AGG]], (ox, oy, oz, dx, dy, dz, ix, iy, iz), tmin,
+                                       best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
+            elif kind == rc.CODE:
+                s, e, key_o, key_d = rc.step(geo.rc_face_root, geo.rc_node_a, geo.rc_node_b, geo.rc_pass, geo.rc_split,
+                                             geo.rc_vdim, geo.rc_vinfo, geo.rc_vsplit, a, te, ox, oy, oz, dx, dy, dz,
+                                             best_t, frame_f, f, cnt)
+                keyed = True
+            else:
+                s = e = 0
+        mbox = frame_f[f, F_MBOX_ON] != 0.0
+        # the reference loop
+        i = s
+        while i < e:
+            if keyed:
+                if geo.rc_key[i] > key_o + best_t * key_d * KEY_SLACK + 1e-9 * abs(key_o):
+                    break       # this and every later candidate lies beyond the closest hit
+                ref = geo.rc_ref[i]
+            else:
+                ref = geo.refs[i]
+            kind = ref >> KIND_SHIFT
+            idx = ref & INDEX_MASK
+            i += 1
+            if mbox:
+                slot = F_MBOX + ((idx + 37 * kind) & (MBOX_SLOTS - 1))
+                tag = np.float64(ref)
+                if frame_f[f, slot] == tag:
+                    cnt[C.MAILBOX_SAVED] += 1
+                    continue
+                frame_f[f, slot] = tag
+            if kind == SPHERE:
+                cnt[C.TESTS + SPHERE] += 1
+                t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
+                               geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, tmin, best_t)
+            elif kind == POLYGON or kind == PATCH:
+                cnt[C.TESTS + kind] += 1
+                t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
+                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, tmin, best_t)
+            elif kind == TRIANGLE:
+                cnt[C.TESTS + TRIANGLE] += 1
+                fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
+                v = geo.tri_verts
+                t = hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
+                                 v[fc, 0], v[fc, 1], v[fc, 2], ox, oy, oz, dx, dy, dz, tmin, best_t)
+            elif kind == CONE:
+                cnt[C.TESTS + CONE] += 1
+                t = hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
+                             geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
+                             geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx],
+                             ox, oy, oz, dx, dy, dz, tmin, best_t)
+            else:
+                # a child aggregate: keep the rest of this range, open a frame for the child
+                if i < e:
+                    sp = push(stack_a, stack_b, stack_t, sp, i, KEYED if keyed else e, -INF)
+                g = f + 1
+                if kind == AGGREGATE:
+                    child = idx
+                    inst = frame_i[f, FI_INST]
+                    nox, noy, noz, ndx, ndy, ndz = ox, oy, oz, dx, dy, dz
+                else:
+                    child = geo.inst_agg[idx]
+                    inst = idx
+                    nox, noy, noz, ndx, ndy, ndz = map_ray(geo.inst_to_local, geo.inst_class, idx, ox, oy, oz, dx, dy,
+                                                           dz, cnt)
+                nix, niy, niz = inverse(ndx), inverse(ndy), inverse(ndz)
+                nsp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.agg_count, child, nox, noy, noz, nix, niy,
+                             niz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt)
+                if nsp == sp:
+                    break       # missed the child's bounds
+                frame_f[g, F_ORIGIN], frame_f[g, F_ORIGIN + 1], frame_f[g, F_ORIGIN + 2] = nox, noy, noz
+                frame_f[g, F_DIR], frame_f[g, F_DIR + 1], frame_f[g, F_DIR + 2] = ndx, ndy, ndz
+                compose_map(geo.inst_to_local, geo.inst_class, kind == INSTANCE, idx, frame_f, f, g, cnt)
+                frame_i[g, FI_AGG], frame_i[g, FI_BASE], frame_i[g, FI_INST] = child, sp, inst
+                frame_f[g, F_MBOX_ON] = 0.0
+                f = g
+                base = sp
+                sp = nsp
+                ox, oy, oz, dx, dy, dz = nox, noy, noz, ndx, ndy, ndz
+                ix, iy, iz = nix, niy, niz
+                break
+            if t != INF:
+                inst = frame_i[f, FI_INST]
+                if mode == ALL_HITS:
+                    # every hit: hit_i[0] counts them; hit k is t = hit_f[HIT_F + k] and
+                    # (kind, index, instance) = hit_i[HIT_I + 3k ..], stored while they fit
+                    k = hit_i[0]
+                    if HIT_F + k < hit_f.shape[0] and HIT_I + 3 * k + 2 < hit_i.shape[0]:
+                        hit_f[HIT_F + k] = t
+                        hit_i[HIT_I + 3 * k] = kind
+                        hit_i[HIT_I + 3 * k + 1] = idx
+                        hit_i[HIT_I + 3 * k + 2] = inst
+                    hit_i[0] = k + 1
+                    found = True
+                    continue
+                # t <= best_t here; ties at equal t go to the smaller
+                # (ref, instance), so every traversal order reports the same primitive
+                if not found or t < best_t or ref < best_ref or (ref == best_ref and inst < best_inst):
+                    found = True
+                    best_t = t
+                    best_ref = ref
+                    best_inst = inst
+                    hit_f[0] = t
+                    for k in range(12):
+                        hit_f[1 + k] = frame_f[f, F_MAP + k]
+                    hit_i[0] = kind
+                    hit_i[1] = idx
+                    hit_i[2] = inst
+                    if mode == ANY_HIT:
+                        return True
+    return found
+
+
+@njit
+def _cast_chunks(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, index_out, inst_out,
+                 counters, c0, c1):
+    n = origins.shape[0]
+    for c in range(c0, c1):
+        ws = workspace()
+        hit_f, hit_i = ws[5], ws[6]
+        cnt = np.zeros(C.N_COUNTERS, np.int64)
+        for r in range(c * chunk, min(n, (c + 1) * chunk)):
+            cnt[C.RAYS_CAST] += 1
+            if intersect(geo, origins[r, 0], origins[r, 1], origins[r, 2], directions[r, 0], directions[r, 1],
+                         directions[r, 2], tmin[r], tmax[r], mode, ws, cnt):
+                t_out[r] = hit_f[0]
+                kind_out[r] = hit_i[0]
+                index_out[r] = hit_i[1]
+                inst_out[r] = hit_i[2]
+            else:
+                t_out[r] = np.inf
+                kind_out[r] = -1
+                index_out[r] = -1
+                inst_out[r] = -1
+        for k in range(C.N_COUNTERS):
+            counters[c, k] = cnt[k]
+
+
+CHUNK = 1024
+
+
+def cast_rays(geo, origins, directions, tmin=0.0, tmax=np.inf, any_hit=False):
+    """Cast a batch of rays against built geometry (see flatten.flatten).
+
+    Returns (t, kind, index, instance, counter totals); misses have t = inf
+    and kind = index = -1. Results do not depend on the thread count.
+    """
+    origins = np.ascontiguousarray(origins, np.float64).reshape(-1, 3)
+    directions = np.ascontiguousarray(directions, np.float64).reshape(-1, 3)
+    n = len(origins)
+    if directions.shape != origins.shape:
+        raise ValueError(f"origins and directions differ in shape: {origins.shape} vs {directions.shape}")
+    tmin = np.ascontiguousarray(np.broadcast_to(np.asarray(tmin, np.float64), (n,)))
+    tmax = np.ascontiguousarray(np.broadcast_to(np.asarray(tmax, np.float64), (n,)))
+    t = np.empty(n)
+    kind = np.empty(n, np.int64)
+    index = np.empty(n, np.int64)
+    inst = np.empty(n, np.int64)
+    counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
+    if n:
+        mode = ANY_HIT if any_hit else CLOSEST
+        for_ranges(lambda c0, c1: _cast_chunks(geo, origins, directions, tmin, tmax, mode, CHUNK, t, kind, index,
+                                               inst, counters, c0, c1), len(counters), kernel=_cast_chunks)
+    return t, kind, index, inst, counters.sum(axis=0)

@@ -1,0 +1,142 @@
+"""Accelerator specs: the little language that names an acceleration structure.
+
+    kind, params = parse_spec("bvh(leaf=4, bins=16)")
+    print(describe())          # every kind with its parameters and defaults
+
+A spec is a kind name, optionally followed by `key=value` parameters in
+parentheses. Each kind registers its parameters with defaults and checks;
+unknown names, unknown parameters and values out of range are OptionErrors
+that list what is allowed.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from ..errors import OptionError
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    default: object
+    help: str
+    kind: type = int            # int, float, str or bool
+    low: float | None = None
+    high: float | None = None
+    choices: tuple = ()
+
+    def parse(self, text: str, spec: str):
+        text = text.strip()
+        try:
+            if self.kind is bool:
+                if text.lower() not in ("on", "off", "true", "false", "1", "0", "yes", "no"):
+                    raise ValueError
+                value = text.lower() in ("on", "true", "1", "yes")
+            elif self.kind is str:
+                value = text
+            else:
+                value = self.kind(text)
+        except ValueError:
+            raise OptionError(f"accelerator spec {spec!r}: {self.name} must be {self._what()}, got {text!r}") from None
+        self.check(value, spec)
+        return value
+
+    def check(self, value, spec: str):
+        if self.choices and value not in self.choices:
+            raise OptionError(f"accelerator spec {spec!r}: {self.name} must be one of "
+                              f"{', '.join(map(str, self.choices))}, got {value!r}")
+        if self.low is not None and value < self.low or self.high is not None and value > self.high:
+            raise OptionError(f"accelerator spec {spec!r}: {self.name} must be {self._what()}, got {value!r}")
+
+    def _what(self) -> str:
+        if self.kind is bool:
+            return "on or off"
+        if self.choices:
+            return "one of " + ", ".join(map(str, self.choices))
+        name = {int: "an integer", float: "a number", str: "a word"}[self.kind]
+        if self.low is not None and self.high is not None:
+            return f"{name} in [{self.low}, {self.high}]"
+        if self.low is not None:
+            return f"{name} >= {self.low}"
+        return name
+
+
+@dataclass(frozen=True)
+class Kind:
+    name: str
+    help: str
+    params: tuple = ()
+    flatten: object = field(default=None, compare=False)   # (builder, params, refs, bounds, name, box) -> (agg, stats)
+
+    def defaults(self) -> dict:
+        return {p.name: p.default for p in self.params}
+
+
+KINDS: dict[str, Kind] = {}    # filled by the registry, aggregates/__init__.py (imported by raykernel)
+
+
+def register(kind: Kind) -> Kind:
+    if kind.name in KINDS:
+        raise ValueError(f"accelerator kind {kind.name!r} registered twice")
+    KINDS[kind.name] = kind
+    return kind
+
+
+_SPEC = re.compile(r"^\s*([A-Za-z_][\w-]*)\s*(?:\((.*)\))?\s*$", re.S)
+
+
+def parse_spec(spec: str) -> tuple[str, dict]:
+    """'kind(key=value, ...)' -> (kind, parameters with defaults filled in)."""
+    if not isinstance(spec, str):
+        raise OptionError(f"an accelerator spec must be a string, got {spec!r}")
+    m = _SPEC.match(spec)
+    if not m:
+        raise OptionError(f"accelerator spec {spec!r} is not of the form kind or kind(key=value, ...); "
+                          f"kinds: {', '.join(KINDS)}")
+    name, body = m.group(1).lower(), m.group(2)
+    if name not in KINDS:
+        raise OptionError(f"unknown accelerator {name!r} in spec {spec!r}; kinds: {', '.join(KINDS)}")
+    kind = KINDS[name]
+    params = kind.defaults()
+    allowed = {p.name: p for p in kind.params}
+    given = set()
+    if body is not None and body.strip():
+        for item in body.split(","):
+            if "=" not in item:
+                raise OptionError(f"accelerator spec {spec!r}: expected key=value, got {item.strip()!r}")
+            key, value = (s.strip() for s in item.split("=", 1))
+            if key not in allowed:
+                known = ", ".join(allowed) or "none"
+                raise OptionError(f"accelerator spec {spec!r}: {name} has no parameter {key!r}; "
+                                  f"its parameters: {known}")
+            if key in given:
+                raise OptionError(f"accelerator spec {spec!r}: {key} is given twice")
+            given.add(key)
+            params[key] = allowed[key].parse(value, spec)
+    return name, params
+
+
+def format_spec(name: str, params: dict) -> str:
+    """The canonical spec string: only parameters that differ from the defaults."""
+    kind = KINDS[name]
+    changed = [f"{p.name}={_fmt(params[p.name])}" for p in kind.params if params.get(p.name, p.default) != p.default]
+    return f"{name}({', '.join(changed)})" if changed else name
+
+
+def _fmt(value) -> str:
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return str(value)
+
+
+def describe() -> str:
+    """A plain-text list of every kind with its parameters and defaults."""
+    lines = []
+    for kind in KINDS.values():
+        lines.append(f"{kind.name}: {kind.help}")
+        for p in kind.params:
+            lines.append(f"    {p.name}={_fmt(p.default)}  ({p._what()}) {p.help}")
+    return "\n".join(lines)
+

@@ -1,0 +1,47 @@
+"""One entry point for every kind of scene: files, SPD generators and examples.
+
+    load("balls-sf4.nff")      load("scene.json")
+    load("spd:balls")          load("spd:balls:2")      load("example:heckbert")
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import OptionError, SceneError
+from .model import Scene
+
+
+def load(source) -> Scene:
+    """A Scene from a .nff or .json path, `spd:NAME[:SIZE]`, `scene:NAME` or `example:NAME`."""
+    text = str(source)
+    prefix, _, rest = text.partition(":")
+    if prefix == "spd" and rest:
+        from . import spd
+        from .nff import parse_nff
+        name, _, size = rest.partition(":")
+        if size:
+            try:
+                size_factor = int(size)
+            except ValueError:
+                raise OptionError(f"{text}: the SPD size factor must be an integer, got {size!r}") from None
+        else:
+            size_factor = spd.default_size(name)
+        return parse_nff(spd.generate(name, size_factor), path=f"spd:{name}:{size_factor}")
+    if prefix == "example" and rest:
+        from . import examples
+        return examples.load(rest)
+    if prefix == "scene" and rest:
+        from . import pathological
+        return pathological.load(rest)
+    path = Path(text)
+    suffix = path.suffix.lower()
+    if suffix == ".nff":
+        from .nff import read_nff
+        return read_nff(path)
+    if suffix == ".json":
+        from .jsonscene import read_json
+        return read_json(path)
+    if not path.exists():
+        raise SceneError("no such file, and not spd:NAME, scene:NAME or example:NAME", path=text)
+    raise SceneError(f"unknown scene format {suffix or '(no suffix)'}; expected .nff or .json", path=text)
