@@ -14,6 +14,7 @@ compiler lock); a compile of another of the caller's own threads does not.
 
 from __future__ import annotations
 
+import hashlib
 import threading
 import time
 from pathlib import Path
@@ -23,7 +24,7 @@ from numba.core import event
 from ..geometry.config import CACHE_DIR
 from .parallel import WORKER_PREFIX
 
-FIRST_RUN_SECONDS = 30      # about how long the first render compiles on a 2-core machine (bench/startup.py)
+FIRST_RUN_SECONDS = 35      # about how long the first render compiles on a 2-core machine (bench/startup.py)
 
 
 class CompileClock(event.Listener):
@@ -62,5 +63,8 @@ class CompileClock(event.Listener):
 
 
 def first_run() -> bool:
-    """True when the kernel cache of this source version holds no render kernel yet."""
-    return not any(Path(CACHE_DIR).glob("*/render._render_tiles-*.nbc"))
+    """True when the kernel cache holds no render kernel of this source version and checkout
+    yet (numba keeps a checkout's kernels in <directory name>_<sha1 of its path>)."""
+    rendering = Path(__file__).resolve().parents[1] / "rendering"
+    where = Path(CACHE_DIR) / f"rendering_{hashlib.sha1(str(rendering).encode()).hexdigest()}"
+    return not any(where.glob("render._render_tiles-*.nbc"))

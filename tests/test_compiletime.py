@@ -1,0 +1,35 @@
+"""Compile time measured apart from the work, and the first-run check the CLI uses."""
+
+import threading
+
+import numba
+
+import raykernel
+from raykernel.engine.compiletime import CompileClock, first_run
+
+
+def fresh_kernel():
+    @numba.njit
+    def f(x):
+        return x * 2 + 1
+    return f
+
+
+def test_the_clock_counts_compiles_of_its_own_thread_only():
+    mine, theirs = fresh_kernel(), fresh_kernel()
+    with CompileClock() as clock:
+        other = threading.Thread(target=theirs, args=(1.0,))
+        other.start()
+        other.join()
+        assert clock.seconds == 0.0          # another thread's compile is not ours
+        assert mine(2.0) == 5.0
+    assert clock.seconds > 0.0
+    with CompileClock() as again:
+        assert mine(3.0) == 7.0              # compiled already: nothing to count
+    assert again.seconds == 0.0
+
+
+def test_render_reports_compile_apart_and_first_run_turns_false():
+    r = raykernel.render(raykernel.load("spd:balls:1"), resolution=8)
+    assert r.stats["time.compile"] >= 0.0 and r.stats["time.trace"] >= 0.0
+    assert not first_run()                   # this checkout's render kernel is in the cache now
