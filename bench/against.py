@@ -33,6 +33,7 @@ SCENES = ("balls", "gears", "teapot", "tetra", "stadium")
 
 CHILD = r"""
 import hashlib, json, sys, time
+import numba
 import numpy as np
 import raykernel
 scenes, kinds, res, repeat = json.loads(sys.argv[1])
@@ -52,6 +53,7 @@ for name in scenes:
         counts = {c: v for c, v in r.stats.items() if c.startswith(("rays.eye", "rays.reflect", "rays.refract",
                                                                       "rays.shadow", "tests.")) and
                   isinstance(v, int)}
+        counts["threads"] = r.stats.info["threads"]
         out[f"{name}|{k}"] = dict(trace=best, image=hashlib.sha1(np.ascontiguousarray(r.image).tobytes()).hexdigest(),
                                   counts=counts)
 # the mesh kernel: RayScene.intersect on meshes, coherent (a camera) and incoherent (random) rays
@@ -82,7 +84,7 @@ for name, mesh in (("sphere-80k", trimesh.creation.icosphere(subdivisions=6)),
             best = dt if best is None else min(best, dt)
         out[f"{name} {label}|RayScene.intersect"] = dict(
             trace=best, image=hashlib.sha1(np.ascontiguousarray(h.t).tobytes() + h.prim_id.tobytes()).hexdigest(),
-            counts={"rays": int(n), "hits": int(np.isfinite(h.t).sum())})
+            counts={"rays.cast": int(n), "hits": int(np.isfinite(h.t).sum()), "threads": numba.get_num_threads()})
 print(json.dumps(out))
 """
 
@@ -126,7 +128,8 @@ def main() -> int:
              f"alternating rounds per side; ratio = {rev} / this tree (above 1: this tree is faster). Both sides "
              "made the same image bytes and the same ray and test counts (checked).",
              "", f"Machine: {machine()}.", "",
-             f"| scene | structure | {rev} trace s | this trace s | ratio |", "|---|---|---:|---:|---:|"]
+             f"| scene | structure | rays ({rev}) | rays (this) | threads | {rev} trace s | this trace s | ratio |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
     ratios = []
     for key in sides["this"][0]:
         a = [r[key] for r in sides["other"]]
@@ -137,7 +140,11 @@ def main() -> int:
         ta, tb = min(x["trace"] for x in a), min(x["trace"] for x in b)
         ratios.append(ta / tb)
         scene, kind = key.split("|")
-        lines.append(f"| {scene} | `{kind}` | {ta:.3f} | {tb:.3f} | {ta / tb:.2f} |")
+        ca, cb = a[0]["counts"], b[0]["counts"]
+        rays_a = sum(v for c, v in ca.items() if c.startswith("rays.") and not c.endswith(("_hit", "_blocked")))
+        rays_b = sum(v for c, v in cb.items() if c.startswith("rays.") and not c.endswith(("_hit", "_blocked")))
+        lines.append(f"| {scene} | `{kind}` | {rays_a:,} | {rays_b:,} | {cb['threads']} | {ta:.3f} | {tb:.3f} | "
+                     f"{ta / tb:.2f} |")
         print(lines[-1], flush=True)
     lines += ["", f"Ratios from {min(ratios):.2f} to {max(ratios):.2f}, geometric mean "
                   f"{(__import__('math').prod(ratios)) ** (1 / len(ratios)):.2f}."]

@@ -41,7 +41,7 @@ def _pool(threads: int) -> ThreadPoolExecutor:
         return _pools[threads]
 
 
-def for_ranges(fn, n: int, threads: int | None = None, min_size: int = 1, kernel=None) -> None:
+def for_ranges(fn, n: int, threads: int | None = None, kernel=None) -> None:
     """Call fn(lo, hi) over ranges covering 0..n, on up to `threads` threads at once.
     kernel: the compiled function fn calls; until it has been compiled (or loaded from the
     cache) the first range runs alone on this thread, since threads calling an uncompiled
@@ -49,7 +49,7 @@ def for_ranges(fn, n: int, threads: int | None = None, min_size: int = 1, kernel
     threads = max(1, int(threads or default_threads()))
     if n <= 0:
         return
-    n_ranges = min(-(-n // max(1, min_size)), threads * CHUNKS_PER_THREAD)
+    n_ranges = min(n, threads * CHUNKS_PER_THREAD)
     if threads == 1 or n_ranges <= 1 or threading.current_thread().name.startswith(WORKER_PREFIX):
         fn(0, n)            # (a worker never waits on its own pool)
         return

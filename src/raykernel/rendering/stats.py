@@ -14,10 +14,10 @@ import json
 
 import numpy as np
 
+from ..engine.transforms import AFFINE, TRANSFORM_MULTIPLIES
 from ..geometry import counters as C
 
 RAY_KINDS = ("eye", "reflect", "refract", "shadow")
-FULL_MAP_MULTIPLIES = 54    # mapping a ray into an instance and composing its frame's map with a general affine map
 
 
 class Stats(dict):
@@ -49,7 +49,7 @@ class Stats(dict):
         s["time.trace"] = trace
         s["time.compile"] = compile
         mapped = sum(s[f"transforms.{k}"] for k in ("identity", "translation", "scale", "affine"))
-        s["transforms.multiplies_saved"] = FULL_MAP_MULTIPLIES * mapped - s["transforms.multiplies"]
+        s["transforms.multiplies_saved"] = TRANSFORM_MULTIPLIES[AFFINE] * mapped - s["transforms.multiplies"]
         s["time.rays_per_second"] = rays / trace if trace > 0 else 0.0
         s.aggregates = list(build.get("aggregates", []))
         s.info = dict(info)
