@@ -14,6 +14,10 @@ and every hit along the ray (RayScene.intersect_all and count_hits). The
 list itself is checked against the extended-precision caster of
 tests/reference.py in test_intersect.py and test_primitives.py.
 
+The boolean operators (difference, intersection, union) are checked the
+same way on scenes of closed solids (csg_scene): their operands built with
+every kind, the node inside every kind, nested and instanced.
+
 Kinds registered later are covered without editing this file. The quick
 part tries every spec alone on a few random scenes, every ordered pair of
 kinds on one scene, the stadium and the SPD scenes at size factor 1; the
@@ -32,6 +36,7 @@ import pytest
 from conftest import ray_counts, work_counts
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_csg import Node, random_solid, random_tree
 from test_intersect import affine, fill_group, similarity
 
 import raykernel
@@ -46,7 +51,8 @@ from raykernel.scene import Group, Instance, Polygons, Scene, TriangleMesh, acce
 
 VARIANTS = ("bvh(build=gs)", "octree(walk=point)", "octree(walk=parametric)", "octree(mailbox=off)",
             "grid(mailbox=off)", "hgrid(threshold=2)")
-KIND_NAMES = tuple(accel.KINDS)
+KIND_NAMES = tuple(name for name, kind in accel.KINDS.items() if not kind.operands)    # structures
+OPERATORS = tuple(name for name, kind in accel.KINDS.items() if kind.operands)         # difference, ...
 SPECS = KIND_NAMES + tuple(v for v in VARIANTS if v.split("(")[0] in accel.KINDS)
 
 QUICK = settings(max_examples=5, deadline=None, derandomize=True, database=None,
@@ -283,6 +289,61 @@ def test_every_pair_of_kinds_nested_and_instanced_matches_list(outer, inner):
 @given(layout=layouts)
 def test_every_pair_of_specs_on_random_scenes(outer, inner, layout):
     check_layout(layout, outer, inner)
+
+
+# ---------------------------------------------------------------- the boolean operators
+
+def csg_scene(seed: int, op: str, outer: str, inner: str) -> Scene:
+    """A CSG node `op` of four closed solids and small CSG trees (operands built with `inner`,
+    base 2 for a difference), in a root of structure `outer` among random primitives, and
+    the same node instanced once more, rotated and scaled."""
+    rng = np.random.default_rng(seed)
+    spread = 0.3 if op == "intersection" else 1.0       # overlapping enough not to be empty
+    node = Node(op, [random_tree(rng, 1, spread=spread), random_solid(rng, spread=spread),
+                     random_solid(rng, spread=spread), random_tree(rng, 1, spread=spread)], base=2)
+    scene = Scene()
+    scene.root.accel = outer
+    fill_group(scene.root, rng, (4, 2, 3, 1, 6), extent=3.0)
+    group = node.group(inner)
+    scene.root.add(group)
+    scene.root.add(Instance(group, scaled(similarity(rng), 0.7)))
+    return scene
+
+
+def check_csg(seed: int, op: str, outer: str, inner: str, n_rays: int = 300):
+    """csg_scene against the same scene with list everywhere. The first of the seeds
+    seed * 10, seed * 10 + 1, ... whose rays meet the node's surfaces (an intersection of
+    random solids is often empty) is used."""
+    for seed in range(10 * seed, 10 * seed + 10):
+        reference = csg_scene(seed, op, "list", "list")
+        rays = probe_rays(reference, np.random.default_rng(seed + 1), n_rays, 3.0)
+        counts = cast_rays(flatten(reference, "list")[0], *rays)[4]
+        if counts[C.CSG_SURFACES] > 20 and counts[C.TRANSFORMS:C.TRANSFORMS + 4].sum() > 0:
+            break
+    else:
+        pytest.fail(f"no seed gave a {op} that the rays meet")
+    want = answers(reference, *rays)
+    got = answers(csg_scene(seed, op, outer, inner), *rays, default=inner)
+    assert_same_answers(got, want, f"{op} of {inner} operands in {outer}", rays[0], rays[1])
+    built = {a["kind"].split("(")[0] for a in got.stats["aggregates"]}
+    assert {op, outer.split("(")[0], inner.split("(")[0]} <= built
+
+
+@pytest.mark.parametrize("kind", KIND_NAMES)
+@pytest.mark.parametrize("op", OPERATORS)
+def test_every_operator_over_and_inside_every_kind_matches_list(op, kind):
+    seed = 7 * OPERATORS.index(op) + 100 * KIND_NAMES.index(kind)
+    check_csg(seed, op, kind, "list")
+    check_csg(seed + 1, op, "list", kind)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("inner", SPECS)
+@pytest.mark.parametrize("outer", SPECS)
+@pytest.mark.parametrize("op", OPERATORS)
+def test_every_operator_with_every_pair_of_specs(op, outer, inner):
+    for seed in range(3):
+        check_csg(1000 * seed + SPECS.index(outer) * 31 + SPECS.index(inner), op, outer, inner)
 
 
 def test_the_comparison_catches_a_wrong_answer():

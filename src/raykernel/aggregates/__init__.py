@@ -15,12 +15,12 @@ docs/adding-a-kind.md is the checklist for a new one.
 """
 
 from ..scene.accel import register
-from . import bruteforce, bvh, grid, hgrid, hybrid, lazyoctree, octree, rc
+from . import bruteforce, bvh, csg, grid, hgrid, hybrid, lazyoctree, octree, rc
 
-WALKS = (bruteforce, bvh, grid, octree, rc)
+WALKS = (bruteforce, bvh, grid, octree, rc, csg)
 
-for _module in (bruteforce, bvh, grid, hgrid, rc, octree, hybrid, lazyoctree):
-    register(_module.KIND)
+for _kind in [m.KIND for m in (bruteforce, bvh, grid, hgrid, rc, octree, hybrid, lazyoctree)] + list(csg.KINDS):
+    register(_kind)
 
 if sorted(w.CODE for w in WALKS) != list(range(len(WALKS))):
     raise ImportError("aggregates: walk CODEs must be 0, 1, ... with none twice")

@@ -22,8 +22,10 @@ ray's current path, row 0 the root. frame_f holds the ray in the frame's
 space (F_ORIGIN, F_DIR), the world-to-local map of the frame (F_MAP, 3x4
 row-major), STATE_SLOTS slots a walk may keep its state in across the
 children it opens (F_STATE), and the mailbox (F_MBOX_ON, F_MBOX). frame_i
-holds the aggregate (FI_AGG), the stack base of the frame (FI_BASE) and the
-innermost instance (FI_INST, -1: none).
+holds the aggregate (FI_AGG), the stack base of the frame (FI_BASE), the
+innermost instance (FI_INST, -1: none), and, below a CSG node, the frame
+that collects the crossings found here and as which of its operands
+(FI_SINK, -1: none, and FI_OPERAND; see csg.py).
 
 The mailbox
 -----------
@@ -55,7 +57,8 @@ F_MBOX = F_MBOX_ON + 1                # MBOX_SLOTS tagged references already tes
 MBOX_SLOTS = 64
 FRAME_F = F_MBOX + MBOX_SLOTS
 FI_AGG, FI_BASE, FI_INST = 0, 1, 2    # frame_i slots
-FRAME_I = 3
+FI_SINK, FI_OPERAND = 3, 4            # the CSG frame collecting this frame's crossings (-1: none), and as which operand
+FRAME_I = 5
 F_KEY_END, F_KEY_O, F_KEY_D = F_STATE, F_STATE + 1, F_STATE + 2  # a keyed list's end, key_o, key_d
 KEY_SLACK = 1.0 + 1e-7                # a keyed list's early exit widens the closest hit by this (hit-point rounding)
 START = 0                             # step 0 of every kind

@@ -1,9 +1,10 @@
 """Surface quantities of a hit, shared by every ray-casting kernel.
 
-    store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out)
+    store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip=0)
 
 `m` is the world-to-local 3x4 map (row-major, 12 numbers) of the frame the
-hit was found in; p is the world hit point. Row r of the outputs receives
+hit was found in; p is the world hit point; flip (hit_i[3]) reverses the
+normals of a surface a CSG difference cut. Row r of the outputs receives
 the surface (u, v) and the unit geometric and shading normals in world space.
 """
 
@@ -59,8 +60,9 @@ def surface_uv(geo, kind, idx, px, py, pz):
 
 
 @njit(inline="always")
-def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out):
-    """Write (u, v) and the world-space unit normals of the hit into row r."""
+def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip=0):
+    """Write (u, v) and the world-space unit normals of the hit into row r
+    (reversed where flip is set: a surface a CSG difference cut)."""
     # the hit point in the primitive's own frame; normals back by the transpose
     lx = m[0] * px + m[1] * py + m[2] * pz + m[3]
     ly = m[4] * px + m[5] * py + m[6] * pz + m[7]
@@ -72,6 +74,8 @@ def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out):
                       m[2] * sx + m[6] * sy + m[10] * sz)
     if sx == 0.0 and sy == 0.0 and sz == 0.0:
         sx, sy, sz = gx, gy, gz
+    if flip != 0:
+        gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
     gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz
     sn_out[r, 0], sn_out[r, 1], sn_out[r, 2] = sx, sy, sz
     u, v = surface_uv(geo, kind, idx, lx, ly, lz)

@@ -106,7 +106,7 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
                 cap = max(cap, offsets[r + 1] - offsets[r])
         hit_f = np.zeros(HIT_F + cap)
         hit_i = np.zeros(HIT_I + 3 * cap, np.int64)
-        ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i)
+        ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i, ws0[7], ws0[8], ws0[9], ws0[10])
         cnt = np.zeros(counters.shape[1], np.int64)     # columns past N_COUNTERS: lazy octree passes
         for r in range(r0, r1):
             cnt[C.RAYS_CAST] += 1
@@ -140,7 +140,7 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
             inst_out[r] = hit_i[2]
             if with_surface:
                 store_surface(geo, r, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f[1:13],
-                              uv_out, gn_out, sn_out)
+                              uv_out, gn_out, sn_out, hit_i[3])
         for k in range(counters.shape[1]):
             counters[c, k] = cnt[k]
 

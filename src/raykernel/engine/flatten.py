@@ -39,7 +39,7 @@ from ..aggregates.memory import memory_limit
 from ..aggregates.octree import CODE as OCTREE
 from ..aggregates.rc import CODE as RC
 from ..aggregates.walk import MAX_NESTING, MAX_TREE_DEPTH, STACK_SIZE, Field
-from ..errors import SceneError
+from ..errors import OptionError, SceneError
 from ..geometry.boxes import cull_margin
 from ..geometry.primitives import (
     AGGREGATE,
@@ -238,6 +238,9 @@ class Builder:
         self.flat = FlatArrays()
         self.max_bytes = max_bytes     # the memory budget every build keeps within (memory.py)
         self.default = accel.parse_spec(default_accel)
+        if accel.KINDS[self.default[0]].operands:
+            raise OptionError(f"{self.default[0]} is a boolean operator, not a structure for every group: "
+                              "give it to a group (a JSON \"difference\", \"intersection\" or \"union\" item)")
         self.built: dict[int, tuple[int, int]] = {}   # id(group) -> (aggregate, depth)
         self._active_groups: list[Group] = []           # the path being walked, to catch cycles
         self.agg_stats: list[dict] = []
@@ -252,13 +255,16 @@ class Builder:
             names = " -> ".join(g.name or "?" for g in self._active_groups) + f" -> {group.name or '?'}"
             raise SceneError(f"group cycle: {names}")
         self._active_groups.append(group)
+        spec = accel.parse_spec(group.accel) if group.accel else self.default
         refs, bounds = [], []
-        depth = self._collect(group, refs, bounds)
+        if accel.KINDS[spec[0]].operands:
+            depth = self._collect_operands(group, spec[0], refs, bounds)
+        else:
+            depth = self._collect(group, refs, bounds)
         self._active_groups.pop()
         if depth + 1 > MAX_NESTING:
             raise SceneError(f"group {group.name or '(unnamed)'}: aggregates nest {depth + 1} deep; "
                              f"the limit is {MAX_NESTING}")
-        spec = accel.parse_spec(group.accel) if group.accel else self.default
         refs = np.concatenate(refs) if refs else np.zeros(0, np.int64)
         bounds = np.vstack(bounds) if bounds else np.zeros((0, 6))
         self.nesting, self.extra_nesting = depth + 1, 0
@@ -289,12 +295,9 @@ class Builder:
                 depth = max(depth, d)
                 if not np.all(np.isfinite(flat.agg_box(agg))):
                     continue        # an empty group shows nothing: no reference to it
-                k = flat.size("inst_agg")
-                to_local = np.linalg.inv(child.matrix)[:3, :]   # classified for sparse mapping (transforms.py)
-                flat.append(inst_agg=[agg], inst_to_local=to_local.reshape(1, 12),
-                            inst_class=[transform_class(to_local)])
-                refs.append(make_ref(INSTANCE, [k]))
-                bounds.append(transform_box(flat.agg_box(agg), child.matrix)[None, :])
+                ref, box = self._instance(child, agg)
+                refs.append(ref)
+                bounds.append(box[None, :])
             elif isinstance(child, Group) and child.accel is None:
                 if id(child) in (id(g) for g in self._active_groups):
                     raise SceneError(f"group cycle through {child.name or '(unnamed)'}")
@@ -310,6 +313,36 @@ class Builder:
                 bounds.append(flat.agg_box(agg)[None, :])
             else:
                 raise SceneError(f"group {group.name or '(unnamed)'} holds a {type(child).__name__}")
+        return depth
+
+    def _instance(self, child: Instance, agg: int):
+        """A reference to a new instance of aggregate agg, and its box in the parent's space."""
+        k = self.flat.size("inst_agg")
+        to_local = np.linalg.inv(child.matrix)[:3, :]   # classified for sparse mapping (transforms.py)
+        self.flat.append(inst_agg=[agg], inst_to_local=to_local.reshape(1, 12), inst_class=[transform_class(to_local)])
+        return make_ref(INSTANCE, [k]), transform_box(self.flat.agg_box(agg), child.matrix)
+
+    def _collect_operands(self, group: Group, kind: str, refs: list, bounds: list) -> int:
+        """One reference per child of an operator group (csg.py), in order, each child built
+        as an aggregate of its own (with the default spec where it has none), empty ones
+        included; returns the deepest nesting among them."""
+        if any(True for _ in group.primitive_sets()):
+            raise SceneError(f"{kind} {group.name or '(unnamed)'}: its operands are its child groups and instances; "
+                             "put each primitive in a group of its own")
+        depth = 0
+        flat = self.flat
+        for child in group.children:
+            target = child.group if isinstance(child, Instance) else child
+            if not isinstance(target, Group):
+                raise SceneError(f"{kind} {group.name or '(unnamed)'} holds a {type(child).__name__}")
+            agg, d = self.build_group(target)
+            depth = max(depth, d)
+            if isinstance(child, Instance):
+                ref, box = self._instance(child, agg)
+            else:
+                ref, box = make_ref(AGGREGATE, [agg]), flat.agg_box(agg)
+            refs.append(ref)
+            bounds.append(box[None, :])
         return depth
 
     def vertex_weights(self, refs):

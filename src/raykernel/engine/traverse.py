@@ -19,7 +19,7 @@ one closest t shrinks through all.
 
 import numpy as np
 
-from ..aggregates import bvh, grid, octree, rc
+from ..aggregates import bvh, csg, grid, octree, rc
 from ..aggregates.walk import (
     F_DIR,
     F_KEY_D,
@@ -32,6 +32,8 @@ from ..aggregates.walk import (
     FI_AGG,
     FI_BASE,
     FI_INST,
+    FI_OPERAND,
+    FI_SINK,
     FRAME_F,
     FRAME_I,
     KEY_SLACK,
@@ -68,17 +70,46 @@ from .transforms import compose_map, map_ray
 # compiles a function again for each literal int value it is passed
 CLOSEST, ANY_HIT, ALL_HITS = np.int64(0), np.int64(1), np.int64(2)
 HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that was hit
-HIT_I = 3                    # hit_i: kind, index, innermost instance (-1: none)
+HIT_I = 4                    # hit_i: kind, index, innermost instance (-1: none), flip (1: reverse the normal)
 KEYED = entry_tag(LIST, 1)   # stack entry: go on with the frame's keyed list at stack_a
 
 
 @njit
 def workspace():
     """Scratch arrays for one thread, allocated once per tile or chunk:
-    (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i)."""
+    (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, then csg.py's crossing buffer:
+    csg_t, csg_i, csg_m, csg_n)."""
+    csg_t, csg_i, csg_m, csg_n = csg.buffers()
     return (np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
             np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, FRAME_I), np.int64),
-            np.zeros(HIT_F), np.zeros(HIT_I, np.int64))
+            np.zeros(HIT_F), np.zeros(HIT_I, np.int64), csg_t, csg_i, csg_m, csg_n)
+
+
+@njit
+def _take(mode, t, kind, idx, inst, flip, maps, row, col, hit_f, hit_i, found, best_t, best_ref, best_inst):
+    """The hit rule: hit (t, kind, idx, inst) with the map maps[row, col:col + 12] against
+    the best so far; returns the new (found, best_t, best_ref, best_inst)."""
+    if mode == ALL_HITS:
+        # every hit: hit_i[0] counts them; hit k is t = hit_f[HIT_F + k] and
+        # (kind, index, instance) = hit_i[HIT_I + 3k ..], stored while they fit
+        k = hit_i[0]
+        if HIT_F + k < hit_f.shape[0] and HIT_I + 3 * k + 2 < hit_i.shape[0]:
+            hit_f[HIT_F + k] = t
+            hit_i[HIT_I + 3 * k] = kind
+            hit_i[HIT_I + 3 * k + 1] = idx
+            hit_i[HIT_I + 3 * k + 2] = inst
+        hit_i[0] = k + 1
+        return True, best_t, best_ref, best_inst
+    # t <= best_t here; ties at equal t go to the smaller
+    # (ref, instance), so every traversal order reports the same primitive
+    ref = (kind << KIND_SHIFT) | idx
+    if not found or t < best_t or ref < best_ref or (ref == best_ref and inst < best_inst):
+        hit_f[0] = t
+        for k in range(12):
+            hit_f[1 + k] = maps[row, col + k]
+        hit_i[0], hit_i[1], hit_i[2], hit_i[3] = kind, idx, inst, flip
+        return True, t, ref, inst
+    return found, best_t, best_ref, best_inst
 
 
 @njit(inline="always")
@@ -95,13 +126,25 @@ def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz
     return push(stack_a, stack_b, stack_t, sp, agg_start[a], entry_tag(kind, START), te)
 
 
+@njit(inline="always")
+def _operand(frame_f, frame_i, f, sink, position):
+    """Which operand of the sink the reference at `position` of frame f belongs to: in the
+    CSG frame itself its place among the operands, below it the frame's own."""
+    if sink == f:
+        return position - np.int64(frame_f[f, csg.S_FIRST])
+    return frame_i[f, FI_OPERAND]
+
+
 @njit(private=True)
 def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     """Closest hit (mode CLOSEST) or the first hit found (ANY_HIT) of the ray with the
     scene in [tmin, tmax]. On a hit returns True and fills hit_f (t, world-to-local map
-    of the hit's frame) and hit_i (kind, index, innermost instance). Counts tests, bounds
-    tests and steps into cnt. ALL_HITS records every hit instead (see the hit rule)."""
-    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i = ws
+    of the hit's frame) and hit_i (kind, index, innermost instance, flip). Counts tests,
+    bounds tests and steps into cnt. ALL_HITS records every hit instead (see _take).
+    Below a CSG node the frames collect crossings instead (aggregates/csg.py): `sink` is
+    the frame that gathers them, -1 above every CSG node, and `lo` the lower end of the
+    tested interval, -inf there, since a solid's inside depends on crossings behind tmin."""
+    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, csg_t, csg_i, csg_m, csg_n = ws
     best_t = tmax
     found = False
     best_ref = np.int64(-1)
@@ -114,12 +157,37 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     for k in range(12):
         frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
     frame_i[0, FI_AGG], frame_i[0, FI_BASE], frame_i[0, FI_INST] = geo.root, 0, -1
+    frame_i[0, FI_SINK], frame_i[0, FI_OPERAND] = -1, 0
     frame_f[0, F_MBOX_ON] = 0.0
+    csg_n[0] = 0
+    sink = np.int64(-1)
+    lo = tmin
     base = 0
     sp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.agg_count, geo.root, ox, oy, oz, ix, iy, iz, tmin,
                 best_t, stack_a, stack_b, stack_t, base, cnt)
     while True:
         if sp == base:
+            agg = frame_i[f, FI_AGG]
+            if geo.agg_kind[agg] == csg.CODE and frame_i[f, FI_SINK] == f:
+                # a CSG node's crossings are all in: its result surfaces, on the enclosing ray
+                node = geo.agg_start[agg]
+                region = np.int64(frame_f[f, csg.S_REGION])
+                best_t = frame_f[f, csg.S_BEST]
+                sink = np.int64(frame_f[f, csg.S_SINK])
+                n = csg.resolve(geo.csg_op[node], geo.csg_base[node], geo.csg_count[node], csg_t, csg_i, csg_m,
+                                csg_n, region, frame_f[f, csg.S_SHIFT], np.int64(frame_f[f, csg.S_OPERAND]), cnt)
+                csg_n[0] = region + n if sink >= 0 else region
+                if sink < 0:
+                    # the outermost node: its surfaces are hits
+                    for k in range(region, region + n):
+                        t = csg_t[k]
+                        if tmin <= t <= best_t:
+                            found, best_t, best_ref, best_inst = _take(
+                                mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3], csg_i[k, 4], csg_m, k, 0, hit_f,
+                                hit_i, found, best_t, best_ref, best_inst)
+                            if found and mode == ANY_HIT:
+                                return True
+                frame_i[f, FI_SINK] = sink      # done: the frame may be reused
             if f == 0:
                 break
             # this frame is done: back to the parent's ray
@@ -128,6 +196,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
             ox, oy, oz = frame_f[f, F_ORIGIN], frame_f[f, F_ORIGIN + 1], frame_f[f, F_ORIGIN + 2]
             dx, dy, dz = frame_f[f, F_DIR], frame_f[f, F_DIR + 1], frame_f[f, F_DIR + 2]
             ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+            sink = frame_i[f, FI_SINK]
+            lo = tmin if sink < 0 else -INF
             continue
         sp -= 1
         a, b, te = stack_a[sp], stack_b[sp], stack_t[sp]
@@ -144,7 +214,7 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
             # a step of the frame's walk: its kind, then which step
             kind, step = entry_kind(b), entry_step(b)
             if kind == bvh.CODE:
-                sp, s, e = bvh.step(geo.node_bounds, geo.node_first, geo.node_count, a, ox, oy, oz, ix, iy, iz, tmin,
+                sp, s, e = bvh.step(geo.node_bounds, geo.node_first, geo.node_count, a, ox, oy, oz, ix, iy, iz, lo,
                                     best_t, stack_a, stack_b, stack_t, sp, cnt)
             elif kind == grid.CODE:
                 sp, s, e = grid.step(geo.grid_cell_offset, geo.grid_cell_size, geo.grid_cells, geo.grid_inv_cell,
@@ -154,13 +224,17 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 sp, s, e = octree.step(geo.oct_bounds, geo.oct_count, geo.oct_first, geo.oct_level, geo.oct_loc,
                                        geo.oct_mailbox, geo.oct_nbr, geo.oct_origin, geo.oct_pass, geo.oct_root,
                                        geo.oct_scale, geo.oct_slot, geo.oct_unit, geo.oct_walk, step, a, te,
-                                       geo.agg_start[frame_i[f, FI_AGG]], (ox, oy, oz, dx, dy, dz, ix, iy, iz), tmin,
+                                       geo.agg_start[frame_i[f, FI_AGG]], (ox, oy, oz, dx, dy, dz, ix, iy, iz), lo,
                                        best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
             elif kind == rc.CODE:
                 s, e, key_o, key_d = rc.step(geo.rc_face_root, geo.rc_node_a, geo.rc_node_b, geo.rc_pass, geo.rc_split,
                                              geo.rc_vdim, geo.rc_vinfo, geo.rc_vsplit, a, te, ox, oy, oz, dx, dy, dz,
                                              best_t, frame_f, f, cnt)
                 keyed = True
+            elif kind == csg.CODE:
+                ox, oy, oz, best_t, s, e = csg.start(geo.csg_bounds, geo.csg_first, geo.csg_count, a, ox, oy, oz, dx,
+                                                     dy, dz, ix, iy, iz, best_t, frame_f, frame_i, f, csg_n)
+                sink, lo = f, -INF
             else:
                 s = e = 0
         mbox = frame_f[f, F_MBOX_ON] != 0.0
@@ -185,24 +259,36 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 frame_f[f, slot] = tag
             if kind == SPHERE:
                 cnt[C.TESTS + SPHERE] += 1
+                if sink >= 0:
+                    # both of the line's crossings count for an operand's inside
+                    operand = _operand(frame_f, frame_i, f, sink, i - 1)
+                    t0, t1 = csg.sphere_crossings(geo.sph_center[idx, 0], geo.sph_center[idx, 1],
+                                                  geo.sph_center[idx, 2], geo.sph_radius[idx], ox, oy, oz, dx, dy, dz)
+                    if t0 <= best_t and t0 != INF:
+                        csg.record(csg_t, csg_i, csg_m, csg_n, t0, operand, kind, idx, frame_i[f, FI_INST], 0,
+                                   frame_f, f, cnt)
+                    if t1 <= best_t and t1 != INF:
+                        csg.record(csg_t, csg_i, csg_m, csg_n, t1, operand, kind, idx, frame_i[f, FI_INST], 1,
+                                   frame_f, f, cnt)
+                    continue
                 t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
-                               geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, tmin, best_t)
+                               geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, lo, best_t)
             elif kind == POLYGON or kind == PATCH:
                 cnt[C.TESTS + kind] += 1
                 t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, tmin, best_t)
+                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, lo, best_t)
             elif kind == TRIANGLE:
                 cnt[C.TESTS + TRIANGLE] += 1
                 fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
                 v = geo.tri_verts
                 t = hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
-                                 v[fc, 0], v[fc, 1], v[fc, 2], ox, oy, oz, dx, dy, dz, tmin, best_t)
+                                 v[fc, 0], v[fc, 1], v[fc, 2], ox, oy, oz, dx, dy, dz, lo, best_t)
             elif kind == CONE:
                 cnt[C.TESTS + CONE] += 1
                 t = hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
                              geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
                              geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx],
-                             ox, oy, oz, dx, dy, dz, tmin, best_t)
+                             ox, oy, oz, dx, dy, dz, lo, best_t)
             else:
                 # a child aggregate: keep the rest of this range, open a frame for the child
                 if i < e:
@@ -219,13 +305,16 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                                                            dz, cnt)
                 nix, niy, niz = inverse(ndx), inverse(ndy), inverse(ndz)
                 nsp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.agg_count, child, nox, noy, noz, nix, niy,
-                             niz, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt)
+                             niz, lo, best_t, stack_a, stack_b, stack_t, sp, cnt)
                 if nsp == sp:
                     break       # missed the child's bounds
                 frame_f[g, F_ORIGIN], frame_f[g, F_ORIGIN + 1], frame_f[g, F_ORIGIN + 2] = nox, noy, noz
                 frame_f[g, F_DIR], frame_f[g, F_DIR + 1], frame_f[g, F_DIR + 2] = ndx, ndy, ndz
                 compose_map(geo.inst_to_local, geo.inst_class, kind == INSTANCE, idx, frame_f, f, g, cnt)
                 frame_i[g, FI_AGG], frame_i[g, FI_BASE], frame_i[g, FI_INST] = child, sp, inst
+                # below a CSG node the child's crossings go to the same sink, as the same operand
+                frame_i[g, FI_SINK] = sink
+                frame_i[g, FI_OPERAND] = _operand(frame_f, frame_i, f, sink, i - 1)
                 frame_f[g, F_MBOX_ON] = 0.0
                 f = g
                 base = sp
@@ -234,34 +323,15 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 ix, iy, iz = nix, niy, niz
                 break
             if t != INF:
-                inst = frame_i[f, FI_INST]
-                if mode == ALL_HITS:
-                    # every hit: hit_i[0] counts them; hit k is t = hit_f[HIT_F + k] and
-                    # (kind, index, instance) = hit_i[HIT_I + 3k ..], stored while they fit
-                    k = hit_i[0]
-                    if HIT_F + k < hit_f.shape[0] and HIT_I + 3 * k + 2 < hit_i.shape[0]:
-                        hit_f[HIT_F + k] = t
-                        hit_i[HIT_I + 3 * k] = kind
-                        hit_i[HIT_I + 3 * k + 1] = idx
-                        hit_i[HIT_I + 3 * k + 2] = inst
-                    hit_i[0] = k + 1
-                    found = True
+                if sink >= 0:
+                    operand = _operand(frame_f, frame_i, f, sink, i - 1)
+                    csg.record(csg_t, csg_i, csg_m, csg_n, t, operand, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
+                               cnt)
                     continue
-                # t <= best_t here; ties at equal t go to the smaller
-                # (ref, instance), so every traversal order reports the same primitive
-                if not found or t < best_t or ref < best_ref or (ref == best_ref and inst < best_inst):
-                    found = True
-                    best_t = t
-                    best_ref = ref
-                    best_inst = inst
-                    hit_f[0] = t
-                    for k in range(12):
-                        hit_f[1 + k] = frame_f[f, F_MAP + k]
-                    hit_i[0] = kind
-                    hit_i[1] = idx
-                    hit_i[2] = inst
-                    if mode == ANY_HIT:
-                        return True
+                found, best_t, best_ref, best_inst = _take(mode, t, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
+                                                           F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
+                if found and mode == ANY_HIT:
+                    return True
     return found
 
 

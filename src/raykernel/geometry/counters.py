@@ -21,6 +21,9 @@ SHADOW_CACHE_HITS = 18
 RAYS_CAST = 19            # rays given to the ray-casting API
 TRANSFORMS = 20           # + class (identity, translation, scale, affine): rays mapped into an instance
 TRANSFORM_MULTIPLIES = 24  # multiplies those mappings did
+CSG_CROSSINGS = 25        # operand surface crossings collected by CSG nodes
+CSG_RESOLVES = 26         # CSG nodes evaluated (once per ray that enters one)
+CSG_SURFACES = 27         # result surfaces they found (offered as hits or to an enclosing node)
 N_COUNTERS = 32           # spare columns for structures to come
 
 NAMES = {
@@ -36,4 +39,5 @@ NAMES = {
     TRANSFORMS + 0: "transforms.identity", TRANSFORMS + 1: "transforms.translation",
     TRANSFORMS + 2: "transforms.scale", TRANSFORMS + 3: "transforms.affine",
     TRANSFORM_MULTIPLIES: "transforms.multiplies",
+    CSG_CROSSINGS: "csg.crossings", CSG_RESOLVES: "csg.resolves", CSG_SURFACES: "csg.surfaces",
 }

@@ -177,6 +177,9 @@ def _trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cut
                                 m[2] * gx + m[6] * gy + m[10] * gz)
         sx, sy, sz = normalize(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
                                 m[2] * sx + m[6] * sy + m[10] * sz)
+        if hit_i[3] != 0:
+            # a surface a CSG difference cut: its outside is the operand's inside
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
         entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
         if not entering:
             # two-sided: shade the side the ray sees

@@ -69,6 +69,7 @@ class Kind:
     help: str
     params: tuple = ()
     flatten: object = field(default=None, compare=False)   # (builder, params, refs, bounds, name, box) -> (agg, stats)
+    operands: bool = False      # its items are the group's children, one reference each, never merged (CSG)
 
     def defaults(self) -> dict:
         return {p.name: p.default for p in self.params}

@@ -82,6 +82,18 @@ Each item is an object with exactly one of these keys:
         an inline child group.
     {"instance": "name"}
         the named group from "groups", always placed as an `Instance`.
+    {"difference": {"base": [items], "subtract": [items], "material": ...}}
+    {"intersection": {"items": [items], "material": ...}}
+    {"union": {"items": [items], "material": ...}}
+        constructive solid geometry (aggregates/csg.py): what lies inside
+        any item of "base" and inside no item of "subtract"; inside every
+        item; inside any item. Each item is one operand and must be a
+        closed solid: spheres, closed meshes, closed polygon sets, or
+        groups, instances and CSG items of them (cones are open surfaces
+        and are refused). An operand is built with the render's default
+        structure; give it another as a "group" item with an "accel".
+        Stored as a group with the spec "difference(base=N)",
+        "intersection" or "union" whose children are the operands.
 
 and optionally:
 
@@ -164,7 +176,8 @@ __all__ = ["MAX_NESTING", "read_json", "parse_json", "scene_from_json", "scene_t
 
 
 PRIMITIVE_KINDS = ("sphere", "cone", "polygon", "patch")
-ITEM_KINDS = PRIMITIVE_KINDS + ("mesh", "include", "group", "instance")
+OPERATOR_KINDS = ("difference", "intersection", "union")
+ITEM_KINDS = PRIMITIVE_KINDS + ("mesh", "include", "group", "instance") + OPERATOR_KINDS
 TRANSFORM_OPS = ("translate", "rotate", "scale", "matrix")
 TOP_KEYS = ("camera", "background", "lights", "materials", "groups", "scene")
 MATERIAL_KEYS = ("color", "kd", "ks", "shine", "t", "ior")
@@ -225,6 +238,11 @@ def _key(ptr: str, key) -> str:
 
 def _names(names) -> str:
     return ", ".join(names)
+
+
+def _has_cones(item) -> bool:
+    group = item.group if isinstance(item, Instance) else item
+    return len(group.cones) > 0 or any(_has_cones(c) for c in group.children)
 
 
 def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
@@ -511,6 +529,7 @@ class _Reader:
         allowed = (kind, "transform") + (("material",) if takes_material else ())
         if "material" in item and not takes_material:
             hint = ("give the group body a \"material\"" if kind == "group" else
+                    f"give the {kind} object a \"material\"" if kind in OPERATOR_KINDS else
                     "materials come from the NFF file" if kind == "include" else
                     "give the named group a \"material\"")
             self.fail(_key(ptr, "material"), f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} item takes no \"material\" ({hint}); "
@@ -538,6 +557,8 @@ class _Reader:
                 self.too_deep(kptr, depth + 1, "this group")
             child = Group()
             self.body(value, kptr, child, depth + 1, material)
+        elif kind in OPERATOR_KINDS:
+            child = self.operator(kind, value, kptr, depth + 1, material)
         elif kind == "instance":
             name = self.string(value, kptr, "a group name")
             child = self.named(name, kptr)
@@ -548,6 +569,34 @@ class _Reader:
             child = self.include(value, kptr)
             self.place(depth, child, kptr, "this include")
         group.children.append(child if matrix is None else self.instance(child, matrix, ptr))
+
+    def operator(self, kind: str, value, ptr: str, depth: int, material) -> Group:
+        """A CSG item: a group with the operator's spec and one child per operand."""
+        lists = ("base", "subtract") if kind == "difference" else ("items",)
+        b = self.obj(value, ptr, lists + ("material",), required=lists, what=f"a {kind} object")
+        if depth + 1 > MAX_NESTING:
+            self.too_deep(ptr, depth + 1, f"this {kind}'s operands")
+        if "material" in b:
+            material = self.material(b["material"], f"{ptr}/material")
+        group = Group(name=kind)
+        for key in lists:
+            items = b[key]
+            if not isinstance(items, list):
+                self.fail(f"{ptr}/{key}", f"expected a list of items, got {_describe(items)}")
+            for i, item in enumerate(items):
+                iptr = f"{ptr}/{key}/{i}"
+                holder = Group(name=kind)
+                self.item(item, iptr, holder, depth + 1, material)
+                operand = holder.children[0] if len(holder.children) == 1 and not any(
+                    True for _ in holder.primitive_sets()) else holder
+                if _has_cones(operand):
+                    self.fail(iptr, f"a cone is an open surface, not a closed solid: it cannot be a {kind} operand")
+                group.children.append(operand)
+        n = len(group.children)
+        if n > 63:
+            self.fail(ptr, f"a {kind} takes at most 63 operands, got {n}: gather some in a union")
+        group.accel = f"difference(base={len(b['base'])})" if kind == "difference" else kind
+        return group
 
     def instance(self, group: Group, matrix: np.ndarray, ptr: str) -> Instance:
         try:

@@ -1,0 +1,279 @@
+"""Arvo's boolean operators as aggregates: difference, intersection and union of closed solids.
+
+    {"difference": {"base": [items], "subtract": [items]}}        # JSON scene items
+    {"intersection": {"items": [items]}}, {"union": {"items": [items]}}
+    Group(accel="difference(base=1)", children=[lens_a, lens_b])  # the same as a group spec
+
+A CSG group's operands are its children, in order (child groups without a
+spec of their own are built with the default structure, not merged); for
+`difference` the first `base` of them are the base, the rest are taken away.
+Each operand is a closed solid: spheres, closed meshes, closed polygon sets,
+groups, instances and other CSG nodes of them.
+
+How a ray is answered
+---------------------
+Entering a CSG node (step START), the ray's origin moves back to before
+where the line enters the box of all operands, and its frame becomes a *sink*: every
+primitive in the operands below it records its crossings with the line
+(both roots of a sphere, one crossing of a triangle or polygon) in the
+workspace's crossing buffer instead of offering them to the hit rule,
+from the box entry up to the closest hit so far. When the frame ends
+(`resolve`), the crossings are sorted, duplicates (an item a grid or octree
+tested twice) dropped, and each operand's inside state toggled at its
+crossings (parity, so the winding of a mesh does not matter); where the
+operator's result changes from outside to inside or back, the crossing is a
+surface of the result (two that cancel at one t, a graze or two operands
+touching, are none). Those go to the enclosing sink if the node is itself
+an operand, else to the hit rule (closest, any or all hits, within the
+ray's [tmin, tmax]). A surface of a subtracted operand has its normal
+reversed (`hit_i[3]`), so shading and refraction see the cut surface from
+the right side.
+
+Flat layout (the Geometry fields it owns)
+-----------------------------------------
+K CSG nodes:
+  csg_op      (K,)   int64    DIFFERENCE, INTERSECTION or UNION                       8 B a node
+  csg_base    (K,)   int64    difference: operands in the base (the rest subtract)     8 B
+  csg_first   (K,)   int64    first operand reference in Geometry.refs                8 B
+  csg_count   (K,)   int64    operands (at most MAX_OPERANDS)                          8 B
+  csg_bounds  (K, 6) float64  box of all operands, widened: where crossings are collected from  48 B
+The aggregate's agg_start is its node; its agg_bounds the box the result can
+lie in (the base's for a difference, the overlap of the operands' for an
+intersection), which is what the parent culls with.
+
+The crossing buffer (workspace rows): csg_t (t), csg_i (operand, kind,
+index, instance, flip, root), csg_m (the world-to-local map of the
+crossing's frame), csg_n[0] the rows in use. Nested CSG nodes share it as a
+stack: each node's rows start where its START found the buffer.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import SceneError
+from ..geometry import counters as C
+from ..geometry.boxes import INF, box_entry, cull_margin
+from ..geometry.config import njit
+from ..scene.accel import Kind, Param
+from .walk import F_MAP, F_ORIGIN, F_STATE, FI_OPERAND, FI_SINK, Field
+
+CODE = 5
+DIFFERENCE, INTERSECTION, UNION = 0, 1, 2
+OPERATORS = ("difference", "intersection", "union")
+MAX_OPERANDS = 63            # one bit of an int64 per operand's inside state
+CAPACITY = 512               # crossings one ray may hold in the buffer at once (all nested nodes together)
+CSG_I = 6                    # csg_i columns: operand, kind, index, instance, flip, root
+
+# the frame's state slots while a CSG node collects
+S_REGION = F_STATE           # first buffer row of this node
+S_SHIFT = F_STATE + 1        # t of the new origin on the frame's original ray
+S_BEST = F_STATE + 2         # the enclosing frame's closest-hit bound, restored at the end
+S_SINK = F_STATE + 3         # the enclosing frame's sink and operand: where the result goes
+S_OPERAND = F_STATE + 4
+S_FIRST = F_STATE + 5        # the node's first operand reference: operand = position - S_FIRST
+
+FIELDS = (Field("csg_op", np.int64), Field("csg_base", np.int64), Field("csg_first", np.int64),
+          Field("csg_count", np.int64), Field("csg_bounds", np.float64, (6,)))
+
+
+@njit(inline="always")
+def buffers():
+    """The crossing buffer of one workspace (see the module docstring)."""
+    return (np.empty(CAPACITY), np.empty((CAPACITY, CSG_I), np.int64), np.empty((CAPACITY, 12)),
+            np.zeros(1, np.int64))
+
+
+# ---------------------------------------------------------------- building
+
+def _result_box(op, base, bounds):
+    """Where the result can lie: the base's box, the operands' overlap, or all of them."""
+    solid = np.all(bounds[:, :3] <= bounds[:, 3:], axis=1)
+    if op == DIFFERENCE:
+        bounds, solid = bounds[:base], solid[:base]
+    if op == INTERSECTION:
+        if not solid.all():
+            return np.array([np.inf] * 3 + [-np.inf] * 3)
+        box = np.concatenate([bounds[:, :3].max(axis=0), bounds[:, 3:].min(axis=0)])
+        return box if np.all(box[:3] <= box[3:]) else np.array([np.inf] * 3 + [-np.inf] * 3)
+    if not solid.any():
+        return np.array([np.inf] * 3 + [-np.inf] * 3)
+    return np.concatenate([bounds[solid, :3].min(axis=0), bounds[solid, 3:].max(axis=0)])
+
+
+def _flatten(op):
+    def flatten(builder, params, refs, bounds, name, box):
+        n = len(refs)
+        where = f"{OPERATORS[op]} {name!r}" if name else OPERATORS[op]
+        if n > MAX_OPERANDS:
+            raise SceneError(f"{where} has {n} operands; at most {MAX_OPERANDS}: gather some in a union")
+        base = params["base"] if op == DIFFERENCE else n
+        if op == DIFFERENCE and base > n:
+            raise SceneError(f"{where}: base={base} but it has only {n} operands")
+        flat = builder.flat
+        node = flat.size("csg_op")
+        widened = np.asarray(box, np.float64).copy()
+        if np.all(np.isfinite(widened)):
+            m = 4.0 * cull_margin(widened)
+            widened[:3] -= m
+            widened[3:] += m
+        flat.append(csg_op=[op], csg_base=[base], csg_first=[flat.add_refs(refs)], csg_count=[n],
+                    csg_bounds=widened.reshape(1, 6))
+        agg = flat.add_aggregate(CODE, node, n, _result_box(op, base, bounds))
+        return agg, {"nodes": 1, "inner": 1, "leaves": 0, "empty_leaves": 0, "refs": n, "bytes": 80 + 8 * n,
+                     "operands": n}
+    return flatten
+
+
+_BASE = Param("base", 1, "operands that form the base; the rest are subtracted", int, 0, MAX_OPERANDS)
+KINDS = (
+    Kind("difference", "CSG: the first `base` operands less the rest", (_BASE,), flatten=_flatten(DIFFERENCE),
+         operands=True),
+    Kind("intersection", "CSG: where every operand is", flatten=_flatten(INTERSECTION), operands=True),
+    Kind("union", "CSG: where any operand is (one solid: inner surfaces removed)", flatten=_flatten(UNION),
+         operands=True),
+)
+
+
+# ---------------------------------------------------------------- the walk
+
+@njit
+def start(csg_bounds, csg_first, csg_count, node, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, frame_i, f,
+          csg_n):
+    """Enter CSG node `node` in frame f: move the origin back to the operands' box and make
+    the frame a sink. Returns the new origin, the closest-hit bound on the moved ray and the
+    operand references to test, refs[s:e]."""
+    te = box_entry(csg_bounds, node, ox, oy, oz, ix, iy, iz, -INF, INF)
+    if te == INF:
+        te = 0.0
+    else:
+        # as far again before the box as it is wide: the walks below then see a ray from
+        # outside, as every other ray they meet, not one starting on their boxes' walls
+        b = csg_bounds
+        size = max(max(b[node, 3] - b[node, 0], b[node, 4] - b[node, 1]), b[node, 5] - b[node, 2])
+        te -= size / math.sqrt(dx * dx + dy * dy + dz * dz)
+    frame_f[f, S_REGION] = csg_n[0]
+    frame_f[f, S_SHIFT] = te
+    frame_f[f, S_BEST] = best_t
+    frame_f[f, S_SINK] = frame_i[f, FI_SINK]
+    frame_f[f, S_OPERAND] = frame_i[f, FI_OPERAND]
+    frame_f[f, S_FIRST] = csg_first[node]
+    frame_i[f, FI_SINK] = f
+    ox, oy, oz = ox + te * dx, oy + te * dy, oz + te * dz
+    frame_f[f, F_ORIGIN], frame_f[f, F_ORIGIN + 1], frame_f[f, F_ORIGIN + 2] = ox, oy, oz
+    return ox, oy, oz, best_t - te, csg_first[node], csg_first[node] + csg_count[node]
+
+
+@njit
+def sphere_crossings(cx, cy, cz, r, ox, oy, oz, dx, dy, dz):
+    """Both roots of the line with the sphere (t0 <= t1; equal where it grazes), or (inf, inf)."""
+    a = dx * dx + dy * dy + dz * dz
+    fx, fy, fz = ox - cx, oy - cy, oz - cz
+    half_b = fx * dx + fy * dy + fz * dz
+    k = half_b / a
+    lx, ly, lz = fx - k * dx, fy - k * dy, fz - k * dz
+    r2 = r * r
+    disc = r2 - (lx * lx + ly * ly + lz * lz)
+    if disc < 0.0:
+        return INF, INF
+    s = math.sqrt(a * disc)
+    q = -(half_b + s) if half_b >= 0.0 else -(half_b - s)
+    if q == 0.0:
+        return INF, INF
+    t0 = q / a
+    t1 = (fx * fx + fy * fy + fz * fz - r2) / q
+    return min(t0, t1), max(t0, t1)
+
+
+@njit
+def record(csg_t, csg_i, csg_m, csg_n, t, operand, kind, idx, inst, root, frame_f, f, cnt):
+    """Add one crossing, with the map of frame f, to the buffer."""
+    n = csg_n[0]
+    if n >= CAPACITY:
+        raise ValueError("a ray crossed more CSG operand surfaces than the crossing buffer holds (csg.CAPACITY)")
+    csg_t[n] = t
+    csg_i[n, 0], csg_i[n, 1], csg_i[n, 2], csg_i[n, 3], csg_i[n, 4], csg_i[n, 5] = operand, kind, idx, inst, 0, root
+    for k in range(12):
+        csg_m[n, k] = frame_f[f, F_MAP + k]
+    csg_n[0] = n + 1
+    cnt[C.CSG_CROSSINGS] += 1
+
+
+@njit(inline="always")
+def _before(csg_t, csg_i, a, b):
+    """Row a sorts before row b: by t, then operand, kind, index, instance, root."""
+    if csg_t[a] != csg_t[b]:
+        return csg_t[a] < csg_t[b]
+    for k in (0, 1, 2, 3, 5):
+        if csg_i[a, k] != csg_i[b, k]:
+            return csg_i[a, k] < csg_i[b, k]
+    return False
+
+
+@njit(inline="always")
+def _inside(op, mask, base_bits, all_bits):
+    if op == DIFFERENCE:
+        return (mask & base_bits) != 0 and (mask & ~base_bits) == 0
+    if op == INTERSECTION:
+        return mask == all_bits
+    return mask != 0
+
+
+@njit
+def _move(csg_t, csg_i, csg_m, src, dst):
+    csg_t[dst] = csg_t[src]
+    for k in range(CSG_I):
+        csg_i[dst, k] = csg_i[src, k]
+    for k in range(12):
+        csg_m[dst, k] = csg_m[src, k]
+
+
+@njit
+def resolve(op, base, count, csg_t, csg_i, csg_m, csg_n, region, shift, operand, cnt):
+    """The node's result surfaces from its crossings in rows region.. of the buffer:
+    written back from row `region` in order of t, on the enclosing frame's ray (t + shift),
+    as crossings of `operand` of the enclosing sink; returns how many."""
+    n = csg_n[0]
+    # insertion sort by the full key; the spare row at n holds the row being placed
+    if n >= CAPACITY:
+        raise ValueError("a ray crossed more CSG operand surfaces than the crossing buffer holds (csg.CAPACITY)")
+    for i in range(region + 1, n):
+        if not _before(csg_t, csg_i, i, i - 1):
+            continue
+        _move(csg_t, csg_i, csg_m, i, n)
+        j = i
+        while j > region and _before(csg_t, csg_i, n, j - 1):
+            _move(csg_t, csg_i, csg_m, j - 1, j)
+            j -= 1
+        _move(csg_t, csg_i, csg_m, n, j)
+    all_bits = (np.int64(1) << count) - 1
+    base_bits = (np.int64(1) << base) - 1
+    mask = np.int64(0)
+    inside = False
+    out = region
+    for i in range(region, n):
+        if i > region and not _before(csg_t, csg_i, i - 1, i):
+            continue        # the same crossing again: an item tested twice
+        k = csg_i[i, 0]
+        mask ^= np.int64(1) << k
+        now = _inside(op, mask, base_bits, all_bits)
+        if now == inside:
+            continue
+        inside = now
+        if out > region and csg_t[out - 1] == csg_t[i]:
+            out -= 1        # in and out again at one t (a graze, two solids touching): no surface
+            continue
+        flip = csg_i[i, 4]
+        if op == DIFFERENCE and k >= base:
+            flip ^= 1       # a subtracted surface faces into its operand, out of the result
+        _move(csg_t, csg_i, csg_m, i, out)
+        csg_i[out, 4] = flip        # not part of the sort key, which later rows are compared by
+        out += 1
+    for i in range(region, out):
+        csg_t[i] += shift
+        csg_i[i, 0] = operand
+    cnt[C.CSG_RESOLVES] += 1
+    cnt[C.CSG_SURFACES] += out - region
+    return out - region
