@@ -1,23 +1,28 @@
-"""Full SPD renders: raykernel against POV-Ray 3.7, wall-clock seconds side by side.
+"""Full SPD renders: raykernel against POV-Ray 3.7 on the same work, seconds and ray counts side by side.
 
-    .venv/bin/python bench/renders.py [--scenes balls,gears] [--threads 2]
+    .venv/bin/python bench/renders.py [--scenes balls,gears] [--threads 2] [--repeat 2]
 
 For each SPD generator at its default size, renders ../shared/scenes/spd's
 .nff with `raykernel render --spd --resolution 512` (the SPD procedure:
-513x513 corner rays, depth 5) and its .pov with
-`povray +W512 +H512 -D +A0.0 +WT2` (Debian's povray 3.7; +A0.0 supersamples
-every pixel), each as a fresh process, alternating, best of --repeat runs.
-raykernel's wall clock includes Python start-up, loading the cached
-kernels, parsing and building; its trace seconds are shown beside it, and
-so is the time of the same render called from a running Python process
-(`raykernel.render(raykernel.load(nff), ...)`: loading, building, tracing).
-Writes the `renders` section of BENCHMARKS.md.
+513x513 corner rays averaged to 512x512, depth 5) and its .pov with
+`povray +W512 +H512 -D -A +WT<threads>` (Debian's povray 3.7; -A: one ray
+per pixel, no antialiasing), each as a fresh process, alternating, best of
+--repeat runs. Both sides' ray counts are printed beside the times (ours:
+rays.eye, rays.shadow, rays.reflect, rays.refract; POV-Ray's: Pixels,
+Shadow Ray Tests, Reflected Rays, Refracted + Transmitted Rays from its
+statistics), so the work can be seen to be the same. Two ratios: the wall clock of the
+fresh processes, and the work alone: POV-Ray's parse + bounding + trace
+seconds (its own statistics) against our preprocess + trace (parsing the
+NFF is part of our wall clock, not of preprocess). raykernel has no
+antialiasing yet, so there is no antialiased comparison. Writes the
+`renders` section of BENCHMARKS.md.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -28,8 +33,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import ROOT, SHARED_SPD, machine, replace_section  # noqa: E402
 
-import raykernel  # noqa: E402
-from raykernel.scene import spd
+from raykernel.scene import spd  # noqa: E402
 
 RAYKERNEL = [sys.executable, "-m", "raykernel.cli"]
 
@@ -43,12 +47,36 @@ def povray_version() -> str:
 
 
 def timed(cmd, cwd) -> tuple[float, str]:
+    """Wall seconds of a fresh process, and what it printed (stdout and stderr)."""
     start = time.perf_counter()
     out = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
     seconds = time.perf_counter() - start
     if out.returncode != 0:
         sys.exit(f"{' '.join(map(str, cmd))} failed ({out.returncode}):\n{out.stderr[-2000:]}")
-    return seconds, out.stdout
+    return seconds, out.stdout + out.stderr
+
+
+_SECONDS = re.compile(r"\(([0-9.]+) seconds\)")
+
+
+def povray_stats(text: str) -> dict:
+    """Ray counts and phase seconds from POV-Ray's statistics (printed on stderr)."""
+    out = {"pixels": 0, "shadow": 0, "reflect": 0, "refract": 0, "parse": 0.0, "bounding": 0.0, "trace": 0.0}
+    for line in text.splitlines():
+        words = line.split()
+        if line.startswith("Pixels:"):
+            out["pixels"] = int(words[1])
+        elif line.startswith("Shadow Ray Tests:"):
+            out["shadow"] = int(words[3])
+        elif line.startswith("Reflected Rays:"):
+            out["reflect"] = int(words[2])
+        elif line.startswith(("Refracted Rays:", "Transmitted Rays:")):
+            out["refract"] += int(words[2])     # POV-Ray counts rays through ior 1 apart, as transmitted
+        for phase, label in (("parse", "Parse Time:"), ("bounding", "Bounding Time:"), ("trace", "Trace Time:")):
+            if line.strip().startswith(label):
+                m = _SECONDS.search(line)
+                out[phase] = float(m.group(1)) if m else 0.0
+    return out
 
 
 def main() -> None:
@@ -74,19 +102,24 @@ def main() -> None:
                 shutil.copy(extra, tmp)
             rk_cmd = RAYKERNEL + ["render", str(nff), "--spd", "--resolution", "512", "--threads",
                                   str(args.threads), "-o", f"{tmp}/{stem}.png", "--stats-json", f"{tmp}/{stem}.json"]
-            pov_cmd = ["povray", f"+I{pov}", f"+O{tmp}/{stem}-pov.png", "+W512", "+H512", "-D", "+A0.0",
+            pov_cmd = ["povray", f"+I{pov}", f"+O{tmp}/{stem}-pov.png", "+W512", "+H512", "-D", "-A",
                        f"+WT{args.threads}"]
-            rk, pv, trace, inproc = [], [], [], []
+            rk, pv, work, pwork = [], [], [], []
             for _ in range(args.repeat):
                 rk.append(timed(rk_cmd, tmp)[0])
-                trace.append(json.loads(Path(f"{tmp}/{stem}.json").read_text())["counters"]["time.trace"])
-                pv.append(timed(pov_cmd, tmp)[0])
-                start = time.perf_counter()
-                raykernel.render(raykernel.load(str(nff)), spd=True, resolution=512, threads=args.threads)
-                inproc.append(time.perf_counter() - start)
-            rows.append(dict(scene=stem, raykernel=min(rk), trace=min(trace), inproc=min(inproc), povray=min(pv)))
-            print(f"{stem}: raykernel {min(rk):.2f} s (trace {min(trace):.2f} s, in-process {min(inproc):.2f} s), "
-                  f"povray {min(pv):.2f} s, ratio {min(pv) / min(rk):.2f}")
+                stats = json.loads(Path(f"{tmp}/{stem}.json").read_text())["counters"]
+                work.append(stats["time.preprocess"] + stats["time.trace"])
+                seconds, text = timed(pov_cmd, tmp)
+                pv.append(seconds)
+                ps = povray_stats(text)
+                pwork.append(ps["parse"] + ps["bounding"] + ps["trace"])
+            ours = {k: stats[f"rays.{k}"] for k in ("eye", "shadow", "reflect", "refract")}
+            rows.append(dict(scene=stem, raykernel=min(rk), work=min(work), povray=min(pv), pov_work=min(pwork),
+                             ours=ours, theirs=ps))
+            print(f"{stem}: raykernel {min(rk):.2f} s (work {min(work):.2f} s), povray {min(pv):.2f} s "
+                  f"(work {min(pwork):.2f} s); eye {ours['eye']:,} / {ps['pixels']:,}, shadow {ours['shadow']:,} / "
+                  f"{ps['shadow']:,}, reflect {ours['reflect']:,} / {ps['reflect']:,}, refract "
+                  f"{ours['refract']:,} / {ps['refract']:,}", flush=True)
     lines = [
         "## SPD renders (raykernel vs POV-Ray)",
         "",
@@ -94,26 +127,30 @@ def main() -> None:
         "",
         f"Command: `.venv/bin/python bench/renders.py --threads {args.threads} --repeat {args.repeat}`",
         "",
-        "Each SPD generator at its default size, 512x512, depth 5, both renderers as fresh processes, best of "
-        f"{args.repeat}. raykernel: `raykernel render X.nff --spd --resolution 512 --threads {args.threads}` "
-        "(513x513 corner rays averaged, the SPD procedure; wall clock includes start-up, loading the cached "
-        f"kernels, parsing and building). POV-Ray: `povray +IX.pov +W512 +H512 -D +A0.0 +WT{args.threads}` "
-        "(+A0.0 antialiases every pixel). speed-up = POV-Ray seconds / raykernel seconds.",
+        "Each SPD generator at its default size, 512x512, depth 5, both renderers as fresh processes on "
+        f"{args.threads} threads, best of {args.repeat}. raykernel: `raykernel render X.nff --spd --resolution "
+        f"512 --threads {args.threads}` (513x513 corner rays averaged, the SPD procedure; its wall clock includes "
+        "Python start-up, loading the cached kernels, parsing and building). POV-Ray: `povray +IX.pov +W512 "
+        f"+H512 -D -A +WT{args.threads}` (-A: one ray per pixel). Rays: ours / POV-Ray's (eye rays against "
+        "its pixels; its shadow ray tests, reflected rays, and refracted plus transmitted rays from its statistics). wall = POV-Ray "
+        "seconds / raykernel seconds of the whole process; work = POV-Ray's parse + bounding + trace seconds / "
+        "our preprocess + trace seconds. Above 1: raykernel is faster.",
         "",
-        "In-process: the same render called in a running Python session (`raykernel.render(raykernel.load(nff), "
-        "spd=True, resolution=512)`), i.e. without interpreter start-up and kernel loading.",
-        "",
-        "| scene | raykernel s | of which trace s | in-process s | POV-Ray s | speed-up | speed-up in-process |",
-        "|---|---:|---:|---:|---:|---:|---:|",
+        "| scene | eye rays | shadow rays | reflected | refracted | raykernel s | POV-Ray s | wall | "
+        "raykernel work s | POV-Ray work s | work |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
-        lines.append(f"| {r['scene']} | {r['raykernel']:.2f} | {r['trace']:.2f} | {r['inproc']:.2f} | "
-                     f"{r['povray']:.2f} | {r['povray'] / r['raykernel']:.2f} | {r['povray'] / r['inproc']:.2f} |")
+        o, p = r["ours"], r["theirs"]
+        lines.append(f"| {r['scene']} | {o['eye']:,} / {p['pixels']:,} | {o['shadow']:,} / {p['shadow']:,} | "
+                     f"{o['reflect']:,} / {p['reflect']:,} | {o['refract']:,} / {p['refract']:,} | "
+                     f"{r['raykernel']:.2f} | {r['povray']:.2f} | {r['povray'] / r['raykernel']:.2f} | "
+                     f"{r['work']:.2f} | {r['pov_work']:.2f} | {r['pov_work'] / r['work']:.2f} |")
     if rows:
-        total = {k: sum(r[k] for r in rows) for k in ("raykernel", "trace", "inproc", "povray")}
-        lines.append(f"| all | {total['raykernel']:.2f} | {total['trace']:.2f} | {total['inproc']:.2f} | "
-                     f"{total['povray']:.2f} | {total['povray'] / total['raykernel']:.2f} | "
-                     f"{total['povray'] / total['inproc']:.2f} |")
+        total = {k: sum(r[k] for r in rows) for k in ("raykernel", "povray", "work", "pov_work")}
+        lines.append(f"| all | | | | | {total['raykernel']:.2f} | {total['povray']:.2f} | "
+                     f"{total['povray'] / total['raykernel']:.2f} | {total['work']:.2f} | {total['pov_work']:.2f} | "
+                     f"{total['pov_work'] / total['work']:.2f} |")
     replace_section("renders", "\n".join(lines))
     print(f"wrote the renders section of {ROOT / 'BENCHMARKS.md'}")
 

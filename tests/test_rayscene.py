@@ -250,3 +250,70 @@ def test_large_coordinates_stay_exact():
     hit = np.isfinite(near.t)
     assert np.array_equal(hit, np.isfinite(far.t))
     np.testing.assert_allclose(far.t[hit], near.t[hit], rtol=1e-6)
+
+
+# ---------------------------------------------------------------- several Python threads at once
+
+THREAD_SPECS = ("list", "bvh", "grid", "hgrid", "octree", "hybrid", "lazyoctree", "rc", "rc(lazy=off)",
+                "octree(walk=parametric)", "bvh(build=gs)")
+
+
+@pytest.mark.parametrize("spec", THREAD_SPECS)
+def test_four_python_threads_on_one_scene_agree_with_list(spec):
+    """Four threads query one RayScene at once (closest, any and all hits, counts), three rounds
+    each: every answer equals a list's. Lazy kinds refine meanwhile; they used to corrupt the heap."""
+    import threading
+
+    import trimesh
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    rng = np.random.default_rng(11)
+    o = rng.normal(0, 3, (6000, 3))
+    d = rng.uniform(-0.7, 0.7, (6000, 3)) - o
+    ref = RayScene.from_mesh(mesh.vertices, mesh.faces, accel="list")
+    scene = Scene()
+    scene.root.accel = spec
+    scene.root.add(TriangleMesh(mesh.vertices, mesh.faces))
+    rs = RayScene(scene, spec)
+    want = (ref.intersect(o, d).t, ref.intersect(o, d).prim_id, ref.occluded(o, d), ref.count_hits(o, d),
+            ref.intersect_all(o, d))
+    results, errors = [], []
+
+    def work(k):
+        try:
+            for _ in range(3):
+                sel = slice(k * 1000, k * 1000 + 3000)
+                h = rs.intersect(o[sel], d[sel])
+                stats = rs.last_stats
+                assert stats["rays.cast"] == 3000
+                results.append((sel, h.t, h.prim_id, rs.occluded(o[sel], d[sel]), rs.count_hits(o[sel], d[sel]),
+                                rs.intersect_all(o[sel], d[sel])))
+        except Exception as e:      # reported below, in the main thread
+            errors.append(e)
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    assert not errors, errors
+    assert len(results) == 12
+    all_ray, all_t, all_prim = want[4]
+    for sel, t, prim, occ, n, (ray, tt, pp) in results:
+        np.testing.assert_array_equal(t, want[0][sel])
+        np.testing.assert_array_equal(prim, want[1][sel])
+        np.testing.assert_array_equal(occ, want[2][sel])
+        np.testing.assert_array_equal(n, want[3][sel])
+        keep = (all_ray >= sel.start) & (all_ray < sel.stop)
+        np.testing.assert_array_equal(ray + sel.start, all_ray[keep])
+        np.testing.assert_array_equal(tt, all_t[keep])
+        np.testing.assert_array_equal(pp, all_prim[keep])
+
+
+def test_a_rayscene_pickles_and_copies():
+    import copy
+    import pickle
+    v, f = random_mesh(np.random.default_rng(2))
+    rs = RayScene.from_mesh(v, f, accel="bvh")
+    o, d = random_rays(np.random.default_rng(3))
+    for other in (pickle.loads(pickle.dumps(rs)), copy.deepcopy(rs)):
+        np.testing.assert_array_equal(other.intersect(o, d).t, rs.intersect(o, d).t)

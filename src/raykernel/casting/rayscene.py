@@ -34,7 +34,9 @@ already round a vertex by more than the smallest feature.
 
 from __future__ import annotations
 
+import threading
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -222,6 +224,12 @@ class RayScene:
     RayInputError (a ValueError) naming the argument. After each query,
     `last_stats` holds the counters of that query (rays.cast, tests.triangle,
     bounds.tests, cells.visited, ...) and its time.trace in seconds.
+
+    Any number of Python threads may query one RayScene at once; `last_stats`
+    is the calling thread's own last query. Lazy structures (lazyoctree, rc)
+    refine between passes of one query, so their queries take turns (a lock);
+    the others run side by side. Hits never depend on the order: only the
+    counters of lazy kinds do, as the trees they meet have grown.
     """
 
     SPHERE, POLYGON, PATCH, CONE, TRIANGLE = SPHERE, POLYGON, PATCH, CONE, TRIANGLE
@@ -246,7 +254,31 @@ class RayScene:
         self._lazy = self.build_stats.get("lazy")
         self._may_repeat = self._may_repeat or self._lazy is not None
         self._mesh = MeshKernel.of(self.geo, table)
-        self.last_stats: dict = {}
+        self._lock = threading.RLock()      # held by queries that refine lazy structures
+        self._local = threading.local()     # last_stats, per thread
+
+    @property
+    def last_stats(self) -> dict:
+        """The counters and times of this thread's last query."""
+        return getattr(self._local, "stats", {})
+
+    @last_stats.setter
+    def last_stats(self, stats: dict) -> None:
+        self._local.stats = stats
+
+    def _turn(self):
+        """The lock while a query may refine lazy structures; nothing to wait for otherwise."""
+        return self._lock if self._lazy is not None else nullcontext()
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        del state["_lock"], state["_local"]
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._lock = threading.RLock()
+        self._local = threading.local()
 
     def _identify(self, kind: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(geometry, index within it) of global (kind, index) pairs; -1 where kind is -1."""
@@ -262,9 +294,22 @@ class RayScene:
         return geom, local
 
     @classmethod
-    def from_mesh(cls, vertices, faces, normals=None, accel: str = "bvh") -> "RayScene":
+    def from_trimesh(cls, mesh, accel: str = "bvh") -> "RayScene":
+        """A trimesh.Trimesh, or any object with `.vertices` (V, 3) and `.faces` (F, 3)."""
+        if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
+            raise RayInputError(f"expected a mesh with .vertices and .faces, got {type(mesh).__name__}")
+        return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel)
+
+    @classmethod
+    def from_mesh(cls, vertices, faces=None, normals=None, accel: str = "bvh") -> "RayScene":
         """A triangle mesh: vertices (V, 3) float32/float64, faces (F, 3) integer vertex
-        indices, optional per-vertex normals (V, 3) for shading_normal."""
+        indices, optional per-vertex normals (V, 3) for shading_normal. A mesh object
+        (trimesh.Trimesh, anything with .vertices and .faces) may stand for both."""
+        if faces is None and hasattr(vertices, "vertices") and hasattr(vertices, "faces"):
+            return cls.from_trimesh(vertices, accel)
+        if faces is None:
+            raise RayInputError(f"from_mesh needs faces, or a mesh object with .vertices and .faces "
+                                f"(got a {type(vertices).__name__})")
         v = _real_array(vertices, "vertices")
         if v.ndim != 2 or v.shape[1] != 3:
             raise RayInputError(f"vertices must have shape (V, 3), got {v.shape}")
@@ -336,8 +381,8 @@ class RayScene:
         all_t = np.zeros(0) if all_t is None else all_t
         all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
-        start = time.perf_counter()
-        with CompileClock() as clock:
+        with self._turn(), CompileClock() as clock:
+            start = time.perf_counter()         # (after waiting for the lock)
             if n and self._mesh is not None:
                 mesh = self._mesh
                 for_ranges(lambda c0, c1: meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind,
@@ -405,15 +450,16 @@ class RayScene:
         return np.isfinite(t)
 
     def _all(self, o, d, lo, hi):
-        mark = self._lazy.checkpoint() if self._lazy is not None else None
-        _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
-        if mark is not None:
-            self.geo = self._lazy.restore(mark, self.geo)   # the second run must meet the same trees
-        offsets = np.zeros(len(o) + 1, np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        all_t = np.empty(offsets[-1])
-        all_i = np.empty((offsets[-1], 3), np.int64)
-        *_, stats2 = self._run(ALL_HITS, o, d, lo, hi, offsets=offsets, all_t=all_t, all_i=all_i)
+        with self._turn():      # both runs, with no other query refining in between
+            mark = self._lazy.checkpoint() if self._lazy is not None else None
+            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+            if mark is not None:
+                self.geo = self._lazy.restore(mark, self.geo)   # the second run must meet the same trees
+            offsets = np.zeros(len(o) + 1, np.int64)
+            np.cumsum(counts, out=offsets[1:])
+            all_t = np.empty(offsets[-1])
+            all_i = np.empty((offsets[-1], 3), np.int64)
+            *_, stats2 = self._run(ALL_HITS, o, d, lo, hi, offsets=offsets, all_t=all_t, all_i=all_i)
         for k, v in stats2.items():
             stats[k] = stats.get(k, 0) + v
         stats["rays.cast"] = len(o)

@@ -72,6 +72,7 @@ CLOSEST, ANY_HIT, ALL_HITS = np.int64(0), np.int64(1), np.int64(2)
 HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that was hit
 HIT_I = 4                    # hit_i: kind, index, innermost instance (-1: none), flip (1: reverse the normal)
 KEYED = entry_tag(LIST, 1)   # stack entry: go on with the frame's keyed list at stack_a
+DONE = np.int64(-2)          # _resolve's sink when an ANY_HIT query is answered
 
 
 @njit
@@ -126,6 +127,45 @@ def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz
     return push(stack_a, stack_b, stack_t, sp, agg_start[a], entry_tag(kind, START), te)
 
 
+@njit
+def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, hit_f, hit_i, found, best_ref,
+             best_inst, cnt):
+    """End CSG frame f (csg.resolve): its result surfaces go to the enclosing sink, or, from the
+    outermost node, to the hit rule. Returns (found, best_t, best_ref, best_inst, enclosing
+    sink), the sink DONE when an ANY_HIT query has its hit."""
+    node = geo.agg_start[frame_i[f, FI_AGG]]
+    region = np.int64(frame_f[f, csg.S_REGION])
+    best_t = frame_f[f, csg.S_BEST]
+    sink = np.int64(frame_f[f, csg.S_SINK])
+    n = csg.resolve(geo.csg_op[node], geo.csg_base[node], geo.csg_count[node], csg_t, csg_i, csg_m, csg_n, region,
+                    frame_f[f, csg.S_SHIFT], np.int64(frame_f[f, csg.S_OPERAND]), cnt)
+    frame_i[f, FI_SINK] = sink      # done: the frame may be reused
+    if sink >= 0:
+        csg_n[0] = region + n       # crossings of the enclosing node's operand
+        return found, best_t, best_ref, best_inst, sink
+    csg_n[0] = region
+    for k in range(region, region + n):
+        t = csg_t[k]
+        if tmin <= t <= best_t:
+            found, best_t, best_ref, best_inst = _take(mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3], csg_i[k, 4],
+                                                       csg_m, k, 0, hit_f, hit_i, found, best_t, best_ref, best_inst)
+            if found and mode == ANY_HIT:
+                return found, best_t, best_ref, best_inst, DONE
+    return found, best_t, best_ref, best_inst, sink
+
+
+@njit
+def _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, operand, inst, frame_f, f, csg_t, csg_i, csg_m, csg_n,
+                   cnt):
+    """Below a CSG node a sphere counts both of the line's crossings (up to best_t)."""
+    t0, t1 = csg.sphere_crossings(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
+                                  geo.sph_radius[idx], ox, oy, oz, dx, dy, dz)
+    if t0 <= best_t and t0 != INF:
+        csg.record(csg_t, csg_i, csg_m, csg_n, t0, operand, SPHERE, idx, inst, 0, frame_f, f, cnt)
+    if t1 <= best_t and t1 != INF:
+        csg.record(csg_t, csg_i, csg_m, csg_n, t1, operand, SPHERE, idx, inst, 1, frame_f, f, cnt)
+
+
 @njit(inline="always")
 def _operand(frame_f, frame_i, f, sink, position):
     """Which operand of the sink the reference at `position` of frame f belongs to: in the
@@ -167,27 +207,13 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 best_t, stack_a, stack_b, stack_t, base, cnt)
     while True:
         if sp == base:
-            agg = frame_i[f, FI_AGG]
-            if geo.agg_kind[agg] == csg.CODE and frame_i[f, FI_SINK] == f:
+            if geo.agg_kind[frame_i[f, FI_AGG]] == csg.CODE and frame_i[f, FI_SINK] == f:
                 # a CSG node's crossings are all in: its result surfaces, on the enclosing ray
-                node = geo.agg_start[agg]
-                region = np.int64(frame_f[f, csg.S_REGION])
-                best_t = frame_f[f, csg.S_BEST]
-                sink = np.int64(frame_f[f, csg.S_SINK])
-                n = csg.resolve(geo.csg_op[node], geo.csg_base[node], geo.csg_count[node], csg_t, csg_i, csg_m,
-                                csg_n, region, frame_f[f, csg.S_SHIFT], np.int64(frame_f[f, csg.S_OPERAND]), cnt)
-                csg_n[0] = region + n if sink >= 0 else region
-                if sink < 0:
-                    # the outermost node: its surfaces are hits
-                    for k in range(region, region + n):
-                        t = csg_t[k]
-                        if tmin <= t <= best_t:
-                            found, best_t, best_ref, best_inst = _take(
-                                mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3], csg_i[k, 4], csg_m, k, 0, hit_f,
-                                hit_i, found, best_t, best_ref, best_inst)
-                            if found and mode == ANY_HIT:
-                                return True
-                frame_i[f, FI_SINK] = sink      # done: the frame may be reused
+                found, best_t, best_ref, best_inst, sink = _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m,
+                                                                    csg_n, tmin, mode, hit_f, hit_i, found, best_ref,
+                                                                    best_inst, cnt)
+                if sink == DONE:
+                    return True
             if f == 0:
                 break
             # this frame is done: back to the parent's ray
@@ -260,16 +286,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
             if kind == SPHERE:
                 cnt[C.TESTS + SPHERE] += 1
                 if sink >= 0:
-                    # both of the line's crossings count for an operand's inside
-                    operand = _operand(frame_f, frame_i, f, sink, i - 1)
-                    t0, t1 = csg.sphere_crossings(geo.sph_center[idx, 0], geo.sph_center[idx, 1],
-                                                  geo.sph_center[idx, 2], geo.sph_radius[idx], ox, oy, oz, dx, dy, dz)
-                    if t0 <= best_t and t0 != INF:
-                        csg.record(csg_t, csg_i, csg_m, csg_n, t0, operand, kind, idx, frame_i[f, FI_INST], 0,
-                                   frame_f, f, cnt)
-                    if t1 <= best_t and t1 != INF:
-                        csg.record(csg_t, csg_i, csg_m, csg_n, t1, operand, kind, idx, frame_i[f, FI_INST], 1,
-                                   frame_f, f, cnt)
+                    _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, _operand(frame_f, frame_i, f, sink, i - 1),
+                                   frame_i[f, FI_INST], frame_f, f, csg_t, csg_i, csg_m, csg_n, cnt)
                     continue
                 t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
                                geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, lo, best_t)

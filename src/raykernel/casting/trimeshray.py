@@ -1,0 +1,121 @@
+"""raykernel under trimesh: a drop-in for trimesh's ray intersectors.
+
+    import trimesh, raykernel.trimesh
+    mesh = trimesh.creation.icosphere()
+    mesh.ray = raykernel.trimesh.RayMeshIntersector(mesh)
+    index_tri, index_ray, locations = mesh.ray.intersects_id(origins, directions, return_locations=True)
+    mesh.contains(points)          # trimesh's own queries now cast with raykernel
+
+The methods and their answers are those of trimesh's `RayMeshIntersector`
+(trimesh.ray.ray_triangle and ray_pyembree): `intersects_id`,
+`intersects_location`, `intersects_first`, `intersects_any` and
+`contains_points`. Hits are exact and watertight, in double precision: a
+ray through a shared edge or vertex meets exactly one of the triangles
+there, and every triangle along a ray once (Embree's engine in trimesh
+offsets each ray past a hit and tests again, which can miss a second hit
+closer than the offset, or report one point twice). With multiple hits the
+rows come ray by ray, nearest first. The built RayScene is cached with
+trimesh's cache, keyed on the mesh's hash: it is rebuilt when the mesh
+changes. Pickling and copying keep the mesh and the accelerator, not the
+built scene.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import RayKernelError
+from .rayscene import RayScene
+
+
+class RayMeshIntersector:
+    """Ray queries on a trimesh.Trimesh, answered by raykernel (see the module docstring)."""
+
+    def __init__(self, geometry, accel: str = "bvh"):
+        try:
+            from trimesh import caching
+        except ImportError:
+            raise RayKernelError("raykernel.trimesh needs trimesh: pip install raykernel[mesh]") from None
+        self.mesh = geometry
+        self.accel = accel
+        self._cache = caching.Cache(id_function=self.mesh.__hash__)
+
+    @property
+    def scene(self) -> RayScene:
+        """The RayScene of the mesh as it is now (built on first use, again after a change)."""
+        scene = self._cache["scene"]      # None when absent, or when the mesh changed since
+        if scene is None:
+            scene = RayScene.from_mesh(np.asarray(self.mesh.vertices), np.asarray(self.mesh.faces), accel=self.accel)
+            self._cache["scene"] = scene
+        return scene
+
+    @staticmethod
+    def _rays(ray_origins, ray_directions):
+        o = np.asarray(ray_origins, np.float64)
+        d = np.asarray(ray_directions, np.float64)
+        if o.shape != d.shape:
+            raise ValueError("Ray origin and direction don't match!")
+        return o.reshape(-1, 3), d.reshape(-1, 3)
+
+    def intersects_id(self, ray_origins, ray_directions, multiple_hits: bool = True, max_hits: int = 100,
+                      return_locations: bool = False):
+        """Triangles hit by each ray: (index_tri, index_ray[, locations]); with multiple_hits
+        every hit along the ray up to max_hits, nearest first, else the first hit of each ray."""
+        o, d = self._rays(ray_origins, ray_directions)
+        if len(o) == 0:
+            empty = np.zeros(0, np.int64)
+            return (empty, empty, np.zeros((0, 3))) if return_locations else (empty, empty)
+        if multiple_hits:
+            ray, t, tri = self.scene.intersect_all(o, d)      # sorted by ray, then t
+            if max_hits is not None:
+                first = np.searchsorted(ray, ray)             # each ray's first row
+                keep = np.arange(len(ray)) - first < max_hits
+                ray, t, tri = ray[keep], t[keep], tri[keep]
+        else:
+            hits = self.scene.intersect(o, d)
+            ray = np.flatnonzero(np.isfinite(hits.t))
+            t, tri = hits.t[ray], hits.prim_id[ray]
+        if return_locations:
+            return tri, ray, o[ray] + t[:, None] * d[ray]
+        return tri, ray
+
+    def intersects_location(self, ray_origins, ray_directions, multiple_hits: bool = True):
+        """(locations, index_ray, index_tri) of the hits, as intersects_id."""
+        tri, ray, locations = self.intersects_id(ray_origins, ray_directions, multiple_hits=multiple_hits,
+                                                 return_locations=True)
+        return locations, ray, tri
+
+    def intersects_first(self, ray_origins, ray_directions) -> np.ndarray:
+        """The first triangle each ray hits, -1 where it hits none."""
+        o, d = self._rays(ray_origins, ray_directions)
+        if len(o) == 0:
+            return np.zeros(0, np.int64)
+        return self.scene.intersect(o, d).prim_id
+
+    def intersects_any(self, ray_origins, ray_directions) -> np.ndarray:
+        """True where the ray hits the mesh at all."""
+        o, d = self._rays(ray_origins, ray_directions)
+        if len(o) == 0:
+            return np.zeros(0, bool)
+        return self.scene.occluded(o, d)
+
+    def contains_points(self, points) -> np.ndarray:
+        """Inside tests for a closed mesh, by trimesh's own ray-parity rule over these queries."""
+        from trimesh.ray.ray_util import contains_points
+        return contains_points(self, points)
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state.pop("_cache", None)
+        return state
+
+    def __setstate__(self, state):
+        from trimesh import caching
+        self.__dict__.update(state)
+        self._cache = caching.Cache(id_function=self.mesh.__hash__)
+
+    def __copy__(self):
+        return RayMeshIntersector(self.mesh, self.accel)
+
+    def __deepcopy__(self, memo):
+        return self.__copy__()
