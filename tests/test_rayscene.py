@@ -317,3 +317,62 @@ def test_a_rayscene_pickles_and_copies():
     o, d = random_rays(np.random.default_rng(3))
     for other in (pickle.loads(pickle.dumps(rs)), copy.deepcopy(rs)):
         np.testing.assert_array_equal(other.intersect(o, d).t, rs.intersect(o, d).t)
+
+
+# ---------------------------------------------------------------- shaped rays, camera rays, threads per call
+
+def test_image_shaped_rays_give_image_shaped_answers():
+    from raykernel import camera_rays
+    scene = RayScene.from_spheres([(0, 0, 0)], 1.0)
+    o, d = camera_rays(eye=(0, -5, 0), look_at=(0, 0, 0), up=(0, 0, 1), fov=40, width=16, height=12)
+    assert o.shape == d.shape == (12, 16, 3)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0)
+    h = scene.intersect(o, d)
+    assert h.t.shape == h.prim_id.shape == (12, 16) and h.normal.shape == h.points.shape == (12, 16, 3)
+    flat = scene.intersect(o.reshape(-1, 3), d.reshape(-1, 3))
+    np.testing.assert_array_equal(h.t.reshape(-1), flat.t)
+    np.testing.assert_array_equal(h.normal.reshape(-1, 3), flat.normal)
+    assert scene.occluded(o, d).shape == scene.count_hits(o, d).shape == (12, 16)
+    hit = h.hit
+    assert 0.1 < hit.mean() < 0.9
+    # the points lie on the sphere; misses are NaN
+    np.testing.assert_allclose(np.linalg.norm(h.points[hit], axis=-1), 1.0)
+    assert np.isnan(h.points[~hit]).all()
+    # a per-ray interval of the same shape, and one origin for every direction
+    tmax = np.full((12, 16), 3.9)        # the sphere is 4 away
+    assert not scene.occluded(o, d, tmax=tmax).any() and scene.occluded(o, d, tmax=tmax + 1).any()
+    np.testing.assert_array_equal(scene.intersect((0, -5, 0), d).t, h.t)
+    ray, t, _ = scene.intersect_all(o, d)
+    rows, cols = np.unravel_index(ray, (12, 16))
+    np.testing.assert_array_equal(np.isfinite(h.t[rows, cols]), True)
+
+
+def test_camera_rays_look_where_they_should():
+    from raykernel import camera_rays
+    o, d = camera_rays(eye=(1, 2, 3), look_at=(1, 12, 3), up=(0, 0, 1), fov=90, width=4, height=2)
+    np.testing.assert_allclose(o, np.broadcast_to([1.0, 2.0, 3.0], (2, 4, 3)))
+    # fov 90: the outer pixel centres at x = +-0.75 of the half-width tan(45) = 1; the top row looks up
+    np.testing.assert_allclose(d[0, 0] / d[0, 0, 1], [-0.75, 1.0, 0.25])
+    np.testing.assert_allclose(d[1, 3] / d[1, 3, 1], [0.75, 1.0, -0.25])
+    for kwargs, words in ((dict(fov=0), "fov"), (dict(width=0), "width"), (dict(look_at=(1, 2, 3)), "differ"),
+                          (dict(up=(0, 1, 0)), "parallel"), (dict(height=2.5), "height")):
+        args = dict(eye=(1, 2, 3), look_at=(1, 12, 3), up=(0, 0, 1)) | kwargs
+        with pytest.raises(RayInputError, match=words):
+            camera_rays(**args)
+
+
+@pytest.mark.parametrize("accel", ["bvh", "lazyoctree"])
+def test_threads_per_call_give_the_same_answers(accel):
+    scene = Scene()
+    scene.root.accel = accel
+    v, f = random_mesh(np.random.default_rng(4))
+    scene.root.add(TriangleMesh(v, f))
+    o, d = random_rays(np.random.default_rng(5), 3000)
+    one = RayScene(scene, accel)
+    two = RayScene(scene, accel)
+    a, b = one.intersect(o, d, threads=1), two.intersect(o, d, threads=2)
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.prim_id, b.prim_id)
+    assert one.last_stats == {**two.last_stats, "time.trace": one.last_stats["time.trace"],
+                              "time.compile": one.last_stats["time.compile"]}
+    np.testing.assert_array_equal(one.count_hits(o, d, threads=1), two.count_hits(o, d, threads=2))

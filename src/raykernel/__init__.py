@@ -6,6 +6,7 @@
     result.image, result.stats
 """
 
+from .casting.camera import camera_rays
 from .casting.rayscene import Hits, RayInputError, RayScene
 from .errors import OptionError, RayKernelError, SceneError
 from .rendering.render import RenderResult, render
@@ -20,4 +21,5 @@ __all__ = [
     "Camera", "Cones", "Group", "Instance", "Light", "Material", "Polygons", "Scene", "Spheres",
     "TriangleMesh", "OptionError", "RayKernelError", "SceneError", "load", "render", "RenderResult",
     "read_nff", "parse_nff", "write_nff", "read_json", "write_json", "RayScene", "Hits", "RayInputError",
+    "camera_rays",
 ]

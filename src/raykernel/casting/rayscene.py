@@ -65,7 +65,8 @@ class RayInputError(RayKernelError, ValueError):
 
 @dataclass
 class Hits:
-    """Closest hits of a batch of N rays (one row per ray)."""
+    """Closest hits of a batch of rays, shaped as the rays were: (N,) for (N, 3) origins and
+    directions, (H, W) for an image of rays; the vector fields add a last axis."""
 
     t: np.ndarray               # (N,) ray parameter of the hit, inf on a miss
     prim_id: np.ndarray         # (N,) index within its geometry (face index for a mesh), -1 on a miss
@@ -77,6 +78,8 @@ class Hits:
     #                             cones: (angle around the axis / 2pi, height / length); NaN otherwise
     normal: np.ndarray          # (N, 3) unit geometric normal in world space (winding / outward), NaN on a miss
     shading_normal: np.ndarray  # (N, 3) unit interpolated normal (vertex normals, patches), else = normal
+    origins: np.ndarray | None = None      # (N, 3) the rays, as given (broadcast)
+    directions: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -84,6 +87,12 @@ class Hits:
     @property
     def hit(self) -> np.ndarray:
         return np.isfinite(self.t)
+
+    @property
+    def points(self) -> np.ndarray:
+        """(N, 3) hit points origin + t direction, NaN on a miss."""
+        t = np.where(self.hit, self.t, np.nan)[..., None]
+        return self.origins + t * self.directions
 
 
 # ----------------------------------------------------------------- kernel
@@ -157,49 +166,53 @@ def _real_array(value, name: str) -> np.ndarray:
 
 
 def _vectors(value, name: str) -> np.ndarray:
+    """(..., 3) real array, finite; one (3,) vector is one row, (1, 3)."""
     arr = _real_array(value, name)
-    if arr.ndim == 1 and arr.shape[0] == 3:
+    if arr.ndim == 1:
         arr = arr[None, :]
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise RayInputError(f"{name} must have shape (N, 3) or (3,), got {arr.shape}")
+    if arr.ndim == 0 or arr.shape[-1] != 3:
+        raise RayInputError(f"{name} must have shape (..., 3), e.g. (N, 3) or (3,), got {arr.shape}")
     if not np.isfinite(arr).all():        # (whole-array test first: reductions along rows are slow)
-        i = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
-        raise RayInputError(f"{name}[{i}] is not finite: {arr[i].tolist()}")
+        flat = arr.reshape(-1, 3)
+        i = int(np.flatnonzero(~np.all(np.isfinite(flat), axis=1))[0])
+        raise RayInputError(f"{name}[{i}] is not finite: {flat[i].tolist()}")
     return arr
 
 
-def _interval(value, name: str, n: int) -> np.ndarray:
+def _interval(value, name: str, shape: tuple) -> np.ndarray:
     arr = _real_array(value, name)
-    if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] != n):
-        raise RayInputError(f"{name} must be a number or have shape ({n},), got {arr.shape}")
+    try:
+        arr = np.broadcast_to(arr, shape)
+    except ValueError:
+        raise RayInputError(f"{name} must be a number or have shape {shape}, got {arr.shape}") from None
+    arr = np.ascontiguousarray(arr).reshape(-1)
     if np.isnan(arr).any():
-        i = int(np.flatnonzero(np.isnan(np.atleast_1d(arr)))[0])
-        raise RayInputError(f"{name}[{i}] is NaN")
-    return np.ascontiguousarray(np.broadcast_to(arr, (n,)))
+        raise RayInputError(f"{name}[{int(np.flatnonzero(np.isnan(arr))[0])}] is NaN")
+    return arr
 
 
 def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
-    """Validated float64 copies: origins (N, 3), directions (N, 3), tmin (N,), tmax (N,)."""
+    """Validated float64 copies, flat: origins (N, 3), directions (N, 3), tmin (N,), tmax (N,),
+    and the rays' shape: the leading dimensions of origins and directions broadcast together
+    ((N,) for (N, 3) arrays, (H, W) for an image of rays, (1,) for one (3,) ray)."""
     o = _vectors(origins, "origins")
     d = _vectors(directions, "directions")
-    if len(o) != len(d):
-        if len(o) == 1:
-            o = np.broadcast_to(o, d.shape)
-        elif len(d) == 1:
-            d = np.broadcast_to(d, o.shape)
-        else:
-            raise RayInputError(f"origins and directions differ in length: {len(o)} vs {len(d)}")
+    try:
+        shape = np.broadcast_shapes(o.shape[:-1], d.shape[:-1])
+    except ValueError:
+        raise RayInputError(f"origins and directions differ in length: {o.shape[:-1]} vs {d.shape[:-1]}") from None
+    o = np.broadcast_to(o, shape + (3,)).reshape(-1, 3)
+    d = np.broadcast_to(d, shape + (3,)).reshape(-1, 3)
     zero = (d[:, 0] == 0.0) & (d[:, 1] == 0.0) & (d[:, 2] == 0.0)
     if zero.any():
         raise RayInputError(f"directions[{int(np.flatnonzero(zero)[0])}] has zero length")
-    n = len(o)
-    lo = _interval(tmin, "tmin", n)
-    hi = _interval(tmax, "tmax", n)
+    lo = _interval(tmin, "tmin", shape)
+    hi = _interval(tmax, "tmax", shape)
     bad = lo > hi
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise RayInputError(f"tmin > tmax for ray {i}: {lo[i]} > {hi[i]}")
-    return np.ascontiguousarray(o), np.ascontiguousarray(d), lo, hi
+    return np.ascontiguousarray(o), np.ascontiguousarray(d), lo, hi, shape
 
 
 # ----------------------------------------------------------------- the scene
@@ -365,7 +378,7 @@ class RayScene:
 
     # ------------------------------------------------------------- queries
 
-    def _run(self, mode, o, d, lo, hi, with_surface=False, offsets=None, all_t=None, all_i=None):
+    def _run(self, mode, o, d, lo, hi, with_surface=False, offsets=None, all_t=None, all_i=None, threads=None):
         """One query kernel over all rays: t, kind, geom, idx, inst, uv, normals, shading normals, stats.
         Closest and any hits: idx counts within the geometry; all hits: idx holds the counts, or with
         offsets the hits go to all_t / all_i as (kind, global index, instance)."""
@@ -388,7 +401,7 @@ class RayScene:
                 for_ranges(lambda c0, c1: meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind,
                                                          geom, idx, inst, uv, gn, sn, with_surface, offsets, all_t,
                                                          all_i, counters, c0, c1), len(counters),
-                       kernel=meshcast.query)
+                           threads, kernel=meshcast.query)
             elif n and self._lazy is not None:
                 # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
                 # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
@@ -406,7 +419,7 @@ class RayScene:
                     rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + self._lazy.columns), np.int64)
                     args = (self.geo, *(x[a:b] for x in ins), np.int64(mode), CHUNK, *(x[a:b] for x in outs),
                             with_surface, p_offsets[a:b + 1] if len(offsets) else offsets, p_all_t, p_all_i, rows)
-                    for_ranges(lambda c0, c1, args=args: _query(*args, c0, c1), len(rows), kernel=_query)
+                    for_ranges(lambda c0, c1, args=args: _query(*args, c0, c1), len(rows), threads, kernel=_query)
                     counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
                     self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
                 for mine, theirs in zip((t, kind, idx, inst, uv, gn, sn), outs):
@@ -423,7 +436,7 @@ class RayScene:
             elif n:
                 for_ranges(lambda c0, c1: _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv,
                                                  gn, sn, with_surface, offsets, all_t, all_i, counters, c0, c1),
-                           len(counters), kernel=_query)
+                           len(counters), threads, kernel=_query)
         seconds = time.perf_counter() - start - clock.seconds
         if self._mesh is None and mode != ALL_HITS:
             geom, idx = self._identify(kind, idx)
@@ -434,32 +447,38 @@ class RayScene:
         stats["time.compile"] = clock.seconds
         return t, kind, geom, idx, inst, uv, gn, sn, stats
 
-    def intersect(self, origins, directions, tmin=0.0, tmax=np.inf) -> Hits:
+    def intersect(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> Hits:
         """Closest hit of every ray in [tmin, tmax]. Ties at equal t go to the
-        smaller (geom_id, prim_id, inst_id), whatever the traversal order."""
-        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
-        t, kind, geom, prim, inst, uv, gn, sn, stats = self._run(CLOSEST, o, d, lo, hi, with_surface=True)
+        smaller (geom_id, prim_id, inst_id), whatever the traversal order.
+        threads: how many to use (default: numba's thread count)."""
+        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
+        t, kind, geom, prim, inst, uv, gn, sn, stats = self._run(CLOSEST, o, d, lo, hi, with_surface=True,
+                                                                 threads=threads)
         self.last_stats = stats
-        return Hits(t=t, prim_id=prim, geom_id=geom, inst_id=inst, kind=kind, uv=uv, normal=gn, shading_normal=sn)
+        return Hits(t=t.reshape(shape), prim_id=prim.reshape(shape), geom_id=geom.reshape(shape),
+                    inst_id=inst.reshape(shape), kind=kind.reshape(shape), uv=uv.reshape(shape + (2,)),
+                    normal=gn.reshape(shape + (3,)), shading_normal=sn.reshape(shape + (3,)),
+                    origins=o.reshape(shape + (3,)), directions=d.reshape(shape + (3,)))
 
-    def occluded(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+    def occluded(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
         """True where the ray meets anything in [tmin, tmax] (stops at the first hit found)."""
-        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
-        t, *_, stats = self._run(ANY, o, d, lo, hi)
+        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
+        t, *_, stats = self._run(ANY, o, d, lo, hi, threads=threads)
         self.last_stats = stats
-        return np.isfinite(t)
+        return np.isfinite(t).reshape(shape)
 
-    def _all(self, o, d, lo, hi):
+    def _all(self, o, d, lo, hi, threads=None):
         with self._turn():      # both runs, with no other query refining in between
             mark = self._lazy.checkpoint() if self._lazy is not None else None
-            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi, threads=threads)
             if mark is not None:
                 self.geo = self._lazy.restore(mark, self.geo)   # the second run must meet the same trees
             offsets = np.zeros(len(o) + 1, np.int64)
             np.cumsum(counts, out=offsets[1:])
             all_t = np.empty(offsets[-1])
             all_i = np.empty((offsets[-1], 3), np.int64)
-            *_, stats2 = self._run(ALL_HITS, o, d, lo, hi, offsets=offsets, all_t=all_t, all_i=all_i)
+            *_, stats2 = self._run(ALL_HITS, o, d, lo, hi, offsets=offsets, all_t=all_t, all_i=all_i,
+                                   threads=threads)
         for k, v in stats2.items():
             stats[k] = stats.get(k, 0) + v
         stats["rays.cast"] = len(o)
@@ -475,30 +494,32 @@ class RayScene:
             ray, all_t, all_i = ray[keep], all_t[keep], all_i[keep]
         return ray, all_t, all_i, counts, stats
 
-    def intersect_all(self, origins, directions, tmin=0.0, tmax=np.inf, ids: bool = False):
+    def intersect_all(self, origins, directions, tmin=0.0, tmax=np.inf, ids: bool = False,
+                      threads: int | None = None):
         """Every primitive each ray meets in [tmin, tmax], once, at its first
         crossing in the interval (a sphere the ray passes through counts once,
         where it enters): (ray_index, t, prim_id) sorted by ray, then t, then
         (geom_id, prim_id, inst_id). With ids=True also geom_id and inst_id.
         A ray through a shared edge or vertex of a mesh meets exactly one of
-        the triangles there (watertight tests)."""
-        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
-        ray, t, ident, _, stats = self._all(o, d, lo, hi)
+        the triangles there (watertight tests). ray_index counts the rays in
+        row-major order (np.unravel_index(ray_index, shape) for shaped rays)."""
+        o, d, lo, hi, _ = check_rays(origins, directions, tmin, tmax)
+        ray, t, ident, _, stats = self._all(o, d, lo, hi, threads)
         self.last_stats = stats
         if ids:
             return ray, t, ident[:, 1].copy(), ident[:, 0].copy(), ident[:, 2].copy()
         return ray, t, ident[:, 1].copy()
 
-    def count_hits(self, origins, directions, tmin=0.0, tmax=np.inf) -> np.ndarray:
+    def count_hits(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
         """Number of primitives each ray meets in [tmin, tmax] (the lengths of intersect_all's lists)."""
-        o, d, lo, hi = check_rays(origins, directions, tmin, tmax)
+        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
         if self._may_repeat:
-            ray, _, _, _, stats = self._all(o, d, lo, hi)
+            ray, _, _, _, stats = self._all(o, d, lo, hi, threads)
             counts = np.bincount(ray, minlength=len(o)).astype(np.int64)
         else:
-            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi)
+            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi, threads=threads)
         self.last_stats = stats
-        return counts
+        return counts.reshape(shape)
 
     def __repr__(self) -> str:
         g = self.geo
