@@ -53,6 +53,7 @@ from ..scene.model import Scene, TriangleMesh
 from . import meshcast
 from .hitsurface import store_miss, store_surface
 from .meshcast import MeshKernel
+from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, point_index, surface_normals
 
 CHUNK = 1024
 CLOSEST, ANY = 0, 1
@@ -282,11 +283,6 @@ class RayScene:
     def _turn(self):
         """The lock while a query may refine lazy structures; nothing to wait for otherwise."""
         return self._lock if self._lazy is not None else nullcontext()
-
-    def __getstate__(self):
-        state = self.__dict__.copy()
-        del state["_lock"], state["_local"]
-        return state
 
     def __setstate__(self, state):
         self.__dict__.update(state)
@@ -520,6 +516,58 @@ class RayScene:
             _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi, threads=threads)
         self.last_stats = stats
         return counts.reshape(shape)
+
+    # ------------------------------------------------------------- point queries (proximity.py)
+
+    def _points(self, points) -> tuple[np.ndarray, tuple]:
+        p = _vectors(points, "points")
+        return np.ascontiguousarray(p.reshape(-1, 3)), p.shape[:-1]
+
+    def closest_points(self, points, threads: int | None = None) -> ClosestPoints:
+        """The closest point of the scene's surface to each point (..., 3): .points, .distance,
+        .prim_id, .geom_id, .kind and .normal, shaped as the points. Triangles, polygons,
+        patches and spheres; a scene with instances or cones raises RayInputError."""
+        p, shape = self._points(points)
+        try:
+            index = point_index(self)
+        except ValueError as e:
+            raise RayInputError(str(e)) from None
+        q, dist, refs = index.query(p, threads)
+        kind, idx = kinds_of(self.geo, refs)
+        geom, prim = self._identify(kind, idx)
+        normal = surface_normals(self.geo, kind, idx, q)
+        return ClosestPoints(points=q.reshape(shape + (3,)), distance=dist.reshape(shape), prim_id=prim.reshape(shape),
+                             geom_id=geom.reshape(shape), kind=kind.reshape(shape), normal=normal.reshape(shape + (3,)))
+
+    def distance(self, points, threads: int | None = None) -> np.ndarray:
+        """Distance from each point (..., 3) to the scene's surface."""
+        return self.closest_points(points, threads).distance
+
+    def contains(self, points, threads: int | None = None) -> np.ndarray:
+        """True where a point (..., 3) lies inside the scene's closed triangle meshes or polygon sets
+        (ray parity, the majority of three directions) or inside a sphere."""
+        p, shape = self._points(points)
+        if len(self.geo.inst_agg) or len(self.geo.cone_length):
+            raise RayInputError("contains does not handle instances or cones yet")
+        votes = np.zeros(len(p), np.int64)
+        spheres = {g for g, info in enumerate(self.geometries) if info["kind"] == "sphere"}
+        for direction in INSIDE_DIRECTIONS:
+            ray, _, _, geom, _ = self.intersect_all(p, direction, ids=True, threads=threads)
+            flat = ~np.isin(geom, list(spheres)) if spheres else np.ones(len(ray), bool)
+            votes += np.bincount(ray[flat], minlength=len(p)) % 2
+        inside = (votes >= 2) | inside_spheres(self.geo, p)
+        return inside.reshape(shape)
+
+    def signed_distance(self, points, threads: int | None = None) -> np.ndarray:
+        """Distance to the surface, negative inside (contains)."""
+        d = self.distance(points, threads)
+        return np.where(self.contains(points, threads), -d, d)
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        del state["_lock"], state["_local"]
+        state.pop("_point_index", None)      # rebuilt on demand
+        return state
 
     def __repr__(self) -> str:
         g = self.geo
