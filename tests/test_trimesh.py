@@ -124,3 +124,14 @@ def test_rayscene_from_a_trimesh():
         RayScene.from_trimesh(np.zeros((3, 3)))
     with pytest.raises(RayInputError, match="needs faces"):
         RayScene.from_mesh(np.zeros((3, 3)))
+
+
+def test_the_depth_image_example_runs(tmp_path, monkeypatch):
+    import runpy
+    import sys
+    from pathlib import Path
+    pytest.importorskip("matplotlib")
+    out = tmp_path / "depth.png"
+    monkeypatch.setattr(sys, "argv", ["depth_image.py", "-o", str(out)])
+    runpy.run_path(str(Path(__file__).parents[1] / "examples" / "depth_image.py"), run_name="__main__")
+    assert out.stat().st_size > 10_000

@@ -107,13 +107,12 @@ def _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
 
 
 @njit
-def _closest_on_polygon(geo, i, px, py, pz):
-    nx, ny, nz = geo.poly_normal[i, 0], geo.poly_normal[i, 1], geo.poly_normal[i, 2]
-    v = geo.poly_verts
-    s, n = geo.poly_start[i], geo.poly_count[i]
+def _closest_on_polygon(poly_normal, poly_start, poly_count, poly_axis, v, i, px, py, pz):
+    nx, ny, nz = poly_normal[i, 0], poly_normal[i, 1], poly_normal[i, 2]
+    s, n = poly_start[i], poly_count[i]
     h = (px - v[s, 0]) * nx + (py - v[s, 1]) * ny + (pz - v[s, 2]) * nz
     qx, qy, qz = px - h * nx, py - h * ny, pz - h * nz
-    if (nx != 0.0 or ny != 0.0 or nz != 0.0) and point_in_polygon(v, s, n, geo.poly_axis[i], qx, qy, qz):
+    if (nx != 0.0 or ny != 0.0 or nz != 0.0) and point_in_polygon(v, s, n, poly_axis[i], qx, qy, qz):
         return qx, qy, qz
     best = np.inf
     bx = by = bz = 0.0
@@ -126,24 +125,25 @@ def _closest_on_polygon(geo, i, px, py, pz):
     return bx, by, bz
 
 
-@njit
-def _closest_point(geo, ref, px, py, pz):
+@njit(inline="always")
+def _closest_point(tri_verts, tri_faces, sph_center, sph_radius, poly_normal, poly_start, poly_count, poly_axis,
+                   poly_verts, ref, px, py, pz):
     kind = ref >> KIND_SHIFT
     idx = ref & INDEX_MASK
     if kind == TRIANGLE:
-        f = geo.tri_faces[idx]
-        v = geo.tri_verts
-        return _closest_on_triangle(px, py, pz, v[f[0], 0], v[f[0], 1], v[f[0], 2], v[f[1], 0], v[f[1], 1],
-                                    v[f[1], 2], v[f[2], 0], v[f[2], 1], v[f[2], 2])
+        a, b, c = tri_faces[idx, 0], tri_faces[idx, 1], tri_faces[idx, 2]
+        v = tri_verts
+        return _closest_on_triangle(px, py, pz, v[a, 0], v[a, 1], v[a, 2], v[b, 0], v[b, 1], v[b, 2], v[c, 0],
+                                    v[c, 1], v[c, 2])
     if kind == SPHERE:
-        cx, cy, cz = geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2]
-        r = abs(geo.sph_radius[idx])
+        cx, cy, cz = sph_center[idx, 0], sph_center[idx, 1], sph_center[idx, 2]
+        r = abs(sph_radius[idx])
         dx, dy, dz = px - cx, py - cy, pz - cz
         n = np.sqrt(dx * dx + dy * dy + dz * dz)
         if n == 0.0:
             return cx + r, cy, cz       # the centre: every surface point is as near; take +x
         return cx + r * dx / n, cy + r * dy / n, cz + r * dz / n
-    return _closest_on_polygon(geo, idx, px, py, pz)
+    return _closest_on_polygon(poly_normal, poly_start, poly_count, poly_axis, poly_verts, idx, px, py, pz)
 
 
 @njit(inline="always")
@@ -155,8 +155,10 @@ def _box_distance2(b, n, px, py, pz):
 
 
 @njit
-def _query(geo, bounds, first, count, refs, points, out_p, out_d, out_ref, c0, c1):
-    """Closest item of every point in chunks c0..c1-1."""
+def _query(tri_verts, tri_faces, sph_center, sph_radius, poly_normal, poly_start, poly_count, poly_axis, poly_verts,
+           bounds, first, count, refs, points, out_p, out_d, out_ref, c0, c1):
+    """Closest item of every point in chunks c0..c1-1 (the scene's arrays one by one: a call
+    taking the whole Geometry tuple pays for every array in it)."""
     stack = np.empty(256, np.int64)
     for c in range(c0, c1):
         for r in range(c * CHUNK, min(points.shape[0], (c + 1) * CHUNK)):
@@ -176,7 +178,8 @@ def _query(geo, bounds, first, count, refs, points, out_p, out_d, out_ref, c0, c
                 if count[n] > 0:
                     for k in range(first[n], first[n] + count[n]):
                         ref = refs[k]
-                        qx, qy, qz = _closest_point(geo, ref, px, py, pz)
+                        qx, qy, qz = _closest_point(tri_verts, tri_faces, sph_center, sph_radius, poly_normal,
+                                                    poly_start, poly_count, poly_axis, poly_verts, ref, px, py, pz)
                         d = (qx - px) ** 2 + (qy - py) ** 2 + (qz - pz) ** 2
                         if d < best or (d == best and ref < best_ref):
                             best, best_ref, bx, by, bz = d, ref, qx, qy, qz
@@ -229,9 +232,10 @@ class PointIndex:
         """(closest points (N, 3), distances (N,), tagged references (N,)) of points (N, 3)."""
         n = len(points)
         out_p, out_d, out_ref = np.empty((n, 3)), np.empty(n), np.empty(n, np.int64)
-        b = self.bvh
-        for_ranges(lambda c0, c1: _query(self.geo, b.bounds, b.first, b.count, self.refs, points, out_p, out_d,
-                                         out_ref, c0, c1), (n + CHUNK - 1) // CHUNK, threads, kernel=_query)
+        b, g = self.bvh, self.geo
+        arrays = (g.tri_verts, g.tri_faces, g.sph_center, g.sph_radius, g.poly_normal, g.poly_start, g.poly_count,
+                  g.poly_axis, g.poly_verts, b.bounds, b.first, b.count, self.refs, points, out_p, out_d, out_ref)
+        for_ranges(lambda c0, c1: _query(*arrays, c0, c1), (n + CHUNK - 1) // CHUNK, threads, kernel=_query)
         return out_p, out_d, out_ref
 
 

@@ -550,11 +550,14 @@ class RayScene:
         if len(self.geo.inst_agg) or len(self.geo.cone_length):
             raise RayInputError("contains does not handle instances or cones yet")
         votes = np.zeros(len(p), np.int64)
-        spheres = {g for g, info in enumerate(self.geometries) if info["kind"] == "sphere"}
+        spheres = [g for g, info in enumerate(self.geometries) if info["kind"] == "sphere"]
         for direction in INSIDE_DIRECTIONS:
-            ray, _, _, geom, _ = self.intersect_all(p, direction, ids=True, threads=threads)
-            flat = ~np.isin(geom, list(spheres)) if spheres else np.ones(len(ray), bool)
-            votes += np.bincount(ray[flat], minlength=len(p)) % 2
+            if spheres:
+                # a sphere counts once per ray in hit lists, but is crossed twice: its own test below
+                ray, _, _, geom, _ = self.intersect_all(p, direction, ids=True, threads=threads)
+                votes += np.bincount(ray[~np.isin(geom, spheres)], minlength=len(p)) % 2
+            else:
+                votes += self.count_hits(p, direction, threads=threads) % 2
         inside = (votes >= 2) | inside_spheres(self.geo, p)
         return inside.reshape(shape)
 
