@@ -180,3 +180,37 @@ def test_random_rays_agree_with_the_reference():
     np.testing.assert_allclose(scene.intersect(o, d).t, ref.min(axis=0), rtol=1e-9)
     outside = np.linalg.norm(o, axis=1) > 1.5
     assert outside.sum() > 50 and np.all(counts[outside] % 2 == 0)
+
+
+# ---------------------------------------------------------------- inclusive edges: grazing rays hit, once
+
+@pytest.mark.parametrize("accel", ["bvh", "grid", "octree"])
+def test_inclusive_edges_report_grazing_rays_once(accel):
+    import trimesh
+
+    from raykernel import RayInputError, RayScene
+    box = trimesh.creation.box()              # [-0.5, 0.5]^3 in 12 triangles
+    rs = RayScene.from_trimesh(box, accel=accel, edges="inclusive")
+    tight = RayScene.from_trimesh(box, accel=accel)
+    o = np.array([[0.5, -3, 0.1],        # in the plane of the side face x = 0.5
+                  [0.5, -3, 0.5],        # along the silhouette edge x = z = 0.5
+                  [1.5, 0.5, 0.0],       # grazing the vertical edge x = 0.5, y = -0.5 at one point
+                  [0.1, 0.1, 3.0]])      # down through the diagonal of the top face (two triangles at once)
+    d = np.array([[0, 1.0, 0], [0, 1.0, 0], [-1.0, -1.0, 0], [0.2 - 0.1, 0.2 - 0.1, 0.5 - 3.0]])
+    ray, t, prim = rs.intersect_all(o, d)
+    got = {r: t[ray == r].tolist() for r in range(4)}
+    assert got[0] == [2.5, 3.5] and got[1] == [2.5, 3.5] and got[2] == [1.0]
+    assert got[3][0] == pytest.approx(1.0) and len(got[3]) == 2      # the top face once, then the bottom
+    np.testing.assert_array_equal(rs.count_hits(o, d), [2, 2, 1, 2])
+    h = rs.intersect(o, d)
+    assert h.hit.all() and h.t[0] == 2.5 and h.t[2] == 1.0
+    # the watertight rule keeps a closed mesh's parity instead: never one crossing on a graze
+    assert all(c % 2 == 0 for c in tight.count_hits(o, d))
+    # away from edges both rules agree
+    rng = np.random.default_rng(1)
+    ro = rng.normal(0, 2, (3000, 3))
+    rd = rng.uniform(-0.4, 0.4, (3000, 3)) - ro
+    np.testing.assert_array_equal(rs.count_hits(ro, rd), tight.count_hits(ro, rd))
+    np.testing.assert_array_equal(rs.intersect(ro, rd).t, tight.intersect(ro, rd).t)
+    with pytest.raises(RayInputError, match="edges must be one of"):
+        RayScene.from_trimesh(box, edges="loose")

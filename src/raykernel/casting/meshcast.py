@@ -65,11 +65,12 @@ class MeshKernel(NamedTuple):
 
 
 @njit(inline="always")
-def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax):
+def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax, edges):
     """primitives.hit_triangle for corners row j with the ray's shear precomputed."""
     return hit_sheared(c[j, kx] - o[kx], c[j, ky] - o[ky], c[j, kz] - o[kz],
                        c[j, 3 + kx] - o[kx], c[j, 3 + ky] - o[ky], c[j, 3 + kz] - o[kz],
-                       c[j, 6 + kx] - o[kx], c[j, 6 + ky] - o[ky], c[j, 6 + kz] - o[kz], sx, sy, sz, tmin, tmax)
+                       c[j, 6 + kx] - o[kx], c[j, 6 + ky] - o[ky], c[j, 6 + kz] - o[kz], sx, sy, sz, tmin, tmax,
+                       edges)
 
 
 @njit
@@ -86,6 +87,7 @@ def query(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax
     nb = geo.node_bounds
     first = geo.node_first
     count = geo.node_count
+    edges = geo.tri_edges[0]
     for c in range(c0, c1):
         stack = np.empty(STACK, np.int64)
         stack_t = np.empty(STACK)
@@ -141,7 +143,7 @@ def query(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax
                 s = first[node]
                 for j in range(s, s + k):
                     n_tests += 1
-                    t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best)
+                    t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
                     if t == INF:
                         continue
                     if mode == ALL_HITS:

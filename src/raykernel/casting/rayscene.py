@@ -48,7 +48,7 @@ from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..errors import RayKernelError
 from ..geometry import counters as C
 from ..geometry.config import njit
-from ..geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
+from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
 from ..scene.model import Scene, TriangleMesh
 from . import meshcast
 from .hitsurface import store_miss, store_surface
@@ -57,6 +57,7 @@ from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_o
 
 CHUNK = 1024
 CLOSEST, ANY = 0, 1
+EDGE_RULES = {"watertight": WATERTIGHT, "inclusive": INCLUSIVE}
 KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone", TRIANGLE: "triangle"}
 
 
@@ -248,13 +249,20 @@ class RayScene:
 
     SPHERE, POLYGON, PATCH, CONE, TRIANGLE = SPHERE, POLYGON, PATCH, CONE, TRIANGLE
 
-    def __init__(self, scene: Scene, accel: str = "bvh", max_memory=None):
+    def __init__(self, scene: Scene, accel: str = "bvh", max_memory=None, edges: str = "watertight"):
         """max_memory: the memory budget of the build and of lazy refinement, in bytes or as
-        "8G" (default: half of this machine's memory)."""
+        "8G" (default: half of this machine's memory). edges: "watertight" (a ray through a
+        shared edge or vertex hits exactly one triangle there) or "inclusive" (every triangle
+        there, reported once: rays grazing a silhouette edge or running in a face's plane hit,
+        as in Embree)."""
         if not isinstance(scene, Scene):
             raise RayInputError(f"scene must be a raykernel Scene, got {type(scene).__name__}")
+        if edges not in EDGE_RULES:
+            raise RayInputError(f"edges must be one of {', '.join(EDGE_RULES)}, got {edges!r}")
         self.scene = scene
+        self.edges = edges
         self.geo, self.build_stats = flatten(scene, accel, max_memory)
+        self.geo = self.geo._replace(tri_edges=np.array([EDGE_RULES[edges]], np.int64))
         table = self.build_stats.pop("geometries")
         self.geometries = [{"kind": KIND_NAMES[k], "count": int(n)} for k, _, n in table]
         # per kind family (polygons and patches share one numbering): first global index of each geometry
@@ -266,7 +274,7 @@ class RayScene:
             len(self.geo.agg_kind) > 1
         # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
         self._lazy = self.build_stats.get("lazy")
-        self._may_repeat = self._may_repeat or self._lazy is not None
+        self._may_repeat = self._may_repeat or self._lazy is not None or edges == "inclusive"
         self._mesh = MeshKernel.of(self.geo, table)
         self._lock = threading.RLock()      # held by queries that refine lazy structures
         self._local = threading.local()     # last_stats, per thread
@@ -303,19 +311,19 @@ class RayScene:
         return geom, local
 
     @classmethod
-    def from_trimesh(cls, mesh, accel: str = "bvh") -> "RayScene":
+    def from_trimesh(cls, mesh, accel: str = "bvh", edges: str = "watertight") -> "RayScene":
         """A trimesh.Trimesh, or any object with `.vertices` (V, 3) and `.faces` (F, 3)."""
         if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
             raise RayInputError(f"expected a mesh with .vertices and .faces, got {type(mesh).__name__}")
-        return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel)
+        return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel, edges=edges)
 
     @classmethod
-    def from_mesh(cls, vertices, faces=None, normals=None, accel: str = "bvh") -> "RayScene":
+    def from_mesh(cls, vertices, faces=None, normals=None, accel: str = "bvh", edges: str = "watertight") -> "RayScene":
         """A triangle mesh: vertices (V, 3) float32/float64, faces (F, 3) integer vertex
         indices, optional per-vertex normals (V, 3) for shading_normal. A mesh object
         (trimesh.Trimesh, anything with .vertices and .faces) may stand for both."""
         if faces is None and hasattr(vertices, "vertices") and hasattr(vertices, "faces"):
-            return cls.from_trimesh(vertices, accel)
+            return cls.from_trimesh(vertices, accel, edges)
         if faces is None:
             raise RayInputError(f"from_mesh needs faces, or a mesh object with .vertices and .faces "
                                 f"(got a {type(vertices).__name__})")
@@ -341,7 +349,7 @@ class RayScene:
                 raise RayInputError("normals must be finite")
         scene = Scene()
         scene.root.add(TriangleMesh(v, f.astype(np.int64), normals=n))
-        return cls(scene, accel)
+        return cls(scene, accel, edges=edges)
 
     @classmethod
     def from_spheres(cls, centers, radii, accel: str = "bvh") -> "RayScene":
@@ -366,11 +374,11 @@ class RayScene:
         return cls(scene, accel)
 
     @classmethod
-    def from_scene(cls, scene: Scene, accel: str = "bvh") -> "RayScene":
+    def from_scene(cls, scene: Scene, accel: str = "bvh", edges: str = "watertight") -> "RayScene":
         """Any scene model (loaded NFF/JSON, SPD generator, pathological scenes):
         all its primitive kinds, nested groups and instances; `accel` is the
         default for groups without their own spec."""
-        return cls(scene, accel)
+        return cls(scene, accel, edges=edges)
 
     # ------------------------------------------------------------- queries
 
@@ -484,9 +492,14 @@ class RayScene:
         order = np.lexsort((all_i[:, 2], all_i[:, 1], all_i[:, 0], all_t, ray))
         ray, all_t, all_i = ray[order], all_t[order], all_i[order]
         if self._may_repeat and len(ray) > 1:
-            # the same primitive met again in a later grid cell: same ray, t and identity
+            # the same primitive met again in a later grid cell: same ray, t and identity; with
+            # inclusive edges also the neighbours of an edge or vertex the ray passes through (same
+            # geometry and instance at the same t): the first, the smallest prim_id, stays
+            differ = all_i[1:] != all_i[:-1]      # geometry, prim_id, instance
+            if self.edges == "inclusive":
+                differ[:, 1] = False
             keep = np.ones(len(ray), bool)
-            keep[1:] = (ray[1:] != ray[:-1]) | (all_t[1:] != all_t[:-1]) | np.any(all_i[1:] != all_i[:-1], axis=1)
+            keep[1:] = (ray[1:] != ray[:-1]) | (all_t[1:] != all_t[:-1]) | np.any(differ, axis=1)
             ray, all_t, all_i = ray[keep], all_t[keep], all_i[keep]
         return ray, all_t, all_i, counts, stats
 

@@ -9,9 +9,12 @@
 The methods and their answers are those of trimesh's `RayMeshIntersector`
 (trimesh.ray.ray_triangle and ray_pyembree): `intersects_id`,
 `intersects_location`, `intersects_first`, `intersects_any` and
-`contains_points`. Hits are exact and watertight, in double precision: a
-ray through a shared edge or vertex meets exactly one of the triangles
-there, and every triangle along a ray once (Embree's engine in trimesh
+`contains_points`. Hits are exact, in double precision. By default edges
+are inclusive, as in trimesh's engines: a ray grazing a silhouette edge or
+running in the plane of a face hits the edge, and a ray through an edge or
+vertex is reported once, by the lowest-numbered triangle there
+(`edges="watertight"`: the one triangle the watertight rule gives it); every
+triangle along a ray once (Embree's engine in trimesh
 offsets each ray past a hit and tests again, which can miss a second hit
 closer than the offset, or report one point twice). With multiple hits the
 rows come ray by ray, nearest first. The built RayScene is cached with
@@ -31,13 +34,14 @@ from .rayscene import RayScene
 class RayMeshIntersector:
     """Ray queries on a trimesh.Trimesh, answered by raykernel (see the module docstring)."""
 
-    def __init__(self, geometry, accel: str = "bvh"):
+    def __init__(self, geometry, accel: str = "bvh", edges: str = "inclusive"):
         try:
             from trimesh import caching
         except ImportError:
             raise RayKernelError("raykernel.trimesh needs trimesh: pip install raykernel[mesh]") from None
         self.mesh = geometry
         self.accel = accel
+        self.edges = edges      # inclusive, as trimesh's engines: a ray grazing an edge hits it
         self._cache = caching.Cache(id_function=self.mesh.__hash__)
 
     @property
@@ -45,7 +49,8 @@ class RayMeshIntersector:
         """The RayScene of the mesh as it is now (built on first use, again after a change)."""
         scene = self._cache["scene"]      # None when absent, or when the mesh changed since
         if scene is None:
-            scene = RayScene.from_mesh(np.asarray(self.mesh.vertices), np.asarray(self.mesh.faces), accel=self.accel)
+            scene = RayScene.from_mesh(np.asarray(self.mesh.vertices), np.asarray(self.mesh.faces), accel=self.accel,
+                                       edges=self.edges)
             self._cache["scene"] = scene
         return scene
 
@@ -115,7 +120,7 @@ class RayMeshIntersector:
         self._cache = caching.Cache(id_function=self.mesh.__hash__)
 
     def __copy__(self):
-        return RayMeshIntersector(self.mesh, self.accel)
+        return RayMeshIntersector(self.mesh, self.accel, self.edges)
 
     def __deepcopy__(self, memo):
         return self.__copy__()

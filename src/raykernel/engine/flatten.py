@@ -83,6 +83,7 @@ PRIMITIVE_FIELDS = (
     "tri_faces",       # (T, 3) int64 vertex indices
     "tri_smooth",      # (T,) bool: interpolate tri_vnormals
     "tri_mat",         # (T,)
+    "tri_edges",       # (1,) int64: the triangle test's edge rule, primitives.WATERTIGHT or INCLUSIVE
 )
 AGGREGATE_FIELDS = (
     Field("agg_kind", np.int64),          # (A,) walk kind: the CODE of its module (LIST, BVH, GRID, OCTREE, RC)
@@ -461,6 +462,7 @@ def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None) -> tuple[
         poly_vnormals=_concat(vn_parts, (0, 3), np.float64),
         tri_verts=tri_verts, tri_vnormals=tri_vn, tri_faces=tri_faces, tri_smooth=tri_smooth,
         tri_mat=_concat([m.material for m, _ in arr.mesh], (0,), np.int32),
+        tri_edges=np.zeros(1, np.int64),
         root=int(root), **fields,
     )
     lazy = None

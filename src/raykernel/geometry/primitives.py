@@ -185,10 +185,14 @@ def ray_shear(dx, dy, dz):
     return kx, ky, kz, rx / rz, ry / rz, 1.0 / rz
 
 
+WATERTIGHT, INCLUSIVE = 0, 1    # edge rules of the triangle test
+
+
 @njit
-def hit_sheared(px0, py0, pz0, px1, py1, pz1, px2, py2, pz2, sx, sy, sz, tmin, tmax):
+def hit_sheared(px0, py0, pz0, px1, py1, pz1, px2, py2, pz2, sx, sy, sz, tmin, tmax, edges=WATERTIGHT):
     """The watertight test for corners already moved to the ray origin and permuted to
-    (kx, ky, kz) of ray_shear."""
+    (kx, ky, kz) of ray_shear. edges=INCLUSIVE counts a ray through an edge or vertex
+    as a hit of every triangle there (zero edge functions accepted on either side)."""
     if sz == 0.0:
         return INF
     # shear: the ray becomes the +z axis through the origin
@@ -199,7 +203,10 @@ def hit_sheared(px0, py0, pz0, px1, py1, pz1, px2, py2, pz2, sx, sy, sz, tmin, t
     u, su = _edge_sign(ax1, ay1, ax2, ay2)
     v, sv = _edge_sign(ax2, ay2, ax0, ay0)
     w, sw = _edge_sign(ax0, ay0, ax1, ay1)
-    if su == 0 or su != sv or su != sw:
+    if edges == INCLUSIVE:
+        if (u < 0.0 or v < 0.0 or w < 0.0) and (u > 0.0 or v > 0.0 or w > 0.0):
+            return INF
+    elif su == 0 or su != sv or su != sw:
         return INF
     det = u + v + w
     if det == 0.0:
@@ -211,7 +218,7 @@ def hit_sheared(px0, py0, pz0, px1, py1, pz1, px2, py2, pz2, sx, sy, sz, tmin, t
 
 
 @njit
-def hit_triangle(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy, dz, tmin, tmax):
+def hit_triangle(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy, dz, tmin, tmax, edges=WATERTIGHT):
     """Watertight ray/triangle test (Woop, Benthin and Wald 2013) in double
     precision, two-sided. The vertices are moved to the ray origin, permuted
     so that the ray's dominant axis is z, and sheared so that the ray runs
@@ -219,13 +226,15 @@ def hit_triangle(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy
     the same numbers in both triangles. An edge function that is exactly 0
     is resolved by a consistent tie rule (_edge_sign) instead of the paper's
     fallback to higher precision, so a ray through a shared edge or vertex of
-    a closed mesh hits exactly one of the triangles there."""
+    a closed mesh hits exactly one of the triangles there. edges=INCLUSIVE: every one
+    of them (rays grazing a silhouette edge or running in a face's plane then hit
+    the neighbouring faces' edges, as Embree's test reports them)."""
     kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
     p0 = (v0x - ox, v0y - oy, v0z - oz)
     p1 = (v1x - ox, v1y - oy, v1z - oz)
     p2 = (v2x - ox, v2y - oy, v2z - oz)
     return hit_sheared(p0[kx], p0[ky], p0[kz], p1[kx], p1[ky], p1[kz], p2[kx], p2[ky], p2[kz], sx, sy, sz,
-                       tmin, tmax)
+                       tmin, tmax, edges)
 
 
 @njit
