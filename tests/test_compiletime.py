@@ -33,3 +33,19 @@ def test_render_reports_compile_apart_and_first_run_turns_false():
     r = raykernel.render(raykernel.load("spd:balls:1"), resolution=8)
     assert r.stats["time.compile"] >= 0.0 and r.stats["time.trace"] >= 0.0
     assert not first_run()                   # this checkout's render kernel is in the cache now
+
+
+def test_a_first_query_that_compiles_says_so_once(tmp_path):
+    """On an empty kernel cache the first RayScene query prints one line on stderr; a later
+    process, starting from the cache, prints nothing."""
+    import os
+    import subprocess
+    import sys
+    code = ("import numpy as np; from raykernel import RayScene; s = RayScene.from_mesh(np.eye(3), [(0, 1, 2)]); "
+            "s.intersect(np.zeros(3), np.ones(3)); s.intersect(np.zeros(3), np.ones(3))")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert first.stderr.count("raykernel: compiling the ray-casting kernels") == 1
+    assert "compiling the BVH builder" in first.stderr
+    again = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert "compiling" not in again.stderr

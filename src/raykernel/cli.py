@@ -73,6 +73,7 @@ class _Progress:
 
 def cmd_render(args, console) -> int:
     from .engine.compiletime import FIRST_RUN_SECONDS, first_run
+    from .geometry.config import tell_once
     from .rendering.imageio import image_format
     from .rendering.render import render
     from .scene import examples
@@ -87,6 +88,7 @@ def cmd_render(args, console) -> int:
     out = args.output or _default_output(args.scene)
     image_format(out)           # refuse an unknown format before the work
     compiling = first_run()
+    tell_once("render", None)       # the line below says it, and the progress bar covers the wait
     if compiling:
         console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
                       "on 2 cores; later runs start from the cache.", markup=False, highlight=False)

@@ -14,14 +14,12 @@ compiler lock); a compile of another of the caller's own threads does not.
 
 from __future__ import annotations
 
-import hashlib
 import threading
 import time
-from pathlib import Path
 
 from numba.core import event
 
-from ..geometry.config import CACHE_DIR
+from ..geometry.config import cached
 from .parallel import WORKER_PREFIX
 
 FIRST_RUN_SECONDS = 35      # about how long the first render compiles on a 2-core machine (bench/startup.py)
@@ -63,8 +61,5 @@ class CompileClock(event.Listener):
 
 
 def first_run() -> bool:
-    """True when the kernel cache holds no render kernel of this source version and checkout
-    yet (numba keeps a checkout's kernels in <directory name>_<sha1 of its path>)."""
-    rendering = Path(__file__).resolve().parents[1] / "rendering"
-    where = Path(CACHE_DIR) / f"rendering_{hashlib.sha1(str(rendering).encode()).hexdigest()}"
-    return not any(where.glob("render._render_tiles-*.nbc"))
+    """True when the kernel cache holds no render kernel of this source version and checkout yet."""
+    return not cached("rendering", "render._render_tiles")

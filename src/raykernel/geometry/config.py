@@ -17,6 +17,8 @@ import contextlib
 import hashlib
 import os
 import shutil
+import sys
+import threading
 import time
 from pathlib import Path
 
@@ -74,3 +76,28 @@ def njit(func=None, *, private=False, **kwargs):
             numba.config.CACHE_DIR = saved
 
     return decorate(func) if func is not None else decorate
+
+
+def cached(package: str, kernel: str) -> bool:
+    """True when the kernel cache holds `kernel` (e.g. "render._render_tiles") of the
+    subpackage `package` ("rendering") of this checkout (numba keeps a checkout's kernels in
+    <directory name>_<sha1 of its path>)."""
+    folder = Path(__file__).resolve().parents[1] / package
+    where = Path(CACHE_DIR) / f"{package}_{hashlib.sha1(str(folder).encode()).hexdigest()}"
+    return any(where.glob(f"{kernel}-*.nbc"))
+
+
+_told = set()
+_told_lock = threading.Lock()
+
+
+def tell_once(key: str, message: str | None) -> None:
+    """Print `message` on stderr, once per process for each key: a first call that is about to
+    compile says so instead of waiting in silence. message None: only mark the key told (the
+    command line says it its own way)."""
+    with _told_lock:
+        if key in _told:
+            return
+        _told.add(key)
+    if message is not None:
+        print(message, file=sys.stderr, flush=True)

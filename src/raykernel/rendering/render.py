@@ -32,13 +32,13 @@ import numba
 import numpy as np
 
 from ..aggregates.lazyoctree import pass_ranges
-from ..engine.compiletime import CompileClock
+from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock, first_run
 from ..engine.flatten import flatten
 from ..engine.parallel import default_threads, for_ranges
 from ..engine.traverse import ANY_HIT, CLOSEST, intersect, workspace
 from ..errors import OptionError
 from ..geometry import counters as C
-from ..geometry.config import njit
+from ..geometry.config import njit, tell_once
 from ..geometry.primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal, normalize
 from ..scene.model import Scene
 from .stats import Stats
@@ -407,6 +407,9 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     work = [(last - first) * ((TILE // step) ** 2 - (TILE // coarse) ** 2 if coarse else (TILE // step) ** 2)
             for step, coarse, first, last in passes]
     done, total = 0, sum(work)
+    if not _render_tiles.signatures and first_run():
+        tell_once("render", f"raykernel: compiling the renderer's kernels (first render after install, about "
+                            f"{FIRST_RUN_SECONDS} s; cached for later processes)")
     with CompileClock() as clock:
         for (step, coarse, first, last), part in zip(passes, work):
             pass_counts = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
