@@ -566,16 +566,21 @@ class RayScene:
         p, shape = self._points(points)
         if len(self.geo.inst_agg) or len(self.geo.cone_length):
             raise RayInputError("contains does not handle instances or cones yet")
-        votes = np.zeros(len(p), np.int64)
         spheres = [g for g, info in enumerate(self.geometries) if info["kind"] == "sphere"]
-        for direction in INSIDE_DIRECTIONS:
+
+        def odd(q, direction):
             if spheres:
                 # a sphere counts once per ray in hit lists, but is crossed twice: its own test below
-                ray, _, _, geom, _ = self.intersect_all(p, direction, ids=True, threads=threads)
-                votes += np.bincount(ray[~np.isin(geom, spheres)], minlength=len(p)) % 2
-            else:
-                votes += self.count_hits(p, direction, threads=threads) % 2
-        inside = (votes >= 2) | inside_spheres(self.geo, p)
+                ray, _, _, geom, _ = self.intersect_all(q, direction, ids=True, threads=threads)
+                return np.bincount(ray[~np.isin(geom, spheres)], minlength=len(q)) % 2 == 1
+            return self.count_hits(q, direction, threads=threads) % 2 == 1
+
+        first, second = odd(p, INSIDE_DIRECTIONS[0]), odd(p, INSIDE_DIRECTIONS[1])
+        inside = first & second
+        split = np.flatnonzero(first != second)         # the third ray decides only where two disagree
+        if len(split):
+            inside[split] = odd(p[split], INSIDE_DIRECTIONS[2])
+        inside |= inside_spheres(self.geo, p)
         return inside.reshape(shape)
 
     def signed_distance(self, points, threads: int | None = None) -> np.ndarray:
