@@ -167,27 +167,6 @@ def start(csg_bounds, csg_first, csg_count, node, ox, oy, oz, dx, dy, dz, ix, iy
 
 
 @njit
-def sphere_crossings(cx, cy, cz, r, ox, oy, oz, dx, dy, dz):
-    """Both roots of the line with the sphere (t0 <= t1; equal where it grazes), or (inf, inf)."""
-    a = dx * dx + dy * dy + dz * dz
-    fx, fy, fz = ox - cx, oy - cy, oz - cz
-    half_b = fx * dx + fy * dy + fz * dz
-    k = half_b / a
-    lx, ly, lz = fx - k * dx, fy - k * dy, fz - k * dz
-    r2 = r * r
-    disc = r2 - (lx * lx + ly * ly + lz * lz)
-    if disc < 0.0:
-        return INF, INF
-    s = math.sqrt(a * disc)
-    q = -(half_b + s) if half_b >= 0.0 else -(half_b - s)
-    if q == 0.0:
-        return INF, INF
-    t0 = q / a
-    t1 = (fx * fx + fy * fy + fz * fz - r2) / q
-    return min(t0, t1), max(t0, t1)
-
-
-@njit
 def record(csg_t, csg_i, csg_m, csg_n, t, operand, kind, idx, inst, root, frame_f, f, cnt):
     """Add one crossing, with the map of frame f, to the buffer."""
     n = csg_n[0]

@@ -61,6 +61,7 @@ from ..geometry.primitives import (
     hit_polygon,
     hit_sphere,
     hit_triangle,
+    sphere_roots,
 )
 from .flatten import LIST, MAX_NESTING, STACK_SIZE
 from .parallel import for_ranges
@@ -158,8 +159,8 @@ def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, h
 def _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, operand, inst, frame_f, f, csg_t, csg_i, csg_m, csg_n,
                    cnt):
     """Below a CSG node a sphere counts both of the line's crossings (up to best_t)."""
-    t0, t1 = csg.sphere_crossings(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
-                                  geo.sph_radius[idx], ox, oy, oz, dx, dy, dz)
+    t0, t1 = sphere_roots(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
+                          geo.sph_radius[idx], ox, oy, oz, dx, dy, dz)
     if t0 <= best_t and t0 != INF:
         csg.record(csg_t, csg_i, csg_m, csg_n, t0, operand, SPHERE, idx, inst, 0, frame_f, f, cnt)
     if t1 <= best_t and t1 != INF:

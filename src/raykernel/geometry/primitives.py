@@ -60,9 +60,9 @@ def _quadratic_roots(a, half_b, c):
 
 
 @njit
-def hit_sphere(cx, cy, cz, r, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Nearest t in [tmin, tmax]. A negative radius shows only the inside:
-    hits where the ray enters the sphere from outside are ignored."""
+def sphere_roots(cx, cy, cz, r, ox, oy, oz, dx, dy, dz):
+    """Both roots of the ray's line with the sphere, t0 <= t1 (equal where it grazes),
+    or (inf, inf)."""
     a = dx * dx + dy * dy + dz * dz
     fx, fy, fz = ox - cx, oy - cy, oz - cz
     half_b = fx * dx + fy * dy + fz * dz
@@ -72,16 +72,26 @@ def hit_sphere(cx, cy, cz, r, ox, oy, oz, dx, dy, dz, tmin, tmax):
     r2 = r * r
     disc = r2 - (lx * lx + ly * ly + lz * lz)
     if disc < 0.0:
-        return INF
+        return INF, INF
     s = math.sqrt(a * disc)
     q = -(half_b + s) if half_b >= 0.0 else -(half_b - s)
     c = fx * fx + fy * fy + fz * fz - r2
     if q == 0.0:
-        return INF
+        return INF, INF
     t0 = q / a
     t1 = c / q
     if t0 > t1:
         t0, t1 = t1, t0
+    return t0, t1
+
+
+@njit
+def hit_sphere(cx, cy, cz, r, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Nearest t in [tmin, tmax]. A negative radius shows only the inside:
+    hits where the ray enters the sphere from outside are ignored."""
+    t0, t1 = sphere_roots(cx, cy, cz, r, ox, oy, oz, dx, dy, dz)
+    if t0 == INF:
+        return INF
     if r > 0.0:
         if tmin <= t0 <= tmax:
             return t0
