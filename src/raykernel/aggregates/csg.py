@@ -58,12 +58,12 @@ from ..geometry import counters as C
 from ..geometry.boxes import INF, box_entry, cull_margin
 from ..geometry.config import njit
 from ..scene.accel import Kind, Param
+from ..scene.model import MAX_OPERANDS
 from .walk import F_MAP, F_ORIGIN, F_STATE, FI_OPERAND, FI_SINK, Field
 
 CODE = 5
 DIFFERENCE, INTERSECTION, UNION = 0, 1, 2
 OPERATORS = ("difference", "intersection", "union")
-MAX_OPERANDS = 63            # one bit of an int64 per operand's inside state
 CAPACITY = 512               # crossings one ray may hold in the buffer at once (all nested nodes together)
 CSG_I = 6                    # csg_i columns: operand, kind, index, instance, flip, root
 

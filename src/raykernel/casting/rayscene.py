@@ -292,6 +292,12 @@ class RayScene:
         """The lock while a query may refine lazy structures; nothing to wait for otherwise."""
         return self._lock if self._lazy is not None else nullcontext()
 
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        del state["_lock"], state["_local"]
+        state.pop("_point_index", None)      # rebuilt on demand
+        return state
+
     def __setstate__(self, state):
         self.__dict__.update(state)
         self._lock = threading.RLock()
@@ -587,12 +593,6 @@ class RayScene:
         """Distance to the surface, negative inside (contains)."""
         d = self.distance(points, threads)
         return np.where(self.contains(points, threads), -d, d)
-
-    def __getstate__(self):
-        state = self.__dict__.copy()
-        del state["_lock"], state["_local"]
-        state.pop("_point_index", None)      # rebuilt on demand
-        return state
 
     def __repr__(self) -> str:
         g = self.geo

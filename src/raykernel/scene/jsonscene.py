@@ -169,7 +169,7 @@ import numpy as np
 
 from ..atomicfile import write_text
 from ..errors import SceneError
-from .model import MAX_NESTING, Camera, Group, Instance, Light, Material, Scene, TriangleMesh
+from .model import MAX_NESTING, MAX_OPERANDS, Camera, Group, Instance, Light, Material, Scene, TriangleMesh
 
 __all__ = ["MAX_NESTING", "read_json", "parse_json", "scene_from_json", "scene_to_json",
            "write_json", "transform_matrix"]
@@ -593,8 +593,8 @@ class _Reader:
                     self.fail(iptr, f"a cone is an open surface, not a closed solid: it cannot be a {kind} operand")
                 group.children.append(operand)
         n = len(group.children)
-        if n > 63:
-            self.fail(ptr, f"a {kind} takes at most 63 operands, got {n}: gather some in a union")
+        if n > MAX_OPERANDS:
+            self.fail(ptr, f"a {kind} takes at most {MAX_OPERANDS} operands, got {n}: gather some in a union")
         group.accel = f"difference(base={len(b['base'])})" if kind == "difference" else kind
         return group
 
