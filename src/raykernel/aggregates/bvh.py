@@ -69,7 +69,7 @@ import numpy as np
 from ..errors import OptionError, SceneError
 from ..geometry import counters as C
 from ..geometry.boxes import INF, box_entry, cull_margin
-from ..geometry.config import cached, njit, tell_once
+from ..geometry.config import cached, compiled, njit, tell_once
 from ..scene.accel import Kind, Param
 from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push
 
@@ -474,7 +474,7 @@ def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_
     tc = _cost_option(traversal_cost, "traversal_cost", positive=False)
     ic = _cost_option(intersection_cost, "intersection_cost", positive=True)
 
-    if not _build_kernel.signatures and not cached("aggregates", "bvh._build_kernel"):
+    if not compiled(_build_kernel) and not cached("aggregates", "bvh._build_kernel"):
         tell_once("bvh", "raykernel: compiling the BVH builder (first use after install, a few seconds)")
     nb, first, count, order, n_nodes, max_depth = _build_kernel(items, leaf_size, bins, tc, ic)
     if n_nodes < count.shape[0]:  # give back the unused part of the 2n - 1 node allocation

@@ -47,7 +47,7 @@ from ..engine.parallel import for_ranges
 from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..errors import RayKernelError
 from ..geometry import counters as C
-from ..geometry.config import cached, njit, tell_once
+from ..geometry.config import cached, compiled, njit, tell_once
 from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
 from ..scene.model import Scene, TriangleMesh
 from . import meshcast
@@ -405,7 +405,7 @@ class RayScene:
         all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
         kernel, name = (meshcast.query, "meshcast.query") if self._mesh is not None else (_query, "rayscene._query")
-        if n and not kernel.signatures and not cached("casting", name):
+        if n and not compiled(kernel) and not cached("casting", name):
             tell_once(name, f"raykernel: compiling the ray-casting kernels (first use after install, about "
                             f"{10 if self._mesh is not None else FIRST_RUN_SECONDS} s; cached for later processes)")
         with self._turn(), CompileClock() as clock:

@@ -19,6 +19,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numba
 
+from ..geometry.config import compiled
+
 CHUNKS_PER_THREAD = 8       # ranges per thread: enough for balance, few enough to keep the call overhead small
 WORKER_PREFIX = "raykernel-worker"
 
@@ -55,7 +57,7 @@ def for_ranges(fn, n: int, threads: int | None = None, kernel=None) -> None:
         return
     size = -(-n // n_ranges)
     start = 0
-    if kernel is not None and not kernel.signatures:
+    if kernel is not None and not compiled(kernel):
         fn(0, size)
         start = size
     futures = [_pool(threads).submit(fn, lo, min(n, lo + size)) for lo in range(start, n, size)]

@@ -78,6 +78,12 @@ def njit(func=None, *, private=False, **kwargs):
     return decorate(func) if func is not None else decorate
 
 
+def compiled(kernel) -> bool:
+    """True once a compiled function has a specialisation in this process (compiled or loaded
+    from the cache); anything else (a Python stand-in, as tests use) counts as ready."""
+    return bool(getattr(kernel, "signatures", True))
+
+
 def cached(package: str, kernel: str) -> bool:
     """True when the kernel cache holds `kernel` (e.g. "render._render_tiles") of the
     subpackage `package` ("rendering") of this checkout (numba keeps a checkout's kernels in

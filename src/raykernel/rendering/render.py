@@ -38,7 +38,7 @@ from ..engine.parallel import default_threads, for_ranges
 from ..engine.traverse import ANY_HIT, CLOSEST, intersect, workspace
 from ..errors import OptionError
 from ..geometry import counters as C
-from ..geometry.config import njit, tell_once
+from ..geometry.config import compiled, njit, tell_once
 from ..geometry.primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal, normalize
 from ..scene.model import Scene
 from .stats import Stats
@@ -407,7 +407,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     work = [(last - first) * ((TILE // step) ** 2 - (TILE // coarse) ** 2 if coarse else (TILE // step) ** 2)
             for step, coarse, first, last in passes]
     done, total = 0, sum(work)
-    if not _render_tiles.signatures and first_run():
+    if not compiled(_render_tiles) and first_run():
         tell_once("render", f"raykernel: compiling the renderer's kernels (first render after install, about "
                             f"{FIRST_RUN_SECONDS} s; cached for later processes)")
     with CompileClock() as clock:
