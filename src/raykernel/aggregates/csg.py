@@ -139,7 +139,7 @@ KINDS = (
 
 # ---------------------------------------------------------------- the walk
 
-@njit
+@njit(private=True)
 def start(csg_bounds, csg_first, csg_count, node, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, frame_i, f,
           csg_n):
     """Enter CSG node `node` in frame f: move the origin back to the operands' box and make
@@ -166,7 +166,7 @@ def start(csg_bounds, csg_first, csg_count, node, ox, oy, oz, dx, dy, dz, ix, iy
     return ox, oy, oz, best_t - te, csg_first[node], csg_first[node] + csg_count[node]
 
 
-@njit
+@njit(private=True)
 def record(csg_t, csg_i, csg_m, csg_n, t, operand, kind, idx, inst, root, frame_f, f, cnt):
     """Add one crossing, with the map of frame f, to the buffer."""
     n = csg_n[0]
@@ -200,7 +200,7 @@ def _inside(op, mask, base_bits, all_bits):
     return mask != 0
 
 
-@njit
+@njit(private=True)
 def _move(csg_t, csg_i, csg_m, src, dst):
     csg_t[dst] = csg_t[src]
     for k in range(CSG_I):
@@ -209,7 +209,7 @@ def _move(csg_t, csg_i, csg_m, src, dst):
         csg_m[dst, k] = csg_m[src, k]
 
 
-@njit
+@njit(private=True)
 def resolve(op, base, count, csg_t, csg_i, csg_m, csg_n, region, shift, operand, cnt):
     """The node's result surfaces from its crossings in rows region.. of the buffer:
     written back from row `region` in order of t, on the enclosing frame's ray (t + shift),

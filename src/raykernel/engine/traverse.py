@@ -87,7 +87,7 @@ def workspace():
             np.zeros(HIT_F), np.zeros(HIT_I, np.int64), csg_t, csg_i, csg_m, csg_n)
 
 
-@njit
+@njit(private=True)
 def _take(mode, t, kind, idx, inst, flip, maps, row, col, hit_f, hit_i, found, best_t, best_ref, best_inst):
     """The hit rule: hit (t, kind, idx, inst) with the map maps[row, col:col + 12] against
     the best so far; returns the new (found, best_t, best_ref, best_inst)."""
@@ -128,7 +128,7 @@ def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz
     return push(stack_a, stack_b, stack_t, sp, agg_start[a], entry_tag(kind, START), te)
 
 
-@njit
+@njit(private=True)
 def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, hit_f, hit_i, found, best_ref,
              best_inst, cnt):
     """End CSG frame f (csg.resolve): its result surfaces go to the enclosing sink, or, from the
@@ -155,7 +155,7 @@ def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, h
     return found, best_t, best_ref, best_inst, sink
 
 
-@njit
+@njit(private=True)
 def _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, operand, inst, frame_f, f, csg_t, csg_i, csg_m, csg_n,
                    cnt):
     """Below a CSG node a sphere counts both of the line's crossings (up to best_t)."""
