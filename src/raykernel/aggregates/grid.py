@@ -324,7 +324,7 @@ def flatten(builder, params, refs, bounds, name, box):
     return append_grid(builder.flat, grid, grid.cell_start, refs[grid.items], params["mailbox"], box), dict(stats)
 
 
-@njit(inline="always")
+@njit(private=True)
 def step(grid_cell_offset, grid_cell_size, grid_cells, grid_inv_cell, grid_mailbox, grid_origin, grid_res,
          kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
          stack_a, stack_b, stack_t, sp, cnt):

@@ -550,7 +550,7 @@ def _address(x, origin, scale, lo, hi):
     return min(max(q, lo), hi)
 
 
-@njit(inline="always")   # one call site; a call per step would cost the parametric walk 2x
+@njit(inline="always")   # the dispatch only: the walks are compiled apart (their IR inlined would cost 15 s)
 def step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_nbr, oct_origin, oct_pass, oct_root,
          oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, tmin, best_t, frame_f, f, stack_a, stack_b,
          stack_t, sp, cnt):
@@ -585,7 +585,7 @@ def step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_
                        ray, best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
 
 
-@njit(inline="always")
+@njit(private=True)
 def _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin, oct_pass, oct_root, oct_unit,
                 node, oi, ray, tmin, best_t,
                 stack_a, stack_b, stack_t, sp, cnt):
@@ -681,7 +681,7 @@ def _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin
         node = stack_a[sp]
 
 
-@njit(inline="always")
+@njit(private=True)
 def _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_root, oct_scale, oct_slot,
                 oct_unit, oct_walk, kind_step, a, te, oi, ray,
                 best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt):

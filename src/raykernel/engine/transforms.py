@@ -34,7 +34,7 @@ def transform_class(m: np.ndarray) -> int:
     return AFFINE
 
 
-@njit(inline="always")
+@njit(private=True)
 def map_ray(inst_to_local, inst_class, idx, ox, oy, oz, dx, dy, dz, cnt):
     """The ray in instance idx's space, with only the multiplies its map's class needs (Arvo's
     sparse transforms); the same numbers as the full product, since the terms left out are
@@ -55,7 +55,7 @@ def map_ray(inst_to_local, inst_class, idx, ox, oy, oz, dx, dy, dz, cnt):
             m[0] * dx + m[1] * dy + m[2] * dz, m[4] * dx + m[5] * dy + m[6] * dz, m[8] * dx + m[9] * dy + m[10] * dz)
 
 
-@njit(inline="always")
+@njit(private=True)
 def compose_map(inst_to_local, inst_class, instance, idx, frame_f, f, g, cnt):
     """Frame g's world-to-local map: instance idx's map after frame f's, or frame f's; with only
     the multiplies the class needs, and the same numbers as the full product."""
