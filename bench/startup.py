@@ -1,18 +1,22 @@
 """Start-up: how long each entry point takes on an empty kernel cache (cold) and from the cache (warm).
 
-    .venv/bin/python bench/startup.py [--label after] [--only render-balls]
+    .venv/bin/python bench/startup.py [--label after] [--only render-balls] [--against 01dc804]
 
 Each entry point runs in a fresh process twice: first with an empty
 NUMBA_CACHE_DIR (everything compiles), then again with the cache the first
 run left (everything loads). numba's compile events (`numba:compile`) give
 the seconds spent compiling, per top-level function. Writes the `startup`
 section of BENCHMARKS.md, keeping the rows of other labels, so a table
-measured before a change and one after sit side by side.
+measured before a change and one after sit side by side. With --against REV
+each entry point runs for REV (checked out into a temporary git worktree) and
+then for this tree, back to back, so that both rows meet the same machine
+load; this machine's speed drifts by a third within minutes.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -21,7 +25,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import BENCHMARKS, machine, replace_section  # noqa: E402
+from _report import BENCHMARKS, ROOT, machine, replace_section  # noqa: E402
 
 ENTRY_POINTS = {
     "render-balls": "from raykernel.scene.loading import load; from raykernel.rendering.render import render\n"
@@ -62,8 +66,10 @@ print(json.dumps({{"total": total, "compile": compile_s, "inclusive": inclusive}
 """
 
 
-def run_child(code: str, cache: str) -> dict:
+def run_child(code: str, cache: str, src: str | None = None) -> dict:
     env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    if src:
+        env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
     out = subprocess.run([sys.executable, "-c", CHILD.format(code=code)], env=env, capture_output=True, text=True,
                          check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -75,27 +81,38 @@ def main() -> int:
     ap.add_argument("--only", action="append", help="entry points to run (default: all)")
     ap.add_argument("--no-write", action="store_true", help="print, do not write BENCHMARKS.md")
     ap.add_argument("--table-only", action="store_true", help="rewrite the section from bench/startup.json, run nothing")
+    ap.add_argument("--against", metavar="REV", help="also run revision REV, entry point by entry point")
     args = ap.parse_args()
     rows = []
-    for name in [] if args.table_only else (args.only or ENTRY_POINTS):
-        with tempfile.TemporaryDirectory() as cache:
-            cold = run_child(ENTRY_POINTS[name], cache)
-            warm = run_child(ENTRY_POINTS[name], cache)
-        top = sorted(cold["inclusive"].items(), key=lambda kv: -kv[1])[:4]
-        row = dict(label=args.label, entry=name, cold=cold["total"], cold_compile=sum(cold["compile"].values()),
-                   warm=warm["total"], warm_compile=sum(warm["compile"].values()),
-                   top=", ".join(f"{k.split('.')[-1]} {v:.1f}" for k, v in top))
-        rows.append(row)
-        print(json.dumps(row), flush=True)
+    sides = [(args.label, None)]
+    with contextlib.ExitStack() as stack:
+        if args.against:
+            tree = stack.enter_context(tempfile.TemporaryDirectory())
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", tree, args.against], check=True,
+                           capture_output=True)
+            stack.callback(subprocess.run, ["git", "-C", str(ROOT), "worktree", "remove", "--force", tree],
+                           capture_output=True)
+            sides.insert(0, (f"{args.against} (same run as {args.label})", str(Path(tree) / "src")))
+        for name in [] if args.table_only else (args.only or ENTRY_POINTS):
+            for label, src in sides:
+                with tempfile.TemporaryDirectory() as cache:
+                    cold = run_child(ENTRY_POINTS[name], cache, src)
+                    warm = run_child(ENTRY_POINTS[name], cache, src)
+                top = sorted(cold["inclusive"].items(), key=lambda kv: -kv[1])[:4]
+                row = dict(label=label, entry=name, cold=cold["total"], cold_compile=sum(cold["compile"].values()),
+                           warm=warm["total"], warm_compile=sum(warm["compile"].values()),
+                           top=", ".join(f"{k.split('.')[-1]} {v:.1f}" for k, v in top))
+                rows.append(row)
+                print(json.dumps(row), flush=True)
     if args.no_write:
         return 0
     store = BENCHMARKS.with_name("bench") / "startup.json"
     old = json.loads(store.read_text()) if store.exists() else {}
     old.setdefault("rows", [])
-    keep = [r for r in old["rows"] if not (r["label"] == args.label and r["entry"] in {x["entry"] for x in rows})]
-    old["rows"] = keep + rows
-    if rows:
-        old.setdefault("machines", {})[args.label] = machine()
+    fresh = {(r["label"], r["entry"]) for r in rows}
+    old["rows"] = [r for r in old["rows"] if (r["label"], r["entry"]) not in fresh] + rows
+    for label in {r["label"] for r in rows}:
+        old.setdefault("machines", {})[label] = machine()
     store.write_text(json.dumps(old, indent=1) + "\n")
     lines = ["## Start-up: compile time, cold and warm",
              "",

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock
+from ..engine.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock
 from ..engine.flatten import BVH, LIST, flatten
 from ..engine.parallel import for_ranges
 from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
@@ -407,7 +407,7 @@ class RayScene:
         kernel, name = (meshcast.query, "meshcast.query") if self._mesh is not None else (_query, "rayscene._query")
         if n and not compiled(kernel) and not cached("casting", name):
             tell_once(name, f"raykernel: compiling the ray-casting kernels (first use after install, about "
-                            f"{10 if self._mesh is not None else FIRST_RUN_SECONDS} s; cached for later processes)")
+                            f"{FIRST_MESH_SECONDS if self._mesh is not None else FIRST_QUERY_SECONDS} s; cached for later processes)")
         with self._turn(), CompileClock() as clock:
             start = time.perf_counter()         # (after waiting for the lock)
             if n and self._mesh is not None:
