@@ -1,8 +1,11 @@
 """The kernel cache is keyed on the kernel sources, so no stale kernel runs."""
 
 import shutil
+import sys
 
 import numba
+import numpy as np
+import pytest
 
 from raykernel.geometry import config
 
@@ -50,3 +53,38 @@ def test_factory_form_takes_options():
         return a + b
 
     assert add(1, 2) == 3
+
+
+def test_private_kernels_borrow_their_arguments():
+    # a private kernel does no reference counting: many calls leave the array's
+    # count as it was and see the caller's data
+    @config.njit(private=True, cache=False)
+    def _total(a, i):
+        return a[i] + a[0]
+
+    @config.njit(cache=False)
+    def caller(a, n):
+        s = 0.0
+        for i in range(n):
+            s += _total(a, i % a.shape[0])
+        return s
+
+    a = np.arange(5.0)
+    count = sys.getrefcount(a)
+    assert caller(a, 1000) == sum(a[i % 5] for i in range(1000))
+    assert sys.getrefcount(a) == count
+    options = _total.targetoptions
+    assert options["_nrt"] is False and options["no_cpython_wrapper"] is True
+
+
+def test_a_private_kernel_may_not_allocate():
+    @config.njit(private=True, cache=False)
+    def _fresh(n):
+        return np.zeros(n).sum()
+
+    @config.njit(cache=False)
+    def caller(n):
+        return _fresh(n)
+
+    with pytest.raises(numba.core.errors.TypingError):
+        caller(3)

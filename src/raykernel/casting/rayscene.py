@@ -406,8 +406,9 @@ class RayScene:
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
         kernel, name = (meshcast.query, "meshcast.query") if self._mesh is not None else (_query, "rayscene._query")
         if n and not compiled(kernel) and not cached("casting", name):
+            seconds = FIRST_MESH_SECONDS if self._mesh is not None else FIRST_QUERY_SECONDS
             tell_once(name, f"raykernel: compiling the ray-casting kernels (first use after install, about "
-                            f"{FIRST_MESH_SECONDS if self._mesh is not None else FIRST_QUERY_SECONDS} s; cached for later processes)")
+                            f"{seconds} s; cached for later processes)")
         with self._turn(), CompileClock() as clock:
             start = time.perf_counter()         # (after waiting for the lock)
             if n and self._mesh is not None:
