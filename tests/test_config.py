@@ -88,3 +88,60 @@ def test_a_private_kernel_may_not_allocate():
 
     with pytest.raises(numba.core.errors.TypingError):
         caller(3)
+
+
+def test_a_borrowing_kernel_keeps_its_wrapper_and_counts_no_references():
+    @config.njit(borrows=True, cache=False)
+    def _pick(a, i):
+        return a[i]
+
+    @config.njit(cache=False)
+    def caller(a, n):
+        s = 0.0
+        for i in range(n):
+            s += _pick(a, i % a.shape[0])
+        return s
+
+    a = np.arange(4.0)
+    count = sys.getrefcount(a)
+    assert _pick(a, 3) == 3.0           # callable from Python
+    assert caller(a, 100) == sum(a[i % 4] for i in range(100))
+    assert sys.getrefcount(a) == count
+    assert _pick.targetoptions["_nrt"] is False and not _pick.targetoptions.get("no_cpython_wrapper", False)
+    assert "NRT_incref" not in next(iter(_pick.inspect_llvm().values()))
+
+
+def test_the_kernels_inner_loops_count_no_references():
+    # what kernels call per ray, per candidate or per pixel with arrays borrows them (or is inlined):
+    # reference counts there are atomics the threads fight over (they took half the time of a query)
+    from raykernel.aggregates import bvh, csg, grid, octree, rc
+    from raykernel.casting import proximity, rayscene
+    from raykernel.engine import transforms, traverse
+    from raykernel.geometry import primitives
+    from raykernel.rendering import render
+
+    per_item = [primitives.hit_polygon, primitives.point_in_polygon, rc.meets_beam, proximity._closest_on_polygon,
+                traverse.intersect, render._trace, render._render_tile, rayscene._cast, bvh.step, grid.step, rc.step,
+                csg.start, csg.record, csg.resolve, octree._parametric, octree._point_walk, transforms.map_ray]
+    for kernel in per_item:
+        assert kernel.targetoptions.get("_nrt") is False, kernel.py_func.__qualname__
+
+
+def test_a_geometry_is_typed_once_per_layout_as_numba_would():
+    from numba.core import types
+    from numba.core.typing.typeof import Purpose, typeof
+
+    import raykernel
+    from raykernel.engine.flatten import flatten
+
+    geo, _ = flatten(raykernel.load("spd:tetra:1"), "bvh")
+    field_by_field = types.NamedTuple([typeof(x, Purpose.argument) for x in geo], type(geo))
+    assert typeof(geo, Purpose.argument) == field_by_field
+    # another layout is another type: a strided view, a read-only array, another dtype
+    strided = geo._replace(node_bounds=np.zeros((4, 12))[:, ::2])
+    frozen = geo.node_bounds.copy()
+    frozen.flags.writeable = False
+    for other in (strided, geo._replace(node_bounds=frozen), geo._replace(refs=geo.refs.astype(np.int32))):
+        ty = typeof(other, Purpose.argument)
+        assert ty != field_by_field
+        assert ty == types.NamedTuple([typeof(x, Purpose.argument) for x in other], type(other))

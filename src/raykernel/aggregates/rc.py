@@ -219,7 +219,7 @@ def _le(k, r, h0, h1):
     return h0, h1
 
 
-@njit
+@njit(borrows=True)   # called per candidate: no reference counting
 def meets_beam(bx, i, lo, hi, face):
     """Does item box i of `bx` meet the beam of the hypercube lo..hi (x, y, z, u, v) of `face`?"""
     a = face // 2

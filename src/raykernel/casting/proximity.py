@@ -106,7 +106,7 @@ def _closest_on_segment(px, py, pz, ax, ay, az, bx, by, bz):
     return ax + s * ex, ay + s * ey, az + s * ez
 
 
-@njit
+@njit(borrows=True)   # called per candidate: no reference counting
 def _closest_on_polygon(poly_normal, poly_start, poly_count, poly_axis, v, i, px, py, pz):
     nx, ny, nz = poly_normal[i, 0], poly_normal[i, 1], poly_normal[i, 2]
     s, n = poly_start[i], poly_count[i]

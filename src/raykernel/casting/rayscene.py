@@ -121,41 +121,51 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
         hit_i = np.zeros(HIT_I + 3 * cap, np.int64)
         ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i, ws0[7], ws0[8], ws0[9], ws0[10])
         cnt = np.zeros(counters.shape[1], np.int64)     # columns past N_COUNTERS: lazy octree passes
-        for r in range(r0, r1):
-            cnt[C.RAYS_CAST] += 1
-            ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
-            dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
-            if mode == ALL_HITS:
-                hit_i[0] = 0
-                intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt)
-                k = hit_i[0]
-                if store:
-                    base = offsets[r]
-                    for j in range(min(k, offsets[r + 1] - base)):
-                        all_t[base + j] = hit_f[HIT_F + j]
-                        all_i[base + j, 0] = hit_i[HIT_I + 3 * j]
-                        all_i[base + j, 1] = hit_i[HIT_I + 3 * j + 1]
-                        all_i[base + j, 2] = hit_i[HIT_I + 3 * j + 2]
-                else:
-                    idx_out[r] = k
-                continue
-            if not intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt):
-                store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
-                kind_out[r] = -1
-                inst_out[r] = -1
-                continue
-            t = hit_f[0]
-            kind = hit_i[0]
-            idx = hit_i[1]
-            t_out[r] = t
-            kind_out[r] = kind
-            idx_out[r] = idx
-            inst_out[r] = hit_i[2]
-            if with_surface:
-                store_surface(geo, r, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f[1:13],
-                              uv_out, gn_out, sn_out, hit_i[3])
+        _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, uv_out, gn_out, sn_out,
+              with_surface, offsets, all_t, all_i, r0, r1, ws, cnt)
         for k in range(counters.shape[1]):
             counters[c, k] = cnt[k]
+
+
+@njit(private=True)     # one call per chunk: the rays' calls into intersect count no references
+def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, uv_out, gn_out, sn_out,
+          with_surface, offsets, all_t, all_i, r0, r1, ws, cnt):
+    """Rays r0..r1-1 of _query, with the chunk's workspace and counters."""
+    hit_f, hit_i = ws[5], ws[6]
+    store = offsets.shape[0] > 0
+    for r in range(r0, r1):
+        cnt[C.RAYS_CAST] += 1
+        ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+        dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+        if mode == ALL_HITS:
+            hit_i[0] = 0
+            intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt)
+            k = hit_i[0]
+            if store:
+                base = offsets[r]
+                for j in range(min(k, offsets[r + 1] - base)):
+                    all_t[base + j] = hit_f[HIT_F + j]
+                    all_i[base + j, 0] = hit_i[HIT_I + 3 * j]
+                    all_i[base + j, 1] = hit_i[HIT_I + 3 * j + 1]
+                    all_i[base + j, 2] = hit_i[HIT_I + 3 * j + 2]
+            else:
+                idx_out[r] = k
+            continue
+        if not intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt):
+            store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
+            kind_out[r] = -1
+            inst_out[r] = -1
+            continue
+        t = hit_f[0]
+        kind = hit_i[0]
+        idx = hit_i[1]
+        t_out[r] = t
+        kind_out[r] = kind
+        idx_out[r] = idx
+        inst_out[r] = hit_i[2]
+        if with_surface:
+            store_surface(geo, r, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f[1:13],
+                          uv_out, gn_out, sn_out, hit_i[3])
 
 
 # ----------------------------------------------------------------- input checks

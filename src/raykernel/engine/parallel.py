@@ -43,15 +43,17 @@ def _pool(threads: int) -> ThreadPoolExecutor:
         return _pools[threads]
 
 
-def for_ranges(fn, n: int, threads: int | None = None, kernel=None) -> None:
+def for_ranges(fn, n: int, threads: int | None = None, kernel=None, min_size: int = 1) -> None:
     """Call fn(lo, hi) over ranges covering 0..n, on up to `threads` threads at once.
     kernel: the compiled function fn calls; until it has been compiled (or loaded from the
     cache) the first range runs alone on this thread, since threads calling an uncompiled
-    kernel at once compile it once each (a first render took 52 s instead of 30)."""
+    kernel at once compile it once each (a first render took 52 s instead of 30).
+    min_size: items a range holds at least, so that small work (a lazy render's first
+    passes, a few rays each) runs on this thread instead of paying a hand-over per range."""
     threads = max(1, int(threads or default_threads()))
     if n <= 0:
         return
-    n_ranges = min(n, threads * CHUNKS_PER_THREAD)
+    n_ranges = min(n // max(1, min_size), threads * CHUNKS_PER_THREAD)
     if threads == 1 or n_ranges <= 1 or threading.current_thread().name.startswith(WORKER_PREFIX):
         fn(0, n)            # (a worker never waits on its own pool)
         return

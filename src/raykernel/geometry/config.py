@@ -55,7 +55,7 @@ def _cache_dir() -> Path:
 CACHE_DIR = str(_cache_dir())
 
 
-def njit(func=None, *, private=False, **kwargs):
+def njit(func=None, *, private=False, borrows=False, **kwargs):
     """numba.njit with the project's options; extra keywords override them.
     Use as @njit or @njit(parallel=True). private=True: called only from other
     kernels, so numba builds no Python wrapper for it; a wrapper unboxes every
@@ -64,10 +64,14 @@ def njit(func=None, *, private=False, **kwargs):
     borrows its arguments: without reference counting, a call does not touch
     each array's shared count (atomics that threads fight over), so a walk
     step compiled apart costs about what it cost inlined. Such a kernel may
-    not allocate: numba refuses to compile one that does."""
+    not allocate: numba refuses to compile one that does. borrows=True: borrows its
+    arguments but keeps the Python wrapper (a test or a Python caller may call it too);
+    for small functions that kernels call in their inner loops with arrays."""
     options = dict(KERNEL_OPTIONS, **kwargs)
     if private:
         options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True, _nrt=False)
+    elif borrows:
+        options.update(_nrt=False)
 
     def decorate(f):
         # numba picks the cache location when a function is decorated; point it

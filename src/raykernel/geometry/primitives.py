@@ -104,7 +104,7 @@ def hit_sphere(cx, cy, cz, r, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return INF
 
 
-@njit
+@njit(borrows=True)   # called per candidate: no reference counting
 def point_in_polygon(verts, start, count, axis, px, py, pz):
     """Crossing-number test in the plane that drops `axis`, with half-open
     edge rules so that a point on an edge shared by two coplanar polygons
@@ -136,7 +136,7 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
     return inside
 
 
-@njit
+@njit(borrows=True)   # called per candidate: no reference counting
 def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, dy, dz, tmin, tmax):
     # t from the first vertex, not the stored plane offset: (v0 - o) keeps its
     # digits when the polygon is far from the world origin but near the ray

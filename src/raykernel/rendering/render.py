@@ -44,6 +44,7 @@ from ..scene.model import Scene
 from .stats import Stats
 
 TILE = 16
+RANGE_SAMPLES = 512          # samples a thread is handed at least: fewer cost more to hand over than to trace
 CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change an 8-bit pixel
 # Secondary rays start this far off the surface, relative to the magnitude of
 # the coordinates involved: far above the rounding error of a double-precision
@@ -266,25 +267,31 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
         ws = workspace()
         rays = np.zeros((RAY_STACK, 11))
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
-        x0 = tile_x[tile]
-        y0 = tile_y[tile]
-        for j in range(y0, min(y0 + TILE, samples_h), step):
-            for i in range(x0, min(x0 + TILE, samples_w), step):
-                if coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0:
-                    continue
-                dx = cam[3] + i * cam[6] + j * cam[9]
-                dy = cam[4] + i * cam[7] + j * cam[10]
-                dz = cam[5] + i * cam[8] + j * cam[11]
-                dx, dy, dz = normalize(dx, dy, dz)
-                r, g, b = _trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz,
-                                 max_depth, cutoff, rays, ws, cnt)
-                out[j, i, 0] = r
-                out[j, i, 1] = g
-                out[j, i, 2] = b
+        _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile], max_depth,
+                     cutoff, out, step, coarse, rays, ws, cnt)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
             passes[tile - row0, k] = cnt[C.N_COUNTERS + k]
+
+
+@njit(private=True)     # one call per tile: the pixels' calls into _trace count no references
+def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff, out, step,
+                 coarse, rays, ws, cnt):
+    """The samples of the tile at (x0, y0) for _render_tiles, with the tile's workspace and counters."""
+    for j in range(y0, min(y0 + TILE, samples_h), step):
+        for i in range(x0, min(x0 + TILE, samples_w), step):
+            if coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0:
+                continue
+            dx = cam[3] + i * cam[6] + j * cam[9]
+            dy = cam[4] + i * cam[7] + j * cam[10]
+            dz = cam[5] + i * cam[8] + j * cam[11]
+            dx, dy, dz = normalize(dx, dy, dz)
+            r, g, b = _trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz,
+                             max_depth, cutoff, rays, ws, cnt)
+            out[j, i, 0] = r
+            out[j, i, 1] = g
+            out[j, i, 2] = b
 
 
 def lazy_passes(n_tiles: int, batch: int) -> list[tuple[int, int, int, int]]:
@@ -417,7 +424,8 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
             def tiles(lo, hi, first=first, step=step, coarse=coarse, geo=geo, pass_counts=pass_counts):
                 _render_tiles(geo, mats, lights, scene.background, cam, sw, sh, tile_x, tile_y, first + lo, first + hi,
                               first, max_depth, cutoff, samples, counts, pass_counts, step, coarse)
-            for_ranges(tiles, last - first, n_threads, kernel=_render_tiles)
+            for_ranges(tiles, last - first, n_threads, kernel=_render_tiles,
+                       min_size=-(-RANGE_SAMPLES * (last - first) // max(1, part)))
             if lazy is not None:
                 geo = lazy.refine(geo, pass_counts)
             done += part
