@@ -115,13 +115,14 @@ def test_the_kernels_inner_loops_count_no_references():
     # what kernels call per ray, per candidate or per pixel with arrays borrows them (or is inlined):
     # reference counts there are atomics the threads fight over (they took half the time of a query)
     from raykernel.aggregates import bvh, csg, grid, octree, rc
-    from raykernel.casting import proximity, rayscene
+    from raykernel.casting import meshcast, proximity, rayscene
     from raykernel.engine import transforms, traverse
     from raykernel.geometry import primitives
     from raykernel.rendering import render
 
     per_item = [primitives.hit_polygon, primitives.point_in_polygon, rc.meets_beam, proximity._closest_on_polygon,
-                traverse.intersect, render._trace, render._render_tile, rayscene._cast, bvh.step, grid.step, rc.step,
+                traverse.intersect, render._trace, render._render_tile, rayscene._cast, meshcast._chunk, bvh.step,
+                grid.step, rc.step,
                 csg.start, csg.record, csg.resolve, octree._parametric, octree._point_walk, transforms.map_ray]
     for kernel in per_item:
         assert kernel.targetoptions.get("_nrt") is False, kernel.py_func.__qualname__

@@ -376,3 +376,114 @@ def test_threads_per_call_give_the_same_answers(accel):
     assert one.last_stats == {**two.last_stats, "time.trace": one.last_stats["time.trace"],
                               "time.compile": one.last_stats["time.compile"]}
     np.testing.assert_array_equal(one.count_hits(o, d, threads=1), two.count_hits(o, d, threads=2))
+
+
+# ----------------------------------------------------------------- what a query computes and where it writes
+
+def _mixed_scene():
+    """Spheres, a mesh and an instance under a general structure (the general kernel)."""
+    rng = np.random.default_rng(11)
+    v, f = random_mesh(rng, 60)
+    scene = Scene()
+    scene.root.add(TriangleMesh(v, f))
+    sph = scene.root.spheres
+    sph.center, sph.radius, sph.material = rng.uniform(-1, 1, (20, 3)), rng.uniform(0.05, 0.2, 20), np.zeros(20, np.int32)
+    part = Group(name="part")
+    part.add(TriangleMesh(v[:30] * 0.5, f[:10]))
+    m = np.eye(4)
+    m[:3, 3] = (0.3, -0.2, 0.1)
+    scene.root.children.append(Instance(part, m))
+    return scene
+
+
+QUERY_SCENES = {
+    "mesh kernel": lambda: RayScene.from_mesh(*random_mesh(np.random.default_rng(5))),
+    "general": lambda: RayScene.from_scene(_mixed_scene(), "grid"),
+    "lazy": lambda: RayScene.from_scene(_mixed_scene(), "lazyoctree"),
+}
+
+
+@pytest.mark.parametrize("which", list(QUERY_SCENES))
+@pytest.mark.parametrize("fields", [("t",), ("prim_id",), ("t", "geom_id", "kind"), ("normal",), ("uv", "inst_id"),
+                                    ("shading_normal", "prim_id")])
+def test_fields_computes_only_what_is_asked_and_the_same(which, fields):
+    scene = QUERY_SCENES[which]()
+    o, d = random_rays(np.random.default_rng(2), 600)
+    full = scene.intersect(o, d)
+    part = scene.intersect(o, d, fields=fields)
+    assert np.isfinite(full.t).sum() > 50
+    np.testing.assert_array_equal(part.t, full.t)
+    for name in ("prim_id", "geom_id", "inst_id", "kind", "uv", "normal", "shading_normal"):
+        if name in fields:
+            np.testing.assert_array_equal(getattr(part, name), getattr(full, name))
+        else:
+            assert getattr(part, name) is None
+
+
+@pytest.mark.parametrize("which", list(QUERY_SCENES))
+def test_float32_outputs_are_the_double_results_rounded(which):
+    scene = QUERY_SCENES[which]()
+    o, d = random_rays(np.random.default_rng(3), 500)
+    full = scene.intersect(o, d)
+    small = scene.intersect(o, d, dtype="float32")
+    for name in ("t", "uv", "normal", "shading_normal"):
+        assert getattr(small, name).dtype == np.float32
+        np.testing.assert_array_equal(getattr(small, name), getattr(full, name).astype(np.float32))
+    for name in ("prim_id", "geom_id", "inst_id", "kind"):
+        assert getattr(small, name).dtype == np.int32
+        np.testing.assert_array_equal(getattr(small, name), getattr(full, name))
+
+
+@pytest.mark.parametrize("which", list(QUERY_SCENES))
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_out_fills_the_given_arrays_in_place(which, dtype):
+    scene = QUERY_SCENES[which]()
+    rng = np.random.default_rng(4)
+    o1, d1 = random_rays(rng, 300)
+    o2, d2 = random_rays(rng, 300)
+    hits = scene.intersect(o1, d1, fields=("t", "prim_id", "normal"), dtype=dtype)
+    arrays = (hits.t, hits.prim_id, hits.normal)
+    again = scene.intersect(o2, d2, fields=("t", "prim_id", "normal"), dtype=dtype, out=hits)
+    assert again is hits and all(a is b for a, b in zip(arrays, (hits.t, hits.prim_id, hits.normal)))
+    fresh = scene.intersect(o2, d2, fields=("t", "prim_id", "normal"), dtype=dtype)
+    for name in ("t", "prim_id", "normal"):
+        np.testing.assert_array_equal(getattr(hits, name), getattr(fresh, name))
+    assert not np.array_equal(fresh.t, scene.intersect(o1, d1, fields="t", dtype=dtype).t)
+    np.testing.assert_array_equal(hits.origins, o2)
+
+
+def test_out_of_another_shape_dtype_or_fields_is_refused():
+    scene = RayScene.from_spheres([(0, 0, 0)], 1.0)
+    o, d = np.zeros((4, 3)) - 3, np.ones((4, 3))
+    hits = scene.intersect(o, d, fields=("t", "prim_id"))
+    with pytest.raises(RayInputError, match=r"out.t must be a writable contiguous float64 array of shape \(5,\)"):
+        scene.intersect(np.zeros((5, 3)) - 3, np.ones((5, 3)), fields=("t", "prim_id"), out=hits)
+    with pytest.raises(RayInputError, match=r"out.t must be a writable contiguous float32"):
+        scene.intersect(o, d, fields=("t", "prim_id"), dtype="float32", out=hits)
+    with pytest.raises(RayInputError, match=r"out.normal is None"):
+        scene.intersect(o, d, fields=("t", "normal"), out=hits)
+    with pytest.raises(RayInputError, match=r"out must be the Hits"):
+        scene.intersect(o, d, out=np.zeros(4))
+    hits.t = hits.t[::-1]
+    with pytest.raises(RayInputError, match=r"out.t must be a writable contiguous"):
+        scene.intersect(o, d, fields=("t", "prim_id"), out=hits)
+    with pytest.raises(RayInputError, match=r"fields: no Hits field 'distance'"):
+        scene.intersect(o, d, fields=("t", "distance"))
+    with pytest.raises(RayInputError, match=r"dtype must be one of float64, float32"):
+        scene.intersect(o, d, dtype="float16")
+
+
+@pytest.mark.parametrize("which", list(QUERY_SCENES))
+def test_one_bound_for_every_ray_equals_a_bound_per_ray(which):
+    scene = QUERY_SCENES[which]()
+    o, d = random_rays(np.random.default_rng(6), 400)
+    n = len(o)
+    for lo, hi in ((0.3, 0.9), (0.0, np.inf), (0.5, 0.5)):
+        one = scene.intersect(o, d, tmin=lo, tmax=hi)
+        each = scene.intersect(o, d, tmin=np.full(n, lo), tmax=np.full(n, hi))
+        np.testing.assert_array_equal(one.t, each.t)
+        np.testing.assert_array_equal(one.prim_id, each.prim_id)
+        assert np.array_equal(scene.occluded(o, d, lo, hi), scene.occluded(o, d, np.full(n, lo), np.full(n, hi)))
+        assert np.array_equal(scene.count_hits(o, d, lo, hi), scene.count_hits(o, d, np.full(n, lo), np.full(n, hi)))
+    with pytest.raises(RayInputError, match=r"tmin > tmax for ray 2: 1.0 > 0.5"):
+        scene.intersect(o[:4], d[:4], tmin=1.0, tmax=[1.0, 2.0, 0.5, 3.0])

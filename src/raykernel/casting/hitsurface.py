@@ -61,8 +61,8 @@ def surface_uv(geo, kind, idx, px, py, pz):
 
 @njit(inline="always")
 def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip=0):
-    """Write (u, v) and the world-space unit normals of the hit into row r
-    (reversed where flip is set: a surface a CSG difference cut)."""
+    """Write (u, v) and the world-space unit normals of the hit into row r of those asked
+    for (the others have no rows), reversed where flip is set: a surface a CSG difference cut."""
     # the hit point in the primitive's own frame; normals back by the transpose
     lx = m[0] * px + m[1] * py + m[2] * pz + m[3]
     ly = m[4] * px + m[5] * py + m[6] * pz + m[7]
@@ -76,19 +76,27 @@ def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip
         sx, sy, sz = gx, gy, gz
     if flip != 0:
         gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-    gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz
-    sn_out[r, 0], sn_out[r, 1], sn_out[r, 2] = sx, sy, sz
-    u, v = surface_uv(geo, kind, idx, lx, ly, lz)
-    uv_out[r, 0] = u
-    uv_out[r, 1] = v
+    if gn_out.shape[0]:
+        gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz
+    if sn_out.shape[0]:
+        sn_out[r, 0], sn_out[r, 1], sn_out[r, 2] = sx, sy, sz
+    if uv_out.shape[0]:
+        u, v = surface_uv(geo, kind, idx, lx, ly, lz)
+        uv_out[r, 0] = u
+        uv_out[r, 1] = v
 
 
 @njit(inline="always")
 def store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface):
+    """A miss in row r of the outputs asked for (the others have no rows)."""
     t_out[r] = np.inf
-    idx_out[r] = -1
+    if idx_out.shape[0]:
+        idx_out[r] = -1
     if with_surface:
-        uv_out[r, 0] = uv_out[r, 1] = np.nan
+        if uv_out.shape[0]:
+            uv_out[r, 0] = uv_out[r, 1] = np.nan
         for k in range(3):
-            gn_out[r, k] = np.nan
-            sn_out[r, k] = np.nan
+            if gn_out.shape[0]:
+                gn_out[r, k] = np.nan
+            if sn_out.shape[0]:
+                sn_out[r, k] = np.nan

@@ -83,102 +83,121 @@ def query(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax
     of all_t / all_i as (kind, global index, instance), like the generic kernel.
     Chunks c0..c1-1 of `chunk` rays, counting into counters[c]."""
     n = origins.shape[0]
+    for c in range(c0, c1):
+        stack = np.empty(STACK, np.int64)
+        stack_t = np.empty(STACK)
+        o = np.empty(3)
+        _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
+               idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c,
+               c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o)
+
+
+@njit(private=True)     # one call per chunk; without reference counting: the surfaces read geo's arrays per hit
+def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
+           idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c, r0, r1,
+           stack, stack_t, o):
+    """Rays r0..r1-1 of query, counting into counters[c], with the chunk's stack and origin scratch."""
     store = offsets.shape[0] > 0
     nb = geo.node_bounds
     first = geo.node_first
     count = geo.node_count
     edges = geo.tri_edges[0]
-    for c in range(c0, c1):
-        stack = np.empty(STACK, np.int64)
-        stack_t = np.empty(STACK)
-        o = np.empty(3)
-        # counters in locals (registers), written once per chunk
-        n_bounds = n_nodes = n_leaves = n_tests = np.int64(0)
-        r0, r1 = c * chunk, min(n, (c + 1) * chunk)
-        for r in range(r0, r1):
-            ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
-            dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
-            o[0], o[1], o[2] = ox, oy, oz
-            ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
-            kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
-            lo = tmin[r]
-            best = tmax[r]
-            best_j = np.int64(-1)
-            n_all = np.int64(0)
-            base = offsets[r] if store else 0
-            sp = 0
-            n_bounds += 1
-            te = box_entry(geo.agg_bounds, geo.root, ox, oy, oz, ix, iy, iz, lo, best)
-            if te != INF:
-                stack[0] = root
-                stack_t[0] = te
-                sp = 1
-            while sp > 0:
-                sp -= 1
-                if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
-                    continue        # entered beyond the closest hit, beyond rounding (ties need the node)
-                node = stack[sp]
-                n_nodes += 1
-                k = count[node]
-                if k == 0:
-                    left = first[node]
-                    n_bounds += 2
-                    tl = box_entry(nb, left, ox, oy, oz, ix, iy, iz, lo, best)
-                    tr = box_entry(nb, left + 1, ox, oy, oz, ix, iy, iz, lo, best)
-                    if tl <= tr:
-                        if tr != INF:
-                            stack[sp], stack_t[sp] = left + 1, tr
-                            sp += 1
-                        if tl != INF:
-                            stack[sp], stack_t[sp] = left, tl
-                            sp += 1
-                    else:
-                        if tl != INF:
-                            stack[sp], stack_t[sp] = left, tl
-                            sp += 1
+    per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
+    # counters in locals (registers), written once per chunk
+    n_bounds = n_nodes = n_leaves = n_tests = np.int64(0)
+    for r in range(r0, r1):
+        ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+        dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+        o[0], o[1], o[2] = ox, oy, oz
+        ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+        kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
+        lo = tmin[r if per_lo else 0]
+        best = tmax[r if per_hi else 0]
+        best_j = np.int64(-1)
+        n_all = np.int64(0)
+        base = offsets[r] if store else 0
+        sp = 0
+        n_bounds += 1
+        te = box_entry(geo.agg_bounds, geo.root, ox, oy, oz, ix, iy, iz, lo, best)
+        if te != INF:
+            stack[0] = root
+            stack_t[0] = te
+            sp = 1
+        while sp > 0:
+            sp -= 1
+            if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
+                continue        # entered beyond the closest hit, beyond rounding (ties need the node)
+            node = stack[sp]
+            n_nodes += 1
+            k = count[node]
+            if k == 0:
+                left = first[node]
+                n_bounds += 2
+                tl = box_entry(nb, left, ox, oy, oz, ix, iy, iz, lo, best)
+                tr = box_entry(nb, left + 1, ox, oy, oz, ix, iy, iz, lo, best)
+                if tl <= tr:
+                    if tr != INF:
                         stack[sp], stack_t[sp] = left + 1, tr
                         sp += 1
+                    if tl != INF:
+                        stack[sp], stack_t[sp] = left, tl
+                        sp += 1
+                else:
+                    if tl != INF:
+                        stack[sp], stack_t[sp] = left, tl
+                        sp += 1
+                    stack[sp], stack_t[sp] = left + 1, tr
+                    sp += 1
+                continue
+            n_leaves += 1
+            s = first[node]
+            for j in range(s, s + k):
+                n_tests += 1
+                t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
+                if t == INF:
                     continue
-                n_leaves += 1
-                s = first[node]
-                for j in range(s, s + k):
-                    n_tests += 1
-                    t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
-                    if t == INF:
-                        continue
-                    if mode == ALL_HITS:
-                        if store and n_all < offsets[r + 1] - base:
-                            all_t[base + n_all] = t
-                            all_i[base + n_all, 0] = TRIANGLE
-                            all_i[base + n_all, 1] = prim[j]
-                            all_i[base + n_all, 2] = -1
-                        n_all += 1
-                        continue
-                    # ties at equal t go to the smaller triangle index, as in the generic kernel
-                    if best_j < 0 or t < best or prim[j] < prim[best_j]:
-                        best = t
-                        best_j = j
-                        if mode != 0:
-                            sp = 0
-                            break
-            if mode == ALL_HITS:
-                if not store:
-                    idx_out[r] = n_all
-                continue
-            if best_j < 0:
-                store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
-                kind_out[r] = geom_out[r] = inst_out[r] = -1
-                continue
-            t_out[r] = best
+                if mode == ALL_HITS:
+                    if store and n_all < offsets[r + 1] - base:
+                        all_t[base + n_all] = t
+                        all_i[base + n_all, 0] = TRIANGLE
+                        all_i[base + n_all, 1] = prim[j]
+                        all_i[base + n_all, 2] = -1
+                    n_all += 1
+                    continue
+                # ties at equal t go to the smaller triangle index, as in the generic kernel
+                if best_j < 0 or t < best or prim[j] < prim[best_j]:
+                    best = t
+                    best_j = j
+                    if mode != 0:
+                        sp = 0
+                        break
+        if mode == ALL_HITS:
+            if not store:
+                idx_out[r] = n_all
+            continue
+        if best_j < 0:
+            store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
+            if kind_out.shape[0]:
+                kind_out[r] = -1
+            if geom_out.shape[0]:
+                geom_out[r] = -1
+            if inst_out.shape[0]:
+                inst_out[r] = -1
+            continue
+        t_out[r] = best
+        if kind_out.shape[0]:           # (outputs not asked for have no rows)
             kind_out[r] = TRIANGLE
+        if geom_out.shape[0]:
             geom_out[r] = geom[best_j]
+        if idx_out.shape[0]:
             idx_out[r] = local[best_j]
+        if inst_out.shape[0]:
             inst_out[r] = -1
-            if with_surface:
-                store_surface(geo, r, TRIANGLE, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz,
-                              _IDENTITY, uv_out, gn_out, sn_out)
-        counters[c, C.RAYS_CAST] = r1 - r0
-        counters[c, C.BOUNDS_TESTS] = n_bounds
-        counters[c, C.CELLS_VISITED] = n_nodes
-        counters[c, C.CELLS_LEAVES] = n_leaves
-        counters[c, C.TESTS + TRIANGLE] = n_tests
+        if with_surface:
+            store_surface(geo, r, TRIANGLE, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz,
+                          _IDENTITY, uv_out, gn_out, sn_out)
+    counters[c, C.RAYS_CAST] = r1 - r0
+    counters[c, C.BOUNDS_TESTS] = n_bounds
+    counters[c, C.CELLS_VISITED] = n_nodes
+    counters[c, C.CELLS_LEAVES] = n_leaves
+    counters[c, C.TESTS + TRIANGLE] = n_tests

@@ -4,6 +4,8 @@
     hits = scene.intersect(origins, directions)          # closest hits: hits.t, hits.prim_id, hits.normal ...
     blocked = scene.occluded(origins, directions, tmax=1.0)
     ray, t, prim = scene.intersect_all(origins, directions)
+    hits = scene.intersect(origins, directions, fields=("t", "prim_id"), dtype="float32")   # only what you need
+    scene.intersect(origins, directions, fields=("t", "prim_id"), dtype="float32", out=hits)   # into those arrays
 
 Rays are rows of (N, 3) arrays (a single (3,) row is broadcast against the
 other argument); directions need not be unit length, t is measured in units
@@ -57,6 +59,11 @@ from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_o
 
 CHUNK = 1024
 CLOSEST, ANY = 0, 1
+HIT_FIELDS = ("t", "prim_id", "geom_id", "inst_id", "kind", "uv", "normal", "shading_normal")   # intersect's fields=
+FLOAT_FIELDS = ("t", "uv", "normal", "shading_normal")
+FIELD_COLUMNS = {"uv": (2,), "normal": (3,), "shading_normal": (3,)}
+DTYPES = {"float64": (np.float64, np.int64), "float32": (np.float32, np.int32)}    # floats, ids
+OUTPUTS = ("t", "kind", "geom", "idx", "inst", "uv", "gn", "sn")     # the kernels' output arrays, in call order
 EDGE_RULES = {"watertight": WATERTIGHT, "inclusive": INCLUSIVE}
 KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone", TRIANGLE: "triangle"}
 
@@ -133,13 +140,15 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
     """Rays r0..r1-1 of _query, with the chunk's workspace and counters."""
     hit_f, hit_i = ws[5], ws[6]
     store = offsets.shape[0] > 0
+    per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
     for r in range(r0, r1):
+        lo, hi = tmin[r if per_lo else 0], tmax[r if per_hi else 0]
         cnt[C.RAYS_CAST] += 1
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
         if mode == ALL_HITS:
             hit_i[0] = 0
-            intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt)
+            intersect(geo, ox, oy, oz, dx, dy, dz, lo, hi, mode, ws, cnt)
             k = hit_i[0]
             if store:
                 base = offsets[r]
@@ -151,18 +160,23 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
             else:
                 idx_out[r] = k
             continue
-        if not intersect(geo, ox, oy, oz, dx, dy, dz, tmin[r], tmax[r], mode, ws, cnt):
+        if not intersect(geo, ox, oy, oz, dx, dy, dz, lo, hi, mode, ws, cnt):
             store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
-            kind_out[r] = -1
-            inst_out[r] = -1
+            if kind_out.shape[0]:
+                kind_out[r] = -1
+            if inst_out.shape[0]:
+                inst_out[r] = -1
             continue
         t = hit_f[0]
         kind = hit_i[0]
         idx = hit_i[1]
         t_out[r] = t
-        kind_out[r] = kind
-        idx_out[r] = idx
-        inst_out[r] = hit_i[2]
+        if kind_out.shape[0]:           # (outputs not asked for have no rows)
+            kind_out[r] = kind
+        if idx_out.shape[0]:
+            idx_out[r] = idx
+        if inst_out.shape[0]:
+            inst_out[r] = hit_i[2]
         if with_surface:
             store_surface(geo, r, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f[1:13],
                           uv_out, gn_out, sn_out, hit_i[3])
@@ -192,21 +206,25 @@ def _vectors(value, name: str) -> np.ndarray:
 
 
 def _interval(value, name: str, shape: tuple) -> np.ndarray:
+    """tmin or tmax flat, one per ray, or one number as a (1,) array: the kernels then read it for every ray."""
     arr = _real_array(value, name)
-    try:
-        arr = np.broadcast_to(arr, shape)
-    except ValueError:
-        raise RayInputError(f"{name} must be a number or have shape {shape}, got {arr.shape}") from None
-    arr = np.ascontiguousarray(arr).reshape(-1)
+    if arr.ndim == 0:
+        arr = arr.reshape(1)
+    else:
+        try:
+            arr = np.broadcast_to(arr, shape)
+        except ValueError:
+            raise RayInputError(f"{name} must be a number or have shape {shape}, got {arr.shape}") from None
+        arr = np.ascontiguousarray(arr).reshape(-1)
     if np.isnan(arr).any():
         raise RayInputError(f"{name}[{int(np.flatnonzero(np.isnan(arr))[0])}] is NaN")
     return arr
 
 
 def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
-    """Validated float64 copies, flat: origins (N, 3), directions (N, 3), tmin (N,), tmax (N,),
-    and the rays' shape: the leading dimensions of origins and directions broadcast together
-    ((N,) for (N, 3) arrays, (H, W) for an image of rays, (1,) for one (3,) ray)."""
+    """Validated float64 copies, flat: origins (N, 3), directions (N, 3), tmin and tmax ((N,), or
+    (1,) for one number), and the rays' shape: the leading dimensions of origins and directions
+    broadcast together ((N,) for (N, 3) arrays, (H, W) for an image of rays, (1,) for one (3,) ray)."""
     o = _vectors(origins, "origins")
     d = _vectors(directions, "directions")
     try:
@@ -223,8 +241,31 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
     bad = lo > hi
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise RayInputError(f"tmin > tmax for ray {i}: {lo[i]} > {hi[i]}")
+        n = len(o)
+        raise RayInputError(f"tmin > tmax for ray {i}: {np.broadcast_to(lo, n)[i]} > {np.broadcast_to(hi, n)[i]}")
     return np.ascontiguousarray(o), np.ascontiguousarray(d), lo, hi, shape
+
+
+def _field_names(fields) -> tuple:
+    """intersect's fields= as names of HIT_FIELDS in their order, t among them."""
+    names = (fields,) if isinstance(fields, str) else tuple(fields)
+    for name in names:
+        if name not in HIT_FIELDS:
+            raise RayInputError(f"fields: no Hits field {name!r}; fields: {', '.join(HIT_FIELDS)}")
+    return tuple(f for f in HIT_FIELDS if f == "t" or f in names)
+
+
+def _out_array(out, name: str, shape: tuple, dtype) -> np.ndarray:
+    """out.<name> as a flat view to fill, if it has the shape and dtype this call writes."""
+    arr = getattr(out, name)
+    if arr is None:
+        raise RayInputError(f"out.{name} is None (out was made without it): pass the same fields")
+    if not isinstance(arr, np.ndarray) or arr.shape != shape or arr.dtype != dtype or not arr.flags.c_contiguous \
+            or not arr.flags.writeable:
+        got = f"{arr.dtype} {arr.shape}" if isinstance(arr, np.ndarray) else type(arr).__name__
+        raise RayInputError(f"out.{name} must be a writable contiguous {np.dtype(dtype)} array of shape {shape} "
+                            f"for these rays, got {got}")
+    return arr.reshape((-1,) + FIELD_COLUMNS.get(name, ()))     # a view: the array is contiguous
 
 
 # ----------------------------------------------------------------- the scene
@@ -398,18 +439,15 @@ class RayScene:
 
     # ------------------------------------------------------------- queries
 
-    def _run(self, mode, o, d, lo, hi, with_surface=False, offsets=None, all_t=None, all_i=None, threads=None):
-        """One query kernel over all rays: t, kind, geom, idx, inst, uv, normals, shading normals, stats.
-        Closest and any hits: idx counts within the geometry; all hits: idx holds the counts, or with
-        offsets the hits go to all_t / all_i as (kind, global index, instance)."""
+    def _run(self, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None, threads=None) -> dict:
+        """One query kernel over all rays, filling the arrays of `out` (t, kind, geom, idx, inst, uv,
+        gn, sn; those not wanted have no rows) in place; returns the query's statistics. Closest
+        and any hits: the mesh kernel writes identities as the user sees them (geom, index within
+        it), the general one kind and global index in idx (see _identify). All hits: idx holds
+        the counts, or with offsets the hits go to all_t / all_i as (kind, global index, instance)."""
         n = len(o)
-        t = np.empty(n)
-        kind = np.empty(n, np.int64)
-        geom = np.empty(n, np.int64)
-        idx = np.empty(n, np.int64)
-        inst = np.empty(n, np.int64)
-        m = n if with_surface else 0
-        uv, gn, sn = np.empty((m, 2)), np.empty((m, 3)), np.empty((m, 3))
+        t, kind, geom, idx, inst, uv, gn, sn = (out[k] for k in OUTPUTS)
+        with_surface = len(uv) > 0 or len(gn) > 0 or len(sn) > 0
         offsets = np.zeros(0, np.int64) if offsets is None else offsets
         all_t = np.zeros(0) if all_t is None else all_t
         all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
@@ -432,7 +470,7 @@ class RayScene:
                 # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
                 # than a chunk add into the first chunk's row. Results go back to the rays' own order.
                 order = coarse_to_fine(n)
-                ins = [a[order] for a in (o, d, lo, hi)]
+                ins = [np.broadcast_to(a, (n,) + a.shape[1:])[order] for a in (o, d, lo, hi)]
                 outs = [np.empty_like(a) for a in (t, kind, idx, inst, uv, gn, sn)]
                 p_offsets, p_all_t, p_all_i = offsets, all_t, all_i
                 if len(offsets):
@@ -448,7 +486,7 @@ class RayScene:
                     counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
                     self.geo = self._lazy.refine(self.geo, rows[:, C.N_COUNTERS:])
                 for mine, theirs in zip((t, kind, idx, inst, uv, gn, sn), outs):
-                    if len(mine):       # surfaces only when asked for
+                    if len(mine):       # only what was asked for
                         mine[order] = theirs
                 if len(offsets):
                     # ray order[k]'s hits lie at p_offsets[k]..p_offsets[k + 1]
@@ -463,47 +501,98 @@ class RayScene:
                                                  gn, sn, with_surface, offsets, all_t, all_i, counters, c0, c1),
                            len(counters), threads, kernel=_query)
         seconds = time.perf_counter() - start - clock.seconds
-        if self._mesh is None and mode != ALL_HITS:
-            geom, idx = self._identify(kind, idx)
         totals = counters.sum(axis=0)
         stats = {name: int(totals[k]) for k, name in C.NAMES.items() if totals[k]}
         stats["rays.cast"] = n
         stats["time.trace"] = seconds
         stats["time.compile"] = clock.seconds
-        return t, kind, geom, idx, inst, uv, gn, sn, stats
+        return stats
 
-    def intersect(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> Hits:
+    def _outputs(self, shape: tuple, fields=None, dtype="float64", out=None) -> tuple[dict, dict]:
+        """(the kernel's output arrays by OUTPUTS name, the Hits fields asked for by name): the
+        fields' arrays come from `out` (a Hits) or are new; what nobody asked for has no rows.
+        The general kernel writes kind and global index (int64) for _identify, apart."""
+        fields = HIT_FIELDS if fields is None else _field_names(fields)
+        if dtype not in DTYPES:
+            raise RayInputError(f"dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
+        fdt, idt = DTYPES[dtype]
+        if out is not None and not isinstance(out, Hits):
+            raise RayInputError(f"out must be the Hits of an earlier intersect call, got {type(out).__name__}")
+        n = int(np.prod(shape))
+        hits = {}
+        for name in fields:
+            dt = fdt if name in FLOAT_FIELDS else idt
+            columns = FIELD_COLUMNS.get(name, ())
+            hits[name] = np.empty((n,) + columns, dt) if out is None else _out_array(out, name, shape + columns, dt)
+        none_f, none_i = np.empty(0, fdt), np.empty(0, idt)
+        arrays = dict(t=hits["t"], kind=hits.get("kind", none_i), geom=hits.get("geom_id", none_i),
+                      idx=hits.get("prim_id", none_i), inst=hits.get("inst_id", none_i),
+                      uv=hits.get("uv", np.empty((0, 2), fdt)), gn=hits.get("normal", np.empty((0, 3), fdt)),
+                      sn=hits.get("shading_normal", np.empty((0, 3), fdt)))
+        if self._mesh is None:
+            identify = "prim_id" in hits or "geom_id" in hits
+            arrays["kind"] = np.empty(n, np.int64) if identify or "kind" in hits else np.empty(0, np.int64)
+            arrays["idx"] = np.empty(n, np.int64) if identify else np.empty(0, np.int64)
+            arrays["geom"] = np.empty(0, np.int64)
+        return arrays, hits
+
+    def intersect(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None, fields=None,
+                  dtype: str = "float64", out: Hits | None = None) -> Hits:
         """Closest hit of every ray in [tmin, tmax]. Ties at equal t go to the
         smaller (geom_id, prim_id, inst_id), whatever the traversal order.
-        threads: how many to use (default: numba's thread count)."""
+        threads: how many to use (default: numba's thread count).
+        fields: the Hits fields to compute, e.g. ("t", "prim_id") (default: all of HIT_FIELDS;
+        t always); the others are None. The surface fields (uv, normal, shading_normal) cost
+        the most.
+        dtype: "float64", or "float32" for float32 t, uv and normals and int32 ids: half the
+        memory to fill (the arithmetic stays in double precision, t is rounded once).
+        out: a Hits of an earlier call with these fields, dtype and number of rays: its arrays
+        are filled in place instead of new ones (no memory to allocate and fault in)."""
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
-        t, kind, geom, prim, inst, uv, gn, sn, stats = self._run(CLOSEST, o, d, lo, hi, with_surface=True,
-                                                                 threads=threads)
+        arrays, hits = self._outputs(shape, fields, dtype, out)
+        stats = self._run(CLOSEST, o, d, lo, hi, arrays, threads=threads)
+        if self._mesh is None:
+            if "prim_id" in hits or "geom_id" in hits:
+                geom, prim = self._identify(arrays["kind"], arrays["idx"])
+                for name, value in (("prim_id", prim), ("geom_id", geom)):
+                    if name in hits:
+                        hits[name][...] = value
+            if "kind" in hits:
+                hits["kind"][...] = arrays["kind"]
         self.last_stats = stats
-        return Hits(t=t.reshape(shape), prim_id=prim.reshape(shape), geom_id=geom.reshape(shape),
-                    inst_id=inst.reshape(shape), kind=kind.reshape(shape), uv=uv.reshape(shape + (2,)),
-                    normal=gn.reshape(shape + (3,)), shading_normal=sn.reshape(shape + (3,)),
-                    origins=o.reshape(shape + (3,)), directions=d.reshape(shape + (3,)))
+        if out is not None:
+            out.origins, out.directions = o.reshape(shape + (3,)), d.reshape(shape + (3,))
+            return out
+        return Hits(**{name: (hits[name].reshape(shape + FIELD_COLUMNS.get(name, ())) if name in hits else None)
+                       for name in HIT_FIELDS}, origins=o.reshape(shape + (3,)), directions=d.reshape(shape + (3,)))
 
     def occluded(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
         """True where the ray meets anything in [tmin, tmax] (stops at the first hit found)."""
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
-        t, *_, stats = self._run(ANY, o, d, lo, hi, threads=threads)
-        self.last_stats = stats
-        return np.isfinite(t).reshape(shape)
+        arrays, _ = self._outputs((len(o),), ("t",))
+        self.last_stats = self._run(ANY, o, d, lo, hi, arrays, threads=threads)
+        return np.isfinite(arrays["t"]).reshape(shape)
+
+    def _counts(self, n: int) -> dict:
+        """Output arrays for an all-hits run: t and the counts (idx) only."""
+        arrays, _ = self._outputs((n,), ("t",))
+        arrays["idx"] = np.empty(n, np.int64)
+        return arrays
 
     def _all(self, o, d, lo, hi, threads=None):
         with self._turn():      # both runs, with no other query refining in between
             mark = self._lazy.checkpoint() if self._lazy is not None else None
-            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi, threads=threads)
+            arrays = self._counts(len(o))
+            stats = self._run(ALL_HITS, o, d, lo, hi, arrays, threads=threads)
+            counts = arrays["idx"]
             if mark is not None:
                 self.geo = self._lazy.restore(mark, self.geo)   # the second run must meet the same trees
             offsets = np.zeros(len(o) + 1, np.int64)
             np.cumsum(counts, out=offsets[1:])
             all_t = np.empty(offsets[-1])
             all_i = np.empty((offsets[-1], 3), np.int64)
-            *_, stats2 = self._run(ALL_HITS, o, d, lo, hi, offsets=offsets, all_t=all_t, all_i=all_i,
-                                   threads=threads)
+            stats2 = self._run(ALL_HITS, o, d, lo, hi, self._counts(len(o)), offsets=offsets, all_t=all_t,
+                               all_i=all_i, threads=threads)
         for k, v in stats2.items():
             stats[k] = stats.get(k, 0) + v
         stats["rays.cast"] = len(o)
@@ -547,7 +636,9 @@ class RayScene:
             ray, _, _, _, stats = self._all(o, d, lo, hi, threads)
             counts = np.bincount(ray, minlength=len(o)).astype(np.int64)
         else:
-            _, _, _, counts, _, _, _, _, stats = self._run(ALL_HITS, o, d, lo, hi, threads=threads)
+            arrays = self._counts(len(o))
+            stats = self._run(ALL_HITS, o, d, lo, hi, arrays, threads=threads)
+            counts = arrays["idx"]
         self.last_stats = stats
         return counts.reshape(shape)
 

@@ -77,7 +77,7 @@ class RayMeshIntersector:
                 keep = np.arange(len(ray)) - first < max_hits
                 ray, t, tri = ray[keep], t[keep], tri[keep]
         else:
-            hits = self.scene.intersect(o, d)
+            hits = self.scene.intersect(o, d, fields=("t", "prim_id"))
             ray = np.flatnonzero(np.isfinite(hits.t))
             t, tri = hits.t[ray], hits.prim_id[ray]
         if return_locations:
@@ -95,7 +95,7 @@ class RayMeshIntersector:
         o, d = self._rays(ray_origins, ray_directions)
         if len(o) == 0:
             return np.zeros(0, np.int64)
-        return self.scene.intersect(o, d).prim_id
+        return self.scene.intersect(o, d, fields="prim_id").prim_id
 
     def intersects_any(self, ray_origins, ray_directions) -> np.ndarray:
         """True where the ray hits the mesh at all."""
