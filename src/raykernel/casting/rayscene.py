@@ -524,7 +524,7 @@ class RayScene:
             dt = fdt if name in FLOAT_FIELDS else idt
             columns = FIELD_COLUMNS.get(name, ())
             hits[name] = np.empty((n,) + columns, dt) if out is None else _out_array(out, name, shape + columns, dt)
-        none_f, none_i = np.empty(0, fdt), np.empty(0, idt)
+        none_i = np.empty(0, idt)
         arrays = dict(t=hits["t"], kind=hits.get("kind", none_i), geom=hits.get("geom_id", none_i),
                       idx=hits.get("prim_id", none_i), inst=hits.get("inst_id", none_i),
                       uv=hits.get("uv", np.empty((0, 2), fdt)), gn=hits.get("normal", np.empty((0, 3), fdt)),
