@@ -5,8 +5,10 @@
 Each thread count runs in its own process pinned to that many cores
 (taskset). embreex's run() is single-threaded (it releases the GIL), so at
 2 threads it runs on two Python threads over halves of the rays, as many
-threads as raykernel's. Open3D and Mitsuba 3 are not among the peers yet. Writes
-the `raycast` section of BENCHMARKS.md.
+threads as raykernel's. Mitsuba 3 (llvm variant) and Open3D run on the same
+rays with their own thread counts set to the same number, where they install
+(pip install -e '.[bench]'; Open3D needs Debian's libusb-1.0-0); the table
+says why where one does not. Writes the `raycast` section of BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -130,6 +132,49 @@ def embree_run(scene, o32, d32, threads):
             np.concatenate([np.asarray(p["tfar"], float) for p in parts]))
 
 
+def peers(threads):
+    """The optional peers that install here: name -> (build(v, f) -> scene, cast(scene, o32, d32) -> t with inf
+    on a miss), and name -> why not for those that do not."""
+    ready, missing = {}, {}
+    try:
+        import mitsuba as mi
+        mi.set_variant("llvm_ad_rgb")
+        import drjit as dr
+        dr.set_thread_count(threads)
+
+        def mi_build(v, f):
+            mesh = mi.Mesh("mesh", len(v), len(f))
+            params = mi.traverse(mesh)
+            params["vertex_positions"] = dr.ravel(mi.Point3f(v.astype(np.float32).T))
+            params["faces"] = dr.ravel(mi.Vector3u(f.astype(np.uint32).T))
+            params.update()
+            return mi.load_dict({"type": "scene", "mesh": mesh})
+
+        def mi_cast(scene, o32, d32):
+            hit = scene.ray_intersect_preliminary(mi.Ray3f(mi.Point3f(o32.T), mi.Vector3f(d32.T)))
+            return np.asarray(hit.t, float)     # inf on a miss; prim_index alongside
+
+        ready["mitsuba"] = (mi_build, mi_cast)
+    except Exception as e:      # not installed, or no LLVM for its llvm variant
+        missing["mitsuba"] = f"{type(e).__name__}: {e}"
+    try:
+        import open3d as o3d
+
+        def o3d_build(v, f):
+            scene = o3d.t.geometry.RaycastingScene(nthreads=threads)
+            scene.add_triangles(v.astype(np.float32), f.astype(np.uint32))
+            return scene
+
+        def o3d_cast(scene, o32, d32):
+            out = scene.cast_rays(o3d.core.Tensor(np.concatenate([o32, d32], 1)), nthreads=threads)
+            return out["t_hit"].numpy().astype(float)
+
+        ready["open3d"] = (o3d_build, o3d_cast)
+    except Exception as e:
+        missing["open3d"] = f"{type(e).__name__}: {e}"
+    return ready, missing
+
+
 def worker(data_path, threads):
     import numba
     numba.set_num_threads(threads)
@@ -139,8 +184,10 @@ def worker(data_path, threads):
     from raykernel import RayScene
     data = np.load(data_path)
     rows = []
+    others, missing = peers(threads)
     for name in data["names"]:
         v, f = data[f"{name}/v"], data[f"{name}/f"]
+        built = {peer: build(v, f) for peer, (build, _) in others.items()}
         t0 = time.perf_counter()
         rs = RayScene.from_mesh(v, f)
         build_rk = time.perf_counter() - t0
@@ -167,7 +214,18 @@ def worker(data_path, threads):
             same = hit_rk == hit_em
             both = hit_rk & hit_em
             same[both] = np.abs(h.t[both] - t_em[both]) <= 1e-5 * np.maximum(np.abs(h.t[both]), 1e-30)
-            rows.append(dict(mesh=str(name), tris=len(f), kind=kind, rays=len(o), threads=threads,
+            peer_rates = {}
+            for peer, (_, cast) in others.items():
+                cast(built[peer], o32[:1000], d32[:1000])
+                sec, t_peer = best_of(lambda: cast(built[peer], o32, d32))
+                t_peer = np.where(t_peer < 1e30, t_peer, np.inf)
+                hit_p = np.isfinite(t_peer)
+                agree = hit_rk == hit_p
+                both_p = hit_rk & hit_p
+                agree[both_p] = np.abs(h.t[both_p] - t_peer[both_p]) <= 1e-5 * np.maximum(np.abs(h.t[both_p]), 1e-30)
+                peer_rates[peer] = (len(o) / sec / 1e6, float(agree.mean()))
+            rows.append(dict(mesh=str(name), tris=len(f), kind=kind, rays=len(o), threads=threads, peers=peer_rates,
+                             missing=missing,
                              rk=len(o) / sec_rk / 1e6, em=len(o) / sec_em / 1e6, agree=float(same.mean()),
                              generic=len(o) / sec_generic / 1e6,
                              hit=float(hit_rk.mean()), build_rk=build_rk, build_em=build_em,
@@ -235,19 +293,31 @@ def main():
              "hit/miss and |t - t_embree| <= 1e-5 t. generic: "
              "raykernel through the general traversal (traverse.py) instead of the mesh kernel (meshcast.py), one run.",
              "",
+             "Mitsuba 3 (variant llvm_ad_rgb, `scene.ray_intersect_preliminary`, Embree underneath, its thread count "
+             "set with drjit) and Open3D (`RaycastingScene.cast_rays`, nthreads) on the same rays, float32, "
+             "conversions from numpy included as for the others; ratio = raykernel / peer (above 1: raykernel is "
+             "faster); agree against raykernel's t as for embreex.",
+             "",
              "| mesh | triangles | rays | threads | raykernel Mrays/s | embreex Mrays/s | ratio | agree | "
+             "mitsuba Mrays/s | ratio | agree | open3d Mrays/s | ratio | agree | "
              "generic Mrays/s | tests/ray | nodes/ray |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
+        cells = []
+        for peer in ("mitsuba", "open3d"):
+            rate, agree = r["peers"].get(peer, (None, None))
+            cells += ["-", "-", "-"] if rate is None else [f"{rate:.2f}", f"{r['rk'] / rate:.2f}", f"{agree:.4f}"]
         lines.append(f"| {r['mesh']} | {r['tris']} | {r['kind']} | {r['threads']} | {r['rk']:.2f} | {r['em']:.2f} | "
-                     f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {r['generic']:.2f} | "
+                     f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {' | '.join(cells)} | {r['generic']:.2f} | "
                      f"{r['tests']:.1f} | {r['nodes']:.1f} |")
+    for peer, why in (rows[0]["missing"] if rows else {}).items():
+        lines += ["", f"{peer} is not in this table: it does not run here ({why})."]
     lines += ["", f"JIT compile in a fresh process (import, build a 1-triangle scene, intersect and count_hits): "
               f"cold {cold:.1f} s (empty NUMBA_CACHE_DIR), warm {warm:.1f} s (from the cache)."]
     text = "\n".join(lines)
     print(text)
     if not args.no_report:
-        replace_section("raycast", "## Ray casting (raykernel vs embreex)\n\n" + text)
+        replace_section("raycast", "## Ray casting (raykernel vs embreex, Mitsuba 3 and Open3D)\n\n" + text)
 
 
 if __name__ == "__main__":
