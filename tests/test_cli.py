@@ -354,3 +354,23 @@ def test_spd_unknown_name(capsys):
     assert main(["spd", "nosuch"]) == 2
     message = error_line(capsys)
     assert "nosuch" in message and "balls" in message
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--accel", "nosuchtree"], "nosuchtree"),
+    (["--accel", "bvh(leaf=0)"], "leaf"),
+    (["-o", "{tmp}/no/such/dir/o.png"], "does not exist"),
+    (["--stats-json", "{tmp}/missing/s.json"], "does not exist"),
+    (["-o", "{tmp}/o.bmpx"], "bmpx"),
+])
+def test_bad_render_options_fail_before_the_compile_notice(tmp_path, capsys, monkeypatch, argv, expected):
+    # on a first run the CLI says it will compile; options that cannot work are refused before that
+    import raykernel.engine.compiletime as compiletime
+    monkeypatch.setattr(compiletime, "first_run", lambda: True)
+    nff = write(tmp_path / "good.nff", GOOD_NFF)
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    if "-o" not in argv:
+        argv += ["-o", str(tmp_path / "o.png")]
+    assert main(["render", str(nff), "--resolution", "4", *argv]) == 2
+    assert expected in error_line(capsys)
+    assert leftovers(tmp_path) == ["good.nff"]

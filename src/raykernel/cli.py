@@ -72,11 +72,13 @@ class _Progress:
 
 
 def cmd_render(args, console) -> int:
+    from .atomicfile import check_output_directory
     from .engine.compiletime import FIRST_RUN_SECONDS, first_run
     from .geometry.config import tell_once
     from .rendering.imageio import image_format
     from .rendering.render import render
     from .scene import examples
+    from .scene.accel import parse_spec
     from .scene.loading import load
 
     scene = load(args.scene)
@@ -86,7 +88,12 @@ def cmd_render(args, console) -> int:
     if args.max_depth is not None:
         options["max_depth"] = args.max_depth
     out = args.output or _default_output(args.scene)
-    image_format(out)           # refuse an unknown format before the work
+    # refuse what would fail after the work before it (and before saying it will compile)
+    image_format(out)
+    check_output_directory(out)
+    if args.stats_json:
+        check_output_directory(args.stats_json)
+    parse_spec(args.accel)
     compiling = first_run()
     tell_once("render", None)       # the line below says it, and the progress bar covers the wait
     if compiling:
