@@ -546,7 +546,7 @@ class RayScene:
         the most.
         dtype: "float64", or "float32" for float32 t, uv and normals and int32 ids: half the
         memory to fill (the arithmetic stays in double precision, t is rounded once).
-        out: a Hits of an earlier call with these fields, dtype and number of rays: its arrays
+        out: a Hits of an earlier call with these fields and dtype, for rays of this shape: its arrays
         are filled in place instead of new ones (no memory to allocate and fault in)."""
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
         arrays, hits = self._outputs(shape, fields, dtype, out)
