@@ -55,10 +55,11 @@ def test_factory_form_takes_options():
     assert add(1, 2) == 3
 
 
-def test_private_kernels_borrow_their_arguments():
-    # a private kernel does no reference counting: many calls leave the array's
-    # count as it was and see the caller's data
-    @config.njit(private=True, cache=False)
+@pytest.mark.parametrize("option", ["private", "borrows"])
+def test_borrowing_kernels_count_no_references(option):
+    # a private or borrowing kernel does no reference counting: many calls leave the
+    # array's count as it was and see the caller's data; only `borrows` keeps a Python wrapper
+    @config.njit(cache=False, **{option: True})
     def _total(a, i):
         return a[i] + a[0]
 
@@ -71,10 +72,14 @@ def test_private_kernels_borrow_their_arguments():
 
     a = np.arange(5.0)
     count = sys.getrefcount(a)
-    assert caller(a, 1000) == sum(a[i % 5] for i in range(1000))
+    assert caller(a, 1000) == sum(a[i % 5] + a[0] for i in range(1000))
     assert sys.getrefcount(a) == count
     options = _total.targetoptions
-    assert options["_nrt"] is False and options["no_cpython_wrapper"] is True
+    assert options["_nrt"] is False
+    assert options.get("no_cpython_wrapper", False) is (option == "private")
+    if option == "borrows":
+        assert _total(a, 3) == 3.0          # callable from Python
+        assert "NRT_incref" not in next(iter(_total.inspect_llvm().values()))
 
 
 def test_a_private_kernel_may_not_allocate():
@@ -88,27 +93,6 @@ def test_a_private_kernel_may_not_allocate():
 
     with pytest.raises(numba.core.errors.TypingError):
         caller(3)
-
-
-def test_a_borrowing_kernel_keeps_its_wrapper_and_counts_no_references():
-    @config.njit(borrows=True, cache=False)
-    def _pick(a, i):
-        return a[i]
-
-    @config.njit(cache=False)
-    def caller(a, n):
-        s = 0.0
-        for i in range(n):
-            s += _pick(a, i % a.shape[0])
-        return s
-
-    a = np.arange(4.0)
-    count = sys.getrefcount(a)
-    assert _pick(a, 3) == 3.0           # callable from Python
-    assert caller(a, 100) == sum(a[i % 4] for i in range(100))
-    assert sys.getrefcount(a) == count
-    assert _pick.targetoptions["_nrt"] is False and not _pick.targetoptions.get("no_cpython_wrapper", False)
-    assert "NRT_incref" not in next(iter(_pick.inspect_llvm().values()))
 
 
 def test_the_kernels_inner_loops_count_no_references():
