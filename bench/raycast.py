@@ -295,7 +295,9 @@ def main():
              "",
              "Mitsuba 3 (variant llvm_ad_rgb, `scene.ray_intersect_preliminary`, Embree underneath, its thread count "
              "set with drjit) and Open3D (`RaycastingScene.cast_rays`, nthreads) on the same rays, float32, "
-             "conversions from numpy included as for the others; Mitsuba's preliminary intersection returns t and the primitive index only (no uv or normals: less work than the others), Open3D's cast_rays t, ids, uv and normals; ratio = raykernel / peer (above 1: raykernel is "
+             "conversions from numpy included as for the others; Mitsuba's preliminary intersection returns t and "
+             "the primitive index only (no uv or normals: less work than the others), Open3D's cast_rays t, ids, uv "
+             "and normals; ratio = raykernel / peer (above 1: raykernel is "
              "faster); agree against raykernel's t as for embreex.",
              "",
              "| mesh | triangles | rays | threads | raykernel Mrays/s | embreex Mrays/s | ratio | agree | "
