@@ -85,8 +85,9 @@ def cmd_render(args, console) -> int:
     options = {}
     if args.scene.startswith("example:"):
         options.update(examples.render_defaults(args.scene.split(":", 1)[1]))
-    if args.max_depth is not None:
-        options["max_depth"] = args.max_depth
+    for name in ("max_depth", "shading", "aa", "samples", "seed", "aa_threshold", "aa_depth", "cutoff"):
+        if getattr(args, name) is not None:
+            options[name] = getattr(args, name)
     out = args.output or _default_output(args.scene)
     # refuse what would fail after the work before it (and before saying it will compile)
     image_format(out)
@@ -242,6 +243,20 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--spd", action="store_true", help="follow the SPD test procedure (corner rays, no cut-off)")
     r.add_argument("--max-depth", type=_positive_int, help="maximum ray-tree depth, eye ray = 1 (default 5)")
     r.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
+    r.add_argument("--shading", choices=["whitted", "heckbert"],
+                   help="whitted: NFF's parameters (the default); heckbert: the model of Heckbert's minimal ray "
+                   "tracer (the default for example:heckbert)")
+    r.add_argument("--aa", choices=["jitter", "adaptive"], help="anti-aliasing: jittered strata (--samples, "
+                   "--seed) or Whitted's adaptive subdivision (--aa-threshold, --aa-depth); default: one ray "
+                   "per pixel")
+    r.add_argument("--samples", type=_positive_int, help="rays per pixel for --aa jitter, a square number "
+                   "(default 4)")
+    r.add_argument("--seed", type=int, help="random seed for --aa jitter (default 0)")
+    r.add_argument("--aa-threshold", type=float, help="--aa adaptive: cut a square whose corners differ by "
+                   "more than this in a channel (default 0.1)")
+    r.add_argument("--aa-depth", type=int, help="--aa adaptive: most cuts of a pixel, 0-4 (default 2)")
+    r.add_argument("--cutoff", type=float, help="rays weighing less are not cast (Hall's adaptive tree "
+                   "depth; default 1/512, 0 in --spd)")
     r.add_argument("--stats-json", help="write every counter to this JSON file")
     r.add_argument("--max-memory", help="memory budget of every build, e.g. 8G or 512M (default: half of this "
                    "machine's memory); a structure that needs more stops with an error")

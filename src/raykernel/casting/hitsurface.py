@@ -16,7 +16,7 @@ import numpy as np
 
 from ..geometry.config import njit
 from ..geometry.primitives import CONE, SPHERE, TRIANGLE, normalize
-from ..rendering.render import surface
+from ..rendering.surface import surface
 
 
 @njit(inline="always")

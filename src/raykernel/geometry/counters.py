@@ -24,6 +24,7 @@ TRANSFORM_MULTIPLIES = 24  # multiplies those mappings did
 CSG_CROSSINGS = 25        # operand surface crossings collected by CSG nodes
 CSG_RESOLVES = 26         # CSG nodes evaluated (once per ray that enters one)
 CSG_SURFACES = 27         # result surfaces they found (offered as hits or to an enclosing node)
+RAYS_CUT_OFF = 28         # reflection and refraction rays not cast: their weight fell below the cut-off
 N_COUNTERS = 32           # spare columns for structures to come
 
 NAMES = {
@@ -40,4 +41,5 @@ NAMES = {
     TRANSFORMS + 2: "transforms.scale", TRANSFORMS + 3: "transforms.affine",
     TRANSFORM_MULTIPLIES: "transforms.multiplies",
     CSG_CROSSINGS: "csg.crossings", CSG_RESOLVES: "csg.resolves", CSG_SURFACES: "csg.surfaces",
+    RAYS_CUT_OFF: "rays.cut_off",
 }

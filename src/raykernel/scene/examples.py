@@ -5,16 +5,14 @@
 heckbert: the five spheres of Paul Heckbert's minimal ray tracer (the
 business-card ray tracer printed in "Ray Tracing News" vol. 2 no. 1): a
 glass sphere in front of an orange and a cyan sphere, lit by two large
-luminous spheres behind the eye. The luminous spheres become point lights
-at their centres with their colour times luminance (our renderer has no
-emitting surfaces); everything else is as listed there: eye at the origin
-looking along +y, z up, 25 degrees field of view, ray depth 3, a dim
-ambient-grey background.
+luminous spheres behind the eye, as listed there: eye at the origin looking
+along +y, z up, 25 degrees field of view, ray depth 3, ambient (0.02, 0.02,
+0.02). It renders with the program's own model by default
+(`--shading heckbert`, rendering/heckbert.py); under Whitted shading the
+luminous spheres glow and light the others from their centres.
 """
 
 from __future__ import annotations
-
-import math
 
 from ..errors import OptionError
 from .model import Camera, Material, Scene
@@ -34,19 +32,13 @@ def heckbert(resolution: int = 256) -> Scene:
                                 width=resolution, height=resolution),
                   background=(0.02, 0.02, 0.02))
     scene.source = "example:heckbert"
-    n_lights = sum(1 for s in _HECKBERT if s[3] == 0.0)
-    for center, color, radius, kd, ks, kt, lum, ior in _HECKBERT:
-        if kd == 0.0:
-            # a luminous sphere; lights are scaled by 1/sqrt(n), so undo that:
-            # each then shines with colour x luminance as in the original
-            scene.add_light(center, [c * lum * math.sqrt(n_lights) for c in color])
-            continue
-        m = scene.add_material(Material(color=color, kd=kd, ks=ks, shine=20.0, t=kt, ior=ior))
+    for center, color, radius, kd, ks, kt, kl, ior in _HECKBERT:
+        m = scene.add_material(Material(color=color, kd=kd, ks=ks, shine=20.0, t=kt, ior=ior, kl=kl))
         scene.root.spheres.add(center, radius, m)
     return scene
 
 
-EXAMPLES = {"heckbert": (heckbert, {"max_depth": 3})}
+EXAMPLES = {"heckbert": (heckbert, {"max_depth": 3, "shading": "heckbert"})}
 
 
 def load(name: str) -> Scene:

@@ -41,7 +41,10 @@ lights      point lights; "position" is required, "color" is optional
             (white). Without "lights", the lights of the first included NFF
             file that has any.
 materials   named materials, NFF's fill parameters: "color" (default
-            [1, 1, 1]), "kd" (1), "ks" (0), "shine" (0), "t" (0), "ior" (1).
+            [1, 1, 1]), "kd" (1), "ks" (0), "shine" (0), "t" (0), "ior" (1),
+            and "kl" (0), the luminance of Heckbert's minimal ray tracer:
+            the surface glows with kl x colour, and a luminous sphere
+            lights the scene from its centre.
 groups      named group bodies, placed by `{"instance": name}` items. A named
             group is built once however often it is instanced; groups no item
             uses are still checked.
@@ -180,7 +183,7 @@ OPERATOR_KINDS = ("difference", "intersection", "union")
 ITEM_KINDS = PRIMITIVE_KINDS + ("mesh", "include", "group", "instance") + OPERATOR_KINDS
 TRANSFORM_OPS = ("translate", "rotate", "scale", "matrix")
 TOP_KEYS = ("camera", "background", "lights", "materials", "groups", "scene")
-MATERIAL_KEYS = ("color", "kd", "ks", "shine", "t", "ior")
+MATERIAL_KEYS = ("color", "kd", "ks", "shine", "t", "ior", "kl")
 CAMERA_KEYS = ("eye", "look_at", "up", "angle", "hither", "resolution")
 BODY_KEYS = ("accel", "items", "material")
 _COMMENT = "comment"
@@ -916,7 +919,7 @@ def _floats(arr) -> list:
 
 def _material_json(m: Material) -> dict:
     return {"color": [float(c) for c in m.color], "kd": float(m.kd), "ks": float(m.ks),
-            "shine": float(m.shine), "t": float(m.t), "ior": float(m.ior)}
+            "shine": float(m.shine), "t": float(m.t), "ior": float(m.ior), "kl": float(m.kl)}
 
 
 class _Writer:

@@ -95,7 +95,9 @@ class Light:
 class Material:
     """NFF's `f` line: colour, diffuse weight Kd, specular weight Ks (reflection
     and Phong highlight), Phong exponent `shine`, transmitted fraction T and
-    index of refraction `ior`."""
+    index of refraction `ior`; beyond NFF, the luminance `kl` of Heckbert's
+    minimal ray tracer: the surface glows with kl x colour, and a luminous
+    sphere lights the scene from its centre with that colour."""
 
     color: tuple = (1.0, 1.0, 1.0)
     kd: float = 1.0
@@ -103,17 +105,20 @@ class Material:
     shine: float = 0.0
     t: float = 0.0
     ior: float = 1.0
+    kl: float = 0.0
 
     def __post_init__(self):
         color = tuple(float(c) for c in self.color)
         if len(color) != 3:
             raise SceneError(f"material colour must have 3 numbers, got {len(color)}")
         object.__setattr__(self, "color", color)
-        for name in ("kd", "ks", "shine", "t", "ior"):
+        for name in ("kd", "ks", "shine", "t", "ior", "kl"):
             value = float(getattr(self, name))
             if not np.isfinite(value):
                 raise SceneError(f"material {name} must be finite, got {value}")
             object.__setattr__(self, name, value)
+        if self.kl < 0.0:
+            raise SceneError(f"material kl (luminance) must be at least 0, got {self.kl}")
 
 
 class _PrimitiveSet:

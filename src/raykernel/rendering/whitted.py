@@ -1,0 +1,148 @@
+"""Whitted shading with NFF's parameters: the ray tree of one eye ray, on an explicit stack.
+
+    r, g, b = trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, rays, ws, cnt)
+
+Kd diffuse and Ks Phong highlight (exponent Shine) from point lights, Ks mirror reflection,
+T transmission by Snell's law with total internal reflection; a luminous surface (Kl, Heckbert's
+luminance) adds Kl times its colour. rays: a (RAY_STACK, 11) scratch array; ws: traverse.workspace().
+"""
+
+import math
+
+import numpy as np
+
+from ..engine.traverse import ANY_HIT, CLOSEST, intersect
+from ..geometry import counters as C
+from ..geometry.config import njit
+from ..geometry.primitives import normalize
+from .surface import _dot, hit_normals
+
+# Secondary rays start this far off the surface, relative to the magnitude of
+# the coordinates involved: far above the rounding error of a double-precision
+# hit point (about 1e-16 relative), far below any feature a scene can show.
+OFFSET = 2.0 ** -32
+RAY_STACK = 80           # a ray tree of depth 32 keeps at most 2 rays per level waiting
+
+
+@njit(inline="always")
+def shadow_reach(lights, li, tx, ty, tz):
+    """How far along (tx, ty, tz), the vector from a point to light li's position, a shadow ray
+    looks for blockers: to the light itself (1), or for a luminous sphere (radius > 0) to just
+    before its surface, where the ray meets it (from outside; from inside, where it leaves)."""
+    radius = lights[li, 6]
+    if radius == 0.0:
+        return 1.0
+    length = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if length > radius:
+        return (1.0 - radius / length) * (1.0 - 1e-9)
+    return (1.0 + radius / length) * (1.0 - 1e-9)
+
+
+@njit(private=True)
+def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff,
+           rays, ws, cnt):
+    """Colour of one eye ray: the whole ray tree, depth first, on an explicit stack.
+    rays[k] = origin(3), direction(3), weight(3), depth, kind (0 eye, 1 reflect, 2 refract)."""
+    r_out, g_out, b_out = 0.0, 0.0, 0.0
+    n_lights = lights.shape[0]
+    rays[0, 0], rays[0, 1], rays[0, 2], rays[0, 3], rays[0, 4], rays[0, 5] = ox, oy, oz, dx, dy, dz
+    rays[0, 6] = rays[0, 7] = rays[0, 8] = 1.0
+    rays[0, 9] = 1.0
+    rays[0, 10] = 0.0
+    top = 1
+    while top > 0:
+        top -= 1
+        ox, oy, oz = rays[top, 0], rays[top, 1], rays[top, 2]
+        dx, dy, dz = rays[top, 3], rays[top, 4], rays[top, 5]
+        wr, wg, wb = rays[top, 6], rays[top, 7], rays[top, 8]
+        depth = int(rays[top, 9])
+        ray_kind = int(rays[top, 10])
+        cnt[C.RAYS_EYE + 2 * ray_kind] += 1
+        if not intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, CLOSEST,
+                         ws, cnt):
+            r_out += wr * background[0]
+            g_out += wg * background[1]
+            b_out += wb * background[2]
+            continue
+        cnt[C.RAYS_EYE_HIT + 2 * ray_kind] += 1
+        hit_f, hit_i = ws[5], ws[6]
+        t = hit_f[0]
+        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+        gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
+        entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
+        if not entering:
+            # two-sided: shade the side the ray sees
+            gx, gy, gz = -gx, -gy, -gz
+        if _dot(sx, sy, sz, gx, gy, gz) < 0.0:
+            # vertex normals may disagree with the winding; keep them on the seen side
+            sx, sy, sz = -sx, -sy, -sz
+        eps = OFFSET * max(max(abs(px), abs(py)), max(abs(pz), max(max(abs(ox), abs(oy)), abs(oz))))
+        ax, ay, az = px + eps * gx, py + eps * gy, pz + eps * gz     # on the side the ray came from
+        cr, cg, cb = mats[mat, 0], mats[mat, 1], mats[mat, 2]
+        kd, ks, shine, tr, ior = mats[mat, 3], mats[mat, 4], mats[mat, 5], mats[mat, 6], mats[mat, 7]
+        ndx, ndy, ndz = normalize(dx, dy, dz)
+        cos_i = -_dot(ndx, ndy, ndz, sx, sy, sz)
+        # mirror direction, also used for the Phong highlight
+        rx, ry, rz = ndx + 2.0 * cos_i * sx, ndy + 2.0 * cos_i * sy, ndz + 2.0 * cos_i * sz
+        dr, dg, db = 0.0, 0.0, 0.0
+        hr, hg, hb = 0.0, 0.0, 0.0
+        for li in range(n_lights):
+            tlx, tly, tlz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
+            ulx, uly, ulz = normalize(tlx, tly, tlz)
+            n_dot_l = _dot(sx, sy, sz, ulx, uly, ulz)
+            if n_dot_l <= 0.0 or _dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
+                continue        # the surface faces away from this light: no shadow ray
+            cnt[C.RAYS_SHADOW] += 1
+            if intersect(geo, ax, ay, az, tlx, tly, tlz, 0.0, shadow_reach(lights, li, tlx, tly, tlz), ANY_HIT,
+                         ws, cnt):
+                cnt[C.RAYS_SHADOW_BLOCKED] += 1
+                continue
+            dr += n_dot_l * lights[li, 3]
+            dg += n_dot_l * lights[li, 4]
+            db += n_dot_l * lights[li, 5]
+            if ks > 0.0:
+                r_dot_l = _dot(rx, ry, rz, ulx, uly, ulz)
+                if r_dot_l > 0.0:
+                    spec = ks * r_dot_l ** shine
+                    hr += spec * lights[li, 3]
+                    hg += spec * lights[li, 4]
+                    hb += spec * lights[li, 5]
+        kl = mats[mat, 8]
+        r_out += wr * (kd * cr * dr + hr + kl * cr)
+        g_out += wg * (kd * cg * dg + hg + kl * cg)
+        b_out += wb * (kd * cb * db + hb + kl * cb)
+        if depth >= max_depth or (ks <= 0.0 and tr <= 0.0):
+            continue
+        reflect_weight = ks
+        if tr > 0.0:
+            eta = 1.0 / ior if entering else ior
+            if ior <= 0.0:
+                eta = 1.0
+            k = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
+            if k < 0.0:
+                reflect_weight += tr        # total internal reflection
+            else:
+                tw = tr
+                if cutoff > 0.0 and max(wr, max(wg, wb)) * tw < cutoff:
+                    cnt[C.RAYS_CUT_OFF] += 1
+                else:
+                    c2 = eta * cos_i - math.sqrt(k)
+                    bx, by, bz = px - eps * gx, py - eps * gy, pz - eps * gz   # the far side
+                    rays[top, 0], rays[top, 1], rays[top, 2] = bx, by, bz
+                    tx, ty, tz = normalize(eta * ndx + c2 * sx, eta * ndy + c2 * sy, eta * ndz + c2 * sz)
+                    rays[top, 3], rays[top, 4], rays[top, 5] = tx, ty, tz
+                    rays[top, 6], rays[top, 7], rays[top, 8] = wr * tw, wg * tw, wb * tw
+                    rays[top, 9] = depth + 1
+                    rays[top, 10] = 2.0
+                    top += 1
+        if cutoff > 0.0 and max(wr, max(wg, wb)) * reflect_weight < cutoff:
+            cnt[C.RAYS_CUT_OFF] += 1
+        else:
+            rays[top, 0], rays[top, 1], rays[top, 2] = ax, ay, az
+            rx, ry, rz = normalize(rx, ry, rz)
+            rays[top, 3], rays[top, 4], rays[top, 5] = rx, ry, rz
+            rays[top, 6], rays[top, 7], rays[top, 8] = wr * reflect_weight, wg * reflect_weight, wb * reflect_weight
+            rays[top, 9] = depth + 1
+            rays[top, 10] = 1.0
+            top += 1
+    return r_out, g_out, b_out
