@@ -85,7 +85,8 @@ def cmd_render(args, console) -> int:
     options = {}
     if args.scene.startswith("example:"):
         options.update(examples.render_defaults(args.scene.split(":", 1)[1]))
-    for name in ("max_depth", "shading", "aa", "samples", "seed", "aa_threshold", "aa_depth", "cutoff"):
+    for name in ("max_depth", "shading", "aa", "samples", "seed", "aa_threshold", "aa_depth", "cutoff", "shadows",
+                 "eye_light", "eye_light_shadows"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     out = args.output or _default_output(args.scene)
@@ -243,9 +244,16 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--spd", action="store_true", help="follow the SPD test procedure (corner rays, no cut-off)")
     r.add_argument("--max-depth", type=_positive_int, help="maximum ray-tree depth, eye ray = 1 (default 5)")
     r.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
-    r.add_argument("--shading", choices=["whitted", "heckbert"],
-                   help="whitted: NFF's parameters (the default); heckbert: the model of Heckbert's minimal ray "
+    r.add_argument("--shading", choices=["whitted", "hall", "heckbert"],
+                   help="whitted: NFF's parameters (the default); hall: Hall and Greenberg's model (Fresnel, "
+                   "transmitted highlights, filtering in media); heckbert: the model of Heckbert's minimal ray "
                    "tracer (the default for example:heckbert)")
+    r.add_argument("--shadows", choices=["opaque", "filtered"], help="filtered: transparent surfaces let light "
+                   "through, times T (default opaque; --spd allows no other)")
+    r.add_argument("--eye-light", type=float, nargs="?", const=1.0, metavar="INTENSITY",
+                   help="add a white point light at the eye (default intensity 1)")
+    r.add_argument("--eye-light-shadows", choices=["skip", "cast"], help="skip (the default: Haines's trick, no "
+                   "shadow rays toward the eye light from eye rays' hits) or cast")
     r.add_argument("--aa", choices=["jitter", "adaptive"], help="anti-aliasing: jittered strata (--samples, "
                    "--seed) or Whitted's adaptive subdivision (--aa-threshold, --aa-depth); default: one ray "
                    "per pixel")

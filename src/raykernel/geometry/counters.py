@@ -25,6 +25,8 @@ CSG_CROSSINGS = 25        # operand surface crossings collected by CSG nodes
 CSG_RESOLVES = 26         # CSG nodes evaluated (once per ray that enters one)
 CSG_SURFACES = 27         # result surfaces they found (offered as hits or to an enclosing node)
 RAYS_CUT_OFF = 28         # reflection and refraction rays not cast: their weight fell below the cut-off
+RAYS_TIR = 29             # total internal reflections: refraction rays that Snell's law forbids
+EYE_LIGHT_SKIPPED = 30    # shadow rays toward the light at the eye not cast for eye rays' hits
 N_COUNTERS = 32           # spare columns for structures to come
 
 NAMES = {
@@ -41,5 +43,5 @@ NAMES = {
     TRANSFORMS + 2: "transforms.scale", TRANSFORMS + 3: "transforms.affine",
     TRANSFORM_MULTIPLIES: "transforms.multiplies",
     CSG_CROSSINGS: "csg.crossings", CSG_RESOLVES: "csg.resolves", CSG_SURFACES: "csg.surfaces",
-    RAYS_CUT_OFF: "rays.cut_off",
+    RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
 }

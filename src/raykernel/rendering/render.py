@@ -44,7 +44,7 @@ from ..scene.model import Scene
 from . import heckbert
 from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, _render_pixels
 from .stats import Stats
-from .whitted import RAY_STACK, trace
+from .whitted import RAY_COLUMNS, RAY_STACK, trace
 
 TILE = 16
 RANGE_SAMPLES = 512          # samples a thread is handed at least: fewer cost more to hand over than to trace
@@ -53,7 +53,7 @@ CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change 
 
 @njit
 def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, first, last, row0,
-                  max_depth, cutoff, out, counters, passes, step, coarse):
+                  max_depth, cutoff, filtered, out, counters, passes, step, coarse):
     """Trace tiles first..last-1 of the sample grid into `out`, adding into one counter row per tile.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
     Within each tile only the samples on the lattice of `step` (every step-th row and column),
@@ -61,10 +61,10 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
     passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py)."""
     for tile in range(first, last):
         ws = workspace()
-        rays = np.zeros((RAY_STACK, 11))
+        rays = np.zeros((RAY_STACK, RAY_COLUMNS))
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile], max_depth,
-                     cutoff, out, step, coarse, rays, ws, cnt)
+                     cutoff, filtered, out, step, coarse, rays, ws, cnt)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
@@ -72,8 +72,8 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
 
 
 @njit(private=True)     # one call per tile: the pixels' calls into trace count no references
-def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff, out, step,
-                 coarse, rays, ws, cnt):
+def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff, filtered,
+                 out, step, coarse, rays, ws, cnt):
     """The samples of the tile at (x0, y0) for _render_tiles, with the tile's workspace and counters."""
     for j in range(y0, min(y0 + TILE, samples_h), step):
         for i in range(x0, min(x0 + TILE, samples_w), step):
@@ -84,7 +84,7 @@ def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y
             dz = cam[5] + i * cam[8] + j * cam[11]
             dx, dy, dz = normalize(dx, dy, dz)
             r, g, b = trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz,
-                             max_depth, cutoff, rays, ws, cnt)
+                             max_depth, cutoff, filtered, rays, ws, cnt)
             out[j, i, 0] = r
             out[j, i, 1] = g
             out[j, i, 2] = b
@@ -140,14 +140,15 @@ def luminous_spheres(scene: Scene):
     return out
 
 
-def light_table(scene: Scene) -> np.ndarray:
-    """One row per light: position (3), colour (3), radius (0 for a point light).
+def light_table(scene: Scene, eye_light: float | None = None, eye_light_shadows: str = "skip") -> np.ndarray:
+    """One row per light: position (3), colour (3), radius (0 for a point light), 1 for a light at
+    the eye whose shadow rays from eye rays' hits are skipped (Haines's trick), else 0.
     Point lights have the SPD's suggested intensity 1/sqrt(n) times their colour; a luminous
     sphere is a light at its centre with colour x kl, seen from a point when nothing lies
-    between the point and the sphere's surface."""
+    between the point and the sphere's surface; the eye light is white of its intensity."""
     n = len(scene.lights)
     emitters = luminous_spheres(scene)
-    table = np.zeros((n + len(emitters), 7))
+    table = np.zeros((n + len(emitters) + (eye_light is not None), 8))
     for i, light in enumerate(scene.lights):
         color = np.ones(3) if light.color is None else light.color
         table[i, :3] = light.position
@@ -156,6 +157,10 @@ def light_table(scene: Scene) -> np.ndarray:
         table[i, :3] = center
         table[i, 3:6] = color
         table[i, 6] = radius
+    if eye_light is not None:
+        table[-1, :3] = scene.camera.eye
+        table[-1, 3:6] = eye_light
+        table[-1, 7] = eye_light_shadows == "skip"
     return table
 
 
@@ -197,7 +202,8 @@ def _choice(value, name: str, choices) -> str:
 def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd: bool = False,
            max_depth: int = 5, threads: int | None = None, progress=None, max_memory=None,
            shading: str = "whitted", aa: str | None = None, samples: int = 4, seed: int = 0,
-           aa_threshold: float = 0.1, aa_depth: int = 2, cutoff: float | None = None) -> RenderResult:
+           aa_threshold: float = 0.1, aa_depth: int = 2, cutoff: float | None = None, shadows: str = "opaque",
+           eye_light: float | None = None, eye_light_shadows: str = "skip") -> RenderResult:
     """Render `scene`; returns the float image and the statistics.
 
     accel: the default accelerator spec for groups that name none.
@@ -207,14 +213,19 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     progress: callable(done, total) called after each pass, in samples (of full tiles).
     max_memory: the memory budget of every build, in bytes or as "8G" (default: half of this
     machine's memory); a structure that would need more is a MemoryBudgetError.
-    shading: "whitted" (NFF's parameters, whitted.py) or "heckbert" (the minimal ray tracer's
-    model and camera, heckbert.py).
+    shading: "whitted" (NFF's parameters, whitted.py), "hall" (Hall and Greenberg's model, hall.py)
+    or "heckbert" (the minimal ray tracer's model and camera, heckbert.py).
     aa: None (one ray per pixel), "jitter" (`samples` rays per pixel, a square number, in
     jittered strata; `seed` picks the random numbers) or "adaptive" (Whitted's: corners, cut
     where they differ by more than `aa_threshold` in a channel, at most `aa_depth` cuts).
     cutoff: rays whose weight (the product of the Ks and T factors on their way) falls below
     it are not cast (rays.cut_off counts them); default 1/512 (they cannot change an 8-bit
     pixel), 0 in SPD mode (which allows no other).
+    shadows: "opaque" (any surface blocks a light) or "filtered" (transparent surfaces pass it,
+    times T: shadows.py); heckbert shading has opaque shadows only.
+    eye_light: the intensity of a white point light at the eye (Haines's trick), None: none.
+    eye_light_shadows: "skip" (the trick: eye rays' hits are lit by it without a shadow ray,
+    counted in shadow.eye_light_skipped) or "cast" (shadow rays as for any light).
     """
     max_depth = _number(max_depth, "max_depth", 1, 32, integer=True)
     if resolution is not None:
@@ -233,8 +244,18 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     aa_depth = _number(aa_depth, "aa_depth", 0, MAX_AA_DEPTH, integer=True)
     if cutoff is not None:
         cutoff = _number(cutoff, "cutoff", 0.0, 1.0)
+    shadows = _choice(shadows, "shadows", ("opaque", "filtered"))
+    if eye_light is not None:
+        eye_light = _number(eye_light, "eye_light", 0.0, math.inf)
+    eye_light_shadows = _choice(eye_light_shadows, "eye_light_shadows", ("skip", "cast"))
+    if shading == "heckbert" and shadows != "opaque":
+        raise OptionError("heckbert shading follows the printed program, whose shadows are opaque; "
+                          f"shadows {shadows!r} is not allowed with it")
     if spd:
-        for name, value, default in (("shading", shading, "whitted"), ("aa", aa, "none")):
+        if eye_light is not None:
+            raise OptionError("SPD mode lights a scene with its own lights only; eye_light is not allowed with it")
+        for name, value, default in (("shading", shading, "whitted"), ("aa", aa, "none"),
+                                     ("shadows", shadows, "opaque")):
             if value != default:
                 raise OptionError(f"SPD mode traces Whitted shading with one ray per pixel corner; {name} "
                                   f"{value!r} is not allowed with it")
@@ -246,6 +267,8 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     if resolution is None:
         width, height = scene.camera.width, scene.camera.height
     plain = shading == "whitted" and aa == "none"      # the renderer's own kernel, the fastest
+    if scene.camera.medium is not None and not 0 <= scene.camera.medium < len(scene.materials):
+        raise OptionError(f"the camera's medium is material {scene.camera.medium}, which the scene does not have")
     kernel = _render_tiles if plain else _render_pixels
 
     t0 = time.perf_counter()
@@ -265,7 +288,9 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
         cam = heckbert.camera_vectors(scene.camera, width, height)
     else:
         cam = camera_vectors(scene.camera, width, height, corners=spd)
-    mats, lights = material_table(scene), light_table(scene)
+    mats, lights = material_table(scene), light_table(scene, eye_light, eye_light_shadows)
+    filtered = shadows == "filtered"
+    medium = np.int64(-1 if scene.camera.medium is None else scene.camera.medium)
     if cutoff is None:
         cutoff = 0.0 if spd else CUTOFF
     background = np.asarray(scene.background, np.float64)
@@ -293,11 +318,12 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
             def tiles(lo, hi, first=first, step=step, coarse=coarse, geo=geo, pass_counts=pass_counts):
                 if plain:
                     _render_tiles(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo, first + hi,
-                                  first, max_depth, cutoff, values, counts, pass_counts, step, coarse)
+                                  first, max_depth, cutoff, filtered, values, counts, pass_counts, step, coarse)
                 else:
                     _render_pixels(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo,
                                    first + hi, first, max_depth, cutoff, values, counts, pass_counts, step, coarse,
-                                   TILE, SHADINGS[shading], SAMPLERS[aa], samples, seed, aa_threshold, aa_depth)
+                                   TILE, SHADINGS[shading], filtered, medium, SAMPLERS[aa], samples, seed, aa_threshold,
+                                   aa_depth)
             for_ranges(tiles, last - first, n_threads, kernel=kernel,
                        min_size=-(-RANGE_SAMPLES * (last - first) // max(1, part)))
             if lazy is not None:
@@ -316,7 +342,9 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     stats = Stats.from_counters(counts.sum(axis=0), build, preprocess=preprocess, trace=trace, compile=build_clock.seconds + clock.seconds,
                                 info={"scene": scene.source, "accel": accel, "resolution": [width, height],
                                       "spd": spd, "max_depth": max_depth, "shading": shading,
-                                      "aa": None if aa == "none" else aa, "cutoff": cutoff,
+                                      "aa": None if aa == "none" else aa, "cutoff": cutoff, "shadows": shadows,
+                                      **({"eye_light": eye_light, "eye_light_shadows": eye_light_shadows}
+                                         if eye_light is not None else {}),
                                       **({"samples": samples, "seed": seed} if aa == "jitter" else {}),
                                       **({"aa_threshold": aa_threshold, "aa_depth": aa_depth}
                                          if aa == "adaptive" else {}),

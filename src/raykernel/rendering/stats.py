@@ -36,6 +36,9 @@ class Stats(dict):
         s["tests.total"] = sum(s[f"tests.{k}"] for k in ("sphere", "polygon", "patch", "cone", "triangle"))
         rays = s["rays.eye"] + s["rays.reflect"] + s["rays.refract"] + s["rays.shadow"] + s["rays.cast"]
         s["rays.total"] = rays
+        # the SPD's published tables count a refraction ray at every transmitting hit below the
+        # depth limit, total internal reflections included (README, "SPD statistics")
+        s["rays.refract_spd"] = s["rays.refract"] + s["rays.tir"]
         per = max(rays, 1)
         s["tests.per_ray"] = s["tests.total"] / per
         s["bounds.per_ray"] = s["bounds.tests"] / per
@@ -70,6 +73,11 @@ class Stats(dict):
         for kind in RAY_KINDS:
             hit = "blocked" if kind == "shadow" else "hit"
             out.append(("rays", kind, f"{self[f'rays.{kind}']:,}", f"{self[f'rays.{kind}_{hit}']:,} {hit}"))
+        if self.get("rays.tir"):
+            out.append(("rays", "total internal", f"{self['rays.tir']:,}",
+                        f"reflections; {self['rays.refract_spd']:,} refraction rays as the SPD counts them"))
+        if self.get("rays.cut_off"):
+            out.append(("rays", "cut off", f"{self['rays.cut_off']:,}", "not cast: weight below the cut-off"))
         if self.get("rays.cast"):
             out.append(("rays", "cast", f"{self['rays.cast']:,}", ""))
         for k in ("sphere", "polygon", "patch", "cone", "triangle"):

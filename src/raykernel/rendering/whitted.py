@@ -1,10 +1,11 @@
 """Whitted shading with NFF's parameters: the ray tree of one eye ray, on an explicit stack.
 
-    r, g, b = trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, rays, ws, cnt)
+    r, g, b = trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, filtered, rays, ws, cnt)
 
 Kd diffuse and Ks Phong highlight (exponent Shine) from point lights, Ks mirror reflection,
 T transmission by Snell's law with total internal reflection; a luminous surface (Kl, Heckbert's
-luminance) adds Kl times its colour. rays: a (RAY_STACK, 11) scratch array; ws: traverse.workspace().
+luminance) adds Kl times its colour. filtered: shadow rays pass transparent surfaces, times T
+(shadows.py). rays: a (RAY_STACK, RAY_COLUMNS) scratch array; ws: traverse.workspace().
 """
 
 import math
@@ -15,6 +16,7 @@ from ..engine.traverse import ANY_HIT, CLOSEST, intersect
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
+from .shadows import light_through
 from .surface import _dot, hit_normals
 
 # Secondary rays start this far off the surface, relative to the magnitude of
@@ -22,6 +24,7 @@ from .surface import _dot, hit_normals
 # hit point (about 1e-16 relative), far below any feature a scene can show.
 OFFSET = 2.0 ** -32
 RAY_STACK = 80           # a ray tree of depth 32 keeps at most 2 rays per level waiting
+RAY_COLUMNS = 12         # origin, direction, weight, depth, kind; hall.py adds the medium
 
 
 @njit(inline="always")
@@ -39,8 +42,8 @@ def shadow_reach(lights, li, tx, ty, tz):
 
 
 @njit(private=True)
-def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff,
-           rays, ws, cnt):
+def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, filtered,
+          rays, ws, cnt):
     """Colour of one eye ray: the whole ray tree, depth first, on an explicit stack.
     rays[k] = origin(3), direction(3), weight(3), depth, kind (0 eye, 1 reflect, 2 refract)."""
     r_out, g_out, b_out = 0.0, 0.0, 0.0
@@ -92,21 +95,34 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             n_dot_l = _dot(sx, sy, sz, ulx, uly, ulz)
             if n_dot_l <= 0.0 or _dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
                 continue        # the surface faces away from this light: no shadow ray
-            cnt[C.RAYS_SHADOW] += 1
-            if intersect(geo, ax, ay, az, tlx, tly, tlz, 0.0, shadow_reach(lights, li, tlx, tly, tlz), ANY_HIT,
-                         ws, cnt):
-                cnt[C.RAYS_SHADOW_BLOCKED] += 1
-                continue
-            dr += n_dot_l * lights[li, 3]
-            dg += n_dot_l * lights[li, 4]
-            db += n_dot_l * lights[li, 5]
+            lr, lg, lb = lights[li, 3], lights[li, 4], lights[li, 5]
+            if lights[li, 7] != 0.0 and ray_kind == 0:
+                # Haines's light at the eye: an eye ray's hit is seen from it, so it is lit
+                cnt[C.EYE_LIGHT_SKIPPED] += 1
+            elif filtered:
+                cnt[C.RAYS_SHADOW] += 1
+                fr, fg, fb = light_through(geo, mats, ax, ay, az, tlx, tly, tlz,
+                                           shadow_reach(lights, li, tlx, tly, tlz), np.int64(-1), True, ws, cnt)
+                if fr == 0.0 and fg == 0.0 and fb == 0.0:
+                    cnt[C.RAYS_SHADOW_BLOCKED] += 1
+                    continue
+                lr, lg, lb = lr * fr, lg * fg, lb * fb
+            else:
+                cnt[C.RAYS_SHADOW] += 1
+                if intersect(geo, ax, ay, az, tlx, tly, tlz, 0.0, shadow_reach(lights, li, tlx, tly, tlz), ANY_HIT,
+                             ws, cnt):
+                    cnt[C.RAYS_SHADOW_BLOCKED] += 1
+                    continue
+            dr += n_dot_l * lr
+            dg += n_dot_l * lg
+            db += n_dot_l * lb
             if ks > 0.0:
                 r_dot_l = _dot(rx, ry, rz, ulx, uly, ulz)
                 if r_dot_l > 0.0:
                     spec = ks * r_dot_l ** shine
-                    hr += spec * lights[li, 3]
-                    hg += spec * lights[li, 4]
-                    hb += spec * lights[li, 5]
+                    hr += spec * lr
+                    hg += spec * lg
+                    hb += spec * lb
         kl = mats[mat, 8]
         r_out += wr * (kd * cr * dr + hr + kl * cr)
         g_out += wg * (kd * cg * dg + hg + kl * cg)
@@ -121,6 +137,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             k = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
             if k < 0.0:
                 reflect_weight += tr        # total internal reflection
+                cnt[C.RAYS_TIR] += 1
             else:
                 tw = tr
                 if cutoff > 0.0 and max(wr, max(wg, wb)) * tw < cutoff:

@@ -32,9 +32,11 @@ The file holds one object; every key is optional:
 camera      "eye" and "look_at" are required; "up" defaults to [0, 0, 1],
             "angle" (full field of view in degrees, NFF's meaning) to 45,
             "hither" to 0.001, "resolution" ([width, height] or one number
-            for a square image) to 512. Without "camera" the camera of the
-            first included NFF file that has one is used, else the default
-            `Camera()`.
+            for a square image) to 512; "medium" names the material of a
+            transparent medium the eye is in (water around the camera; Hall
+            shading filters rays by the distance they travel in it). Without
+            "camera" the camera of the first included NFF file that has one
+            is used, else the default `Camera()`.
 background  an RGB colour; without it, the first included NFF file's
             background, else black.
 lights      point lights; "position" is required, "color" is optional
@@ -184,7 +186,7 @@ ITEM_KINDS = PRIMITIVE_KINDS + ("mesh", "include", "group", "instance") + OPERAT
 TRANSFORM_OPS = ("translate", "rotate", "scale", "matrix")
 TOP_KEYS = ("camera", "background", "lights", "materials", "groups", "scene")
 MATERIAL_KEYS = ("color", "kd", "ks", "shine", "t", "ior", "kl")
-CAMERA_KEYS = ("eye", "look_at", "up", "angle", "hither", "resolution")
+CAMERA_KEYS = ("eye", "look_at", "up", "angle", "hither", "resolution", "medium")
 BODY_KEYS = ("accel", "items", "material")
 _COMMENT = "comment"
 
@@ -404,6 +406,8 @@ class _Reader:
             kw["angle"] = self.number(c["angle"], f"{ptr}/angle")
             if not 0.0 < kw["angle"] < 180.0:
                 self.fail(f"{ptr}/angle", f"expected an angle in degrees between 0 and 180, got {_describe(c['angle'])}")
+        if "medium" in c:
+            kw["medium"] = self.material(c["medium"], f"{ptr}/medium")
         if "hither" in c:
             kw["hither"] = self.number(c["hither"], f"{ptr}/hither")
             if kw["hither"] < 0.0:
@@ -1027,7 +1031,8 @@ class _Writer:
         out = {
             "camera": {"eye": _floats(cam.eye), "look_at": _floats(cam.look_at), "up": _floats(cam.up),
                        "angle": float(cam.angle), "hither": float(cam.hither),
-                       "resolution": [int(cam.width), int(cam.height)]},
+                       "resolution": [int(cam.width), int(cam.height)]}
+            | ({} if cam.medium is None else {"medium": f"m{cam.medium}"}),
             "background": _floats(scene.background),
             "lights": [{"position": _floats(light.position)}
                        | ({} if light.color is None else {"color": _floats(light.color)})

@@ -49,6 +49,7 @@ class Camera:
     hither: float = 1e-3
     width: int = 512
     height: int = 512
+    medium: int | None = None   # the material (index) of a transparent medium the eye is in; None: air
 
     def __post_init__(self):
         self.eye = _vec3(self.eye, "camera eye")
@@ -66,6 +67,10 @@ class Camera:
         self.hither = float(self.hither)
         self.width = int(self.width)
         self.height = int(self.height)
+        if self.medium is not None:
+            if isinstance(self.medium, bool) or not isinstance(self.medium, (int, np.integer)) or self.medium < 0:
+                raise SceneError(f"camera medium must be a material index, got {self.medium!r}")
+            self.medium = int(self.medium)
 
     def basis(self):
         """(forward, right, up) unit vectors; right = forward x up (NFF's
