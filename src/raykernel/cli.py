@@ -86,7 +86,7 @@ def cmd_render(args, console) -> int:
     if args.scene.startswith("example:"):
         options.update(examples.render_defaults(args.scene.split(":", 1)[1]))
     for name in ("max_depth", "shading", "aa", "samples", "seed", "aa_threshold", "aa_depth", "cutoff", "shadows",
-                 "eye_light", "eye_light_shadows"):
+                 "eye_light", "eye_light_shadows", "tricks"):
         if getattr(args, name) is not None:
             options[name] = getattr(args, name)
     out = args.output or _default_output(args.scene)
@@ -265,6 +265,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--aa-depth", type=int, help="--aa adaptive: most cuts of a pixel, 0-4 (default 2)")
     r.add_argument("--cutoff", type=float, help="rays weighing less are not cast (Hall's adaptive tree "
                    "depth; default 1/512, 0 in --spd)")
+    r.add_argument("--tricks", metavar="LIST", help="Haines's efficiency tricks: all, none or a comma-separated "
+                   "list of closest, raytree, shadowcache, transparentlast, lazynormals, startlists (default: "
+                   "closest,shadowcache,transparentlast,lazynormals); they change the work, not the image")
     r.add_argument("--stats-json", help="write every counter to this JSON file")
     r.add_argument("--max-memory", help="memory budget of every build, e.g. 8G or 512M (default: half of this "
                    "machine's memory); a structure that needs more stops with an error")

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..geometry.config import njit
 from ..geometry.primitives import CONE, SPHERE, TRIANGLE, normalize
-from ..rendering.surface import surface
+from ..geometry.surface import surface
 
 
 @njit(inline="always")
@@ -74,7 +74,7 @@ def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip
                       m[2] * sx + m[6] * sy + m[10] * sz)
     if sx == 0.0 and sy == 0.0 and sz == 0.0:
         sx, sy, sz = gx, gy, gz
-    if flip != 0:
+    if flip & 1:
         gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
     if gn_out.shape[0]:
         gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz

@@ -87,6 +87,7 @@ PRIMITIVE_FIELDS = (
     "tri_smooth",      # (T,) bool: interpolate tri_vnormals
     "tri_mat",         # (T,)
     "tri_edges",       # (1,) int64: the triangle test's edge rule, primitives.WATERTIGHT or INCLUSIVE
+    "mat_clear",       # (M,) bool: the material transmits (T > 0), skipped by opaque-only shadow queries
 )
 AGGREGATE_FIELDS = (
     Field("agg_kind", np.int64),          # (A,) walk kind: the CODE of its module (LIST, BVH, GRID, OCTREE, RC)
@@ -482,6 +483,7 @@ def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None) -> tuple[
         tri_verts=tri_verts, tri_vnormals=tri_vn, tri_faces=tri_faces, tri_smooth=tri_smooth,
         tri_mat=_concat([m.material for m, _ in arr.mesh], (0,), np.int32),
         tri_edges=np.zeros(1, np.int64),
+        mat_clear=np.array([m.t > 0.0 for m in scene.materials] or [False], np.bool_),
         root=int(root), **fields,
     )
     lazy = None

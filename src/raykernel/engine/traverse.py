@@ -61,8 +61,10 @@ from ..geometry.primitives import (
     hit_polygon,
     hit_sphere,
     hit_triangle,
+    normalize,
     sphere_roots,
 )
+from ..geometry.surface import surface
 from .flatten import LIST, MAX_NESTING, STACK_SIZE
 from .parallel import for_ranges
 from .transforms import compose_map, map_ray
@@ -70,8 +72,16 @@ from .transforms import compose_map, map_ray
 # intersect's mode: the closest hit, any hit, every hit. numpy integers, not Python ints: numba
 # compiles a function again for each literal int value it is passed
 CLOSEST, ANY_HIT, ALL_HITS = np.int64(0), np.int64(1), np.int64(2)
-HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that was hit
-HIT_I = 4                    # hit_i: kind, index, innermost instance (-1: none), flip (1: reverse the normal)
+# the closest hit, computing the surface normal of every closer hit as it is found (what a tracer
+# without Haines's trick 5, "normals only for the final hit", does; rendering/tricks.py)
+CLOSEST_EAGER = np.int64(3)
+# any hit on an opaque surface: transparent primitives (geo.mat_clear) are passed over (Haines's trick 4)
+ANY_OPAQUE = np.int64(4)
+HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that was hit (then, in a workspace's,
+                             # room for CLOSEST_EAGER's normal)
+HIT_I = 4                    # hit_i: kind, index, innermost instance (-1: none), flags:
+FLIP, CSG_SURFACE = 1, 2     # hit_i[3] bits: reverse the normal; a surface of a CSG result (not its primitive's
+                             # own surface everywhere, so a test of the primitive alone may disagree with it)
 KEYED = entry_tag(LIST, 1)   # stack entry: go on with the frame's keyed list at stack_a
 DONE = np.int64(-2)          # _resolve's sink when an ANY_HIT query is answered
 
@@ -84,7 +94,7 @@ def workspace():
     csg_t, csg_i, csg_m, csg_n = csg.buffers()
     return (np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
             np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, FRAME_I), np.int64),
-            np.zeros(HIT_F), np.zeros(HIT_I, np.int64), csg_t, csg_i, csg_m, csg_n)
+            np.zeros(HIT_F + 3), np.zeros(HIT_I, np.int64), csg_t, csg_i, csg_m, csg_n)
 
 
 @njit(private=True)
@@ -112,6 +122,26 @@ def _take(mode, t, kind, idx, inst, flip, maps, row, col, hit_f, hit_i, found, b
         hit_i[0], hit_i[1], hit_i[2], hit_i[3] = kind, idx, inst, flip
         return True, t, ref, inst
     return found, best_t, best_ref, best_inst
+
+
+@njit(inline="always")
+def _clear(geo, kind, idx):
+    """True when primitive (kind, idx) has a transparent material."""
+    if kind == SPHERE:
+        return geo.mat_clear[geo.sph_mat[idx]]
+    if kind == POLYGON or kind == PATCH:
+        return geo.mat_clear[geo.poly_mat[idx]]
+    if kind == CONE:
+        return geo.mat_clear[geo.cone_mat[idx]]
+    return geo.mat_clear[geo.tri_mat[idx]]
+
+
+@njit(private=True)
+def _eager_normal(geo, kind, idx, px, py, pz, hit_f, cnt):
+    """CLOSEST_EAGER: the shading normal of the hit just taken, at its local point p, into hit_f."""
+    _, _, _, sx, sy, sz, _ = surface(geo, kind, idx, px, py, pz)
+    hit_f[HIT_F], hit_f[HIT_F + 1], hit_f[HIT_F + 2] = normalize(sx, sy, sz)
+    cnt[C.NORMALS_COMPUTED] += 1
 
 
 @njit(inline="always")
@@ -147,10 +177,11 @@ def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, h
     csg_n[0] = region
     for k in range(region, region + n):
         t = csg_t[k]
-        if tmin <= t <= best_t:
-            found, best_t, best_ref, best_inst = _take(mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3], csg_i[k, 4],
-                                                       csg_m, k, 0, hit_f, hit_i, found, best_t, best_ref, best_inst)
-            if found and mode == ANY_HIT:
+        if tmin <= t <= best_t and not (mode == ANY_OPAQUE and _clear(geo, csg_i[k, 1], csg_i[k, 2])):
+            found, best_t, best_ref, best_inst = _take(mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3],
+                                                       csg_i[k, 4] | CSG_SURFACE, csg_m, k, 0, hit_f, hit_i, found,
+                                                       best_t, best_ref, best_inst)
+            if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                 return found, best_t, best_ref, best_inst, DONE
     return found, best_t, best_ref, best_inst, sink
 
@@ -284,6 +315,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                     cnt[C.MAILBOX_SAVED] += 1
                     continue
                 frame_f[f, slot] = tag
+            if mode == ANY_OPAQUE and sink < 0 and kind < AGGREGATE and _clear(geo, kind, idx):
+                continue        # transparent: left to the walk that filters light through it
             if kind == SPHERE:
                 cnt[C.TESTS + SPHERE] += 1
                 if sink >= 0:
@@ -349,8 +382,10 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                     continue
                 found, best_t, best_ref, best_inst = _take(mode, t, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
                                                            F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
-                if found and mode == ANY_HIT:
+                if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                     return True
+                if mode == CLOSEST_EAGER and best_t == t and hit_i[0] == kind and hit_i[1] == idx:
+                    _eager_normal(geo, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f, cnt)
     return found
 
 

@@ -27,7 +27,14 @@ CSG_SURFACES = 27         # result surfaces they found (offered as hits or to an
 RAYS_CUT_OFF = 28         # reflection and refraction rays not cast: their weight fell below the cut-off
 RAYS_TIR = 29             # total internal reflections: refraction rays that Snell's law forbids
 EYE_LIGHT_SKIPPED = 30    # shadow rays toward the light at the eye not cast for eye rays' hits
-N_COUNTERS = 32           # spare columns for structures to come
+RAYTREE_TRIES = 31        # Haines's tricks (rendering/tricks.py): rays whose search began with the object the
+RAYTREE_HITS = 32         # same node of the previous ray tree hit; of those, the searches it bounded
+SHADOW_CACHE_TRIES = 33   # shadow rays that first tested the last blocker of their light and node
+NORMALS_COMPUTED = 34     # surface normals computed (once per hit, or at every closer hit without trick 5)
+FULL_WALKS = 35           # closest-hit searches that visited every candidate (trick 1 off)
+START_LISTS = 36          # secondary rays that began with their object's start list (trick 6)
+SHADOW_STEPS = 37         # closest-hit queries of filtered shadow rays walking through transparent surfaces
+N_COUNTERS = 40           # spare columns for structures to come
 
 NAMES = {
     RAYS_EYE: "rays.eye", RAYS_EYE_HIT: "rays.eye_hit",
@@ -43,5 +50,8 @@ NAMES = {
     TRANSFORMS + 2: "transforms.scale", TRANSFORMS + 3: "transforms.affine",
     TRANSFORM_MULTIPLIES: "transforms.multiplies",
     CSG_CROSSINGS: "csg.crossings", CSG_RESOLVES: "csg.resolves", CSG_SURFACES: "csg.surfaces",
+    RAYTREE_TRIES: "raytree.tries", RAYTREE_HITS: "raytree.hits", SHADOW_CACHE_TRIES: "shadow_cache.tries",
+    NORMALS_COMPUTED: "normals.computed", FULL_WALKS: "tricks.full_walks", START_LISTS: "start_lists.used",
+    SHADOW_STEPS: "shadow.steps",
     RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
 }

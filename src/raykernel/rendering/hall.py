@@ -2,7 +2,7 @@
 transmission, transmitted highlights and filtering by distance inside transparent media.
 
     r, g, b = trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, medium,
-                    filtered, rays, ws, cnt)
+                    filtered, tricks, state, rays, ws, cnt)
 
 `raykernel render SCENE --shading hall`. How NFF's `f r g b Kd Ks Shine T ior` maps (our
 choices, README "Shading"):
@@ -29,12 +29,12 @@ import math
 
 import numpy as np
 
-from ..engine.traverse import CLOSEST, intersect
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
+from ..geometry.surface import _dot, hit_normals
 from .shadows import filter_by_distance, light_through
-from .surface import _dot, hit_normals
+from .tricks import closest, shadow_slot
 from .whitted import OFFSET, shadow_reach
 
 
@@ -62,8 +62,8 @@ def weights(ks, kt, f):
 
 
 @njit(private=True)
-def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, medium, filtered,
-          rays, ws, cnt):
+def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, medium, filtered, tricks,
+          state, rays, ws, cnt):
     """Colour of one eye ray under Hall's model; rays[k] = whitted.trace's columns, then the medium.
     medium: the camera's (-1: air)."""
     r_out, g_out, b_out = 0.0, 0.0, 0.0
@@ -72,6 +72,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
     rays[0, 9] = 1.0
     rays[0, 10] = 0.0
     rays[0, 11] = medium
+    rays[0, 12] = 1.0
     top = 1
     while top > 0:
         top -= 1
@@ -81,8 +82,9 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         depth = int(rays[top, 9])
         ray_kind = int(rays[top, 10])
         inside = np.int64(rays[top, 11])
+        node = np.int64(rays[top, 12])
         cnt[C.RAYS_EYE + 2 * ray_kind] += 1
-        found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, CLOSEST, ws, cnt)
+        found = closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, ws, cnt)
         hit_f, hit_i = ws[5], ws[6]
         t = hit_f[0] if found else np.inf
         wr, wg, wb = filter_by_distance(mats, inside, t * math.sqrt(_dot(dx, dy, dz, dx, dy, dz)), wr, wg, wb)
@@ -94,6 +96,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         cnt[C.RAYS_EYE_HIT + 2 * ray_kind] += 1
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
         gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
+        cnt[C.NORMALS_COMPUTED] += 1
         entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
         if not entering:
             gx, gy, gz = -gx, -gy, -gz
@@ -125,7 +128,8 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         mx, my, mz = -vx + 2.0 * cos_i * sx, -vy + 2.0 * cos_i * sy, -vz + 2.0 * cos_i * sz     # the mirror direction
         dr, dg, db = 0.0, 0.0, 0.0
         hr, hg, hb = 0.0, 0.0, 0.0
-        for li in range(lights.shape[0]):
+        n_lights = lights.shape[0]
+        for li in range(n_lights):
             near_side = True
             lx, ly, lz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
             ulx, uly, ulz = normalize(lx, ly, lz)
@@ -145,11 +149,11 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             elif near_side:
                 cnt[C.RAYS_SHADOW] += 1
                 lr, lg, lb = light_through(geo, mats, ax, ay, az, lx, ly, lz, shadow_reach(lights, li, lx, ly, lz),
-                                           inside, filtered, ws, cnt)
+                                           inside, filtered, shadow_slot(node, n_lights, li), tricks, state, ws, cnt)
             else:
                 cnt[C.RAYS_SHADOW] += 1
                 lr, lg, lb = light_through(geo, mats, bx, by, bz, lx, ly, lz, shadow_reach(lights, li, lx, ly, lz),
-                                           far, filtered, ws, cnt)
+                                           far, filtered, np.int64(-1), tricks, state, ws, cnt)
             if lr == 0.0 and lg == 0.0 and lb == 0.0:
                 cnt[C.RAYS_SHADOW_BLOCKED] += 1
                 continue
@@ -188,6 +192,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
                 rays[top, 9] = depth + 1
                 rays[top, 10] = 2.0
                 rays[top, 11] = far
+                rays[top, 12] = 2 * node + 1
                 top += 1
         if cutoff > 0.0 and weight * w_mirror < cutoff:
             cnt[C.RAYS_CUT_OFF] += 1
@@ -199,5 +204,6 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             rays[top, 9] = depth + 1
             rays[top, 10] = 1.0
             rays[top, 11] = inside
+            rays[top, 12] = 2 * node
             top += 1
     return r_out, g_out, b_out

@@ -33,7 +33,7 @@ import numpy as np
 from ..engine.traverse import ANY_HIT, CLOSEST, intersect
 from ..geometry import counters as C
 from ..geometry.config import njit
-from .surface import _dot, hit_normals
+from ..geometry.surface import _dot, hit_normals
 
 T_MIN = 1e-7      # the program's hit threshold, in units of the ray's (unit) direction
 

@@ -44,6 +44,10 @@ from ..scene.model import Scene
 from . import heckbert
 from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, _render_pixels
 from .stats import Stats
+from .tricks import DEFAULT as TRICKS_DEFAULT
+from .tricks import memo
+from .tricks import names as tricks_names
+from .tricks import parse as parse_tricks
 from .whitted import RAY_COLUMNS, RAY_STACK, trace
 
 TILE = 16
@@ -53,7 +57,7 @@ CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change 
 
 @njit
 def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, first, last, row0,
-                  max_depth, cutoff, filtered, out, counters, passes, step, coarse):
+                  max_depth, cutoff, filtered, tricks, out, counters, passes, step, coarse):
     """Trace tiles first..last-1 of the sample grid into `out`, adding into one counter row per tile.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
     Within each tile only the samples on the lattice of `step` (every step-th row and column),
@@ -62,9 +66,10 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
     for tile in range(first, last):
         ws = workspace()
         rays = np.zeros((RAY_STACK, RAY_COLUMNS))
+        state = memo(lights.shape[0])
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile], max_depth,
-                     cutoff, filtered, out, step, coarse, rays, ws, cnt)
+                     cutoff, filtered, tricks, state, out, step, coarse, rays, ws, cnt)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
@@ -73,7 +78,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
 
 @njit(private=True)     # one call per tile: the pixels' calls into trace count no references
 def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff, filtered,
-                 out, step, coarse, rays, ws, cnt):
+                 tricks, state, out, step, coarse, rays, ws, cnt):
     """The samples of the tile at (x0, y0) for _render_tiles, with the tile's workspace and counters."""
     for j in range(y0, min(y0 + TILE, samples_h), step):
         for i in range(x0, min(x0 + TILE, samples_w), step):
@@ -84,7 +89,7 @@ def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y
             dz = cam[5] + i * cam[8] + j * cam[11]
             dx, dy, dz = normalize(dx, dy, dz)
             r, g, b = trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz,
-                             max_depth, cutoff, filtered, rays, ws, cnt)
+                             max_depth, cutoff, filtered, tricks, state, rays, ws, cnt)
             out[j, i, 0] = r
             out[j, i, 1] = g
             out[j, i, 2] = b
@@ -203,7 +208,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
            max_depth: int = 5, threads: int | None = None, progress=None, max_memory=None,
            shading: str = "whitted", aa: str | None = None, samples: int = 4, seed: int = 0,
            aa_threshold: float = 0.1, aa_depth: int = 2, cutoff: float | None = None, shadows: str = "opaque",
-           eye_light: float | None = None, eye_light_shadows: str = "skip") -> RenderResult:
+           eye_light: float | None = None, eye_light_shadows: str = "skip", tricks="default") -> RenderResult:
     """Render `scene`; returns the float image and the statistics.
 
     accel: the default accelerator spec for groups that name none.
@@ -226,6 +231,10 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     eye_light: the intensity of a white point light at the eye (Haines's trick), None: none.
     eye_light_shadows: "skip" (the trick: eye rays' hits are lit by it without a shadow ray,
     counted in shadow.eye_light_skipped) or "cast" (shadow rays as for any light).
+    tricks: Haines's efficiency tricks (tricks.py): "all", "none", "default" (closest,
+    shadowcache, transparentlast, lazynormals) or a comma-separated list of closest, raytree,
+    shadowcache, transparentlast, lazynormals, startlists. They change the work, not the image or
+    the ray counts; heckbert shading runs the printed program's searches and takes none.
     """
     max_depth = _number(max_depth, "max_depth", 1, 32, integer=True)
     if resolution is not None:
@@ -245,6 +254,8 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     if cutoff is not None:
         cutoff = _number(cutoff, "cutoff", 0.0, 1.0)
     shadows = _choice(shadows, "shadows", ("opaque", "filtered"))
+    default = isinstance(tricks, str) and tricks.strip().lower() == "default"
+    trick_bits = np.int64(TRICKS_DEFAULT if default else parse_tricks(tricks))
     if eye_light is not None:
         eye_light = _number(eye_light, "eye_light", 0.0, math.inf)
     eye_light_shadows = _choice(eye_light_shadows, "eye_light_shadows", ("skip", "cast"))
@@ -318,12 +329,13 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
             def tiles(lo, hi, first=first, step=step, coarse=coarse, geo=geo, pass_counts=pass_counts):
                 if plain:
                     _render_tiles(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo, first + hi,
-                                  first, max_depth, cutoff, filtered, values, counts, pass_counts, step, coarse)
+                                  first, max_depth, cutoff, filtered, trick_bits, values, counts, pass_counts, step,
+                                  coarse)
                 else:
                     _render_pixels(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo,
                                    first + hi, first, max_depth, cutoff, values, counts, pass_counts, step, coarse,
-                                   TILE, SHADINGS[shading], filtered, medium, SAMPLERS[aa], samples, seed, aa_threshold,
-                                   aa_depth)
+                                   TILE, SHADINGS[shading], filtered, trick_bits, medium, SAMPLERS[aa], samples, seed,
+                                   aa_threshold, aa_depth)
             for_ranges(tiles, last - first, n_threads, kernel=kernel,
                        min_size=-(-RANGE_SAMPLES * (last - first) // max(1, part)))
             if lazy is not None:
@@ -339,10 +351,12 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
         image = 0.25 * (values[:-1, :-1] + values[1:, :-1] + values[:-1, 1:] + values[1:, 1:])
     else:
         image = values
-    stats = Stats.from_counters(counts.sum(axis=0), build, preprocess=preprocess, trace=trace, compile=build_clock.seconds + clock.seconds,
+    stats = Stats.from_counters(counts.sum(axis=0), build, preprocess=preprocess, trace=trace,
+                                compile=build_clock.seconds + clock.seconds,
                                 info={"scene": scene.source, "accel": accel, "resolution": [width, height],
                                       "spd": spd, "max_depth": max_depth, "shading": shading,
                                       "aa": None if aa == "none" else aa, "cutoff": cutoff, "shadows": shadows,
+                                      "tricks": tricks_names(int(trick_bits)),
                                       **({"eye_light": eye_light, "eye_light_shadows": eye_light_shadows}
                                          if eye_light is not None else {}),
                                       **({"samples": samples, "seed": seed} if aa == "jitter" else {}),

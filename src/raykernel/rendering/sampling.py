@@ -27,6 +27,7 @@ from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
 from . import hall, heckbert, whitted
+from .tricks import memo as tricks_memo
 
 SINGLE, JITTER, ADAPTIVE = np.int64(0), np.int64(1), np.int64(2)
 SAMPLERS = {"none": SINGLE, "jitter": JITTER, "adaptive": ADAPTIVE}
@@ -48,7 +49,8 @@ def _uniform(seed, pixel, k):
 
 
 @njit(inline="always")
-def _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff, filtered, medium, rays, ws, cnt):
+def _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff, filtered, tricks, medium, state,
+            rays, ws, cnt):
     """Colour seen through point (u, v) of the image plane, in pixels from pixel (0, 0)."""
     dx = cam[3] + u * cam[6] + v * cam[9]
     dy = cam[4] + u * cam[7] + v * cam[10]
@@ -59,28 +61,29 @@ def _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff
                               rays, ws, cnt)
     if shading == HALL:
         return hall.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz, max_depth, cutoff,
-                          medium, filtered, rays, ws, cnt)
+                          medium, filtered, tricks, state, rays, ws, cnt)
     return whitted.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz, max_depth, cutoff,
-                         filtered, rays, ws, cnt)
+                         filtered, tricks, state, rays, ws, cnt)
 
 
 @njit
 def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, first, last, row0,
                    max_depth, cutoff, out, counters, passes, step, coarse,
-                   tile_size, shading, filtered, medium, sampler, samples, seed, threshold, aa_depth):
+                   tile_size, shading, filtered, tricks, medium, sampler, samples, seed, threshold, aa_depth):
     """render._render_tiles over pixels (tiles of tile_size), each from `sampler`'s samples
     under `shading`; filtered shadows or not, the camera's medium (-1: air) for Hall's."""
     cells = tile_size << aa_depth if sampler == ADAPTIVE else 0
     for tile in range(first, last):
         ws = workspace()
         rays = np.zeros((whitted.RAY_STACK, whitted.RAY_COLUMNS))
+        state = tricks_memo(lights.shape[0])
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         lattice = np.zeros((cells + 1, cells + 1, 3))
         known = np.zeros((cells + 1, cells + 1), np.bool_)
         squares = np.zeros((_SQUARES, 4), np.int64)
         _render_tile(geo, mats, lights, background, cam, width, height, tile_x[tile], tile_y[tile], tile_size,
-                     max_depth, cutoff, out, step, coarse, shading, filtered, medium, sampler, samples, seed,
-                     threshold, aa_depth, rays, ws, cnt, lattice, known, squares)
+                     max_depth, cutoff, out, step, coarse, shading, filtered, tricks, medium, sampler, samples, seed,
+                     threshold, aa_depth, state, rays, ws, cnt, lattice, known, squares)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
@@ -89,8 +92,8 @@ def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, ti
 
 @njit(private=True)     # one call per tile: the samples' calls count no references
 def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile_size, max_depth, cutoff, out,
-                 step, coarse, shading, filtered, medium, sampler, samples, seed, threshold, aa_depth, rays, ws, cnt,
-                 lattice, known, squares):
+                 step, coarse, shading, filtered, tricks, medium, sampler, samples, seed, threshold, aa_depth, state,
+                 rays, ws, cnt, lattice, known, squares):
     """The pixels of the tile at (x0, y0) for _render_pixels. lattice, known: the adaptive
     sampler's points of the tile, 2^aa_depth per pixel side, traced on first use; squares: its
     stack of squares, rows of (column, row, size) on that lattice and the cuts made."""
@@ -104,41 +107,42 @@ def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile
             r, g, b = 0.0, 0.0, 0.0
             if sampler == SINGLE:
                 r, g, b = _sample(geo, mats, lights, background, cam, float(i), float(j), shading, max_depth,
-                                  cutoff, filtered, medium, rays, ws, cnt)
+                                  cutoff, filtered, tricks, medium, state, rays, ws, cnt)
             elif sampler == JITTER:
                 pixel = j * width + i
                 for s in range(k * k):
                     u = i - 0.5 + (s % k + _uniform(seed, pixel, 2 * s)) / k
                     v = j - 0.5 + (s // k + _uniform(seed, pixel, 2 * s + 1)) / k
                     sr, sg, sb = _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff,
-                                         filtered, medium, rays, ws, cnt)
+                                         filtered, tricks, medium, state, rays, ws, cnt)
                     r += sr
                     g += sg
                     b += sb
                 r, g, b = r / (k * k), g / (k * k), b / (k * k)
             else:
-                r, g, b = _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, medium,
-                                    threshold, aa_depth, x0, y0, i, j, lattice, known, squares, rays, ws, cnt)
+                r, g, b = _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks,
+                                    medium, threshold, aa_depth, x0, y0, i, j, lattice, known, squares, state, rays,
+                                    ws, cnt)
             out[j, i, 0] = r
             out[j, i, 1] = g
             out[j, i, 2] = b
 
 
 @njit(inline="always")
-def _point(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, medium, aa_depth, x0, y0, a, e,
-           lattice, known, rays, ws, cnt):
+def _point(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, aa_depth, x0,
+           y0, a, e, lattice, known, state, rays, ws, cnt):
     """Trace lattice point (a, e) of the tile at (x0, y0) unless it is known."""
     if not known[e, a]:
         scale = 1.0 / (1 << aa_depth)
         r, g, b = _sample(geo, mats, lights, background, cam, x0 - 0.5 + a * scale, y0 - 0.5 + e * scale,
-                          shading, max_depth, cutoff, filtered, medium, rays, ws, cnt)
+                          shading, max_depth, cutoff, filtered, tricks, medium, state, rays, ws, cnt)
         lattice[e, a, 0], lattice[e, a, 1], lattice[e, a, 2] = r, g, b
         known[e, a] = True
 
 
 @njit(inline="always")
-def _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, medium, threshold, aa_depth,
-              x0, y0, i, j, lattice, known, squares, rays, ws, cnt):
+def _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, threshold,
+              aa_depth, x0, y0, i, j, lattice, known, squares, state, rays, ws, cnt):
     """Whitted's subdivision of pixel (i, j): the area-weighted mean of its squares' corner means."""
     full = 1 << aa_depth
     r, g, b = 0.0, 0.0, 0.0
@@ -148,8 +152,8 @@ def _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, fi
         top -= 1
         a, e, size, cut = squares[top, 0], squares[top, 1], squares[top, 2], squares[top, 3]
         for corner in range(4):
-            _point(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, medium, aa_depth, x0, y0,
-                   a + size * (corner % 2), e + size * (corner // 2), lattice, known, rays, ws, cnt)
+            _point(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, aa_depth,
+                   x0, y0, a + size * (corner % 2), e + size * (corner // 2), lattice, known, state, rays, ws, cnt)
         spread = 0.0
         for q in range(3):
             c0, c1 = lattice[e, a, q], lattice[e, a + size, q]

@@ -14,9 +14,12 @@ import math
 
 import numpy as np
 
-from ..engine.traverse import ANY_HIT, CLOSEST, intersect
+from ..engine.traverse import ANY_HIT, ANY_OPAQUE, CLOSEST, intersect
+from ..geometry import counters as C
 from ..geometry.config import njit
-from .surface import _dot, hit_normals
+from ..geometry.surface import _dot, hit_normals
+from .tricks import TRANSPARENTLAST, cached_block, remember_blocker
+from .tricks import blocked as tricks_blocked
 
 MAX_CROSSINGS = 64      # a filtered shadow ray gives up (blocked) after passing this many surfaces
 
@@ -30,18 +33,25 @@ def filter_by_distance(mats, medium, distance, wr, wg, wb):
 
 
 @njit(private=True)
-def light_through(geo, mats, ox, oy, oz, tx, ty, tz, reach, medium, filtered, ws, cnt):
+def light_through(geo, mats, ox, oy, oz, tx, ty, tz, reach, medium, filtered, slot, tricks, state, ws, cnt):
     """Fraction of a light's colour that reaches (ox, oy, oz) along (tx, ty, tz) (to the light, t in
     [0, reach]), starting in `medium`: 0 when an opaque surface (any surface, unless filtered) is in
-    the way."""
+    the way. slot, tricks, state: the shadow cache and trick 4 (tricks.py)."""
     length = math.sqrt(_dot(tx, ty, tz, tx, ty, tz))
     if not filtered:
-        if intersect(geo, ox, oy, oz, tx, ty, tz, 0.0, reach, ANY_HIT, ws, cnt):
+        if tricks_blocked(geo, ox, oy, oz, tx, ty, tz, reach, ANY_HIT, slot, tricks, state, ws, cnt):
             return 0.0, 0.0, 0.0
         return filter_by_distance(mats, medium, reach * length, 1.0, 1.0, 1.0)
+    if tricks & TRANSPARENTLAST:
+        # trick 4: opaque surfaces first, in one any-hit query; the walk below meets only clear ones
+        if tricks_blocked(geo, ox, oy, oz, tx, ty, tz, reach, ANY_OPAQUE, slot, tricks, state, ws, cnt):
+            return 0.0, 0.0, 0.0
+    elif cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, tricks, state, cnt):
+        return 0.0, 0.0, 0.0
     fr, fg, fb = 1.0, 1.0, 1.0
     t0 = 0.0
     for _ in range(MAX_CROSSINGS):
+        cnt[C.SHADOW_STEPS] += 1
         if not intersect(geo, ox, oy, oz, tx, ty, tz, t0, reach, CLOSEST, ws, cnt):
             return filter_by_distance(mats, medium, (reach - t0) * length, fr, fg, fb)
         hit_f, hit_i = ws[5], ws[6]
@@ -50,6 +60,7 @@ def light_through(geo, mats, ox, oy, oz, tx, ty, tz, reach, medium, filtered, ws
         gx, gy, gz, _, _, _, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
         kt = mats[mat, 6]
         if kt <= 0.0:
+            remember_blocker(slot, tricks, state, ws)
             return 0.0, 0.0, 0.0
         fr, fg, fb = filter_by_distance(mats, medium, (t - t0) * length, fr * kt, fg * kt, fb * kt)
         medium = mat if _dot(gx, gy, gz, tx, ty, tz) < 0.0 else np.int64(-1)

@@ -1,30 +1,33 @@
 """Whitted shading with NFF's parameters: the ray tree of one eye ray, on an explicit stack.
 
-    r, g, b = trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, filtered, rays, ws, cnt)
+    r, g, b = trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, filtered, tricks,
+                    state, rays, ws, cnt)
 
 Kd diffuse and Ks Phong highlight (exponent Shine) from point lights, Ks mirror reflection,
 T transmission by Snell's law with total internal reflection; a luminous surface (Kl, Heckbert's
 luminance) adds Kl times its colour. filtered: shadow rays pass transparent surfaces, times T
-(shadows.py). rays: a (RAY_STACK, RAY_COLUMNS) scratch array; ws: traverse.workspace().
+(shadows.py). tricks, state: Haines's efficiency tricks and their per-tile memory (tricks.py).
+rays: a (RAY_STACK, RAY_COLUMNS) scratch array; ws: traverse.workspace().
 """
 
 import math
 
 import numpy as np
 
-from ..engine.traverse import ANY_HIT, CLOSEST, intersect
+from ..engine.traverse import ANY_HIT
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
+from ..geometry.surface import _dot, hit_normals
 from .shadows import light_through
-from .surface import _dot, hit_normals
+from .tricks import blocked, closest, shadow_slot
 
 # Secondary rays start this far off the surface, relative to the magnitude of
 # the coordinates involved: far above the rounding error of a double-precision
 # hit point (about 1e-16 relative), far below any feature a scene can show.
 OFFSET = 2.0 ** -32
 RAY_STACK = 80           # a ray tree of depth 32 keeps at most 2 rays per level waiting
-RAY_COLUMNS = 12         # origin, direction, weight, depth, kind; hall.py adds the medium
+RAY_COLUMNS = 13         # origin, direction, weight, depth, kind, (hall.py's medium), ray-tree node (tricks.py)
 
 
 @njit(inline="always")
@@ -42,7 +45,7 @@ def shadow_reach(lights, li, tx, ty, tz):
 
 
 @njit(private=True)
-def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, filtered,
+def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, filtered, tricks, state,
           rays, ws, cnt):
     """Colour of one eye ray: the whole ray tree, depth first, on an explicit stack.
     rays[k] = origin(3), direction(3), weight(3), depth, kind (0 eye, 1 reflect, 2 refract)."""
@@ -52,6 +55,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
     rays[0, 6] = rays[0, 7] = rays[0, 8] = 1.0
     rays[0, 9] = 1.0
     rays[0, 10] = 0.0
+    rays[0, 12] = 1.0
     top = 1
     while top > 0:
         top -= 1
@@ -60,9 +64,9 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         wr, wg, wb = rays[top, 6], rays[top, 7], rays[top, 8]
         depth = int(rays[top, 9])
         ray_kind = int(rays[top, 10])
+        node = np.int64(rays[top, 12])
         cnt[C.RAYS_EYE + 2 * ray_kind] += 1
-        if not intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, CLOSEST,
-                         ws, cnt):
+        if not closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, ws, cnt):
             r_out += wr * background[0]
             g_out += wg * background[1]
             b_out += wb * background[2]
@@ -72,6 +76,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         t = hit_f[0]
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
         gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
+        cnt[C.NORMALS_COMPUTED] += 1
         entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
         if not entering:
             # two-sided: shade the side the ray sees
@@ -102,15 +107,16 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             elif filtered:
                 cnt[C.RAYS_SHADOW] += 1
                 fr, fg, fb = light_through(geo, mats, ax, ay, az, tlx, tly, tlz,
-                                           shadow_reach(lights, li, tlx, tly, tlz), np.int64(-1), True, ws, cnt)
+                                           shadow_reach(lights, li, tlx, tly, tlz), np.int64(-1), True,
+                                           shadow_slot(node, n_lights, li), tricks, state, ws, cnt)
                 if fr == 0.0 and fg == 0.0 and fb == 0.0:
                     cnt[C.RAYS_SHADOW_BLOCKED] += 1
                     continue
                 lr, lg, lb = lr * fr, lg * fg, lb * fb
             else:
                 cnt[C.RAYS_SHADOW] += 1
-                if intersect(geo, ax, ay, az, tlx, tly, tlz, 0.0, shadow_reach(lights, li, tlx, tly, tlz), ANY_HIT,
-                             ws, cnt):
+                if blocked(geo, ax, ay, az, tlx, tly, tlz, shadow_reach(lights, li, tlx, tly, tlz), ANY_HIT,
+                           shadow_slot(node, n_lights, li), tricks, state, ws, cnt):
                     cnt[C.RAYS_SHADOW_BLOCKED] += 1
                     continue
             dr += n_dot_l * lr
@@ -151,6 +157,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
                     rays[top, 6], rays[top, 7], rays[top, 8] = wr * tw, wg * tw, wb * tw
                     rays[top, 9] = depth + 1
                     rays[top, 10] = 2.0
+                    rays[top, 12] = 2 * node + 1
                     top += 1
         if cutoff > 0.0 and max(wr, max(wg, wb)) * reflect_weight < cutoff:
             cnt[C.RAYS_CUT_OFF] += 1
@@ -161,5 +168,6 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             rays[top, 6], rays[top, 7], rays[top, 8] = wr * reflect_weight, wg * reflect_weight, wb * reflect_weight
             rays[top, 9] = depth + 1
             rays[top, 10] = 1.0
+            rays[top, 12] = 2 * node
             top += 1
     return r_out, g_out, b_out

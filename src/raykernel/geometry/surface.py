@@ -4,8 +4,8 @@
     gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, ws[5], ws[6], px, py, pz)   # of intersect's hit, world
 """
 
-from ..geometry.config import njit
-from ..geometry.primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal, normalize
+from .config import njit
+from .primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal, normalize
 
 
 @njit(inline="always")
@@ -106,7 +106,7 @@ def hit_normals(geo, hit_f, hit_i, px, py, pz):
                            m[2] * gx + m[6] * gy + m[10] * gz)
     sx, sy, sz = normalize(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
                            m[2] * sx + m[6] * sy + m[10] * sz)
-    if hit_i[3] != 0:
+    if hit_i[3] & 1:
         # a surface a CSG difference cut: its outside is the operand's inside
         gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
     return gx, gy, gz, sx, sy, sz, mat

@@ -1,0 +1,205 @@
+"""Haines's efficiency tricks ("Ray Tracing News" 2(1)), each switched on or off and counted.
+
+    render(scene, tricks="all")                     # or "none", or "closest,shadowcache,..."
+    raykernel render SCENE --tricks raytree,shadowcache
+
+Every trick changes only the work, never the image or the ray counts (trick 4 changes nothing
+unless shadows are filtered); what it saved shows in the counters:
+
+1. closest: the search interval shrinks to the closest hit so far. Off, the search visits every
+   candidate over the full interval (an all-hits walk, counted; the hit itself then comes from an
+   uncounted closest search): compare tests.per_ray on and off. tricks.full_walks counts them.
+2. raytree: each tile remembers the object hit at each node of the previous pixel's ray tree
+   (nodes numbered 1 for the eye ray, 2n for the reflection and 2n + 1 for the refraction of
+   node n, up to MEMO_NODES) and tests it first at the same node: its distance bounds the search
+   (raytree.tries, raytree.hits: searches it bounded; the search still finds the true closest).
+3. shadowcache: per light and node, the last opaque blocker is tested first; when it blocks,
+   no search (shadow_cache.tries, shadow_cache.hits).
+4. transparentlast: with filtered shadows, one any-hit query over opaque surfaces first; the
+   front-to-back walk through transparent ones only when none blocks (shadow.steps: closest
+   queries of those walks).
+5. lazynormals: normals only for the final closest hit; off, at every closer hit as the search
+   finds it (normals.computed).
+6. startlists: see startlists.py.
+
+A cached object is tested through the map of the frame it was hit in, and only ever bounds a
+search or settles a shadow ray where rounding cannot matter: a hint that misses, or a blocker
+within 1e-9 of either end of the shadow ray, falls back to the full query. Surfaces of CSG
+results are never cached (their primitive alone is not the solid).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..engine.traverse import ALL_HITS, CLOSEST, CLOSEST_EAGER, CSG_SURFACE, intersect
+from ..errors import OptionError
+from ..geometry import counters as C
+from ..geometry.boxes import INF
+from ..geometry.config import njit
+from ..geometry.primitives import (
+    CONE,
+    PATCH,
+    POLYGON,
+    SPHERE,
+    TRIANGLE,
+    hit_cone,
+    hit_polygon,
+    hit_sphere,
+    hit_triangle,
+)
+
+CLOSEST_CUT, RAYTREE, SHADOWCACHE, TRANSPARENTLAST, LAZYNORMALS, STARTLISTS = 1, 2, 4, 8, 16, 32
+NAMES = {"closest": CLOSEST_CUT, "raytree": RAYTREE, "shadowcache": SHADOWCACHE,
+         "transparentlast": TRANSPARENTLAST, "lazynormals": LAZYNORMALS, "startlists": STARTLISTS}
+ALL = sum(NAMES.values())
+DEFAULT = CLOSEST_CUT | SHADOWCACHE | TRANSPARENTLAST | LAZYNORMALS
+MEMO_NODES = 64          # ray-tree nodes remembered: every node of a tree of depth 6
+MEMO_COLUMNS = 15        # kind, index (-1: nothing), then the frame's world-to-local 3x4 map
+MARGIN = 1e-9            # relative: hints and cached blockers keep this far from the ends of an interval
+
+
+def parse(spec) -> int:
+    """The trick bits of "all", "none" or a comma-separated list of NAMES (or an int of bits)."""
+    if isinstance(spec, (int, np.integer)) and not isinstance(spec, bool):
+        if not 0 <= spec <= ALL:
+            raise OptionError(f"tricks must be between 0 and {ALL} as bits, got {spec}")
+        return int(spec)
+    if not isinstance(spec, str):
+        raise OptionError(f"tricks must be a comma-separated list of names, got {spec!r}")
+    text = spec.strip().lower()
+    if text == "all":
+        return ALL
+    if text in ("none", ""):
+        return 0
+    bits = 0
+    for name in (part.strip() for part in text.split(",")):
+        if name not in NAMES:
+            raise OptionError(f"unknown trick {name!r}; tricks: {', '.join(NAMES)}, all, none")
+        bits |= NAMES[name]
+    return bits
+
+
+def names(bits: int) -> list[str]:
+    return [name for name, bit in NAMES.items() if bits & bit]
+
+
+@njit
+def memo(n_lights):
+    """Per-tile state: the ray-tree memory (MEMO_NODES rows), the shadow cache (MEMO_NODES x
+    n_lights rows), and scratch counters for the uncounted searches of trick 1 off."""
+    rays = np.full((MEMO_NODES, MEMO_COLUMNS), -1.0)
+    shadows = np.full((MEMO_NODES * max(1, n_lights), MEMO_COLUMNS), -1.0)
+    return rays, shadows, np.zeros(C.N_COUNTERS, np.int64)
+
+
+@njit(inline="always")
+def shadow_slot(node, n_lights, light):
+    """The shadow cache's row for a light at ray-tree node `node`; -1 past MEMO_NODES."""
+    return node * n_lights + light if node < MEMO_NODES else np.int64(-1)
+
+
+@njit(inline="always")
+def _remember(table, row, hit_f, hit_i):
+    if hit_i[3] & CSG_SURFACE:
+        table[row, 0] = -1.0
+        return
+    table[row, 0], table[row, 1] = hit_i[0], hit_i[1]
+    for k in range(12):
+        table[row, 3 + k] = hit_f[1 + k]
+
+
+@njit(private=True)
+def test_one(geo, table, row, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    """t of the remembered primitive in table[row] for the world ray, mapped through the map it
+    was hit in, in [tmin, tmax]; INF for a miss."""
+    kind, idx = np.int64(table[row, 0]), np.int64(table[row, 1])
+    m = table[row, 3:15]
+    lx = m[0] * ox + m[1] * oy + m[2] * oz + m[3]
+    ly = m[4] * ox + m[5] * oy + m[6] * oz + m[7]
+    lz = m[8] * ox + m[9] * oy + m[10] * oz + m[11]
+    ex = m[0] * dx + m[1] * dy + m[2] * dz
+    ey = m[4] * dx + m[5] * dy + m[6] * dz
+    ez = m[8] * dx + m[9] * dy + m[10] * dz
+    cnt[C.TESTS + kind] += 1
+    if kind == SPHERE:
+        return hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
+                          geo.sph_radius[idx], lx, ly, lz, ex, ey, ez, tmin, tmax)
+    if kind == POLYGON or kind == PATCH:
+        return hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
+                           geo.poly_verts, idx, lx, ly, lz, ex, ey, ez, tmin, tmax)
+    if kind == TRIANGLE:
+        fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
+        v = geo.tri_verts
+        return hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
+                            v[fc, 0], v[fc, 1], v[fc, 2], lx, ly, lz, ex, ey, ez, tmin, tmax, geo.tri_edges[0])
+    if kind == CONE:
+        return hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
+                        geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
+                        geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx], lx, ly, lz, ex, ey, ez, tmin, tmax)
+    return INF
+
+
+@njit(private=True)
+def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, ws, cnt):
+    """traverse.intersect's closest hit (hit record in ws) of a ray at ray-tree node `node`,
+    with `tricks`; state: memo()'s."""
+    rays, _, scratch = state
+    mode = CLOSEST if tricks & LAZYNORMALS else CLOSEST_EAGER
+    if not tricks & CLOSEST_CUT:
+        # the work of a search without the cut-off, then the hit from one that has it, uncounted
+        cnt[C.FULL_WALKS] += 1
+        intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, ALL_HITS, ws, cnt)
+        before = scratch[C.NORMALS_COMPUTED]
+        found = intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, scratch)
+        cnt[C.NORMALS_COMPUTED] += scratch[C.NORMALS_COMPUTED] - before
+        return found
+    memorable = tricks & RAYTREE and node < MEMO_NODES
+    if memorable and rays[node, 0] >= 0.0:
+        cnt[C.RAYTREE_TRIES] += 1
+        t = test_one(geo, rays, node, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
+        if t < INF and intersect(geo, ox, oy, oz, dx, dy, dz, tmin, min(tmax, t + MARGIN * abs(t)), mode, ws, cnt):
+            cnt[C.RAYTREE_HITS] += 1
+            _remember(rays, node, ws[5], ws[6])
+            return True
+    found = intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
+    if memorable:
+        if found:
+            _remember(rays, node, ws[5], ws[6])
+        else:
+            rays[node, 0] = -1.0
+    return found
+
+
+@njit(inline="always")
+def cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, tricks, state, cnt):
+    """Trick 3: True when the last opaque blocker of this light and ray-tree slot (-1: none) lies
+    on the shadow ray, well inside [0, reach]."""
+    _, shadows, _ = state
+    if not (tricks & SHADOWCACHE and slot >= 0 and shadows[slot, 0] >= 0.0):
+        return False
+    cnt[C.SHADOW_CACHE_TRIES] += 1
+    t = test_one(geo, shadows, slot, ox, oy, oz, tx, ty, tz, 0.0, reach, cnt)
+    if MARGIN * reach < t < reach * (1.0 - MARGIN):
+        cnt[C.SHADOW_CACHE_HITS] += 1
+        return True
+    return False
+
+
+@njit(inline="always")
+def remember_blocker(slot, tricks, state, ws):
+    """Trick 3: the blocker intersect just found (ws's hit record) becomes the slot's."""
+    if tricks & SHADOWCACHE and slot >= 0:
+        _remember(state[1], slot, ws[5], ws[6])
+
+
+@njit(private=True)
+def blocked(geo, ox, oy, oz, tx, ty, tz, reach, mode, slot, tricks, state, ws, cnt):
+    """intersect(mode: ANY_HIT or ANY_OPAQUE) of a shadow ray over [0, reach], the cached blocker
+    of its light and ray-tree slot tested first (trick 3)."""
+    if cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, tricks, state, cnt):
+        return True
+    if intersect(geo, ox, oy, oz, tx, ty, tz, 0.0, reach, mode, ws, cnt):
+        remember_blocker(slot, tricks, state, ws)
+        return True
+    return False
