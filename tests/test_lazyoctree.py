@@ -548,11 +548,11 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
 
     def recording(*args):
         # (geo, mats, lights, background, cam, w, h, tile_x, tile_y, first, last, row0, max_depth, cutoff,
-        #  filtered, tricks, out, counters, passes, step, coarse)
-        rows = args[17][args[9]:args[10], C.RAYS_EYE]      # this call's tiles (others may run at once)
+        #  filtered, tricks, starts, out, counters, passes, step, coarse)
+        rows = args[18][args[9]:args[10], C.RAYS_EYE]      # this call's tiles (others may run at once)
         before = rows.sum()
         kernel(*args)
-        seen.append((args[19], args[20], args[9], args[10], int(rows.sum() - before)))
+        seen.append((args[20], args[21], args[9], args[10], int(rows.sum() - before)))
 
     monkeypatch.setattr(RENDER, "_render_tiles", recording)
     scene = raykernel.load("spd:balls:1")

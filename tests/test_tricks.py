@@ -145,3 +145,31 @@ def test_trick_names_parse_as_documented():
     assert T.parse("all") == T.ALL and T.parse("none") == 0
     assert T.parse("closest, shadowcache") == T.CLOSEST_CUT | T.SHADOWCACHE
     assert T.names(T.parse("raytree,lazynormals")) == ["raytree", "lazynormals"]
+
+
+def test_start_lists_hold_each_primitives_leaf_and_bound_secondary_rays():
+    from raykernel.engine.flatten import flatten
+    from raykernel.geometry.primitives import INDEX_MASK, KIND_SHIFT
+    from raykernel.rendering.startlists import prepare
+    scene = small("balls")
+    geo, _ = flatten(scene, "bvh")
+    starts = prepare(geo)
+    # brute force: scan every leaf of the BVH for each primitive
+    leaf_of = {}
+    for node in range(len(geo.node_count)):
+        for slot in range(geo.node_first[node], geo.node_first[node] + geo.node_count[node]):
+            ref = int(geo.refs[slot])
+            leaf_of.setdefault((ref >> KIND_SHIFT, ref & INDEX_MASK), []).append(node)
+    for (kind, idx), nodes in leaf_of.items():
+        assert starts.prim_leaf[starts.prim_offset[kind] + idx] == (nodes[0] if len(nodes) == 1 else -1)
+    off = render(scene, resolution=32, tricks="closest")
+    on = render(scene, resolution=32, tricks="closest,startlists")
+    same_work_counts(off, on)
+    assert on.stats["start_lists.used"] > 0 and on.stats["start_lists.hits"] > 0
+    assert 0 < on.stats["start_lists.built"] <= on.stats["start_lists.used"]
+    # eye rays leave no object; without a BVH no primitive has a list
+    grid = render(scene, accel="grid", resolution=32, tricks="closest,startlists")
+    assert grid.stats["start_lists.used"] == 0
+    eye_only = render(scene, resolution=32, max_depth=1, tricks="closest,startlists")
+    assert eye_only.stats["start_lists.used"] > 0          # shadow rays leave the hit object
+    assert eye_only.stats["rays.reflect"] == 0

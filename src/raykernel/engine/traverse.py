@@ -125,7 +125,7 @@ def _take(mode, t, kind, idx, inst, flip, maps, row, col, hit_f, hit_i, found, b
 
 
 @njit(inline="always")
-def _clear(geo, kind, idx):
+def clear_material(geo, kind, idx):
     """True when primitive (kind, idx) has a transparent material."""
     if kind == SPHERE:
         return geo.mat_clear[geo.sph_mat[idx]]
@@ -177,7 +177,7 @@ def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, h
     csg_n[0] = region
     for k in range(region, region + n):
         t = csg_t[k]
-        if tmin <= t <= best_t and not (mode == ANY_OPAQUE and _clear(geo, csg_i[k, 1], csg_i[k, 2])):
+        if tmin <= t <= best_t and not (mode == ANY_OPAQUE and clear_material(geo, csg_i[k, 1], csg_i[k, 2])):
             found, best_t, best_ref, best_inst = _take(mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3],
                                                        csg_i[k, 4] | CSG_SURFACE, csg_m, k, 0, hit_f, hit_i, found,
                                                        best_t, best_ref, best_inst)
@@ -315,7 +315,7 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                     cnt[C.MAILBOX_SAVED] += 1
                     continue
                 frame_f[f, slot] = tag
-            if mode == ANY_OPAQUE and sink < 0 and kind < AGGREGATE and _clear(geo, kind, idx):
+            if mode == ANY_OPAQUE and sink < 0 and kind < AGGREGATE and clear_material(geo, kind, idx):
                 continue        # transparent: left to the walk that filters light through it
             if kind == SPHERE:
                 cnt[C.TESTS + SPHERE] += 1

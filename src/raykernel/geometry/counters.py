@@ -34,6 +34,8 @@ NORMALS_COMPUTED = 34     # surface normals computed (once per hit, or at every 
 FULL_WALKS = 35           # closest-hit searches that visited every candidate (trick 1 off)
 START_LISTS = 36          # secondary rays that began with their object's start list (trick 6)
 SHADOW_STEPS = 37         # closest-hit queries of filtered shadow rays walking through transparent surfaces
+START_LISTS_HITS = 38     # searches a start list bounded, shadow rays it settled
+START_LISTS_BUILT = 39    # start lists built (rendering/startlists.py)
 N_COUNTERS = 40           # spare columns for structures to come
 
 NAMES = {
@@ -52,6 +54,6 @@ NAMES = {
     CSG_CROSSINGS: "csg.crossings", CSG_RESOLVES: "csg.resolves", CSG_SURFACES: "csg.surfaces",
     RAYTREE_TRIES: "raytree.tries", RAYTREE_HITS: "raytree.hits", SHADOW_CACHE_TRIES: "shadow_cache.tries",
     NORMALS_COMPUTED: "normals.computed", FULL_WALKS: "tricks.full_walks", START_LISTS: "start_lists.used",
-    SHADOW_STEPS: "shadow.steps",
+    SHADOW_STEPS: "shadow.steps", START_LISTS_HITS: "start_lists.hits", START_LISTS_BUILT: "start_lists.built",
     RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
 }

@@ -34,7 +34,7 @@ from ..geometry.config import njit
 from ..geometry.primitives import normalize
 from ..geometry.surface import _dot, hit_normals
 from .shadows import filter_by_distance, light_through
-from .tricks import closest, shadow_slot
+from .tricks import ORIGIN, closest, hold_origin, pass_origin, shadow_slot
 from .whitted import OFFSET, shadow_reach
 
 
@@ -73,6 +73,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
     rays[0, 10] = 0.0
     rays[0, 11] = medium
     rays[0, 12] = 1.0
+    rays[0, ORIGIN] = -1.0      # leaves no object
     top = 1
     while top > 0:
         top -= 1
@@ -84,7 +85,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         inside = np.int64(rays[top, 11])
         node = np.int64(rays[top, 12])
         cnt[C.RAYS_EYE + 2 * ray_kind] += 1
-        found = closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, ws, cnt)
+        found = closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt)
         hit_f, hit_i = ws[5], ws[6]
         t = hit_f[0] if found else np.inf
         wr, wg, wb = filter_by_distance(mats, inside, t * math.sqrt(_dot(dx, dy, dz, dx, dy, dz)), wr, wg, wb)
@@ -97,6 +98,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
         gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
         cnt[C.NORMALS_COMPUTED] += 1
+        hold_origin(state, ws)      # the object the shadow and secondary rays below leave
         entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
         if not entering:
             gx, gy, gz = -gx, -gy, -gz
@@ -193,6 +195,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
                 rays[top, 10] = 2.0
                 rays[top, 11] = far
                 rays[top, 12] = 2 * node + 1
+                pass_origin(state, rays, top)
                 top += 1
         if cutoff > 0.0 and weight * w_mirror < cutoff:
             cnt[C.RAYS_CUT_OFF] += 1
@@ -205,5 +208,6 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             rays[top, 10] = 1.0
             rays[top, 11] = inside
             rays[top, 12] = 2 * node
+            pass_origin(state, rays, top)
             top += 1
     return r_out, g_out, b_out

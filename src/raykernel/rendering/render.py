@@ -43,9 +43,10 @@ from ..geometry.primitives import normalize
 from ..scene.model import Scene
 from . import heckbert
 from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, _render_pixels
+from .startlists import prepare as prepare_starts
 from .stats import Stats
 from .tricks import DEFAULT as TRICKS_DEFAULT
-from .tricks import memo
+from .tricks import STARTLISTS, memo
 from .tricks import names as tricks_names
 from .tricks import parse as parse_tricks
 from .whitted import RAY_COLUMNS, RAY_STACK, trace
@@ -57,7 +58,7 @@ CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change 
 
 @njit
 def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, first, last, row0,
-                  max_depth, cutoff, filtered, tricks, out, counters, passes, step, coarse):
+                  max_depth, cutoff, filtered, tricks, starts, out, counters, passes, step, coarse):
     """Trace tiles first..last-1 of the sample grid into `out`, adding into one counter row per tile.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
     Within each tile only the samples on the lattice of `step` (every step-th row and column),
@@ -66,7 +67,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
     for tile in range(first, last):
         ws = workspace()
         rays = np.zeros((RAY_STACK, RAY_COLUMNS))
-        state = memo(lights.shape[0])
+        state = memo(lights.shape[0], starts)
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile], max_depth,
                      cutoff, filtered, tricks, state, out, step, coarse, rays, ws, cnt)
@@ -285,6 +286,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     t0 = time.perf_counter()
     with CompileClock() as build_clock:     # the builders' kernels compile on first use too
         geo, build = flatten(scene, accel, max_memory)
+        starts = prepare_starts(geo, bool(trick_bits & STARTLISTS))    # trick 6's view of the BVHs
     preprocess = time.perf_counter() - t0 - build_clock.seconds
 
     sw, sh = (width + 1, height + 1) if spd else (width, height)
@@ -329,17 +331,18 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
             def tiles(lo, hi, first=first, step=step, coarse=coarse, geo=geo, pass_counts=pass_counts):
                 if plain:
                     _render_tiles(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo, first + hi,
-                                  first, max_depth, cutoff, filtered, trick_bits, values, counts, pass_counts, step,
-                                  coarse)
+                                  first, max_depth, cutoff, filtered, trick_bits, starts, values, counts, pass_counts,
+                                  step, coarse)
                 else:
                     _render_pixels(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo,
                                    first + hi, first, max_depth, cutoff, values, counts, pass_counts, step, coarse,
-                                   TILE, SHADINGS[shading], filtered, trick_bits, medium, SAMPLERS[aa], samples, seed,
-                                   aa_threshold, aa_depth)
+                                   TILE, SHADINGS[shading], filtered, trick_bits, starts, medium, SAMPLERS[aa], samples,
+                                   seed, aa_threshold, aa_depth)
             for_ranges(tiles, last - first, n_threads, kernel=kernel,
                        min_size=-(-RANGE_SAMPLES * (last - first) // max(1, part)))
             if lazy is not None:
                 geo = lazy.refine(geo, pass_counts)
+                starts = prepare_starts(geo, bool(trick_bits & STARTLISTS))
             done += part
             if progress is not None:
                 progress(done, total)

@@ -69,14 +69,14 @@ def _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff
 @njit
 def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, first, last, row0,
                    max_depth, cutoff, out, counters, passes, step, coarse,
-                   tile_size, shading, filtered, tricks, medium, sampler, samples, seed, threshold, aa_depth):
+                   tile_size, shading, filtered, tricks, starts, medium, sampler, samples, seed, threshold, aa_depth):
     """render._render_tiles over pixels (tiles of tile_size), each from `sampler`'s samples
     under `shading`; filtered shadows or not, the camera's medium (-1: air) for Hall's."""
     cells = tile_size << aa_depth if sampler == ADAPTIVE else 0
     for tile in range(first, last):
         ws = workspace()
         rays = np.zeros((whitted.RAY_STACK, whitted.RAY_COLUMNS))
-        state = tricks_memo(lights.shape[0])
+        state = tricks_memo(lights.shape[0], starts)
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         lattice = np.zeros((cells + 1, cells + 1, 3))
         known = np.zeros((cells + 1, cells + 1), np.bool_)

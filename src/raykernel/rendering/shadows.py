@@ -46,7 +46,7 @@ def light_through(geo, mats, ox, oy, oz, tx, ty, tz, reach, medium, filtered, sl
         # trick 4: opaque surfaces first, in one any-hit query; the walk below meets only clear ones
         if tricks_blocked(geo, ox, oy, oz, tx, ty, tz, reach, ANY_OPAQUE, slot, tricks, state, ws, cnt):
             return 0.0, 0.0, 0.0
-    elif cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, tricks, state, cnt):
+    elif cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, True, tricks, state, cnt):
         return 0.0, 0.0, 0.0
     fr, fg, fb = 1.0, 1.0, 1.0
     t0 = 0.0

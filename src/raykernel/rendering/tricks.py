@@ -20,7 +20,9 @@ unless shadows are filtered); what it saved shows in the counters:
    queries of those walks).
 5. lazynormals: normals only for the final closest hit; off, at every closer hit as the search
    finds it (normals.computed).
-6. startlists: see startlists.py.
+6. startlists: a ray that leaves an object tests the object's start list first: its neighbours
+   in its BVH (startlists.py); the nearest hit bounds the search, an opaque one settles a shadow
+   ray (start_lists.used, start_lists.hits, start_lists.built).
 
 A cached object is tested through the map of the frame it was hit in, and only ever bounds a
 search or settles a shadow ray where rounding cannot matter: a hint that misses, or a blocker
@@ -32,13 +34,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.traverse import ALL_HITS, CLOSEST, CLOSEST_EAGER, CSG_SURFACE, intersect
+from ..engine.traverse import ALL_HITS, ANY_OPAQUE, CLOSEST, CLOSEST_EAGER, CSG_SURFACE, clear_material, intersect
 from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.boxes import INF
 from ..geometry.config import njit
 from ..geometry.primitives import (
     CONE,
+    INDEX_MASK,
+    KIND_SHIFT,
     PATCH,
     POLYGON,
     SPHERE,
@@ -48,6 +52,7 @@ from ..geometry.primitives import (
     hit_sphere,
     hit_triangle,
 )
+from . import startlists
 
 CLOSEST_CUT, RAYTREE, SHADOWCACHE, TRANSPARENTLAST, LAZYNORMALS, STARTLISTS = 1, 2, 4, 8, 16, 32
 NAMES = {"closest": CLOSEST_CUT, "raytree": RAYTREE, "shadowcache": SHADOWCACHE,
@@ -57,6 +62,7 @@ DEFAULT = CLOSEST_CUT | SHADOWCACHE | TRANSPARENTLAST | LAZYNORMALS
 MEMO_NODES = 64          # ray-tree nodes remembered: every node of a tree of depth 6
 MEMO_COLUMNS = 15        # kind, index (-1: nothing), then the frame's world-to-local 3x4 map
 MARGIN = 1e-9            # relative: hints and cached blockers keep this far from the ends of an interval
+ORIGIN = 13              # the columns of a ray stack row (whitted.py) that hold the object the ray leaves
 
 
 def parse(spec) -> int:
@@ -85,12 +91,16 @@ def names(bits: int) -> list[str]:
 
 
 @njit
-def memo(n_lights):
+def memo(n_lights, starts):
     """Per-tile state: the ray-tree memory (MEMO_NODES rows), the shadow cache (MEMO_NODES x
-    n_lights rows), and scratch counters for the uncounted searches of trick 1 off."""
+    n_lights rows), scratch counters for the uncounted searches of trick 1 off, the start-list
+    table, the object the current hit is on (a row laid out as the others), a use counter and
+    a walk stack for the start lists, and startlists.prepare()'s arrays."""
     rays = np.full((MEMO_NODES, MEMO_COLUMNS), -1.0)
     shadows = np.full((MEMO_NODES * max(1, n_lights), MEMO_COLUMNS), -1.0)
-    return rays, shadows, np.zeros(C.N_COUNTERS, np.int64)
+    origin = np.full((1, MEMO_COLUMNS), -1.0)
+    return (rays, shadows, np.zeros(C.N_COUNTERS, np.int64), startlists.table(), origin,
+            np.zeros(1, np.int64), np.zeros(startlists.WALK_STACK, np.int64), starts)
 
 
 @njit(inline="always")
@@ -109,12 +119,24 @@ def _remember(table, row, hit_f, hit_i):
         table[row, 3 + k] = hit_f[1 + k]
 
 
+@njit(inline="always")
+def hold_origin(state, ws):
+    """Trick 6: the hit intersect just found is the object the next rays leave (its start list)."""
+    _remember(state[4], 0, ws[5], ws[6])
+
+
+@njit(inline="always")
+def pass_origin(state, rays, row):
+    """Trick 6: a ray pushed at rays[row] leaves the held object: its columns ORIGIN.. ORIGIN + 15."""
+    for k in range(MEMO_COLUMNS):
+        rays[row, ORIGIN + k] = state[4][0, k]
+
+
 @njit(private=True)
-def test_one(geo, table, row, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
-    """t of the remembered primitive in table[row] for the world ray, mapped through the map it
-    was hit in, in [tmin, tmax]; INF for a miss."""
-    kind, idx = np.int64(table[row, 0]), np.int64(table[row, 1])
-    m = table[row, 3:15]
+def test_ref(geo, kind, idx, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    """t of primitive (kind, idx) for the world ray, mapped through the 3x4 map at
+    table[row, col + 3:col + 15], in [tmin, tmax]; INF for a miss."""
+    m = table[row, col + 3:col + 15]
     lx = m[0] * ox + m[1] * oy + m[2] * oz + m[3]
     ly = m[4] * ox + m[5] * oy + m[6] * oz + m[7]
     lz = m[8] * ox + m[9] * oy + m[10] * oz + m[11]
@@ -140,11 +162,49 @@ def test_one(geo, table, row, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
     return INF
 
 
+@njit(inline="always")
+def test_one(geo, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    """t of the object remembered in table[row, col:col + 15] (kind, index, _, map) for the world ray."""
+    return test_ref(geo, np.int64(table[row, col]), np.int64(table[row, col + 1]), table, row, col, ox, oy, oz,
+                    dx, dy, dz, tmin, tmax, cnt)
+
+
+@njit(inline="always")
+def _list_row(geo, table, row, col, state, cnt):
+    """Trick 6: the start-list row of the object in table[row, col:], -1 when it has none."""
+    if table[row, col] < 0.0:
+        return np.int64(-1)
+    state[5][0] += 1
+    ref = (np.int64(table[row, col]) << KIND_SHIFT) | np.int64(table[row, col + 1])
+    return startlists.start_list(ref, state[7], geo, state[3], state[5][0], state[6], cnt)
+
+
 @njit(private=True)
-def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, ws, cnt):
-    """traverse.intersect's closest hit (hit record in ws) of a ray at ray-tree node `node`,
-    with `tricks`; state: memo()'s."""
-    rays, _, scratch = state
+def list_hint(geo, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax, opaque_only, state, cnt):
+    """Trick 6: the nearest t in [tmin, tmax] of the start list of the object in table[row, col:]
+    (opaque primitives only if asked), INF when none is hit or there is no list."""
+    lists = state[3]
+    at = _list_row(geo, table, row, col, state, cnt)
+    if at < 0:
+        return INF
+    cnt[C.START_LISTS] += 1
+    best = INF
+    for k in range(lists[at, 2]):
+        ref = lists[at, 3 + k]
+        kind, idx = ref >> KIND_SHIFT, ref & INDEX_MASK
+        if opaque_only and clear_material(geo, kind, idx):
+            continue
+        t = test_ref(geo, kind, idx, table, row, col, ox, oy, oz, dx, dy, dz, tmin, min(tmax, best), cnt)
+        if t < best:
+            best = t
+    return best
+
+
+@njit(private=True)
+def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, rays, top, ws, cnt):
+    """traverse.intersect's closest hit (hit record in ws) of the ray rays[top] (a ray stack row,
+    its origin object at ORIGIN) at ray-tree node `node`, with `tricks`; state: memo()'s."""
+    memory, scratch = state[0], state[2]
     mode = CLOSEST if tricks & LAZYNORMALS else CLOSEST_EAGER
     if not tricks & CLOSEST_CUT:
         # the work of a search without the cut-off, then the hit from one that has it, uncounted
@@ -155,34 +215,48 @@ def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, ws, cn
         cnt[C.NORMALS_COMPUTED] += scratch[C.NORMALS_COMPUTED] - before
         return found
     memorable = tricks & RAYTREE and node < MEMO_NODES
-    if memorable and rays[node, 0] >= 0.0:
+    hint, from_tree = INF, False
+    if memorable and memory[node, 0] >= 0.0:
         cnt[C.RAYTREE_TRIES] += 1
-        t = test_one(geo, rays, node, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
-        if t < INF and intersect(geo, ox, oy, oz, dx, dy, dz, tmin, min(tmax, t + MARGIN * abs(t)), mode, ws, cnt):
-            cnt[C.RAYTREE_HITS] += 1
-            _remember(rays, node, ws[5], ws[6])
-            return True
+        hint = test_one(geo, memory, node, 0, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
+        from_tree = hint < INF
+    if tricks & STARTLISTS:
+        t = list_hint(geo, rays, top, ORIGIN, ox, oy, oz, dx, dy, dz, tmin, min(tmax, hint), False, state, cnt)
+        if t < hint:
+            hint, from_tree = t, False
+    if hint < INF and intersect(geo, ox, oy, oz, dx, dy, dz, tmin, min(tmax, hint + MARGIN * abs(hint)), mode, ws,
+                                cnt):
+        cnt[C.RAYTREE_HITS if from_tree else C.START_LISTS_HITS] += 1
+        if memorable:
+            _remember(memory, node, ws[5], ws[6])
+        return True
     found = intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
     if memorable:
         if found:
-            _remember(rays, node, ws[5], ws[6])
+            _remember(memory, node, ws[5], ws[6])
         else:
-            rays[node, 0] = -1.0
+            memory[node, 0] = -1.0
     return found
 
 
 @njit(inline="always")
-def cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, tricks, state, cnt):
-    """Trick 3: True when the last opaque blocker of this light and ray-tree slot (-1: none) lies
-    on the shadow ray, well inside [0, reach]."""
-    _, shadows, _ = state
-    if not (tricks & SHADOWCACHE and slot >= 0 and shadows[slot, 0] >= 0.0):
-        return False
-    cnt[C.SHADOW_CACHE_TRIES] += 1
-    t = test_one(geo, shadows, slot, ox, oy, oz, tx, ty, tz, 0.0, reach, cnt)
-    if MARGIN * reach < t < reach * (1.0 - MARGIN):
-        cnt[C.SHADOW_CACHE_HITS] += 1
-        return True
+def cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, opaque_only, tricks, state, cnt):
+    """Tricks 3 and 6: True when the last opaque blocker of this light and ray-tree slot (-1: none),
+    or a primitive of the start list of the object the ray leaves (opaque ones only if asked), lies
+    on the shadow ray well inside [0, reach]."""
+    shadows = state[1]
+    if tricks & SHADOWCACHE and slot >= 0 and shadows[slot, 0] >= 0.0:
+        cnt[C.SHADOW_CACHE_TRIES] += 1
+        t = test_one(geo, shadows, slot, 0, ox, oy, oz, tx, ty, tz, 0.0, reach, cnt)
+        if MARGIN * reach < t < reach * (1.0 - MARGIN):
+            cnt[C.SHADOW_CACHE_HITS] += 1
+            return True
+    if tricks & STARTLISTS:
+        t = list_hint(geo, state[4], 0, 0, ox, oy, oz, tx, ty, tz, MARGIN * reach, reach * (1.0 - MARGIN),
+                      opaque_only, state, cnt)
+        if MARGIN * reach < t < reach * (1.0 - MARGIN):
+            cnt[C.START_LISTS_HITS] += 1
+            return True
     return False
 
 
@@ -196,8 +270,8 @@ def remember_blocker(slot, tricks, state, ws):
 @njit(private=True)
 def blocked(geo, ox, oy, oz, tx, ty, tz, reach, mode, slot, tricks, state, ws, cnt):
     """intersect(mode: ANY_HIT or ANY_OPAQUE) of a shadow ray over [0, reach], the cached blocker
-    of its light and ray-tree slot tested first (trick 3)."""
-    if cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, tricks, state, cnt):
+    of its light and ray-tree slot and the start list of the object it leaves tested first."""
+    if cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, mode == ANY_OPAQUE, tricks, state, cnt):
         return True
     if intersect(geo, ox, oy, oz, tx, ty, tz, 0.0, reach, mode, ws, cnt):
         remember_blocker(slot, tricks, state, ws)

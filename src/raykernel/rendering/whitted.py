@@ -20,14 +20,15 @@ from ..geometry.config import njit
 from ..geometry.primitives import normalize
 from ..geometry.surface import _dot, hit_normals
 from .shadows import light_through
-from .tricks import blocked, closest, shadow_slot
+from .tricks import ORIGIN, blocked, closest, hold_origin, pass_origin, shadow_slot
 
 # Secondary rays start this far off the surface, relative to the magnitude of
 # the coordinates involved: far above the rounding error of a double-precision
 # hit point (about 1e-16 relative), far below any feature a scene can show.
 OFFSET = 2.0 ** -32
 RAY_STACK = 80           # a ray tree of depth 32 keeps at most 2 rays per level waiting
-RAY_COLUMNS = 13         # origin, direction, weight, depth, kind, (hall.py's medium), ray-tree node (tricks.py)
+RAY_COLUMNS = 28         # origin, direction, weight, depth, kind, (hall.py's medium), ray-tree node, and from
+                         # tricks.ORIGIN the object the ray leaves (kind, index, _, map: tricks.py)
 
 
 @njit(inline="always")
@@ -56,6 +57,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
     rays[0, 9] = 1.0
     rays[0, 10] = 0.0
     rays[0, 12] = 1.0
+    rays[0, ORIGIN] = -1.0      # leaves no object
     top = 1
     while top > 0:
         top -= 1
@@ -66,7 +68,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         ray_kind = int(rays[top, 10])
         node = np.int64(rays[top, 12])
         cnt[C.RAYS_EYE + 2 * ray_kind] += 1
-        if not closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, ws, cnt):
+        if not closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt):
             r_out += wr * background[0]
             g_out += wg * background[1]
             b_out += wb * background[2]
@@ -77,6 +79,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
         gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
         cnt[C.NORMALS_COMPUTED] += 1
+        hold_origin(state, ws)      # the object the shadow and secondary rays below leave
         entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
         if not entering:
             # two-sided: shade the side the ray sees
@@ -158,6 +161,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
                     rays[top, 9] = depth + 1
                     rays[top, 10] = 2.0
                     rays[top, 12] = 2 * node + 1
+                    pass_origin(state, rays, top)
                     top += 1
         if cutoff > 0.0 and max(wr, max(wg, wb)) * reflect_weight < cutoff:
             cnt[C.RAYS_CUT_OFF] += 1
@@ -169,5 +173,6 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             rays[top, 9] = depth + 1
             rays[top, 10] = 1.0
             rays[top, 12] = 2 * node
+            pass_origin(state, rays, top)
             top += 1
     return r_out, g_out, b_out
