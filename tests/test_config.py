@@ -102,11 +102,11 @@ def test_the_kernels_inner_loops_count_no_references():
     from raykernel.casting import meshcast, proximity, rayscene
     from raykernel.engine import transforms, traverse
     from raykernel.geometry import primitives
-    from raykernel.rendering import hall, heckbert, render, sampling, shadows, startlists, tricks, whitted
+    from raykernel.rendering import hall, heckbert, render, sampling, startlists, tricks, whitted
 
     per_item = [primitives.hit_polygon, primitives.point_in_polygon, rc.meets_beam, proximity._closest_on_polygon,
-                traverse.intersect, whitted.trace, heckbert.trace, hall.trace, shadows.light_through, tricks.closest,
-                tricks.blocked, tricks.test_ref, tricks.list_hint, startlists.start_list,
+                traverse.intersect, whitted.trace, heckbert.trace, hall.trace, tricks.test_ref, tricks.list_hint,
+                startlists.start_list,
                 sampling._render_tile, render._render_tile,
                 rayscene._cast, meshcast._chunk, bvh.step, grid.step, rc.step,
                 csg.start, csg.record, csg.resolve, octree._parametric, octree._point_walk, transforms.map_ray]

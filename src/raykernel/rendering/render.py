@@ -5,12 +5,15 @@
     result.stats          # counters, build statistics, times
     result.save("out.png")
 
-Shading follows NFF: Kd diffuse and Ks Phong highlight (exponent Shine)
-from point lights of intensity 1/sqrt(number of lights), Ks mirror
-reflection, T transmission by Snell's law with total internal reflection.
-`spd=True` follows the SPD test procedure (README, "Shading"): one eye ray per pixel
-corner averaged into pixels, no adaptive cut-off; otherwise one ray per
-pixel centre and rays whose weight falls below 1/512 are not cast.
+    render(scene, shading="hall", shadows="filtered", aa="adaptive", tricks="all")
+
+The shading models are whitted.py (NFF's, the default), hall.py and heckbert.py; the samplers
+sampling.py; shadow rays through transparent surfaces shadows.py; Haines's efficiency tricks
+tricks.py and startlists.py. `spd=True` follows the SPD test procedure (README, "Shading"): one
+eye ray per pixel corner averaged into pixels, no adaptive cut-off, Whitted shading; otherwise
+one ray per pixel centre and rays whose weight falls below the cut-off (1/512) are not cast.
+Whitted shading without a sampler runs this module's own tile kernel; everything else runs
+sampling.py's, which tiles, passes and counts the same way.
 
 The image is traced in tiles of TILE x TILE samples, in parallel; each
 tile owns one row of counters, so counts and image bytes do not depend on

@@ -32,7 +32,7 @@ def filter_by_distance(mats, medium, distance, wr, wg, wb):
     return wr * mats[medium, 0] ** distance, wg * mats[medium, 1] ** distance, wb * mats[medium, 2] ** distance
 
 
-@njit(private=True)
+@njit(inline="always")    # inlined, as tricks.closest and for the same reason
 def light_through(geo, mats, ox, oy, oz, tx, ty, tz, reach, medium, filtered, slot, tricks, state, ws, cnt):
     """Fraction of a light's colour that reaches (ox, oy, oz) along (tx, ty, tz) (to the light, t in
     [0, reach]), starting in `medium`: 0 when an opaque surface (any surface, unless filtered) is in

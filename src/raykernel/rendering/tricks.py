@@ -200,7 +200,7 @@ def list_hint(geo, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax, opaque_o
     return best
 
 
-@njit(private=True)
+@njit(inline="always")    # inlined: each kernel compiled apart that calls intersect pays for linking it again
 def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, rays, top, ws, cnt):
     """traverse.intersect's closest hit (hit record in ws) of the ray rays[top] (a ray stack row,
     its origin object at ORIGIN) at ray-tree node `node`, with `tricks`; state: memo()'s."""
@@ -267,7 +267,7 @@ def remember_blocker(slot, tricks, state, ws):
         _remember(state[1], slot, ws[5], ws[6])
 
 
-@njit(private=True)
+@njit(inline="always")
 def blocked(geo, ox, oy, oz, tx, ty, tz, reach, mode, slot, tricks, state, ws, cnt):
     """intersect(mode: ANY_HIT or ANY_OPAQUE) of a shadow ray over [0, reach], the cached blocker
     of its light and ray-tree slot and the start list of the object it leaves tested first."""
