@@ -60,8 +60,9 @@ def test_jitter_traces_samples_per_pixel_and_the_seed_moves_them():
     assert a.stats.info["eye_rays_per_pixel"] == 9
     assert np.array_equal(a.image, b.image)
     assert not np.array_equal(a.image, c.image)
-    # an edge pixel averages both sides: between the plain render's neighbours' values
+    # two seeds differ only where a pixel straddles an edge, and then by part of the contrast
     assert np.abs(a.image - c.image).max() < 0.5
+    assert np.mean(np.any(a.image != c.image, axis=2)) < 0.5
 
 
 def test_jitter_with_one_sample_per_pixel_stays_within_the_pixel():
