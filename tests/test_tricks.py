@@ -173,3 +173,16 @@ def test_start_lists_hold_each_primitives_leaf_and_bound_secondary_rays():
     eye_only = render(scene, resolution=32, max_depth=1, tricks="closest,startlists")
     assert eye_only.stats["start_lists.used"] > 0          # shadow rays leave the hit object
     assert eye_only.stats["rays.reflect"] == 0
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_lean_default_kernel_does_the_same_work_as_the_one_with_the_tricks_memory(kind):
+    # the default tricks run without per-tile state (tricks.LEAN); adding a trick that has nothing to
+    # do with opaque shadows runs the kernel with it: every counter must agree
+    from conftest import work_counts
+    scene = small("gears")
+    lean = render(scene, accel=kind, resolution=20)
+    full = render(scene, accel=kind, resolution=20, tricks="closest,lazynormals,transparentlast")
+    assert lean.stats.info["tricks"] == ["closest", "lazynormals"]
+    assert np.array_equal(lean.image, full.image)
+    assert work_counts(lean.stats) == work_counts(full.stats)

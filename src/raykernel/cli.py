@@ -267,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "depth; default 1/512, 0 in --spd)")
     r.add_argument("--tricks", metavar="LIST", help="Haines's efficiency tricks: all, none or a comma-separated "
                    "list of closest, raytree, shadowcache, transparentlast, lazynormals, startlists (default: "
-                   "closest,shadowcache,transparentlast,lazynormals); they change the work, not the image")
+                   "closest,lazynormals); they change the work, not the image")
     r.add_argument("--stats-json", help="write every counter to this JSON file")
     r.add_argument("--max-memory", help="memory budget of every build, e.g. 8G or 512M (default: half of this "
                    "machine's memory); a structure that needs more stops with an error")

@@ -49,7 +49,7 @@ from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, _render_pixels
 from .startlists import prepare as prepare_starts
 from .stats import Stats
 from .tricks import DEFAULT as TRICKS_DEFAULT
-from .tricks import STARTLISTS, memo
+from .tricks import LEAN, STARTLISTS, memo
 from .tricks import names as tricks_names
 from .tricks import parse as parse_tricks
 from .whitted import RAY_COLUMNS, RAY_STACK, trace
@@ -70,10 +70,14 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
     for tile in range(first, last):
         ws = workspace()
         rays = np.zeros((RAY_STACK, RAY_COLUMNS))
-        state = memo(lights.shape[0], starts)
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
-        _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile], max_depth,
-                     cutoff, filtered, tricks, state, out, step, coarse, rays, ws, cnt)
+        if starts is None:      # tricks.LEAN: no trick needs a memory, and numba compiles none of their code
+            _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile],
+                         max_depth, cutoff, filtered, tricks, None, out, step, coarse, rays, ws, cnt)
+        else:
+            _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile],
+                         max_depth, cutoff, filtered, tricks, memo(lights.shape[0], starts), out, step, coarse, rays,
+                         ws, cnt)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
@@ -236,7 +240,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     eye_light_shadows: "skip" (the trick: eye rays' hits are lit by it without a shadow ray,
     counted in shadow.eye_light_skipped) or "cast" (shadow rays as for any light).
     tricks: Haines's efficiency tricks (tricks.py): "all", "none", "default" (closest,
-    shadowcache, transparentlast, lazynormals) or a comma-separated list of closest, raytree,
+    lazynormals) or a comma-separated list of closest, raytree,
     shadowcache, transparentlast, lazynormals, startlists. They change the work, not the image or
     the ray counts; heckbert shading runs the printed program's searches and takes none.
     """
@@ -334,8 +338,8 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
             def tiles(lo, hi, first=first, step=step, coarse=coarse, geo=geo, pass_counts=pass_counts):
                 if plain:
                     _render_tiles(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo, first + hi,
-                                  first, max_depth, cutoff, filtered, trick_bits, starts, values, counts, pass_counts,
-                                  step, coarse)
+                                  first, max_depth, cutoff, True if filtered else None, trick_bits,
+                                  None if trick_bits == LEAN else starts, values, counts, pass_counts, step, coarse)
                 else:
                     _render_pixels(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo,
                                    first + hi, first, max_depth, cutoff, values, counts, pass_counts, step, coarse,

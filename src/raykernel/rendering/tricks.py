@@ -58,7 +58,10 @@ CLOSEST_CUT, RAYTREE, SHADOWCACHE, TRANSPARENTLAST, LAZYNORMALS, STARTLISTS = 1,
 NAMES = {"closest": CLOSEST_CUT, "raytree": RAYTREE, "shadowcache": SHADOWCACHE,
          "transparentlast": TRANSPARENTLAST, "lazynormals": LAZYNORMALS, "startlists": STARTLISTS}
 ALL = sum(NAMES.values())
-DEFAULT = CLOSEST_CUT | SHADOWCACHE | TRANSPARENTLAST | LAZYNORMALS
+DEFAULT = CLOSEST_CUT | LAZYNORMALS
+# the tricks a render without any per-tile state does (closest's cut-off, lazy normals): render.py's
+# own kernel then runs with state None, and the first render compiles no other trick's code
+LEAN = CLOSEST_CUT | LAZYNORMALS
 MEMO_NODES = 64          # ray-tree nodes remembered: every node of a tree of depth 6
 MEMO_COLUMNS = 15        # kind, index (-1: nothing), then the frame's world-to-local 3x4 map
 MARGIN = 1e-9            # relative: hints and cached blockers keep this far from the ends of an interval
@@ -122,12 +125,16 @@ def _remember(table, row, hit_f, hit_i):
 @njit(inline="always")
 def hold_origin(state, ws):
     """Trick 6: the hit intersect just found is the object the next rays leave (its start list)."""
+    if state is None:
+        return
     _remember(state[4], 0, ws[5], ws[6])
 
 
 @njit(inline="always")
 def pass_origin(state, rays, row):
     """Trick 6: a ray pushed at rays[row] leaves the held object: its columns ORIGIN.. ORIGIN + 15."""
+    if state is None:
+        return
     for k in range(MEMO_COLUMNS):
         rays[row, ORIGIN + k] = state[4][0, k]
 
@@ -203,7 +210,10 @@ def list_hint(geo, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax, opaque_o
 @njit(inline="always")    # inlined: each kernel compiled apart that calls intersect pays for linking it again
 def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, rays, top, ws, cnt):
     """traverse.intersect's closest hit (hit record in ws) of the ray rays[top] (a ray stack row,
-    its origin object at ORIGIN) at ray-tree node `node`, with `tricks`; state: memo()'s."""
+    its origin object at ORIGIN) at ray-tree node `node`, with `tricks`; state: memo()'s, or None
+    for LEAN (numba then compiles none of the tricks' code)."""
+    if state is None:
+        return intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, CLOSEST, ws, cnt)
     memory, scratch = state[0], state[2]
     mode = CLOSEST if tricks & LAZYNORMALS else CLOSEST_EAGER
     if not tricks & CLOSEST_CUT:
@@ -244,6 +254,8 @@ def cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, opaque_only, tricks, 
     """Tricks 3 and 6: True when the last opaque blocker of this light and ray-tree slot (-1: none),
     or a primitive of the start list of the object the ray leaves (opaque ones only if asked), lies
     on the shadow ray well inside [0, reach]."""
+    if state is None:
+        return False
     shadows = state[1]
     if tricks & SHADOWCACHE and slot >= 0 and shadows[slot, 0] >= 0.0:
         cnt[C.SHADOW_CACHE_TRIES] += 1
@@ -263,6 +275,8 @@ def cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, opaque_only, tricks, 
 @njit(inline="always")
 def remember_blocker(slot, tricks, state, ws):
     """Trick 3: the blocker intersect just found (ws's hit record) becomes the slot's."""
+    if state is None:
+        return
     if tricks & SHADOWCACHE and slot >= 0:
         _remember(state[1], slot, ws[5], ws[6])
 

@@ -5,8 +5,8 @@
 
 Kd diffuse and Ks Phong highlight (exponent Shine) from point lights, Ks mirror reflection,
 T transmission by Snell's law with total internal reflection; a luminous surface (Kl, Heckbert's
-luminance) adds Kl times its colour. filtered: shadow rays pass transparent surfaces, times T
-(shadows.py). tricks, state: Haines's efficiency tricks and their per-tile memory (tricks.py).
+luminance) adds Kl times its colour. filtered: True or False: shadow rays pass transparent
+surfaces, times T, or not (shadows.py); None: not, without compiling that code. tricks, state: Haines's efficiency tricks and their per-tile memory (tricks.py).
 rays: a (RAY_STACK, RAY_COLUMNS) scratch array; ws: traverse.workspace().
 """
 
@@ -107,10 +107,10 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             if lights[li, 7] != 0.0 and ray_kind == 0:
                 # Haines's light at the eye: an eye ray's hit is seen from it, so it is lit
                 cnt[C.EYE_LIGHT_SKIPPED] += 1
-            elif filtered:
+            elif filtered is not None:      # None: opaque shadows, and numba compiles no walk through glass
                 cnt[C.RAYS_SHADOW] += 1
                 fr, fg, fb = light_through(geo, mats, ax, ay, az, tlx, tly, tlz,
-                                           shadow_reach(lights, li, tlx, tly, tlz), np.int64(-1), True,
+                                           shadow_reach(lights, li, tlx, tly, tlz), np.int64(-1), filtered,
                                            shadow_slot(node, n_lights, li), tricks, state, ws, cnt)
                 if fr == 0.0 and fg == 0.0 and fb == 0.0:
                     cnt[C.RAYS_SHADOW_BLOCKED] += 1
