@@ -54,7 +54,7 @@ def main():
     args = parser.parse_args()
     kinds = args.kinds.split(",")
     head = " | ".join(label for label, _ in SETTINGS)
-    lines = [f"| scene | kind | {head} |", "|---|---|" + "---:|" * len(SETTINGS)]
+    lines = [f"| scene | kind | rays | {head} |", "|---|---|---:|" + "---:|" * len(SETTINGS)]
     totals = np.zeros((len(SETTINGS), 2))
     for name in args.scenes.split(","):
         scene = raykernel.load(f"spd:{name}")
@@ -65,11 +65,11 @@ def main():
                 totals[k] += (s["tests.per_ray"] / max(cells[1]["tests.per_ray"], 1e-12), s["time.trace"] / base)
             text = " | ".join(f"{s['tests.per_ray']:.2f} / {s['bounds.per_ray']:.1f} / {1e3 * s['time.trace']:.0f}"
                               for s in cells)
-            lines.append(f"| {name} | {kind} | {text} |")
+            lines.append(f"| {name} | {kind} | {cells[0]['rays.total']:,} | {text} |")
             print(lines[-1], flush=True)
     n = len(lines) - 2
     summary = " | ".join(f"{t / n:.2f} / {r / n:.2f}" for t, r in totals)
-    lines.append(f"| **mean** | tests vs closest / time vs none | {summary} |")
+    lines.append(f"| **mean** | tests vs closest / time vs none | | {summary} |")
     command = " ".join(["python bench/tricks.py"] + sys.argv[1:])
     text = "\n".join([
         "## Haines's efficiency tricks",
@@ -79,6 +79,7 @@ def main():
         "",
         f"Machine: {machine()}.",
         "",
+        "rays: every ray of the render (eye, reflect, refract, shadow), the same in every column. "
         "Each cell: tests per ray (N_IT) / bound tests per ray / trace ms. `none`: no trick; `closest`: trick 1, "
         "the closest-hit cut-off; `+name`: trick 1 and that one (tricks 2 and 6 bound the closest search, so each "
         "is measured on top of trick 1); `all`: all six. Images and ray counts are the same in every column (the "

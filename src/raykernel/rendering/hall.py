@@ -34,8 +34,8 @@ from ..geometry.config import njit
 from ..geometry.primitives import normalize
 from ..geometry.surface import _dot, hit_normals
 from .shadows import filter_by_distance, light_through
-from .tricks import ORIGIN, closest, hold_origin, pass_origin, shadow_slot
-from .whitted import OFFSET, shadow_reach
+from .tricks import ORIGIN, closest, hold_origin, shadow_slot
+from .whitted import OFFSET, shadow_reach, spawn
 
 
 @njit(inline="always")
@@ -67,12 +67,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
     """Colour of one eye ray under Hall's model; rays[k] = whitted.trace's columns, then the medium.
     medium: the camera's (-1: air)."""
     r_out, g_out, b_out = 0.0, 0.0, 0.0
-    rays[0, 0], rays[0, 1], rays[0, 2], rays[0, 3], rays[0, 4], rays[0, 5] = ox, oy, oz, dx, dy, dz
-    rays[0, 6] = rays[0, 7] = rays[0, 8] = 1.0
-    rays[0, 9] = 1.0
-    rays[0, 10] = 0.0
-    rays[0, 11] = medium
-    rays[0, 12] = 1.0
+    spawn(rays, 0, 0.0, ox, oy, oz, dx, dy, dz, 1.0, 1.0, 1.0, 1, 0, medium, 1, None, cnt)
     rays[0, ORIGIN] = -1.0      # leaves no object
     top = 1
     while top > 0:
@@ -182,32 +177,11 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         b_out += wb * (kd * cb * db + hb + kl * cb)
         if depth >= max_depth or (ks <= 0.0 and tr <= 0.0):
             continue
-        weight = max(wr, max(wg, wb))
         if w_refract > 0.0:
-            if cutoff > 0.0 and weight * w_refract < cutoff:
-                cnt[C.RAYS_CUT_OFF] += 1
-            else:
-                rays[top, 0], rays[top, 1], rays[top, 2] = bx, by, bz
-                tx, ty, tz = normalize(qx, qy, qz)
-                rays[top, 3], rays[top, 4], rays[top, 5] = tx, ty, tz
-                rays[top, 6], rays[top, 7], rays[top, 8] = wr * w_refract, wg * w_refract, wb * w_refract
-                rays[top, 9] = depth + 1
-                rays[top, 10] = 2.0
-                rays[top, 11] = far
-                rays[top, 12] = 2 * node + 1
-                pass_origin(state, rays, top)
-                top += 1
-        if cutoff > 0.0 and weight * w_mirror < cutoff:
-            cnt[C.RAYS_CUT_OFF] += 1
-        else:
-            rays[top, 0], rays[top, 1], rays[top, 2] = ax, ay, az
-            rx, ry, rz = normalize(mx, my, mz)
-            rays[top, 3], rays[top, 4], rays[top, 5] = rx, ry, rz
-            rays[top, 6], rays[top, 7], rays[top, 8] = wr * w_mirror, wg * w_mirror, wb * w_mirror
-            rays[top, 9] = depth + 1
-            rays[top, 10] = 1.0
-            rays[top, 11] = inside
-            rays[top, 12] = 2 * node
-            pass_origin(state, rays, top)
-            top += 1
+            tx, ty, tz = normalize(qx, qy, qz)
+            top = spawn(rays, top, cutoff, bx, by, bz, tx, ty, tz, wr * w_refract, wg * w_refract, wb * w_refract,
+                        depth + 1, 2, far, 2 * node + 1, state, cnt)
+        rx, ry, rz = normalize(mx, my, mz)
+        top = spawn(rays, top, cutoff, ax, ay, az, rx, ry, rz, wr * w_mirror, wg * w_mirror, wb * w_mirror,
+                    depth + 1, 1, inside, 2 * node, state, cnt)
     return r_out, g_out, b_out

@@ -34,6 +34,7 @@ from ..engine.traverse import ANY_HIT, CLOSEST, intersect
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.surface import _dot, hit_normals
+from .whitted import spawn
 
 T_MIN = 1e-7      # the program's hit threshold, in units of the ray's (unit) direction
 
@@ -60,10 +61,7 @@ def _light_distance(lights, li, distance):
 def trace(geo, mats, lights, ambient, ox, oy, oz, dx, dy, dz, max_depth, rays, ws, cnt):
     """Colour of one eye ray under Heckbert's model; rays as whitted.trace lays them out."""
     r_out, g_out, b_out = 0.0, 0.0, 0.0
-    rays[0, 0], rays[0, 1], rays[0, 2], rays[0, 3], rays[0, 4], rays[0, 5] = ox, oy, oz, dx, dy, dz
-    rays[0, 6] = rays[0, 7] = rays[0, 8] = 1.0
-    rays[0, 9] = 1.0
-    rays[0, 10] = 0.0
+    spawn(rays, 0, 0.0, ox, oy, oz, dx, dy, dz, 1.0, 1.0, 1.0, 1, 0, -1, 1, None, cnt)
     top = 1
     while top > 0:
         top -= 1
@@ -119,17 +117,9 @@ def trace(geo, mats, lights, ambient, ox, oy, oz, dx, dy, dz, max_depth, rays, w
         root = 1.0 - eta * eta * (1.0 - d * d)
         if kt > 0.0 and root > 0.0:
             c = eta * d - math.sqrt(root)
-            rays[top, 0], rays[top, 1], rays[top, 2] = px, py, pz
-            rays[top, 3], rays[top, 4], rays[top, 5] = eta * dx + c * nx, eta * dy + c * ny, eta * dz + c * nz
-            rays[top, 6], rays[top, 7], rays[top, 8] = wr * kt, wg * kt, wb * kt
-            rays[top, 9] = depth + 1
-            rays[top, 10] = 2.0
-            top += 1
+            top = spawn(rays, top, 0.0, px, py, pz, eta * dx + c * nx, eta * dy + c * ny, eta * dz + c * nz,
+                        wr * kt, wg * kt, wb * kt, depth + 1, 2, -1, 0, None, cnt)
         if ks > 0.0:
-            rays[top, 0], rays[top, 1], rays[top, 2] = px, py, pz
-            rays[top, 3], rays[top, 4], rays[top, 5] = dx + 2.0 * d * nx, dy + 2.0 * d * ny, dz + 2.0 * d * nz
-            rays[top, 6], rays[top, 7], rays[top, 8] = wr * ks, wg * ks, wb * ks
-            rays[top, 9] = depth + 1
-            rays[top, 10] = 1.0
-            top += 1
+            top = spawn(rays, top, 0.0, px, py, pz, dx + 2.0 * d * nx, dy + 2.0 * d * ny, dz + 2.0 * d * nz,
+                        wr * ks, wg * ks, wb * ks, depth + 1, 1, -1, 0, None, cnt)
     return r_out, g_out, b_out

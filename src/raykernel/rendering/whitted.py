@@ -45,6 +45,25 @@ def shadow_reach(lights, li, tx, ty, tz):
     return (1.0 + radius / length) * (1.0 - 1e-9)
 
 
+@njit(inline="always")
+def spawn(rays, top, cutoff, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, kind, medium, node, state, cnt):
+    """Push a ray of weight (wr, wg, wb) on the ray stack at `top`, as a ray of the ray tree's node
+    `node` leaving the object tricks.hold_origin held, unless its largest weight falls below
+    `cutoff` (0: none), which rays.cut_off counts. Returns the new top."""
+    if cutoff > 0.0 and max(wr, max(wg, wb)) < cutoff:
+        cnt[C.RAYS_CUT_OFF] += 1
+        return top
+    rays[top, 0], rays[top, 1], rays[top, 2] = ox, oy, oz
+    rays[top, 3], rays[top, 4], rays[top, 5] = dx, dy, dz
+    rays[top, 6], rays[top, 7], rays[top, 8] = wr, wg, wb
+    rays[top, 9] = depth
+    rays[top, 10] = kind
+    rays[top, 11] = medium
+    rays[top, 12] = node
+    pass_origin(state, rays, top)
+    return top + 1
+
+
 @njit(private=True)
 def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cutoff, filtered, tricks, state,
           rays, ws, cnt):
@@ -52,11 +71,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
     rays[k] = origin(3), direction(3), weight(3), depth, kind (0 eye, 1 reflect, 2 refract)."""
     r_out, g_out, b_out = 0.0, 0.0, 0.0
     n_lights = lights.shape[0]
-    rays[0, 0], rays[0, 1], rays[0, 2], rays[0, 3], rays[0, 4], rays[0, 5] = ox, oy, oz, dx, dy, dz
-    rays[0, 6] = rays[0, 7] = rays[0, 8] = 1.0
-    rays[0, 9] = 1.0
-    rays[0, 10] = 0.0
-    rays[0, 12] = 1.0
+    spawn(rays, 0, 0.0, ox, oy, oz, dx, dy, dz, 1.0, 1.0, 1.0, 1, 0, -1, 1, None, cnt)
     rays[0, ORIGIN] = -1.0      # leaves no object
     top = 1
     while top > 0:
@@ -148,31 +163,12 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
                 reflect_weight += tr        # total internal reflection
                 cnt[C.RAYS_TIR] += 1
             else:
-                tw = tr
-                if cutoff > 0.0 and max(wr, max(wg, wb)) * tw < cutoff:
-                    cnt[C.RAYS_CUT_OFF] += 1
-                else:
-                    c2 = eta * cos_i - math.sqrt(k)
-                    bx, by, bz = px - eps * gx, py - eps * gy, pz - eps * gz   # the far side
-                    rays[top, 0], rays[top, 1], rays[top, 2] = bx, by, bz
-                    tx, ty, tz = normalize(eta * ndx + c2 * sx, eta * ndy + c2 * sy, eta * ndz + c2 * sz)
-                    rays[top, 3], rays[top, 4], rays[top, 5] = tx, ty, tz
-                    rays[top, 6], rays[top, 7], rays[top, 8] = wr * tw, wg * tw, wb * tw
-                    rays[top, 9] = depth + 1
-                    rays[top, 10] = 2.0
-                    rays[top, 12] = 2 * node + 1
-                    pass_origin(state, rays, top)
-                    top += 1
-        if cutoff > 0.0 and max(wr, max(wg, wb)) * reflect_weight < cutoff:
-            cnt[C.RAYS_CUT_OFF] += 1
-        else:
-            rays[top, 0], rays[top, 1], rays[top, 2] = ax, ay, az
-            rx, ry, rz = normalize(rx, ry, rz)
-            rays[top, 3], rays[top, 4], rays[top, 5] = rx, ry, rz
-            rays[top, 6], rays[top, 7], rays[top, 8] = wr * reflect_weight, wg * reflect_weight, wb * reflect_weight
-            rays[top, 9] = depth + 1
-            rays[top, 10] = 1.0
-            rays[top, 12] = 2 * node
-            pass_origin(state, rays, top)
-            top += 1
+                c2 = eta * cos_i - math.sqrt(k)
+                tx, ty, tz = normalize(eta * ndx + c2 * sx, eta * ndy + c2 * sy, eta * ndz + c2 * sz)
+                # from the far side
+                top = spawn(rays, top, cutoff, px - eps * gx, py - eps * gy, pz - eps * gz, tx, ty, tz, wr * tr,
+                            wg * tr, wb * tr, depth + 1, 2, -1, 2 * node + 1, state, cnt)
+        rx, ry, rz = normalize(rx, ry, rz)
+        top = spawn(rays, top, cutoff, ax, ay, az, rx, ry, rz, wr * reflect_weight, wg * reflect_weight,
+                    wb * reflect_weight, depth + 1, 1, -1, 2 * node, state, cnt)
     return r_out, g_out, b_out
