@@ -212,11 +212,238 @@ def _choice(value, name: str, choices) -> str:
     return value
 
 
+def _options(scene: Scene, accel, resolution, spd, max_depth, threads, max_memory, shading, aa, samples, seed,
+             aa_threshold, aa_depth, cutoff, shadows, eye_light, eye_light_shadows, tricks) -> dict:
+    """render()'s arguments checked (OptionError names the bad one), with the defaults resolved."""
+    max_depth = _number(max_depth, "max_depth", 1, 32, integer=True)
+    if resolution is not None:
+        resolution = _number(resolution, "resolution", 1, 16384, integer=True)
+    if threads is not None:
+        threads = _number(threads, "threads", 1, 1 << 20, integer=True)
+    shading = _choice(shading, "shading", SHADINGS)
+    aa = _choice("none" if aa is None else aa, "anti-aliasing (aa)", SAMPLERS)
+    samples = _number(samples, "samples", 1, 4096, integer=True)
+    if aa == "jitter" and math.isqrt(samples) ** 2 != samples:
+        raise OptionError(f"samples for jittered anti-aliasing must be a square number (1, 4, 9, 16, ...), "
+                          f"got {samples}")
+    seed = _number(seed, "seed", 0, 2 ** 63 - 1, integer=True)
+    aa_threshold = _number(aa_threshold, "aa_threshold", 0.0, math.inf)
+    aa_depth = _number(aa_depth, "aa_depth", 0, MAX_AA_DEPTH, integer=True)
+    if cutoff is not None:
+        cutoff = _number(cutoff, "cutoff", 0.0, 1.0)
+    shadows = _choice(shadows, "shadows", ("opaque", "filtered"))
+    default = isinstance(tricks, str) and tricks.strip().lower() == "default"
+    trick_bits = int(TRICKS_DEFAULT if default else parse_tricks(tricks))
+    if eye_light is not None:
+        eye_light = _number(eye_light, "eye_light", 0.0, math.inf)
+    eye_light_shadows = _choice(eye_light_shadows, "eye_light_shadows", ("skip", "cast"))
+    if shading == "heckbert" and shadows != "opaque":
+        raise OptionError("heckbert shading follows the printed program, whose shadows are opaque; "
+                          f"shadows {shadows!r} is not allowed with it")
+    if spd:
+        if eye_light is not None:
+            raise OptionError("SPD mode lights a scene with its own lights only; eye_light is not allowed with it")
+        for name, value, default in (("shading", shading, "whitted"), ("aa", aa, "none"),
+                                     ("shadows", shadows, "opaque")):
+            if value != default:
+                raise OptionError(f"SPD mode traces Whitted shading with one ray per pixel corner; {name} "
+                                  f"{value!r} is not allowed with it")
+        if cutoff not in (None, 0.0):
+            raise OptionError(f"SPD mode casts every ray (rule 8, no adaptive cut-off); cutoff {cutoff!r} is "
+                              "not allowed with it")
+    if scene.camera.medium is not None and not 0 <= scene.camera.medium < len(scene.materials):
+        raise OptionError(f"the camera's medium is material {scene.camera.medium}, which the scene does not have")
+    if cutoff is None:
+        cutoff = 0.0 if spd else CUTOFF
+    return dict(accel=accel, resolution=resolution, spd=bool(spd), max_depth=max_depth, threads=threads,
+                max_memory=max_memory, shading=shading, aa=aa, samples=samples, seed=seed, aa_threshold=aa_threshold,
+                aa_depth=aa_depth, cutoff=cutoff, shadows=shadows, eye_light=eye_light,
+                eye_light_shadows=eye_light_shadows, tricks=tricks, trick_bits=trick_bits)
+
+
+class RenderJob:
+    """One render in its parts, so that its tiles can be traced anywhere (cluster.py):
+
+        job = RenderJob(scene, accel="bvh", spd=True)       # checks the options, builds the structures
+        for p in range(len(job.passes)):
+            job.trace(p, 0, job.pass_tiles(p))              # any split of a pass's tiles, in any order
+            job.end_pass(p)                                 # lazy structures refine here
+        result = job.result(trace_seconds, compile_seconds)
+
+    Each tile writes only its own samples and its own counter row, so tiles traced in other
+    processes and copied in (tile_block / put_block) give the same image bytes and counts.
+    builder: what builds the structures, flatten.flatten by default; an incremental.Hierarchy
+    refits the previous frame's instead."""
+
+    def __init__(self, scene: Scene, builder=None, **kw):
+        o = self.options = _options(scene, **kw)
+        if o["threads"] is not None:
+            numba.set_num_threads(min(o["threads"], numba.config.NUMBA_NUM_THREADS))
+        self.scene = scene
+        self.plain = o["shading"] == "whitted" and o["aa"] == "none"      # the renderer's own kernel, the fastest
+        self.kernel = _render_tiles if self.plain else _render_pixels
+        self.width = self.height = o["resolution"]
+        if o["resolution"] is None:
+            self.width, self.height = scene.camera.width, scene.camera.height
+        t0 = time.perf_counter()
+        with CompileClock() as build_clock:     # the builders' kernels compile on first use too
+            build_fn = flatten if builder is None else builder.flatten
+            self.geo, self.build = build_fn(scene, o["accel"], o["max_memory"])
+            self.starts = prepare_starts(self.geo, bool(o["trick_bits"] & STARTLISTS))    # trick 6's view of the BVHs
+        self.preprocess = time.perf_counter() - t0 - build_clock.seconds
+        self.build_compile = build_clock.seconds
+
+        spd = o["spd"]
+        self.sw, self.sh = (self.width + 1, self.height + 1) if spd else (self.width, self.height)
+        tiles_x = np.arange(0, self.sw, TILE)
+        tiles_y = np.arange(0, self.sh, TILE)
+        self.tile_x = np.tile(tiles_x, len(tiles_y)).astype(np.int64)
+        self.tile_y = np.repeat(tiles_y, len(tiles_x)).astype(np.int64)
+        self.n_tiles = n_tiles = len(self.tile_x)
+        self.values = np.zeros((self.sh, self.sw, 3))      # the samples' colours
+        self.counts = np.zeros((n_tiles, C.N_COUNTERS), np.int64)
+        if o["shading"] == "heckbert":
+            self.cam = heckbert.camera_vectors(scene.camera, self.width, self.height)
+        else:
+            self.cam = camera_vectors(scene.camera, self.width, self.height, corners=spd)
+        self.mats = material_table(scene)
+        self.lights = light_table(scene, o["eye_light"], o["eye_light_shadows"])
+        self.filtered = o["shadows"] == "filtered"
+        self.medium = np.int64(-1 if scene.camera.medium is None else scene.camera.medium)
+        self.background = np.asarray(scene.background, np.float64)
+        self.trick_bits = np.int64(o["trick_bits"])
+
+        self.lazy = self.build.get("lazy")     # lazy structures: refined after each pass
+        batch = max(1, n_tiles // 32)     # lazy: the pass schedule, which must not depend on the threads
+        if self.lazy is None:
+            # passes of about 1/32 of the image (the progress bar's steps), with enough tiles for every thread
+            size = max(batch, 4 * self.threads)
+            self.passes = [(1, 0, a, min(n_tiles, a + size)) for a in range(0, n_tiles, size)]
+        else:
+            self.passes = lazy_passes(n_tiles, batch)
+        # samples of full tiles each pass traces, for the progress report
+        self.work = [(last - first) * ((TILE // step) ** 2 - (TILE // coarse) ** 2 if coarse else (TILE // step) ** 2)
+                     for step, coarse, first, last in self.passes]
+        self.pass_counts = [None] * len(self.passes)
+
+    @property
+    def threads(self) -> int:
+        return int(self.options["threads"]) if self.options["threads"] is not None else default_threads()
+
+    def pass_tiles(self, p: int) -> int:
+        step, coarse, first, last = self.passes[p]
+        return last - first
+
+    def trace(self, p: int, lo: int, hi: int) -> None:
+        """Trace tiles lo..hi-1 of pass p (counted from the pass's first tile) on this thread."""
+        o = self.options
+        step, coarse, first, last = self.passes[p]
+        if self.pass_counts[p] is None:
+            self.pass_counts[p] = np.zeros((last - first, 0 if self.lazy is None else self.lazy.columns), np.int64)
+        if self.plain:
+            _render_tiles(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
+                          self.tile_x, self.tile_y, first + lo, first + hi, first, o["max_depth"], o["cutoff"],
+                          True if self.filtered else None, self.trick_bits,
+                          None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
+                          self.pass_counts[p], step, coarse)
+        else:
+            _render_pixels(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
+                           self.tile_x, self.tile_y, first + lo, first + hi, first, o["max_depth"], o["cutoff"],
+                           self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
+                           SHADINGS[o["shading"]], self.filtered, self.trick_bits, self.starts, self.medium,
+                           SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"])
+
+    def trace_pass(self, p: int, threads: int) -> None:
+        """Trace all of pass p over `threads` threads."""
+        n = self.pass_tiles(p)
+        for_ranges(lambda lo, hi: self.trace(p, lo, hi), n, threads, kernel=self.kernel,
+                   min_size=-(-RANGE_SAMPLES * n // max(1, self.work[p])))
+
+    def end_pass(self, p: int, pass_counts=None) -> None:
+        """After every tile of pass p: lazy structures refine from the pass's counts (this
+        job's own, or those gathered from wherever its tiles were traced)."""
+        if self.lazy is None:
+            return
+        counts = self.pass_counts[p] if pass_counts is None else pass_counts
+        self.pass_counts[p] = counts
+        self.geo = self.lazy.refine(self.geo, counts)
+        self.starts = prepare_starts(self.geo, bool(self.trick_bits & STARTLISTS))
+
+    def tile_block(self, p: int, lo: int, hi: int):
+        """What tiles lo..hi-1 of pass p traced: their samples (zero where the pass traced none),
+        counter rows and lazy pass counts, for put_block in another process."""
+        step, coarse, first, last = self.passes[p]
+        block = np.zeros((hi - lo, TILE, TILE, 3))
+        for k, tile in enumerate(range(first + lo, first + hi)):
+            y, x = self.tile_y[tile], self.tile_x[tile]
+            part = self.values[y:y + TILE, x:x + TILE]
+            mask = _lattice(part.shape[0], part.shape[1], step, coarse)
+            block[k, :part.shape[0], :part.shape[1]][mask] = part[mask]
+        rows = self.pass_counts[p][lo:hi]
+        return block, self.counts[first + lo:first + hi].copy(), rows.copy()
+
+    def put_block(self, p: int, lo: int, block, counts, rows) -> None:
+        step, coarse, first, last = self.passes[p]
+        hi = lo + len(block)
+        if self.pass_counts[p] is None:
+            self.pass_counts[p] = np.zeros((last - first, rows.shape[1]), np.int64)
+        for k, tile in enumerate(range(first + lo, first + hi)):
+            y, x = self.tile_y[tile], self.tile_x[tile]
+            part = self.values[y:y + TILE, x:x + TILE]
+            mask = _lattice(part.shape[0], part.shape[1], step, coarse)
+            part[mask] = block[k, :part.shape[0], :part.shape[1]][mask]
+        self.counts[first + lo:first + hi] += counts
+        self.pass_counts[p][lo:hi] = rows
+
+    def result(self, trace: float, compile: float, threads: int | None = None, build: dict | None = None,
+               preprocess: float | None = None) -> RenderResult:
+        """The image and the statistics of the traced job (build and preprocess: another
+        process's, where the structures were built there)."""
+        o = self.options
+        build = self.build if build is None else build
+        if self.lazy is not None:
+            self.lazy.update_stats(build, self.geo)
+        v = self.values
+        image = 0.25 * (v[:-1, :-1] + v[1:, :-1] + v[:-1, 1:] + v[1:, 1:]) if o["spd"] else v
+        width, height, aa = self.width, self.height, o["aa"]
+        stats = Stats.from_counters(
+            self.counts.sum(axis=0), build, preprocess=self.preprocess if preprocess is None else preprocess,
+            trace=trace, compile=self.build_compile + compile,
+            info={"scene": self.scene.source, "accel": o["accel"], "resolution": [width, height],
+                  "spd": o["spd"], "max_depth": o["max_depth"], "shading": o["shading"],
+                  "aa": None if aa == "none" else aa, "cutoff": o["cutoff"], "shadows": o["shadows"],
+                  "tricks": tricks_names(int(self.trick_bits)),
+                  **({"eye_light": o["eye_light"], "eye_light_shadows": o["eye_light_shadows"]}
+                     if o["eye_light"] is not None else {}),
+                  **({"samples": o["samples"], "seed": o["seed"]} if aa == "jitter" else {}),
+                  **({"aa_threshold": o["aa_threshold"], "aa_depth": o["aa_depth"]} if aa == "adaptive" else {}),
+                  "eye_rays_per_pixel": int(self.counts[:, C.RAYS_EYE].sum()) / (width * height),
+                  "threads": self.threads if threads is None else threads,
+                  "primitives": self.scene.count_primitives()})
+        return RenderResult(image=image, stats=stats)
+
+
+def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:
+    """The samples of an h x w tile a pass of (step, coarse) traces (_render_tile's rule)."""
+    j, i = np.mgrid[0:h, 0:w]
+    mask = (i % step == 0) & (j % step == 0)
+    if coarse > 0:
+        mask &= ~((i % coarse == 0) & (j % coarse == 0))
+    return mask
+
+
+def tell_compiling(kernel) -> None:
+    if not compiled(kernel) and first_run():
+        tell_once("render", f"raykernel: compiling the renderer's kernels (first render after install, about "
+                            f"{FIRST_RUN_SECONDS} s; cached for later processes)")
+
+
 def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd: bool = False,
            max_depth: int = 5, threads: int | None = None, progress=None, max_memory=None,
            shading: str = "whitted", aa: str | None = None, samples: int = 4, seed: int = 0,
            aa_threshold: float = 0.1, aa_depth: int = 2, cutoff: float | None = None, shadows: str = "opaque",
-           eye_light: float | None = None, eye_light_shadows: str = "skip", tricks="default") -> RenderResult:
+           eye_light: float | None = None, eye_light_shadows: str = "skip", tricks="default",
+           builder=None) -> RenderResult:
     """Render `scene`; returns the float image and the statistics.
 
     accel: the default accelerator spec for groups that name none.
@@ -243,136 +470,23 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     lazynormals) or a comma-separated list of closest, raytree,
     shadowcache, transparentlast, lazynormals, startlists. They change the work, not the image or
     the ray counts; heckbert shading runs the printed program's searches and takes none.
+    builder: what builds the structures (default: flatten.flatten, from scratch); an
+    engine.incremental.Hierarchy keeps them between the frames of an animation.
     """
-    max_depth = _number(max_depth, "max_depth", 1, 32, integer=True)
-    if resolution is not None:
-        resolution = _number(resolution, "resolution", 1, 16384, integer=True)
-    if threads is not None:
-        threads = _number(threads, "threads", 1, 1 << 20, integer=True)
-        numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
-    shading = _choice(shading, "shading", SHADINGS)
-    aa = _choice("none" if aa is None else aa, "anti-aliasing (aa)", SAMPLERS)
-    samples = _number(samples, "samples", 1, 4096, integer=True)
-    if aa == "jitter" and math.isqrt(samples) ** 2 != samples:
-        raise OptionError(f"samples for jittered anti-aliasing must be a square number (1, 4, 9, 16, ...), "
-                          f"got {samples}")
-    seed = _number(seed, "seed", 0, 2 ** 63 - 1, integer=True)
-    aa_threshold = _number(aa_threshold, "aa_threshold", 0.0, math.inf)
-    aa_depth = _number(aa_depth, "aa_depth", 0, MAX_AA_DEPTH, integer=True)
-    if cutoff is not None:
-        cutoff = _number(cutoff, "cutoff", 0.0, 1.0)
-    shadows = _choice(shadows, "shadows", ("opaque", "filtered"))
-    default = isinstance(tricks, str) and tricks.strip().lower() == "default"
-    trick_bits = np.int64(TRICKS_DEFAULT if default else parse_tricks(tricks))
-    if eye_light is not None:
-        eye_light = _number(eye_light, "eye_light", 0.0, math.inf)
-    eye_light_shadows = _choice(eye_light_shadows, "eye_light_shadows", ("skip", "cast"))
-    if shading == "heckbert" and shadows != "opaque":
-        raise OptionError("heckbert shading follows the printed program, whose shadows are opaque; "
-                          f"shadows {shadows!r} is not allowed with it")
-    if spd:
-        if eye_light is not None:
-            raise OptionError("SPD mode lights a scene with its own lights only; eye_light is not allowed with it")
-        for name, value, default in (("shading", shading, "whitted"), ("aa", aa, "none"),
-                                     ("shadows", shadows, "opaque")):
-            if value != default:
-                raise OptionError(f"SPD mode traces Whitted shading with one ray per pixel corner; {name} "
-                                  f"{value!r} is not allowed with it")
-        if cutoff not in (None, 0.0):
-            raise OptionError(f"SPD mode casts every ray (rule 8, no adaptive cut-off); cutoff {cutoff!r} is "
-                              "not allowed with it")
-    n_threads = int(threads) if threads is not None else default_threads()
-    width = height = resolution
-    if resolution is None:
-        width, height = scene.camera.width, scene.camera.height
-    plain = shading == "whitted" and aa == "none"      # the renderer's own kernel, the fastest
-    if scene.camera.medium is not None and not 0 <= scene.camera.medium < len(scene.materials):
-        raise OptionError(f"the camera's medium is material {scene.camera.medium}, which the scene does not have")
-    kernel = _render_tiles if plain else _render_pixels
-
-    t0 = time.perf_counter()
-    with CompileClock() as build_clock:     # the builders' kernels compile on first use too
-        geo, build = flatten(scene, accel, max_memory)
-        starts = prepare_starts(geo, bool(trick_bits & STARTLISTS))    # trick 6's view of the BVHs
-    preprocess = time.perf_counter() - t0 - build_clock.seconds
-
-    sw, sh = (width + 1, height + 1) if spd else (width, height)
-    tiles_x = np.arange(0, sw, TILE)
-    tiles_y = np.arange(0, sh, TILE)
-    tile_x = np.tile(tiles_x, len(tiles_y)).astype(np.int64)
-    tile_y = np.repeat(tiles_y, len(tiles_x)).astype(np.int64)
-    n_tiles = len(tile_x)
-    values = np.zeros((sh, sw, 3))      # the samples' colours
-    counts = np.zeros((n_tiles, C.N_COUNTERS), np.int64)
-    if shading == "heckbert":
-        cam = heckbert.camera_vectors(scene.camera, width, height)
-    else:
-        cam = camera_vectors(scene.camera, width, height, corners=spd)
-    mats, lights = material_table(scene), light_table(scene, eye_light, eye_light_shadows)
-    filtered = shadows == "filtered"
-    medium = np.int64(-1 if scene.camera.medium is None else scene.camera.medium)
-    if cutoff is None:
-        cutoff = 0.0 if spd else CUTOFF
-    background = np.asarray(scene.background, np.float64)
-
+    job = RenderJob(scene, builder=builder, accel=accel, resolution=resolution, spd=spd, max_depth=max_depth,
+                    threads=threads, max_memory=max_memory, shading=shading, aa=aa, samples=samples, seed=seed,
+                    aa_threshold=aa_threshold, aa_depth=aa_depth, cutoff=cutoff, shadows=shadows,
+                    eye_light=eye_light, eye_light_shadows=eye_light_shadows, tricks=tricks)
+    n_threads = job.threads
     t1 = time.perf_counter()
-    lazy = build.get("lazy")     # lazy structures: refined after each pass
-    batch = max(1, n_tiles // 32)     # lazy: the pass schedule, which must not depend on the threads
-    if lazy is None:
-        # passes of about 1/32 of the image (the progress bar's steps), with enough tiles for every thread
-        size = max(batch, 4 * n_threads)
-        passes = [(1, 0, a, min(n_tiles, a + size)) for a in range(0, n_tiles, size)]
-    else:
-        passes = lazy_passes(n_tiles, batch)
-    # samples of full tiles each pass traces, for the progress report
-    work = [(last - first) * ((TILE // step) ** 2 - (TILE // coarse) ** 2 if coarse else (TILE // step) ** 2)
-            for step, coarse, first, last in passes]
-    done, total = 0, sum(work)
-    if not compiled(kernel) and first_run():
-        tell_once("render", f"raykernel: compiling the renderer's kernels (first render after install, about "
-                            f"{FIRST_RUN_SECONDS} s; cached for later processes)")
+    done, total = 0, sum(job.work)
+    tell_compiling(job.kernel)
     with CompileClock() as clock:
-        for (step, coarse, first, last), part in zip(passes, work):
-            pass_counts = np.zeros((last - first, 0 if lazy is None else lazy.columns), np.int64)
-
-            def tiles(lo, hi, first=first, step=step, coarse=coarse, geo=geo, pass_counts=pass_counts):
-                if plain:
-                    _render_tiles(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo, first + hi,
-                                  first, max_depth, cutoff, True if filtered else None, trick_bits,
-                                  None if trick_bits == LEAN else starts, values, counts, pass_counts, step, coarse)
-                else:
-                    _render_pixels(geo, mats, lights, background, cam, sw, sh, tile_x, tile_y, first + lo,
-                                   first + hi, first, max_depth, cutoff, values, counts, pass_counts, step, coarse,
-                                   TILE, SHADINGS[shading], filtered, trick_bits, starts, medium, SAMPLERS[aa], samples,
-                                   seed, aa_threshold, aa_depth)
-            for_ranges(tiles, last - first, n_threads, kernel=kernel,
-                       min_size=-(-RANGE_SAMPLES * (last - first) // max(1, part)))
-            if lazy is not None:
-                geo = lazy.refine(geo, pass_counts)
-                starts = prepare_starts(geo, bool(trick_bits & STARTLISTS))
+        for p, part in enumerate(job.work):
+            job.trace_pass(p, n_threads)
+            job.end_pass(p)
             done += part
             if progress is not None:
                 progress(done, total)
     trace = time.perf_counter() - t1 - clock.seconds
-    if lazy is not None:
-        lazy.update_stats(build, geo)
-
-    if spd:
-        image = 0.25 * (values[:-1, :-1] + values[1:, :-1] + values[:-1, 1:] + values[1:, 1:])
-    else:
-        image = values
-    stats = Stats.from_counters(counts.sum(axis=0), build, preprocess=preprocess, trace=trace,
-                                compile=build_clock.seconds + clock.seconds,
-                                info={"scene": scene.source, "accel": accel, "resolution": [width, height],
-                                      "spd": spd, "max_depth": max_depth, "shading": shading,
-                                      "aa": None if aa == "none" else aa, "cutoff": cutoff, "shadows": shadows,
-                                      "tricks": tricks_names(int(trick_bits)),
-                                      **({"eye_light": eye_light, "eye_light_shadows": eye_light_shadows}
-                                         if eye_light is not None else {}),
-                                      **({"samples": samples, "seed": seed} if aa == "jitter" else {}),
-                                      **({"aa_threshold": aa_threshold, "aa_depth": aa_depth}
-                                         if aa == "adaptive" else {}),
-                                      "eye_rays_per_pixel": int(counts[:, C.RAYS_EYE].sum()) / (width * height),
-                                      "threads": n_threads,
-                                      "primitives": scene.count_primitives()})
-    return RenderResult(image=image, stats=stats)
+    return job.result(trace, clock.seconds)
