@@ -158,6 +158,7 @@ class FlatArrays:
         self.rows = {f.name: 0 for f in AGGREGATE_FIELDS}
         self.lazy = []     # one record per lazy octree, for aggregates/lazyoctree.py
         self.lazy_rc = []  # one record per lazy rc aggregate, for aggregates/rc.py
+        self.seeded = {}   # field -> rows it started with (seed)
 
     def size(self, name: str) -> int:
         """Rows of field `name` so far."""
@@ -184,7 +185,18 @@ class FlatArrays:
         return agg
 
     def agg_box(self, agg: int) -> np.ndarray:
-        return self.parts["agg_bounds"][agg][0]
+        """The box of aggregate agg (a row of the seed, or one appended part per aggregate)."""
+        seeded = self.seeded.get("agg_bounds")
+        if seeded is None:
+            return self.parts["agg_bounds"][agg][0]
+        return self.parts["agg_bounds"][0][agg] if agg < seeded else self.parts["agg_bounds"][1 + agg - seeded][0]
+
+    def seed(self, fields: dict) -> None:
+        """Start the named fields from whole arrays (the previous frame's, incremental.py)."""
+        for name, arr in fields.items():
+            self.parts[name] = [arr]
+            self.rows[name] = len(arr)
+            self.seeded[name] = len(arr)
 
     def field(self, f: Field) -> np.ndarray:
         parts = self.parts[f.name]
@@ -419,12 +431,14 @@ def _polygon_planes(verts, start, count):
     return n, np.einsum("ij,ij->i", n, v0), np.argmax(np.abs(n), axis=1).astype(np.int64)
 
 
-def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None) -> tuple[Geometry, dict]:
+def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None, builder=None) -> tuple[Geometry, dict]:
     """Build every aggregate of `scene` and return the flat arrays and the build statistics.
     max_memory: the memory budget of every build and refinement, in bytes or as "8G"
-    (default: memory.memory_limit()); a structure that would need more is a MemoryBudgetError."""
+    (default: memory.memory_limit()); a structure that would need more is a MemoryBudgetError.
+    builder: a Builder (class) to build with, taking (default_accel, max_bytes); incremental.py's
+    reuses the previous frame's aggregates."""
     t0 = time.perf_counter()
-    b = Builder(default_accel, memory_limit(max_memory))
+    b = (builder or Builder)(default_accel, memory_limit(max_memory))
     root, depth = b.build_group(scene.root)
     arr = b.flat
     fields = {f.name: arr.field(f) for f in AGGREGATE_FIELDS}

@@ -174,6 +174,7 @@ import numpy as np
 
 from ..atomicfile import write_text
 from ..errors import SceneError
+from .animation import CAMERA_FIELDS, Animation, CameraPath, Keyframe, Motion, axis_angle_quaternion, default_span
 from .model import MAX_NESTING, MAX_OPERANDS, Camera, Group, Instance, Light, Material, Scene, TriangleMesh
 
 __all__ = ["MAX_NESTING", "read_json", "parse_json", "scene_from_json", "scene_to_json",
@@ -184,9 +185,11 @@ PRIMITIVE_KINDS = ("sphere", "cone", "polygon", "patch")
 OPERATOR_KINDS = ("difference", "intersection", "union")
 ITEM_KINDS = PRIMITIVE_KINDS + ("mesh", "include", "group", "instance") + OPERATOR_KINDS
 TRANSFORM_OPS = ("translate", "rotate", "scale", "matrix")
-TOP_KEYS = ("camera", "background", "lights", "materials", "groups", "scene")
+TOP_KEYS = ("camera", "background", "lights", "materials", "groups", "scene", "animation")
 MATERIAL_KEYS = ("color", "kd", "ks", "shine", "t", "ior", "kl")
-CAMERA_KEYS = ("eye", "look_at", "up", "angle", "hither", "resolution", "medium")
+CAMERA_KEYS = ("eye", "look_at", "up", "angle", "hither", "resolution", "medium", "path")
+ANIMATION_KEYS = ("time", "fps")
+MOTION_KEYS = ("time", "translate", "rotate", "quaternion", "scale")
 BODY_KEYS = ("accel", "items", "material")
 _COMMENT = "comment"
 
@@ -281,6 +284,8 @@ class _Reader:
         self.includes: dict = {}
         self.heights: dict[int, int] = {}
         self.default_material: int | None = None
+        self.motions: list = []            # (instance, base matrix, Motion) of each moving item
+        self.camera_path: CameraPath | None = None
         self.from_nff: dict = {"camera": None, "lights": None, "background": None}
 
     # ---- reporting and basic checks -------------------------------------------------
@@ -381,6 +386,7 @@ class _Reader:
                 self.fail("/groups", "a group name must not be empty")
             if not isinstance(definition, dict):
                 self.fail(_key("/groups", name), f"expected a group object, got {_describe(definition)}")
+        anim = self.obj(top.get("animation", {}), "/animation", ANIMATION_KEYS, what="an animation object")
         camera = self.camera(top["camera"], "/camera") if "camera" in top else None
         background = self.vec3(top["background"], "/background") if "background" in top else None
         lights = self.lights(top["lights"], "/lights") if "lights" in top else None
@@ -395,7 +401,87 @@ class _Reader:
         if background is not None:
             self.scene.background = np.asarray(background, np.float64)
         self.scene.lights = lights if lights is not None else list(self.from_nff["lights"] or [])
+        if self.motions or self.camera_path is not None or "animation" in top:
+            self.scene.animation = self.animation(anim, "/animation")
         return self.scene
+
+    def animation(self, a: dict, ptr: str) -> Animation:
+        span = default_span(self.motions, self.camera_path)
+        if "time" in a:
+            tptr = f"{ptr}/time"
+            if not isinstance(a["time"], list) or len(a["time"]) != 2:
+                self.fail(tptr, f"expected [start, end] in seconds, got {_describe(a['time'])}")
+            span = tuple(self.number(v, f"{tptr}/{i}") for i, v in enumerate(a["time"]))
+            if not span[1] > span[0]:
+                self.fail(tptr, f"the end must come after the start, got {list(span)}")
+        fps = self.number(a["fps"], f"{ptr}/fps") if "fps" in a else 24.0
+        if not fps > 0.0:
+            self.fail(f"{ptr}/fps", f"expected frames per second > 0, got {_describe(a['fps'])}")
+        animation = Animation(time=span, fps=fps, motions=self.motions, camera=self.camera_path,
+                              base_camera=self.scene.camera)
+        animation.at(self.scene, span[0])
+        return animation
+
+    def keys(self, value, ptr: str, what: str) -> list:
+        """A list of keyframe objects with increasing "time"."""
+        if not isinstance(value, list) or not value:
+            self.fail(ptr, f"expected a list of {what} keyframes (objects with a \"time\"), got {_describe(value)}")
+        last = -math.inf
+        for i, key in enumerate(value):
+            if not isinstance(key, dict) or "time" not in key:
+                self.fail(f"{ptr}/{i}", f"expected a keyframe object with a \"time\", got {_describe(key)}")
+            t = self.number(key["time"], f"{ptr}/{i}/time")
+            if not t > last:
+                self.fail(f"{ptr}/{i}/time", f"keyframe times must increase: {t:g} follows {last:g}")
+            last = t
+        return value
+
+    def motion(self, value, ptr: str) -> Motion:
+        frames = []
+        for i, key in enumerate(self.keys(value, ptr, "motion")):
+            kptr = f"{ptr}/{i}"
+            k = self.obj(key, kptr, MOTION_KEYS, required=("time",), what="a motion keyframe")
+            frame = Keyframe(time=self.number(k["time"], f"{kptr}/time"))
+            if "rotate" in k and "quaternion" in k:
+                self.fail(kptr, "a keyframe takes \"rotate\" or \"quaternion\", not both")
+            if "translate" in k:
+                frame.translate = self.vec3(k["translate"], f"{kptr}/translate")
+            if "rotate" in k:
+                rptr = f"{kptr}/rotate"
+                r = self.obj(k["rotate"], rptr, ("axis", "degrees"), required=("axis", "degrees"))
+                axis = self.vec3(r["axis"], f"{rptr}/axis")
+                if not np.any(axis != 0.0):
+                    self.fail(f"{rptr}/axis", "a rotation axis must not be zero")
+                frame.rotate = axis_angle_quaternion(axis, self.number(r["degrees"], f"{rptr}/degrees"))
+            if "quaternion" in k:
+                q = k["quaternion"]
+                qptr = f"{kptr}/quaternion"
+                if not isinstance(q, list) or len(q) != 4:
+                    self.fail(qptr, f"expected [w, x, y, z], got {_describe(q)}")
+                q = np.array([self.number(v, f"{qptr}/{j}") for j, v in enumerate(q)])
+                if not np.linalg.norm(q) > 0.0:
+                    self.fail(qptr, "a rotation quaternion must not be zero")
+                frame.rotate = q / np.linalg.norm(q)
+            if "scale" in k:
+                frame.scale = self.op_scale(k["scale"], f"{kptr}/scale")[[0, 1, 2], [0, 1, 2]].copy()
+            frames.append(frame)
+        return Motion(frames)
+
+    def camera_keys(self, value, ptr: str) -> CameraPath:
+        keys = []
+        for i, key in enumerate(self.keys(value, ptr, "camera")):
+            kptr = f"{ptr}/{i}"
+            k = self.obj(key, kptr, ("time",) + CAMERA_FIELDS, required=("time",), what="a camera keyframe")
+            out = {"time": self.number(k["time"], f"{kptr}/time")}
+            for name in ("eye", "look_at", "up"):
+                if name in k:
+                    out[name] = self.vec3(k[name], f"{kptr}/{name}")
+            if "angle" in k:
+                out["angle"] = self.number(k["angle"], f"{kptr}/angle")
+                if not 0.0 < out["angle"] < 180.0:
+                    self.fail(f"{kptr}/angle", f"expected an angle in degrees between 0 and 180, got {out['angle']:g}")
+            keys.append(out)
+        return CameraPath(keys)
 
     def camera(self, value, ptr: str) -> Camera:
         c = self.obj(value, ptr, CAMERA_KEYS, required=("eye", "look_at"))
@@ -408,6 +494,8 @@ class _Reader:
                 self.fail(f"{ptr}/angle", f"expected an angle in degrees between 0 and 180, got {_describe(c['angle'])}")
         if "medium" in c:
             kw["medium"] = self.material(c["medium"], f"{ptr}/medium")
+        if "path" in c:
+            self.camera_path = self.camera_keys(c["path"], f"{ptr}/path")
         if "hither" in c:
             kw["hither"] = self.number(c["hither"], f"{ptr}/hither")
             if kw["hither"] < 0.0:
@@ -527,13 +615,13 @@ class _Reader:
         kinds = [k for k in item if k in ITEM_KINDS]
         if len(kinds) != 1:
             for key in item:
-                if key not in ITEM_KINDS and key not in ("transform", "material", _COMMENT):
-                    self.unknown_key(ptr, key, ITEM_KINDS + ("transform", "material"))
+                if key not in ITEM_KINDS and key not in ("transform", "motion", "material", _COMMENT):
+                    self.unknown_key(ptr, key, ITEM_KINDS + ("transform", "motion", "material"))
             got = " and ".join(repr(k) for k in kinds) if kinds else "none"
             self.fail(ptr, f"an item needs exactly one of {_names(ITEM_KINDS)}; got {got}")
         kind = kinds[0]
         takes_material = kind in PRIMITIVE_KINDS or kind == "mesh"
-        allowed = (kind, "transform") + (("material",) if takes_material else ())
+        allowed = (kind, "transform", "motion") + (("material",) if takes_material else ())
         if "material" in item and not takes_material:
             hint = ("give the group body a \"material\"" if kind == "group" else
                     f"give the {kind} object a \"material\"" if kind in OPERATOR_KINDS else
@@ -545,6 +633,9 @@ class _Reader:
         kptr = f"{ptr}/{kind}"
         value = item[kind]
         matrix = self.transform(item["transform"], f"{ptr}/transform") if "transform" in item else None
+        motion = self.motion(item["motion"], f"{ptr}/motion") if "motion" in item else None
+        if motion is not None and matrix is None:
+            matrix = np.eye(4)
 
         if takes_material:
             mat = self.material(item["material"], f"{ptr}/material") if "material" in item else self.default(material)
@@ -556,7 +647,7 @@ class _Reader:
             else:
                 getattr(self, kind)(value, kptr, target, mat)
             if matrix is not None:
-                group.children.append(self.instance(target, matrix, ptr))
+                group.children.append(self.instance(target, matrix, ptr, motion))
             return
 
         if kind == "group":
@@ -575,7 +666,7 @@ class _Reader:
         else:
             child = self.include(value, kptr)
             self.place(depth, child, kptr, "this include")
-        group.children.append(child if matrix is None else self.instance(child, matrix, ptr))
+        group.children.append(child if matrix is None else self.instance(child, matrix, ptr, motion))
 
     def operator(self, kind: str, value, ptr: str, depth: int, material) -> Group:
         """A CSG item: a group with the operator's spec and one child per operand."""
@@ -605,12 +696,19 @@ class _Reader:
         group.accel = f"difference(base={len(b['base'])})" if kind == "difference" else kind
         return group
 
-    def instance(self, group: Group, matrix: np.ndarray, ptr: str) -> Instance:
+    def instance(self, group: Group, matrix: np.ndarray, ptr: str, motion: Motion | None = None) -> Instance:
+        """An instance of group; with a motion, its matrix moves: motion(t) @ matrix."""
         try:
             with np.errstate(over="ignore", under="ignore", invalid="ignore"):
-                return Instance(group, matrix)
+                if motion is not None:
+                    for i, key in enumerate(motion.keys):
+                        Instance(group, motion.matrix(key.time) @ matrix)   # every key's placement is checked
+                inst = Instance(group, matrix)
         except SceneError as e:
-            self.fail(f"{ptr}/transform", e.message)
+            self.fail(f"{ptr}/{'transform' if motion is None else 'motion'}", e.message)
+        if motion is not None:
+            self.motions.append((inst, matrix, motion))
+        return inst
 
     def named(self, name: str, ptr: str) -> Group:
         if name in self.built:
@@ -998,7 +1096,12 @@ class _Writer:
             name = self.names.get(id(g))
             item = {"instance": name} if name is not None else {"group": self.body(g)}
             if isinstance(child, Instance):
-                item["transform"] = {"matrix": _floats(child.matrix)}
+                moving = self.scene.animation.motion_of(child) if self.scene.animation is not None else None
+                item["transform"] = {"matrix": _floats(child.matrix if moving is None else moving[0])}
+                if moving is not None:
+                    item["motion"] = [{"time": float(k.time), "translate": _floats(k.translate),
+                                       "quaternion": _floats(k.rotate), "scale": _floats(k.scale)}
+                                      for k in moving[1].keys]
             items.append(item)
         out = {}
         if group.accel is not None:
@@ -1039,6 +1142,19 @@ class _Writer:
                        for light in scene.lights],
             "materials": {f"m{i}": _material_json(m) for i, m in enumerate(scene.materials)},
         }
+        anim = scene.animation
+        if anim is not None:
+            if anim.generate is not None:
+                raise SceneError(f"{anim.source}: a generated animation (each frame made by its generator) has no "
+                                 "JSON form; write one frame, or keyframes")
+            if anim.base_camera is not None:
+                base = anim.base_camera
+                out["camera"].update(eye=_floats(base.eye), look_at=_floats(base.look_at), up=_floats(base.up),
+                                     angle=float(base.angle))
+            if anim.camera is not None:
+                out["camera"]["path"] = [{k: (float(v) if k in ("time", "angle") else _floats(v)) for k, v in key.items()}
+                                         for key in anim.camera.keys]
+            out["animation"] = {"time": [float(t) for t in anim.time], "fps": float(anim.fps)}
         if self.names:
             out["groups"] = {name: self.body(self.groups[gid]) for gid, name in self.names.items()}
         out["scene"] = self.body(scene.root)

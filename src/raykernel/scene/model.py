@@ -344,6 +344,7 @@ class Scene:
     materials: list = field(default_factory=list)
     root: Group = field(default_factory=lambda: Group(name="root"))
     source: str = ""
+    animation: object = None    # an animation.Animation: what moves over time (JSON "animation" and "motion")
 
     def __post_init__(self):
         self.background = _vec3(self.background, "background colour")

@@ -61,7 +61,7 @@ import numpy as np
 from ..errors import OptionError
 from .model import Camera, Group, Material, Scene, TriangleMesh
 
-__all__ = ["NAMES", "PARAMS", "load", "describe", "stadium", "satellite", "sun", "teapot_room", "diamond",
+__all__ = ["NAMES", "PARAMS", "TIME_SPANS", "load", "describe", "stadium", "satellite", "sun", "teapot_room", "diamond",
            "FEET_PER_MILE", "EARTH_RADIUS_MILES", "SUN_RADIUS_MILES", "SUN_DISTANCE_MILES", "STADIUM_LENGTH"]
 
 FEET_PER_MILE = 5280.0
@@ -112,6 +112,8 @@ _SPECS: dict[str, dict[str, _Param]] = {
 }
 
 NAMES = tuple(_SPECS)
+TIME_SPANS = {"satellite": (0.0, 600.0)}
+"""The default time range of the scenes that move (a `time` parameter): ten minutes of the orbit."""
 
 
 def _fmt(x: float) -> str:

@@ -1,0 +1,261 @@
+"""Structures kept between the frames of an animation: only what moved is touched.
+
+    hierarchy = Hierarchy(rebuild_threshold=1.5)
+    for t in animation.times(24):
+        scene = animation.at(scene, t)
+        result = render(scene, builder=hierarchy)    # build.refit_nodes, build.rebuilt_nodes, ...
+
+The first frame is built from scratch (flatten.flatten), and every top-level aggregate build
+is recorded: its spec, its references and its items' boxes. A later frame walks the scene
+the same way; each aggregate whose spec and references are unchanged is then
+
+- reused as it is when its items' boxes are the same (a static subspace);
+- refit when they moved and it is a BVH: the same tree, its node boxes recomputed from
+  the leaves up (build.refit_nodes); rebuilt instead when the refit tree's SAH cost has
+  grown past `rebuild_threshold` times the cost it had when it was built;
+- rebuilt otherwise (grids, octrees and the rest depend on where their items lie), its new
+  arrays appended and the old ones left unused (build.rebuilt_nodes).
+
+A moved instance changes only its matrix: its group's aggregate is reused and the boxes
+of the aggregates above it are refit. A scene whose structure changed (other groups,
+primitive counts, specs) is built from scratch, and so is every frame of a scene with
+lazy structures (which refine while they are traced) and every frame after the unused
+arrays have grown past the size of a from-scratch build. Primitives' own arrays are always
+rewritten: they are what moved.
+
+A BVH that was refit holds the same items as a rebuilt one; the closest-hit rule breaks
+ties by reference, not by the order of the walk, so each frame's image and ray counts are
+those of a from-scratch build; the bound tests and steps differ with the tree.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..aggregates.bruteforce import CODE as LIST
+from ..aggregates.bvh import CODE as BVH
+from ..aggregates.bvh import _refit_kernel
+from ..geometry.boxes import cull_margin
+from .flatten import AGGREGATE_FIELDS, Builder, flatten
+
+__all__ = ["Hierarchy", "sah_cost"]
+
+_FRAME_FIELDS = ("inst_agg", "inst_to_local", "inst_class")   # rewritten every frame by the walk
+_AGG_ROW_FIELDS = ("agg_kind", "agg_bounds", "agg_start", "agg_count")
+DEFAULT_REBUILD_THRESHOLD = 1.5
+
+
+class _Changed(Exception):
+    """The scene's structure differs from the recorded frame's."""
+
+
+def _box_of(bounds: np.ndarray) -> np.ndarray:
+    solid = np.all(bounds[:, :3] <= bounds[:, 3:], axis=1) if len(bounds) else np.zeros(0, bool)
+    if not solid.any():
+        return np.array([np.inf] * 3 + [-np.inf] * 3)
+    return np.concatenate([bounds[solid, :3].min(axis=0), bounds[solid, 3:].max(axis=0)])
+
+
+def _area(b: np.ndarray) -> np.ndarray:
+    d = np.maximum(b[:, 3:] - b[:, :3], 0.0)
+    return d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0]
+
+
+def sah_cost(node_bounds, node_first, node_count, start: int, count: int) -> float:
+    """The SAH cost of the BVH in nodes start..start+count-1 (traversal and intersection cost 1):
+    sum of inner node areas plus leaf areas times their items, over the root's area."""
+    b = node_bounds[start:start + count]
+    n = node_count[start:start + count]
+    area = _area(b)
+    root = area[0] if area[0] > 0 else 1.0
+    return float((np.sum(area[n == 0]) + np.sum(area[n > 0] * n[n > 0])) / root)
+
+
+class _Record:
+    """One top-level aggregate build of a frame: what it was built from."""
+
+    __slots__ = ("spec", "refs", "bounds", "agg", "stats", "cost", "order", "first_ref")
+
+    def __init__(self, spec, refs, bounds, agg, stats):
+        self.spec, self.refs, self.bounds, self.agg, self.stats = spec, refs, bounds, agg, stats
+        self.cost = None        # a BVH's SAH cost when built
+        self.order = None       # a BVH's ref positions -> items (found at its first refit)
+        self.first_ref = 0
+
+
+class _RecordingBuilder(Builder):
+    """A from-scratch build that records each top-level aggregate it builds."""
+
+    def __init__(self, default_accel, max_bytes):
+        super().__init__(default_accel, max_bytes)
+        self.records: list[_Record] = []
+        self._inside = 0
+
+    def build(self, spec, refs, bounds, name) -> int:
+        self._inside += 1
+        try:
+            agg = super().build(spec, refs, bounds, name)
+        finally:
+            self._inside -= 1
+        if self._inside == 0:
+            self.records.append(_Record(spec, refs.copy(), bounds.copy(), agg, self.agg_stats[-1]))
+        return agg
+
+
+class _ReplayBuilder(Builder):
+    """A frame built over the previous frame's aggregates (see the module docstring)."""
+
+    def __init__(self, default_accel, max_bytes, state=None, threshold=DEFAULT_REBUILD_THRESHOLD):
+        super().__init__(default_accel, max_bytes)
+        self.state = state
+        self.threshold = threshold
+        self.flat.seed({name: arr.copy() for name, arr in state["fields"].items()})
+        self.agg_stats = [dict(r.stats) for r in state["records"]]
+        self.calls = 0
+        self._inside = 0
+        self.work = dict(reused=0, refit=0, rebuilt=0, refit_nodes=0, rebuilt_nodes=0)
+
+    def build(self, spec, refs, bounds, name) -> int:
+        if self._inside:        # an aggregate built inside a rebuilt one (hybrid's BVHs)
+            return super().build(spec, refs, bounds, name)
+        records = self.state["records"]
+        k = self.calls
+        self.calls += 1
+        if k >= len(records):
+            raise _Changed
+        rec = records[k]
+        if rec.spec != spec or len(rec.refs) != len(refs) or not np.array_equal(rec.refs, refs):
+            raise _Changed
+        if np.array_equal(rec.bounds, bounds):
+            self.work["reused"] += 1
+            return rec.agg
+        box = _box_of(bounds)
+        kind = self.flat.parts["agg_kind"][0][rec.agg]
+        if len(refs) and kind == BVH and self._refit(rec, bounds, box):
+            self.work["refit"] += 1
+        elif kind == LIST:
+            self._set_box(rec.agg, box)      # a list has no boxes of its own
+            self.work["refit"] += 1
+        else:
+            self._rebuild(rec, spec, refs, bounds, name)
+            self.work["rebuilt"] += 1
+        rec.bounds = bounds.copy()
+        return rec.agg
+
+    def _set_box(self, agg: int, box) -> None:
+        self.flat.parts["agg_bounds"][0][agg] = box
+
+    def _refit(self, rec: _Record, bounds, box) -> bool:
+        """Refit the BVH of rec to the items' new boxes; False where its SAH cost grew too much."""
+        flat = self.flat
+        nb, nf, nc = (flat.parts[n][0] for n in ("node_bounds", "node_first", "node_count"))
+        s = int(flat.parts["agg_start"][0][rec.agg])
+        n = int(flat.parts["agg_count"][0][rec.agg])
+        first, count = nf[s:s + n], nc[s:s + n]
+        inner = count == 0
+        if rec.order is None:
+            rec.first_ref = int(first[~inner].min())
+            placed = flat.parts["refs"][0][rec.first_ref:rec.first_ref + len(rec.refs)]
+            by_ref = np.argsort(rec.refs, kind="stable")
+            rec.order = by_ref[np.searchsorted(rec.refs[by_ref], placed)]
+        if rec.cost is None:
+            rec.cost = sah_cost(nb, nf, nc, s, n)
+        local_first = np.where(inner, first - s, first - rec.first_ref)
+        trial = np.empty((n, 6))
+        _refit_kernel(trial, local_first, count, rec.order, np.ascontiguousarray(bounds, np.float64))
+        m = cull_margin(box)
+        trial[:, :3] -= m
+        trial[:, 3:] += m
+        cost = sah_cost(trial, local_first, count, 0, n)
+        if cost > self.threshold * rec.cost:
+            return False
+        nb[s:s + n] = trial
+        self._set_box(rec.agg, box)
+        self.work["refit_nodes"] += n
+        return True
+
+    def _rebuild(self, rec: _Record, spec, refs, bounds, name) -> None:
+        """Build rec's aggregate anew at the end of the arrays, then give it rec's index."""
+        flat = self.flat
+        self._inside += 1
+        try:
+            new = super().build(spec, refs, bounds, name)
+        finally:
+            self._inside -= 1
+        stats = self.agg_stats.pop()
+        del self.agg_stats[len(self.state["records"]):]     # aggregates built inside it are counted in its own
+        for f in _AGG_ROW_FIELDS:       # the new aggregate's row is the last part of each: move it to rec.agg
+            part = flat.parts[f].pop()
+            flat.rows[f] -= 1
+            flat.parts[f][0][rec.agg] = part[0]
+        assert new == flat.rows["agg_kind"], "the rebuilt aggregate is the last one appended"
+        self.agg_stats[self.calls - 1] = stats
+        rec.stats, rec.cost, rec.order = stats, None, None
+        self.work["rebuilt_nodes"] += int(stats.get("nodes", 0)) or 1
+
+    def finish(self) -> None:
+        if self.calls != len(self.state["records"]):
+            raise _Changed
+
+
+class Hierarchy:
+    """The structures of an animation's frames, each frame built from the one before
+    (see the module docstring). Pass it as `render(..., builder=hierarchy)`.
+
+    rebuild_threshold: a refit BVH whose SAH cost exceeds this times its cost when built is
+    rebuilt instead (1.5 by default; 1 rebuilds whatever moved, inf always refits).
+    incremental: False builds every frame from scratch (for comparison), counting the same way."""
+
+    def __init__(self, rebuild_threshold: float = DEFAULT_REBUILD_THRESHOLD, incremental: bool = True):
+        if not rebuild_threshold >= 1.0:
+            from ..errors import OptionError
+            raise OptionError(f"rebuild_threshold must be at least 1, got {rebuild_threshold!r}")
+        self.threshold = float(rebuild_threshold)
+        self.incremental = incremental
+        self.state = None
+        self.frames = 0
+
+    def flatten(self, scene, default_accel="bvh", max_memory=None):
+        t0 = time.perf_counter()
+        key = (default_accel, max_memory)
+        replay = None
+        if self.incremental and self.state is not None and self.state["key"] == key:
+            made = {}
+
+            def replaying(accel_spec, max_bytes):
+                made["b"] = _ReplayBuilder(accel_spec, max_bytes, self.state, self.threshold)
+                return made["b"]
+            try:
+                geo, stats = flatten(scene, default_accel, max_memory, builder=replaying)
+                made["b"].finish()
+                replay = made["b"]
+            except _Changed:
+                replay = None
+        if replay is not None and stats["build.bytes"] <= 2 * self.state["full_bytes"]:
+            work = replay.work
+            self._keep(replay, key, self.state["full_bytes"], self.state["records"])
+        else:
+            made = {}
+
+            def recording(accel_spec, max_bytes):
+                made["b"] = _RecordingBuilder(accel_spec, max_bytes)
+                return made["b"]
+            geo, stats = flatten(scene, default_accel, max_memory, builder=recording)
+            nodes = int(sum(max(1, int(r.stats.get("nodes", 0))) for r in made["b"].records))
+            work = dict(reused=0, refit=0, rebuilt=len(made["b"].records), refit_nodes=0, rebuilt_nodes=nodes)
+            if "lazy" in stats:
+                self.state = None       # lazy structures change as they are traced: never kept
+            else:
+                self._keep(made["b"], key, stats["build.bytes"], made["b"].records)
+        self.frames += 1
+        stats.update({"build.refit_nodes": work["refit_nodes"], "build.rebuilt_nodes": work["rebuilt_nodes"],
+                      "build.reused_aggregates": work["reused"], "build.refit_aggregates": work["refit"],
+                      "build.rebuilt_aggregates": work["rebuilt"], "build.seconds": time.perf_counter() - t0})
+        return geo, stats
+
+    def _keep(self, builder, key, full_bytes, records) -> None:
+        flat = builder.flat
+        fields = {f.name: flat.field(f) for f in AGGREGATE_FIELDS if f.name not in _FRAME_FIELDS}
+        self.state = {"key": key, "fields": fields, "records": records, "full_bytes": full_bytes}
