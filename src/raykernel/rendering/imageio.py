@@ -26,6 +26,8 @@ FORMATS = tuple(PILLOW_FORMATS) + FLOAT_FORMATS
 
 
 def to_uint8(image: np.ndarray) -> np.ndarray:
+    if image.dtype == np.uint8:
+        return image
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
 

@@ -273,9 +273,10 @@ class RenderJob:
     Each tile writes only its own samples and its own counter row, so tiles traced in other
     processes and copied in (tile_block / put_block) give the same image bytes and counts.
     builder: what builds the structures, flatten.flatten by default; an incremental.Hierarchy
-    refits the previous frame's instead."""
+    refits the previous frame's instead. remote: a job whose structures were built elsewhere
+    (plan() of that job): this one only gathers its tiles (put_block) and gives the result."""
 
-    def __init__(self, scene: Scene, builder=None, **kw):
+    def __init__(self, scene: Scene, builder=None, remote: dict | None = None, **kw):
         o = self.options = _options(scene, **kw)
         if o["threads"] is not None:
             numba.set_num_threads(min(o["threads"], numba.config.NUMBA_NUM_THREADS))
@@ -285,13 +286,20 @@ class RenderJob:
         self.width = self.height = o["resolution"]
         if o["resolution"] is None:
             self.width, self.height = scene.camera.width, scene.camera.height
-        t0 = time.perf_counter()
-        with CompileClock() as build_clock:     # the builders' kernels compile on first use too
-            build_fn = flatten if builder is None else builder.flatten
-            self.geo, self.build = build_fn(scene, o["accel"], o["max_memory"])
-            self.starts = prepare_starts(self.geo, bool(o["trick_bits"] & STARTLISTS))    # trick 6's view of the BVHs
-        self.preprocess = time.perf_counter() - t0 - build_clock.seconds
-        self.build_compile = build_clock.seconds
+        if remote is None:
+            t0 = time.perf_counter()
+            with CompileClock() as build_clock:     # the builders' kernels compile on first use too
+                build_fn = flatten if builder is None else builder.flatten
+                self.geo, self.build = build_fn(scene, o["accel"], o["max_memory"])
+                self.starts = prepare_starts(self.geo, bool(o["trick_bits"] & STARTLISTS))    # trick 6's view of the BVHs
+            self.preprocess = time.perf_counter() - t0 - build_clock.seconds
+            self.build_compile = build_clock.seconds
+            self.lazy = self.build.get("lazy")     # lazy structures: refined after each pass
+            self.lazy_columns = None if self.lazy is None else self.lazy.columns
+        else:
+            self.geo = self.starts = self.lazy = None
+            self.build, self.preprocess, self.build_compile = remote["build"], remote["preprocess"], remote["compile"]
+            self.lazy_columns = remote["lazy_columns"]
 
         spd = o["spd"]
         self.sw, self.sh = (self.width + 1, self.height + 1) if spd else (self.width, self.height)
@@ -313,9 +321,8 @@ class RenderJob:
         self.background = np.asarray(scene.background, np.float64)
         self.trick_bits = np.int64(o["trick_bits"])
 
-        self.lazy = self.build.get("lazy")     # lazy structures: refined after each pass
         batch = max(1, n_tiles // 32)     # lazy: the pass schedule, which must not depend on the threads
-        if self.lazy is None:
+        if self.lazy_columns is None:
             # passes of about 1/32 of the image (the progress bar's steps), with enough tiles for every thread
             size = max(batch, 4 * self.threads)
             self.passes = [(1, 0, a, min(n_tiles, a + size)) for a in range(0, n_tiles, size)]
@@ -325,6 +332,15 @@ class RenderJob:
         self.work = [(last - first) * ((TILE // step) ** 2 - (TILE // coarse) ** 2 if coarse else (TILE // step) ** 2)
                      for step, coarse, first, last in self.passes]
         self.pass_counts = [None] * len(self.passes)
+        self.refined = 0        # passes whose counts the lazy structures have refined from
+
+    def plan(self) -> dict:
+        """What a remote job (RenderJob(..., remote=plan)) needs from this one."""
+        build = {k: v for k, v in self.build.items() if k != "lazy"}
+        if self.lazy is not None:
+            self.lazy.update_stats(build, self.geo)
+        return {"build": build, "preprocess": self.preprocess, "compile": self.build_compile,
+                "lazy_columns": self.lazy_columns}
 
     @property
     def threads(self) -> int:
@@ -339,7 +355,7 @@ class RenderJob:
         o = self.options
         step, coarse, first, last = self.passes[p]
         if self.pass_counts[p] is None:
-            self.pass_counts[p] = np.zeros((last - first, 0 if self.lazy is None else self.lazy.columns), np.int64)
+            self.pass_counts[p] = np.zeros((last - first, self.lazy_columns or 0), np.int64)
         if self.plain:
             _render_tiles(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
                           self.tile_x, self.tile_y, first + lo, first + hi, first, o["max_depth"], o["cutoff"],
@@ -362,12 +378,14 @@ class RenderJob:
     def end_pass(self, p: int, pass_counts=None) -> None:
         """After every tile of pass p: lazy structures refine from the pass's counts (this
         job's own, or those gathered from wherever its tiles were traced)."""
-        if self.lazy is None:
-            return
         counts = self.pass_counts[p] if pass_counts is None else pass_counts
         self.pass_counts[p] = counts
+        if self.lazy is None or p < self.refined:
+            return
+        assert p == self.refined, "passes refine in order"
         self.geo = self.lazy.refine(self.geo, counts)
         self.starts = prepare_starts(self.geo, bool(self.trick_bits & STARTLISTS))
+        self.refined += 1
 
     def tile_block(self, p: int, lo: int, hi: int):
         """What tiles lo..hi-1 of pass p traced: their samples (zero where the pass traced none),

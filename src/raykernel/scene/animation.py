@@ -211,8 +211,16 @@ def parameter_animation(source: str, time: tuple[float, float] | None = None) ->
                          "the scenes that move: " + ", ".join(n for n, p in pathological.PARAMS.items() if "time" in p))
     params.pop("time", None)
     span = time or pathological.TIME_SPANS.get(name, (0.0, 1.0))
+    return Animation(time=tuple(span), generate=_Generated(name, params), source=source)
 
-    def generate(t: float) -> Scene:
-        return pathological.load(name, **params, time=t)
 
-    return Animation(time=tuple(span), generate=generate, source=source)
+@dataclass(frozen=True)
+class _Generated:
+    """time -> the generated scene at that time (a class, not a closure, so that it pickles)."""
+
+    name: str
+    params: dict
+
+    def __call__(self, t: float) -> Scene:
+        from . import pathological
+        return pathological.load(self.name, **self.params, time=t)

@@ -1,0 +1,228 @@
+"""Renders that span processes and machines, on Dask distributed (`pip install raykernel[distributed]`).
+
+    from raykernel.cluster import Cluster
+    with Cluster("local:2") as cluster:                 # a LocalCluster of 2 worker processes
+        result = cluster.render(scene, accel="bvh", spd=True)
+    with Cluster("tcp://scheduler:8786") as cluster:    # a running scheduler and its workers
+        ...
+
+The command line takes the same addresses: `raykernel render scene.nff --dask local:2`, and
+likewise `animate`, `compare` and `sweep`.
+
+A render's tiles are Dask tasks. The scene is scattered to every worker once; each worker
+builds its structures on its first task and keeps them (a few renders per worker process),
+so its later tasks only trace. Tiles write only their own samples and counter rows, so the
+gathered image bytes and counters equal a single-process render's whatever worker traced
+what. Lazy structures refine between passes from the counts of the whole pass: each pass's
+tasks carry the counts of the passes before it, and a worker that has not seen them (a new
+one) replays the refinements first. The frames of an animation and the cells of a
+comparison are tasks too (animate.py, analysis/compare.py).
+
+A worker that dies loses nothing: the scheduler runs its tasks again elsewhere, and they
+give the same results. A scheduler that cannot be reached within `timeout` seconds is an
+OptionError naming the address.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+from collections import OrderedDict
+
+from .errors import OptionError
+
+__all__ = ["Cluster", "connect"]
+
+TASKS_PER_WORKER = 4       # tasks a pass is cut into per worker: enough to balance, few enough to stay cheap
+JOBS_KEPT = 4              # renders a worker keeps built
+CONNECT_TIMEOUT = 10.0
+
+_jobs: OrderedDict = OrderedDict()      # in each worker process: (scene key, options) -> RenderJob
+_hierarchies: dict = {}                 # in each worker process: scene key -> incremental.Hierarchy
+
+
+def _import_distributed():
+    try:
+        import distributed
+    except ImportError:
+        raise OptionError("--dask needs Dask distributed: pip install 'raykernel[distributed]'") from None
+    return distributed
+
+
+def _options_key(options: dict) -> str:
+    return repr(sorted(options.items()))
+
+
+def _worker_job(scene, scene_key: str, options: dict):
+    from .rendering.render import RenderJob
+    key = (scene_key, _options_key(options))
+    job = _jobs.get(key)
+    if job is None:
+        job = RenderJob(scene, **options)
+        _jobs[key] = job
+        while len(_jobs) > JOBS_KEPT:
+            _jobs.popitem(last=False)
+    _jobs.move_to_end(key)
+    return job
+
+
+def _plan_task(scene, scene_key, options):
+    return _worker_job(scene, scene_key, options).plan()
+
+
+def _tiles_task(scene, scene_key, options, p, lo, hi, history):
+    """Trace tiles lo..hi-1 of pass p on this worker; history: every earlier pass's lazy counts."""
+    job = _worker_job(scene, scene_key, options)
+    for q in range(job.refined, p):
+        job.end_pass(q, history[q])
+    from .engine.parallel import for_ranges
+    first = job.passes[p][2]
+    job.counts[first + lo:first + hi] = 0      # each task returns its own pass's counts, however often it runs
+    for_ranges(lambda a, b: job.trace(p, lo + a, lo + b), hi - lo, job.threads, kernel=job.kernel)
+    return job.tile_block(p, lo, hi)
+
+
+def _final_plan_task(scene, scene_key, options, history):
+    """The build statistics once every pass has refined (lazy structures grow while traced)."""
+    job = _worker_job(scene, scene_key, options)
+    for q in range(job.refined, len(history)):
+        job.end_pass(q, history[q])
+    return job.plan()
+
+
+def _frame_task(scene, scene_key, t, options, incremental, threshold):
+    """One frame of an animation on this worker, its structures kept from its last frame."""
+    from .engine.incremental import Hierarchy
+    from .rendering.animate import render_frame
+    hierarchy = _hierarchies.get(scene_key)
+    if hierarchy is None:
+        hierarchy = _hierarchies[scene_key] = Hierarchy(threshold, incremental=incremental)
+    return render_frame(scene, t, hierarchy, options)
+
+
+def _warm_task(options):
+    from .rendering.render import render
+    from .scene.loading import load
+    render(load("spd:balls:1"), resolution=4, **options)
+    return os.getpid()
+
+
+class Cluster:
+    """A Dask client, and the cluster it started ("local" or "local:N") or joined ("tcp://...")."""
+
+    def __init__(self, address: str = "local", timeout: float = CONNECT_TIMEOUT):
+        distributed = _import_distributed()
+        self.address = address
+        self.local = None
+        text = str(address).strip()
+        if text == "local" or text.startswith("local:"):
+            n = text.partition(":")[2] or str(max(1, (os.cpu_count() or 1)))
+            try:
+                workers = int(n)
+            except ValueError:
+                workers = 0
+            if workers < 1:
+                raise OptionError(f"--dask local:N needs a positive number of workers, got {address!r}")
+            per = max(1, (os.cpu_count() or 1) // workers)
+            # each worker runs one task at a time over its share of the cores (numba's threads)
+            self.local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                                  dashboard_address=None, silence_logs=40,
+                                                  worker_kwargs={"env": {"NUMBA_NUM_THREADS": str(per)}})
+            self.client = distributed.Client(self.local, timeout=timeout)
+        elif "://" in text:
+            try:
+                self.client = distributed.Client(text, timeout=timeout)
+            except (OSError, TimeoutError) as e:
+                raise OptionError(f"cannot reach the Dask scheduler at {text} within {timeout:g} s "
+                                  f"({type(e).__name__}: {e}); is it running?") from None
+        else:
+            raise OptionError(f"--dask takes local, local:N or a scheduler address such as tcp://HOST:8786, "
+                              f"got {address!r}")
+        self._keys = itertools.count()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        self.client.close()
+        if self.local is not None:
+            self.local.close()
+
+    @property
+    def workers(self) -> int:
+        return max(1, len(self.client.scheduler_info()["workers"]))
+
+    def worker_pids(self) -> dict:
+        """Worker address -> process id (for tests that stop one)."""
+        return self.client.run(os.getpid)
+
+    def scatter(self, obj):
+        """(future, key): obj on every worker, and a key that names it in their caches."""
+        future = self.client.scatter(obj, broadcast=True, hash=False)
+        return future, f"{future.key}-{next(self._keys)}-{time.monotonic_ns()}"
+
+    def warm_up(self, options: dict | None = None) -> None:
+        """Compile (or load from the cache) the kernels on every worker before anything is timed."""
+        self.client.run(_warm_task, dict(options or {}))
+
+    def map(self, fn, items, progress=None, pure=False) -> list:
+        """fn(*item) for every item as tasks; the results in the items' order."""
+        distributed = _import_distributed()
+        futures = [self.client.submit(fn, *item, pure=pure) for item in items]
+        done = 0
+        for _ in distributed.as_completed(futures):
+            done += 1
+            if progress is not None:
+                progress(done, len(futures))
+        return self.client.gather(futures)
+
+    def render(self, scene, progress=None, **options):
+        """render(scene, **options) with its tiles traced on the workers; the same image and counters."""
+        from .engine.compiletime import CompileClock
+        from .rendering.render import RenderJob
+        options.pop("builder", None)
+        future, key = self.scatter(scene)
+        plan = self.client.submit(_plan_task, future, key, options, pure=False).result()
+        job = RenderJob(scene, remote=plan, **options)
+        done, total = 0, sum(job.work)
+        t0 = time.perf_counter()
+        history = []
+        lazy = job.lazy_columns is not None
+        chunk = max(1, -(-job.n_tiles // (TASKS_PER_WORKER * self.workers)))
+        # without lazy structures every pass's tasks go at once; with them, one pass after another
+        groups = [[p] for p in range(len(job.passes))] if lazy else [list(range(len(job.passes)))]
+        distributed = _import_distributed()
+        with CompileClock() as clock:
+            for group in groups:
+                items, futures = [], []
+                for p in group:
+                    n = job.pass_tiles(p)
+                    for lo in range(0, n, chunk):
+                        items.append((p, lo, min(n, lo + chunk)))
+                        futures.append(self.client.submit(_tiles_task, future, key, options, p, lo, min(n, lo + chunk),
+                                                          list(history), pure=False))
+                where = {f.key: item for f, item in zip(futures, items)}
+                for f in distributed.as_completed(futures):
+                    p, lo, hi = where[f.key]
+                    job.put_block(p, lo, *f.result())
+                    done += job.work[p] * (hi - lo) // max(1, job.pass_tiles(p))
+                    if progress is not None:
+                        progress(done, total)
+                for p in group:
+                    history.append(job.pass_counts[p])
+        trace = time.perf_counter() - t0
+        build = None
+        if lazy:
+            build = self.client.submit(_final_plan_task, future, key, options, history, pure=False).result()["build"]
+        result = job.result(trace, clock.seconds, threads=self.workers, build=build)
+        result.stats.info["dask"] = {"address": str(self.address), "workers": self.workers}
+        return result
+
+
+def connect(address: str | None):
+    """A Cluster for --dask ADDRESS, or None without one."""
+    return None if address is None else Cluster(address)
