@@ -11,6 +11,7 @@ Errors a user can fix are printed as one line (no traceback) with exit status 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -103,8 +104,10 @@ def cmd_render(args, console) -> int:
                       "on 2 cores; later runs start from the cache.", markup=False, highlight=False)
     progress = _Progress(console, f"rendering {args.scene}", compiling)
     try:
-        result = render(scene, accel=args.accel, resolution=args.resolution, spd=args.spd,
-                        threads=args.threads, progress=progress, max_memory=args.max_memory, **options)
+        with _cluster(args, console) as cluster:
+            run = render if cluster is None else cluster.render
+            result = run(scene, accel=args.accel, resolution=args.resolution, spd=args.spd,
+                         threads=args.threads, progress=progress, max_memory=args.max_memory, **options)
     finally:
         progress.close()
     result.save(out)
@@ -113,6 +116,50 @@ def cmd_render(args, console) -> int:
     w, h = result.image.shape[1], result.image.shape[0]
     console.print(result.stats.table(title=f"{args.scene}: {scene.count_primitives():,} primitives, "
                                            f"{w}x{h}, accel {args.accel}{', SPD' if args.spd else ''} -> {out}"))
+    return 0
+
+
+@contextlib.contextmanager
+def _cluster(args, console):
+    """The Dask cluster of --dask (its workers' kernels compiled or loaded first), else None."""
+    if getattr(args, "dask", None) is None:
+        yield None
+        return
+    from .cluster import Cluster
+    with Cluster(args.dask) as cluster:
+        console.print(f"Dask: {cluster.workers} worker(s) at {cluster.client.scheduler.address}", markup=False,
+                      highlight=False)
+        cluster.warm_up({"threads": args.threads} if getattr(args, "threads", None) else {})
+        yield cluster
+
+
+def cmd_animate(args, console) -> int:
+    from .engine.compiletime import FIRST_RUN_SECONDS, first_run
+    from .geometry.config import tell_once
+    from .rendering.animate import animate
+    from .scene.accel import parse_spec
+    parse_spec(args.accel)
+    options = {k: getattr(args, k) for k in ("max_depth", "shading", "shadows", "tricks") if getattr(args, k) is not None}
+    if first_run() and not args.dask:
+        tell_once("render", None)
+        console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
+                      "on 2 cores; later runs start from the cache.", markup=False, highlight=False)
+    progress = _Progress(console, f"animating {args.scene} (frames)")
+    log = lambda line: console.print(line, markup=False, highlight=False)     # noqa: E731
+    try:
+        with _cluster(args, console) as cluster:
+            result = animate(args.scene, frames=args.frames, time=args.time, fps=args.fps, output=args.output,
+                             incremental=not args.from_scratch, rebuild_threshold=args.rebuild_threshold,
+                             stats_json=args.stats_json, progress=progress, cluster=cluster, log=log,
+                             accel=args.accel, resolution=args.resolution, spd=args.spd, threads=args.threads,
+                             max_memory=args.max_memory, **options)
+    finally:
+        progress.close()
+    t = result.totals
+    rendered = len(result.frames) - result.skipped
+    log(f"{len(result.frames)} frames ({rendered} rendered, {result.skipped} already written) -> {result.output}")
+    log(f"rays {t.get('rays.total', 0):,}  trace {t.get('time.trace', 0):.2f} s  build {t.get('build.seconds', 0):.2f} s"
+        f"  refit nodes {t.get('build.refit_nodes', 0):,}  rebuilt nodes {t.get('build.rebuilt_nodes', 0):,}")
     return 0
 
 
@@ -196,8 +243,10 @@ def _finish_comparison(cmp, args, console, title, plots) -> int:
 
 def cmd_compare(args, console) -> int:
     from .analysis import compare as cm
-    cmp = cm.compare(args.scene, args.accel, spd=args.spd, resolution=args.resolution, threads=args.threads,
-                     model=args.calibration or "default", command=cm.command_from_args("compare", args))
+    with _cluster(args, console) as cluster:
+        cmp = cm.compare(args.scene, args.accel, spd=args.spd, resolution=args.resolution, threads=args.threads,
+                         model=args.calibration or "default", command=cm.command_from_args("compare", args),
+                         cluster=cluster)
     return _finish_comparison(cmp, args, console, "raykernel compare",
                               [("Counts and times per scene", lambda: cm.compare_figure_png(cmp))])
 
@@ -208,9 +257,10 @@ def cmd_sweep(args, console) -> int:
     params = cm.parse_params(args.param)
     if not params:
         raise OptionError("give at least one --param NAME=V1,V2,...")
-    cmp = cm.sweep(args.template, params, args.accel, spd=args.spd, resolution=args.resolution,
-                   threads=args.threads, model=args.calibration or "default",
-                   command=cm.command_from_args("sweep", args))
+    with _cluster(args, console) as cluster:
+        cmp = cm.sweep(args.template, params, args.accel, spd=args.spd, resolution=args.resolution,
+                       threads=args.threads, model=args.calibration or "default",
+                       command=cm.command_from_args("sweep", args), cluster=cluster)
     if args.plot:
         cm.plot_sweep(cmp, args.plot)
     return _finish_comparison(cmp, args, console, f"raykernel sweep {args.template}",
@@ -271,7 +321,35 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--stats-json", help="write every counter to this JSON file")
     r.add_argument("--max-memory", help="memory budget of every build, e.g. 8G or 512M (default: half of this "
                    "machine's memory); a structure that needs more stops with an error")
+    r.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "
+                   "tcp://HOST:PORT joins a running scheduler (pip install 'raykernel[distributed]')")
     r.set_defaults(func=cmd_render)
+
+    an = sub.add_parser("animate", help="render the frames of a moving scene (keyframes, or scene:satellite's time)")
+    an.add_argument("scene", help="a .json scene with an animation, or scene:NAME[:k=v,...] with a time parameter")
+    an.add_argument("-o", "--output", help="a directory of PNG frames (OUT/frame-0000.png, ...), OUT.png (animated "
+                    "PNG) or OUT.mp4 (pip install 'raykernel[video]'); default: the scene's name as a directory")
+    an.add_argument("--frames", type=_positive_int, help="number of frames (default: fps x duration + 1)")
+    an.add_argument("--time", type=float, nargs=2, metavar=("T0", "T1"), help="time range in seconds (default: "
+                    "the animation's)")
+    an.add_argument("--fps", type=float, help="frames per second of the movie (default: the scene's, 24)")
+    an.add_argument("--resolution", type=_positive_int, help="square image size (default: the scene's)")
+    an.add_argument("--accel", default="bvh", help="accelerator spec for groups that name none (default bvh)")
+    an.add_argument("--spd", action="store_true", help="follow the SPD test procedure (corner rays, no cut-off)")
+    an.add_argument("--max-depth", type=_positive_int, help="maximum ray-tree depth (default 5)")
+    an.add_argument("--shading", choices=["whitted", "hall", "heckbert"], help="shading model (default whitted)")
+    an.add_argument("--shadows", choices=["opaque", "filtered"], help="shadows (default opaque)")
+    an.add_argument("--tricks", metavar="LIST", help="Haines's efficiency tricks (see render --help)")
+    an.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
+    an.add_argument("--from-scratch", action="store_true", help="build every frame's structures from scratch "
+                    "(default: refit or rebuild only what moved)")
+    an.add_argument("--rebuild-threshold", type=float, default=1.5, help="rebuild a refit BVH whose SAH cost "
+                    "grew past this factor (default 1.5)")
+    an.add_argument("--stats-json", help="write each frame's counters and their sums to this JSON file")
+    an.add_argument("--max-memory", help="memory budget of every build, e.g. 8G")
+    an.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "
+                   "tcp://HOST:PORT joins a running scheduler (pip install 'raykernel[distributed]')")
+    an.set_defaults(func=cmd_animate)
 
     a = sub.add_parser("accels", help="list the accelerator kinds with their parameters and defaults")
     a.set_defaults(func=cmd_accels)
@@ -322,6 +400,8 @@ def build_parser() -> argparse.ArgumentParser:
         c.add_argument("--report", help="write a self-contained HTML report here")
         c.add_argument("--calibration", help="cost-model calibration JSON (default: this machine's, "
                        "from `raykernel calibrate`, if any)")
+        c.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "
+                   "tcp://HOST:PORT joins a running scheduler (pip install 'raykernel[distributed]')")
 
     cal = sub.add_parser("calibrate", help="fit the cost model (seconds per test, step, bound test) on this machine")
     cal.add_argument("-o", "--output", help="calibration JSON (default: ~/.cache/raykernel/calibration-HOST.json)")

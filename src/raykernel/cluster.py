@@ -74,7 +74,7 @@ def _plan_task(scene, scene_key, options):
 def _tiles_task(scene, scene_key, options, p, lo, hi, history):
     """Trace tiles lo..hi-1 of pass p on this worker; history: every earlier pass's lazy counts."""
     job = _worker_job(scene, scene_key, options)
-    for q in range(job.refined, p):
+    for q in range(job.refined, len(history) if job.lazy is not None else 0):
         job.end_pass(q, history[q])
     from .engine.parallel import for_ranges
     first = job.passes[p][2]
@@ -115,6 +115,7 @@ class Cluster:
         distributed = _import_distributed()
         self.address = address
         self.local = None
+        self.threads_per_worker = None      # joined workers use all their cores
         text = str(address).strip()
         if text == "local" or text.startswith("local:"):
             n = text.partition(":")[2] or str(max(1, (os.cpu_count() or 1)))
@@ -124,11 +125,10 @@ class Cluster:
                 workers = 0
             if workers < 1:
                 raise OptionError(f"--dask local:N needs a positive number of workers, got {address!r}")
-            per = max(1, (os.cpu_count() or 1) // workers)
             # each worker runs one task at a time over its share of the cores (numba's threads)
+            self.threads_per_worker = max(1, (os.cpu_count() or 1) // workers)
             self.local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                                  dashboard_address=None, silence_logs=40,
-                                                  worker_kwargs={"env": {"NUMBA_NUM_THREADS": str(per)}})
+                                                  dashboard_address=None, silence_logs=40)
             self.client = distributed.Client(self.local, timeout=timeout)
         elif "://" in text:
             try:
@@ -160,6 +160,12 @@ class Cluster:
         """Worker address -> process id (for tests that stop one)."""
         return self.client.run(os.getpid)
 
+    def task_options(self, options: dict) -> dict:
+        """Render options for a task: a local worker's share of the cores unless threads are given."""
+        if options.get("threads") is None and self.threads_per_worker is not None:
+            return {**options, "threads": self.threads_per_worker}
+        return options
+
     def scatter(self, obj):
         """(future, key): obj on every worker, and a key that names it in their caches."""
         future = self.client.scatter(obj, broadcast=True, hash=False)
@@ -167,7 +173,7 @@ class Cluster:
 
     def warm_up(self, options: dict | None = None) -> None:
         """Compile (or load from the cache) the kernels on every worker before anything is timed."""
-        self.client.run(_warm_task, dict(options or {}))
+        self.client.run(_warm_task, self.task_options(dict(options or {})))
 
     def map(self, fn, items, progress=None, pure=False) -> list:
         """fn(*item) for every item as tasks; the results in the items' order."""
@@ -185,6 +191,7 @@ class Cluster:
         from .engine.compiletime import CompileClock
         from .rendering.render import RenderJob
         options.pop("builder", None)
+        options = self.task_options(options)
         future, key = self.scatter(scene)
         plan = self.client.submit(_plan_task, future, key, options, pure=False).result()
         job = RenderJob(scene, remote=plan, **options)

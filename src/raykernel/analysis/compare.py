@@ -149,28 +149,45 @@ def _model(model):
     return model
 
 
+def _cell(scene, label, params, accel, options) -> Run:
+    """One scene x structure cell of a comparison (scene: a Scene or a name to load)."""
+    if not hasattr(scene, "root"):
+        scene = _load_scene(scene)
+    result = render(scene, accel=accel, **options)
+    return Run(scene=label, accel=accel, stats=result.stats, image=result.image,
+               primitives=scene.count_primitives(), params=dict(params))
+
+
 def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=5, model="default",
-            log=None, command=None, warm_up=True) -> Comparison:
-    """Render every scene with every structure; scenes are names or (label, Scene) pairs."""
-    from ..scene.loading import load
+            log=None, command=None, warm_up=True, cluster=None) -> Comparison:
+    """Render every scene with every structure; scenes are names or (label, Scene, params) triples.
+    cluster: a cluster.Cluster to run the cells on, one task each (same counts; times are each worker's)."""
     from .costmodel import machine_info
     _check_accels(accels)
     model = _model(model)
-    if warm_up:
-        _warm_up(accels, spd, threads)
-    runs = []
-    for item in scenes:
-        label, scene, params = item if isinstance(item, tuple) else (item, load(item), {})
-        for accel in accels:
-            result = render(scene, accel=accel, resolution=resolution, spd=spd, max_depth=max_depth,
-                            threads=threads)
-            run = Run(scene=label, accel=accel, stats=result.stats, image=result.image,
-                      primitives=scene.count_primitives(), params=dict(params))
-            if model is not None:
-                run.predicted = model.predict(result.stats, accel)
-            runs.append(run)
-            if log:
-                log(f"{label} {accel}: trace {result.stats['time.trace']:.3f} s")
+    options = dict(resolution=resolution, spd=spd, max_depth=max_depth, threads=threads)
+    if cluster is not None:
+        if warm_up:
+            cluster.warm_up({"threads": threads} if threads else {})
+        cells = []
+        for item in scenes:
+            label, scene, params = item if isinstance(item, tuple) else (item, item, {})
+            shipped = cluster.scatter(scene)[0] if hasattr(scene, "root") else scene
+            cells += [(shipped, label, params, accel, cluster.task_options(options)) for accel in accels]
+        runs = cluster.map(_cell, cells)
+    else:
+        if warm_up:
+            _warm_up(accels, spd, threads)
+        runs = []
+        for item in scenes:
+            label, scene, params = item if isinstance(item, tuple) else (item, _load_scene(item), {})
+            for accel in accels:
+                runs.append(_cell(scene, label, params, accel, options))
+                if log:
+                    log(f"{label} {accel}: trace {runs[-1].stats['time.trace']:.3f} s")
+    for run in runs:
+        if model is not None:
+            run.predicted = model.predict(run.stats, run.accel)
     return Comparison(runs=runs, options={"spd": spd, "resolution": resolution, "threads": threads,
                                           "max_depth": max_depth},
                       machine=machine_info(), command=command or command_line(),
@@ -225,10 +242,12 @@ def _load_scene(text: str):
 
 
 def sweep(template, params: dict, accels, spd=False, resolution=None, threads=None, max_depth=5,
-          model="default", log=None, command=None) -> Comparison:
-    items = [(scene, _load_scene(scene), values) for scene, values in expand(template, params)]
+          model="default", log=None, command=None, cluster=None) -> Comparison:
+    # on a cluster the workers load each scene themselves: only its name travels
+    items = [(scene, scene if cluster is not None else _load_scene(scene), values)
+             for scene, values in expand(template, params)]
     cmp = compare(items, accels, spd=spd, resolution=resolution, threads=threads, max_depth=max_depth,
-                  model=model, log=log, command=command)
+                  model=model, log=log, command=command, cluster=cluster)
     cmp.params = dict(params)
     cmp.options["template"] = template
     return cmp

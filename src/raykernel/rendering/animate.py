@@ -181,10 +181,7 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
     times = anim.times(frames, span)
     from .render import _options
     probe = scene if scene is not None else anim.at(None, times[0])
-    _options(probe, **{"accel": "bvh", "resolution": None, "spd": False, "max_depth": 5, "threads": None,
-                       "max_memory": None, "shading": "whitted", "aa": None, "samples": 4, "seed": 0,
-                       "aa_threshold": 0.1, "aa_depth": 2, "cutoff": None, "shadows": "opaque", "eye_light": None,
-                       "eye_light_shadows": "skip", "tricks": "default", **options})    # bad options fail now
+    _options(probe, **options)      # bad options fail now
     identity = _plain({"source": name, "times": times, "options": options})
 
     frames_dir.mkdir(exist_ok=True)
@@ -241,6 +238,7 @@ def _frames_on(cluster, subject, times, pending, options, incremental, threshold
 
     from ..cluster import _frame_task
     future, key = cluster.scatter(subject)
+    options = cluster.task_options(options)
     futures = [cluster.client.submit(_frame_task, future, key, times[i], options, incremental, threshold, pure=False)
                for i in pending]
     index = {f.key: i for f, i in zip(futures, pending)}

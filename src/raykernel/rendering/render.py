@@ -28,6 +28,7 @@ are deepened wherever the image looks before most of its rays are cast.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 
@@ -212,8 +213,9 @@ def _choice(value, name: str, choices) -> str:
     return value
 
 
-def _options(scene: Scene, accel, resolution, spd, max_depth, threads, max_memory, shading, aa, samples, seed,
-             aa_threshold, aa_depth, cutoff, shadows, eye_light, eye_light_shadows, tricks) -> dict:
+def _options(scene: Scene, accel="bvh", resolution=None, spd=False, max_depth=5, threads=None, max_memory=None,
+             shading="whitted", aa=None, samples=4, seed=0, aa_threshold=0.1, aa_depth=2, cutoff=None,
+             shadows="opaque", eye_light=None, eye_light_shadows="skip", tricks="default") -> dict:
     """render()'s arguments checked (OptionError names the bad one), with the defaults resolved."""
     max_depth = _number(max_depth, "max_depth", 1, 32, integer=True)
     if resolution is not None:
@@ -333,6 +335,7 @@ class RenderJob:
                      for step, coarse, first, last in self.passes]
         self.pass_counts = [None] * len(self.passes)
         self.refined = 0        # passes whose counts the lazy structures have refined from
+        self._lock = threading.Lock()
 
     def plan(self) -> dict:
         """What a remote job (RenderJob(..., remote=plan)) needs from this one."""
@@ -355,7 +358,10 @@ class RenderJob:
         o = self.options
         step, coarse, first, last = self.passes[p]
         if self.pass_counts[p] is None:
-            self.pass_counts[p] = np.zeros((last - first, self.lazy_columns or 0), np.int64)
+            with self._lock:        # threads tracing parts of one pass share its counts
+                if self.pass_counts[p] is None:
+                    columns = 0 if self.lazy is None else self.lazy.columns     # (lazy structures change them)
+                    self.pass_counts[p] = np.zeros((last - first, columns), np.int64)
         if self.plain:
             _render_tiles(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
                           self.tile_x, self.tile_y, first + lo, first + hi, first, o["max_depth"], o["cutoff"],
