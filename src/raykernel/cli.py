@@ -150,6 +150,7 @@ def cmd_animate(args, console) -> int:
         with _cluster(args, console) as cluster:
             result = animate(args.scene, frames=args.frames, time=args.time, fps=args.fps, output=args.output,
                              incremental=not args.from_scratch, rebuild_threshold=args.rebuild_threshold,
+                             segment=args.segment,
                              stats_json=args.stats_json, progress=progress, cluster=cluster, log=log,
                              accel=args.accel, resolution=args.resolution, spd=args.spd, threads=args.threads,
                              max_memory=args.max_memory, **options)
@@ -345,6 +346,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "(default: refit or rebuild only what moved)")
     an.add_argument("--rebuild-threshold", type=float, default=1.5, help="rebuild a refit BVH whose SAH cost "
                     "grew past this factor (default 1.5)")
+    an.add_argument("--segment", type=_positive_int, default=8, help="frames built from one from-scratch build, "
+                    "and the unit of work on --dask (default 8)")
     an.add_argument("--stats-json", help="write each frame's counters and their sums to this JSON file")
     an.add_argument("--max-memory", help="memory budget of every build, e.g. 8G")
     an.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "

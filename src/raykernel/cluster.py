@@ -39,7 +39,6 @@ JOBS_KEPT = 4              # renders a worker keeps built
 CONNECT_TIMEOUT = 10.0
 
 _jobs: OrderedDict = OrderedDict()      # in each worker process: (scene key, options) -> RenderJob
-_hierarchies: dict = {}                 # in each worker process: scene key -> incremental.Hierarchy
 
 
 def _import_distributed():
@@ -91,14 +90,10 @@ def _final_plan_task(scene, scene_key, options, history):
     return job.plan()
 
 
-def _frame_task(scene, scene_key, t, options, incremental, threshold):
-    """One frame of an animation on this worker, its structures kept from its last frame."""
-    from .engine.incremental import Hierarchy
-    from .rendering.animate import render_frame
-    hierarchy = _hierarchies.get(scene_key)
-    if hierarchy is None:
-        hierarchy = _hierarchies[scene_key] = Hierarchy(threshold, incremental=incremental)
-    return render_frame(scene, t, hierarchy, options)
+def _segment_task(subject, times, indices, pending, options, incremental, threshold):
+    """A segment of an animation's frames on this worker (animate.render_segment)."""
+    from .rendering.animate import render_segment
+    return list(render_segment(subject, times, indices, pending, options, incremental, threshold))
 
 
 def _warm_task(options):

@@ -34,6 +34,7 @@ from .imageio import save_png
 __all__ = ["animate", "animation_of", "render_frame", "AnimationResult", "RECORD_FILE"]
 
 RECORD_FILE = "frames.json"
+SEGMENT = 8
 MOVIE_SUFFIXES = (".png", ".mp4")
 
 
@@ -63,22 +64,41 @@ def animation_of(source, time=None):
     return scene, scene.animation
 
 
-def render_frame(scene_or_animation, t: float, hierarchy, options: dict):
-    """The frame at time t: (8-bit image, its counters and info). scene_or_animation: a scene
-    with an animation (moved in place) or a generated Animation (which makes the scene)."""
+def _scene_at(subject, t: float):
+    """subject at time t: a scene with an animation (moved in place) or a generated Animation."""
     from ..scene.animation import Animation
+    if isinstance(subject, Animation):
+        return subject.at(None, t)
+    return subject.animation.at(subject, t)
+
+
+def render_frame(subject, t: float, hierarchy, options: dict):
+    """The frame at time t: (8-bit image, its counters and info). subject: a scene with an
+    animation (moved in place) or a generated Animation (which makes the scene)."""
     from .render import render
-    if isinstance(scene_or_animation, Animation):
-        scene = scene_or_animation.at(None, t)
-    else:
-        scene = scene_or_animation.animation.at(scene_or_animation, t)
-    result = render(scene, builder=hierarchy, **options)
+    result = render(_scene_at(subject, t), builder=hierarchy, **options)
     counters = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in result.stats.items()}
     return result.to_uint8(), {"time": t, "counters": counters, "info": _plain(result.stats.info)}
 
 
 def _plain(value):
     return json.loads(json.dumps(value, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v)))
+
+
+def render_segment(subject, times, indices, pending, options: dict, incremental: bool, threshold: float):
+    """Yield (index, image, record) of the pending frames among `indices` (one segment, in
+    order), all from one from-scratch build; a frame before them that was written already is
+    built again but not traced, so the structures are those of an uninterrupted run."""
+    from ..engine.incremental import Hierarchy
+    hierarchy = Hierarchy(threshold, incremental=incremental)
+    todo = [i for i in indices if i in pending]
+    for i in indices:
+        if not todo or i > todo[-1]:
+            return
+        if i in pending:
+            yield (i, *render_frame(subject, times[i], hierarchy, options))
+        elif incremental:
+            hierarchy.flatten(_scene_at(subject, times[i]), options.get("accel", "bvh"), options.get("max_memory"))
 
 
 def _totals(frames: list) -> dict:
@@ -143,19 +163,21 @@ def _write_movie(frames_dir: Path, n: int, output: Path, kind: str, fps: float) 
 
 
 def animate(source, frames: int | None = None, time=None, fps: float | None = None, output=None,
-            incremental: bool = True, rebuild_threshold: float = 1.5, stats_json=None, progress=None,
-            cluster=None, log=None, **options) -> AnimationResult:
+            incremental: bool = True, rebuild_threshold: float = 1.5, segment: int = SEGMENT, stats_json=None,
+            progress=None, cluster=None, log=None, **options) -> AnimationResult:
     """Render the frames of an animated scene (see the module docstring) and write them.
 
     frames: how many (default: fps x the animation's duration, plus one); time: (t0, t1)
     (default: the animation's); fps: frames per second of the movie (default: the scene's, 24).
     output: a directory, OUT.png or OUT.mp4 (default: the scene's name as a directory).
     incremental: build each frame from the last (False: every frame from scratch).
+    segment: frames built from one from-scratch build (the first of each run of `segment`),
+    and the unit of work on a cluster: a frame's counters then do not depend on which process
+    rendered it, nor on where an interrupted run stopped.
     stats_json: write each frame's counters and their sums there.
     progress: callable(done, total) in frames; log: callable(line) for what it skips.
     cluster: a cluster.Cluster to render the frames on, one task per frame.
     options: those of render() (accel, resolution, spd, threads, ...)."""
-    from ..engine.incremental import Hierarchy
     scene, anim = animation_of(source, time)
     span = tuple(float(x) for x in (time if time is not None else anim.time))
     if len(span) != 2 or not span[1] >= span[0]:
@@ -167,6 +189,8 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
         frames = int(round((span[1] - span[0]) * fps)) + 1
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
         raise OptionError(f"frames must be a positive integer, got {frames!r}")
+    if isinstance(segment, bool) or not isinstance(segment, int) or segment < 1:
+        raise OptionError(f"segment must be a positive integer, got {segment!r}")
     name = str(source) if isinstance(source, (str, Path)) else (scene.source or "animation")
     if output is None:
         output = Path(name.split(":")[1] if name.startswith(("scene:", "spd:", "example:")) else Path(name).stem)
@@ -182,7 +206,8 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
     from .render import _options
     probe = scene if scene is not None else anim.at(None, times[0])
     _options(probe, **options)      # bad options fail now
-    identity = _plain({"source": name, "times": times, "options": options})
+    identity = _plain({"source": name, "times": times, "options": options, "incremental": incremental,
+                       "rebuild_threshold": rebuild_threshold, "segment": segment})
 
     frames_dir.mkdir(exist_ok=True)
     records_path = frames_dir / RECORD_FILE
@@ -212,15 +237,17 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
 
     if progress is not None:
         progress(len(records), frames)
+    subject = anim if scene is None else scene
+    segments = [list(range(s, min(frames, s + segment))) for s in range(0, frames, segment)]
+    segments = [seg for seg in segments if any(i not in records for i in seg)]
+    work = (subject, times, pending, options, incremental, rebuild_threshold)
     if cluster is None:
-        hierarchy = Hierarchy(rebuild_threshold, incremental=incremental)
-        subject = anim if scene is None else scene
-        for i in pending:
-            image, record = render_frame(subject, times[i], hierarchy, options)
-            finished(i, image, record)
+        for seg in segments:
+            for i, image, record in render_segment(subject, times, seg, set(pending), options, incremental,
+                                                   rebuild_threshold):
+                finished(i, image, record)
     else:
-        _frames_on(cluster, anim if scene is None else scene, times, pending, options, incremental,
-                   rebuild_threshold, finished)
+        _segments_on(cluster, segments, work, finished)
 
     result.frames = [{"index": i, **records[i], "skipped": i not in pending} for i in range(frames)]
     result.totals = _totals(result.frames)
@@ -232,16 +259,16 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
     return result
 
 
-def _frames_on(cluster, subject, times, pending, options, incremental, threshold, finished) -> None:
-    """The pending frames as tasks on the cluster, written as they arrive."""
+def _segments_on(cluster, segments, work, finished) -> None:
+    """Each segment a task on the cluster; its frames written as it returns."""
     from distributed import as_completed
 
-    from ..cluster import _frame_task
-    future, key = cluster.scatter(subject)
+    from ..cluster import _segment_task
+    subject, times, pending, options, incremental, threshold = work
+    future, _ = cluster.scatter(subject)
     options = cluster.task_options(options)
-    futures = [cluster.client.submit(_frame_task, future, key, times[i], options, incremental, threshold, pure=False)
-               for i in pending]
-    index = {f.key: i for f, i in zip(futures, pending)}
+    futures = [cluster.client.submit(_segment_task, future, times, seg, set(pending), options, incremental, threshold,
+                                     pure=False) for seg in segments]
     for f in as_completed(futures):
-        image, record = f.result()
-        finished(index[f.key], image, record)
+        for i, image, record in f.result():
+            finished(i, image, record)

@@ -1,0 +1,106 @@
+"""Renders on Dask: a 2-worker LocalCluster gives the single process's image bytes and counters,
+also when a worker is killed mid-render; animations and comparisons as tasks; bad addresses."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+pytest.importorskip("distributed")
+
+from raykernel import cluster as cluster_module  # noqa: E402
+from raykernel.analysis.compare import compare  # noqa: E402
+from raykernel.cluster import Cluster  # noqa: E402
+from raykernel.errors import OptionError  # noqa: E402
+from raykernel.rendering.animate import animate  # noqa: E402
+from raykernel.rendering.render import render  # noqa: E402
+from raykernel.scene.loading import load  # noqa: E402
+
+# figures that are the machine's, not the work's
+NOT_WORK = ("time.", "build.seconds", "build.refine_seconds")
+
+
+def assert_same(a, b):
+    assert np.array_equal(a.image, b.image)
+    work = [k for k in a.stats if not k.startswith(NOT_WORK)]
+    assert work and {k: a.stats[k] for k in work} == {k: b.stats[k] for k in work}
+    assert a.stats.aggregates == b.stats.aggregates or len(a.stats.aggregates) == len(b.stats.aggregates)
+
+
+@pytest.fixture(scope="module")
+def two_workers():
+    with Cluster("local:2") as c:
+        c.warm_up()
+        yield c
+
+
+@pytest.mark.parametrize("accel, options", [
+    ("bvh", {"spd": True}),
+    ("grid", {"shading": "hall", "aa": "jitter", "samples": 4, "shadows": "filtered"}),
+    ("lazyoctree", {}),        # refined between passes: every worker replays the refinements
+    ("rc", {}),
+])
+def test_local_cluster_equals_one_process(two_workers, accel, options):
+    scene = load("spd:balls:1")
+    alone = render(scene, accel=accel, resolution=40, **options)
+    spread = two_workers.render(scene, accel=accel, resolution=40, **options)
+    assert_same(alone, spread)
+    assert spread.stats.info["dask"]["workers"] == 2
+
+
+def test_a_worker_killed_mid_render_changes_nothing(two_workers, monkeypatch):
+    monkeypatch.setattr(cluster_module, "TASKS_PER_WORKER", 64)    # many small tasks: most are left at the kill
+    scene = load("spd:gears:1")
+    alone = render(scene, resolution=64)
+    before = two_workers.worker_pids()
+    killed = []
+
+    def kill_one(done, total):
+        if not killed:
+            pid = sorted(before.values())[0]
+            os.kill(pid, signal.SIGKILL)
+            killed.append((pid, done, total))
+    spread = two_workers.render(scene, resolution=64, progress=kill_one)
+    assert killed and killed[0][1] < killed[0][2] / 2, "killed while most of the work was left"
+    assert_same(alone, spread)
+    two_workers.client.wait_for_workers(2, timeout=60)
+    assert killed[0][0] not in two_workers.worker_pids().values()
+
+
+def test_animation_on_the_cluster_equals_one_process(two_workers, tmp_path):
+    kw = dict(frames=7, resolution=16, segment=3)
+    here = animate("scene:satellite:prims=300", output=tmp_path / "here", **kw)
+    there = animate("scene:satellite:prims=300", output=tmp_path / "there", cluster=two_workers, **kw)
+    for i in range(7):
+        name = f"frame-{i:04d}.png"
+        assert (tmp_path / "here" / name).read_bytes() == (tmp_path / "there" / name).read_bytes()
+        a, b = here.frames[i]["counters"], there.frames[i]["counters"]
+        work = [k for k in a if not k.startswith(NOT_WORK)]
+        assert {k: a[k] for k in work} == {k: b[k] for k in work}
+    assert here.frames[1]["counters"]["build.refit_nodes"] > 0      # incremental within a segment
+    assert here.frames[3]["counters"]["build.refit_nodes"] == 0     # a segment starts from scratch
+
+
+def test_compare_on_the_cluster_equals_one_process(two_workers):
+    kw = dict(resolution=16, model=None, warm_up=False)
+    here = compare(["spd:balls:1", "spd:tetra:1"], ["bvh", "grid"], **kw)
+    there = compare(["spd:balls:1", "spd:tetra:1"], ["bvh", "grid"], cluster=two_workers, **kw)
+    assert [(r.scene, r.accel) for r in here.runs] == [(r.scene, r.accel) for r in there.runs]
+    for a, b in zip(here.runs, there.runs):
+        work = [k for k in a.stats if not k.startswith(NOT_WORK)]
+        assert {k: a.stats[k] for k in work} == {k: b.stats[k] for k in work}
+        assert np.array_equal(a.image, b.image)
+
+
+def test_a_scheduler_that_cannot_be_reached_is_a_clear_error():
+    with pytest.raises(OptionError, match=r"cannot reach the Dask scheduler at tcp://127\.0\.0\.1:9"):
+        Cluster("tcp://127.0.0.1:9", timeout=1)
+
+
+@pytest.mark.parametrize("address", ["local:0", "local:two", "somewhere", ""])
+def test_bad_addresses(address):
+    with pytest.raises(OptionError, match="--dask"):
+        Cluster(address)
