@@ -52,10 +52,10 @@ class _Changed(Exception):
 
 
 def _box_of(bounds: np.ndarray) -> np.ndarray:
-    solid = np.all(bounds[:, :3] <= bounds[:, 3:], axis=1) if len(bounds) else np.zeros(0, bool)
-    if not solid.any():
+    """The box around item boxes; an empty item's (+inf..-inf) adds nothing, as in Builder.build."""
+    if not len(bounds):
         return np.array([np.inf] * 3 + [-np.inf] * 3)
-    return np.concatenate([bounds[solid, :3].min(axis=0), bounds[solid, 3:].max(axis=0)])
+    return np.concatenate([bounds[:, :3].min(axis=0), bounds[:, 3:].max(axis=0)])
 
 
 def _area(b: np.ndarray) -> np.ndarray:
@@ -111,7 +111,7 @@ class _ReplayBuilder(Builder):
         super().__init__(default_accel, max_bytes)
         self.state = state
         self.threshold = threshold
-        self.flat.seed({name: arr.copy() for name, arr in state["fields"].items()})
+        self.flat.seed(state["fields"])       # the state's own arrays (no frame's Geometry shares them)
         self.agg_stats = [dict(r.stats) for r in state["records"]]
         self.calls = 0
         self._inside = 0
@@ -257,5 +257,12 @@ class Hierarchy:
 
     def _keep(self, builder, key, full_bytes, records) -> None:
         flat = builder.flat
-        fields = {f.name: flat.field(f) for f in AGGREGATE_FIELDS if f.name not in _FRAME_FIELDS}
+        fields = {}
+        for f in AGGREGATE_FIELDS:
+            if f.name in _FRAME_FIELDS:
+                continue
+            parts = flat.parts[f.name]
+            one = parts[0] if len(parts) == 1 else None     # kept as it is where it already has the layout
+            ok = one is not None and one.dtype == f.dtype and one.shape[1:] == f.shape and one.flags.c_contiguous
+            fields[f.name] = one if ok else flat.field(f)
         self.state = {"key": key, "fields": fields, "records": records, "full_bytes": full_bytes}
