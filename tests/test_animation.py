@@ -385,3 +385,20 @@ def test_cli_bad_dask_address(capsys):
     assert main(["render", "spd:balls:1", "--resolution", "4", "--dask", "somewhere"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--dask takes local, local:N or a scheduler address" in err
+
+
+def test_the_orbit_example_moves():
+    from pathlib import Path
+
+    from raykernel.scene.loading import load
+    scene = load(Path(__file__).resolve().parents[1] / "examples" / "orbit.json")
+    anim = scene.animation
+    assert anim.time == (0.0, 4.0) and anim.fps == 12.0
+    hierarchy = Hierarchy()
+    images = []
+    for t in (0.0, 2.0):
+        anim.at(scene, t)
+        a = render(scene, resolution=24, builder=hierarchy)
+        same_frame(a, render(scene, resolution=24))
+        images.append(a.image)
+    assert not np.array_equal(images[0], images[1])

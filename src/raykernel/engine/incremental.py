@@ -10,8 +10,8 @@ is recorded: its spec, its references and its items' boxes. A later frame walks 
 the same way; each aggregate whose spec and references are unchanged is then
 
 - reused as it is when its items' boxes are the same (a static subspace);
-- refit when they moved and it is a BVH: the same tree, its node boxes recomputed from
-  the leaves up (build.refit_nodes); rebuilt instead when the refit tree's SAH cost has
+- refit when they moved and it is a BVH: the same tree, the boxes of the nodes above the
+  moved items recomputed from the leaves up (build.refit_nodes); rebuilt instead when the refit tree's SAH cost has
   grown past `rebuild_threshold` times the cost it had when it was built;
 - rebuilt otherwise (grids, octrees and the rest depend on where their items lie), its new
   arrays appended and the old ones left unused (build.rebuilt_nodes).
@@ -36,8 +36,8 @@ import numpy as np
 
 from ..aggregates.bruteforce import CODE as LIST
 from ..aggregates.bvh import CODE as BVH
-from ..aggregates.bvh import _refit_kernel
 from ..geometry.boxes import cull_margin
+from ..geometry.config import njit
 from .flatten import AGGREGATE_FIELDS, Builder, flatten
 
 __all__ = ["Hierarchy", "sah_cost"]
@@ -73,14 +73,64 @@ def sah_cost(node_bounds, node_first, node_count, start: int, count: int) -> flo
     return float((np.sum(area[n == 0]) + np.sum(area[n > 0] * n[n > 0])) / root)
 
 
+@njit
+def _refit_moved(bounds, first, count, order, items, moved, margin, cost_sum):
+    """Refit in place the nodes above moved items only (moved: per ref position), boxes widened
+    by margin, children before parents; returns (nodes refit, the SAH sum of areas updated)."""
+    n = bounds.shape[0]
+    dirty = np.zeros(n, np.bool_)
+    touched = 0
+    for node in range(n - 1, -1, -1):
+        f = first[node]
+        c = count[node]
+        leaf = c > 0 or f <= node
+        if leaf:
+            for p in range(f, f + c):
+                if moved[p]:
+                    dirty[node] = True
+                    break
+        else:
+            dirty[node] = dirty[f] or dirty[f + 1]
+        if not dirty[node]:
+            continue
+        touched += 1
+        old = _node_area(bounds, node)
+        if leaf:
+            for k in range(3):
+                bounds[node, k] = np.inf
+                bounds[node, k + 3] = -np.inf
+            for p in range(f, f + c):
+                it = order[p]
+                for k in range(3):
+                    bounds[node, k] = min(bounds[node, k], items[it, k] - margin)
+                    bounds[node, k + 3] = max(bounds[node, k + 3], items[it, k + 3] + margin)
+        else:
+            for k in range(3):
+                bounds[node, k] = min(bounds[f, k], bounds[f + 1, k])
+                bounds[node, k + 3] = max(bounds[f, k + 3], bounds[f + 1, k + 3])
+        weight = c if leaf else 1
+        cost_sum += weight * (_node_area(bounds, node) - old)
+    return touched, cost_sum
+
+
+@njit(borrows=True)
+def _node_area(b, i):
+    dx = max(b[i, 3] - b[i, 0], 0.0)
+    dy = max(b[i, 4] - b[i, 1], 0.0)
+    dz = max(b[i, 5] - b[i, 2], 0.0)
+    return dx * dy + dy * dz + dz * dx
+
+
 class _Record:
     """One top-level aggregate build of a frame: what it was built from."""
 
-    __slots__ = ("spec", "refs", "bounds", "agg", "stats", "cost", "order", "first_ref")
+    __slots__ = ("spec", "refs", "bounds", "agg", "stats", "cost", "cost_sum", "margin", "order", "first_ref")
 
     def __init__(self, spec, refs, bounds, agg, stats):
         self.spec, self.refs, self.bounds, self.agg, self.stats = spec, refs, bounds, agg, stats
         self.cost = None        # a BVH's SAH cost when built
+        self.cost_sum = 0.0     # its SAH sum of areas now (cost x root area)
+        self.margin = 0.0       # the culling margin its node boxes are widened by
         self.order = None       # a BVH's ref positions -> items (found at its first refit)
         self.first_ref = 0
 
@@ -148,32 +198,38 @@ class _ReplayBuilder(Builder):
         self.flat.parts["agg_bounds"][0][agg] = box
 
     def _refit(self, rec: _Record, bounds, box) -> bool:
-        """Refit the BVH of rec to the items' new boxes; False where its SAH cost grew too much."""
+        """Refit the BVH of rec to the items' new boxes, only the nodes above the items that
+        moved; False where its SAH cost grew past the threshold (it is rebuilt then, and the
+        refit nodes are left unused)."""
         flat = self.flat
         nb, nf, nc = (flat.parts[n][0] for n in ("node_bounds", "node_first", "node_count"))
         s = int(flat.parts["agg_start"][0][rec.agg])
         n = int(flat.parts["agg_count"][0][rec.agg])
         first, count = nf[s:s + n], nc[s:s + n]
         inner = count == 0
-        if rec.order is None:
+        if rec.order is None:       # first refit since the build: how the tree placed the items
             rec.first_ref = int(first[~inner].min())
             placed = flat.parts["refs"][0][rec.first_ref:rec.first_ref + len(rec.refs)]
             by_ref = np.argsort(rec.refs, kind="stable")
             rec.order = by_ref[np.searchsorted(rec.refs[by_ref], placed)]
-        if rec.cost is None:
             rec.cost = sah_cost(nb, nf, nc, s, n)
-        local_first = np.where(inner, first - s, first - rec.first_ref)
-        trial = np.empty((n, 6))
-        _refit_kernel(trial, local_first, count, rec.order, np.ascontiguousarray(bounds, np.float64))
+            rec.cost_sum = rec.cost * _area(nb[s:s + 1])[0]
+            rec.margin = cull_margin(self.flat.agg_box(rec.agg))
+        moved = np.any(rec.bounds != bounds, axis=1)[rec.order]
         m = cull_margin(box)
-        trial[:, :3] -= m
-        trial[:, 3:] += m
-        cost = sah_cost(trial, local_first, count, 0, n)
-        if cost > self.threshold * rec.cost:
+        if m > rec.margin:          # a wider box needs a wider margin everywhere: refit every node
+            moved[:] = True
+            rec.margin = m
+        local_first = np.where(inner, first - s, first - rec.first_ref)
+        view = nb[s:s + n]
+        touched, rec.cost_sum = _refit_moved(view, local_first, count, rec.order,
+                                             np.ascontiguousarray(bounds, np.float64), moved, rec.margin,
+                                             rec.cost_sum)
+        root = _area(view[:1])[0]
+        if rec.cost_sum / (root if root > 0 else 1.0) > self.threshold * rec.cost:
             return False
-        nb[s:s + n] = trial
+        self.work["refit_nodes"] += touched
         self._set_box(rec.agg, box)
-        self.work["refit_nodes"] += n
         return True
 
     def _rebuild(self, rec: _Record, spec, refs, bounds, name) -> None:

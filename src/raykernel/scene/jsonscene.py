@@ -26,7 +26,8 @@ The file holds one object; every key is optional:
       "materials": {"gold": {"color": [1, 0.8, 0.3], "kd": 0.5, "ks": 0.5,
                              "shine": 20, "t": 0, "ior": 1}},
       "groups": {"teapot": {"accel": "bvh", "items": [...]}},
-      "scene": {"accel": "bvh", "items": [...]}
+      "scene": {"accel": "bvh", "items": [...]},
+      "animation": {"time": [0, 2], "fps": 24}
     }
 
 camera      "eye" and "look_at" are required; "up" defaults to [0, 0, 1],
@@ -107,6 +108,8 @@ and optionally:
     "transform"  on any item: the item becomes an `Instance` of a group
                  holding it (a primitive: of a one-primitive group; a group,
                  include or named group: of that group).
+    "motion"     on any item: keyframes that move it (Animation below); the
+                 item becomes an `Instance` as with "transform".
 
 File names (mesh, include) are relative to the JSON file's directory.
 
@@ -124,6 +127,27 @@ item's geometry in the order written (the first operation acts first):
                                                     affine, invertible, rows
 
 `transform_matrix(ops)` gives the resulting 4x4 local-to-world matrix.
+
+Animation
+---------
+
+An item's "motion" is a list of keyframes in increasing "time":
+
+    {"time": t, "translate": [x, y, z], "rotate": {"axis": [x, y, z], "degrees": d},
+     "scale": s or [sx, sy, sz]}          ("quaternion": [w, x, y, z] instead of "rotate")
+
+Omitted parts are the identity. Between keys the translation and scale are
+interpolated linearly and the rotation by slerp (the short way: give a key
+at least every 180 degrees); before the first key and after the last the
+item holds still. At time t the item's matrix is motion(t) @ transform:
+its "transform" first, then the key's scale, rotation and translation.
+The camera's "path" is a list of keys {"time": t, "eye", "look_at", "up",
+"angle"}; each field is interpolated over the keys that give it, and one
+no key gives keeps the camera's value. "animation" gives the time range
+("time": [t0, t1], default: from the first key of any motion or path to
+the last) and the frames per second of a written movie ("fps", 24). A
+scene with any of these has `scene.animation` (scene/animation.py); it is
+read at its start time.
 
 Nesting
 -------
@@ -157,7 +181,8 @@ Writing
 floats), materials named m0, m1, ... in the order of `scene.materials`,
 groups placed more than once under "groups" (named after the group where
 that name is free, else g0, g1, ...), and every instance's matrix as
-{"matrix": ...}. A mesh with several materials is written as one mesh item
+{"matrix": ...} (a moving instance: its static matrix, and its "motion" as
+translate, quaternion and scale keys), and the animation and camera path. A mesh with several materials is written as one mesh item
 per material. `write_json` writes the file atomically: a temporary file in
 the same directory, then `os.replace`.
 """
