@@ -402,3 +402,19 @@ def test_the_orbit_example_moves():
         same_frame(a, render(scene, resolution=24))
         images.append(a.image)
     assert not np.array_equal(images[0], images[1])
+
+
+def test_animations_from_several_threads_at_once(tmp_path):
+    """Each call keeps its own structures: two at once give what each gives alone."""
+    from concurrent.futures import ThreadPoolExecutor
+    alone = animate(ball_scene(), frames=3, output=tmp_path / "alone")
+    with ThreadPoolExecutor(2) as pool:
+        runs = list(pool.map(lambda k: animate(ball_scene(), frames=3, output=tmp_path / f"t{k}"), range(2)))
+    for run in runs:
+        for key, value in alone.totals.items():
+            if not key.startswith(("time.", "build.seconds")):
+                assert run.totals[key] == value, key
+    for k in range(2):
+        for i in range(3):
+            name = f"frame-{i:04d}.png"
+            assert (tmp_path / f"t{k}" / name).read_bytes() == (tmp_path / "alone" / name).read_bytes()

@@ -104,3 +104,13 @@ def test_a_scheduler_that_cannot_be_reached_is_a_clear_error():
 def test_bad_addresses(address):
     with pytest.raises(OptionError, match="--dask"):
         Cluster(address)
+
+
+def test_sweep_on_the_cluster_equals_one_process(two_workers):
+    from raykernel.analysis.compare import sweep
+    kw = dict(resolution=12, model=None)
+    here = sweep("spd:balls:{sf}", {"sf": ["1", "2"]}, ["bvh"], **kw)
+    there = sweep("spd:balls:{sf}", {"sf": ["1", "2"]}, ["bvh"], cluster=two_workers, **kw)
+    assert [r.params for r in here.runs] == [r.params for r in there.runs] == [{"sf": "1"}, {"sf": "2"}]
+    for a, b in zip(here.runs, there.runs):
+        assert a.stats["rays.total"] == b.stats["rays.total"] and a.stats["tests.total"] == b.stats["tests.total"]

@@ -126,9 +126,14 @@ def _cluster(args, console):
         yield None
         return
     from .cluster import Cluster
+    from .engine.compiletime import FIRST_RUN_SECONDS, first_run
     with Cluster(args.dask) as cluster:
         console.print(f"Dask: {cluster.workers} worker(s) at {cluster.client.scheduler.address}", markup=False,
                       highlight=False)
+        if first_run():
+            console.print(f"Compiling raykernel's kernels on the workers: first run after install only, about "
+                          f"{FIRST_RUN_SECONDS} s or more; later runs start from the cache.", markup=False,
+                          highlight=False)
         cluster.warm_up({"threads": args.threads} if getattr(args, "threads", None) else {})
         yield cluster
 
