@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
 import time
 from collections import OrderedDict
 
@@ -39,6 +40,7 @@ JOBS_KEPT = 4              # renders a worker keeps built
 CONNECT_TIMEOUT = 10.0
 
 _jobs: OrderedDict = OrderedDict()      # in each worker process: (scene key, options) -> RenderJob
+_jobs_lock = threading.Lock()           # a worker with several threads may run tasks of one job at once
 
 
 def _import_distributed():
@@ -56,14 +58,22 @@ def _options_key(options: dict) -> str:
 def _worker_job(scene, scene_key: str, options: dict):
     from .rendering.render import RenderJob
     key = (scene_key, _options_key(options))
-    job = _jobs.get(key)
-    if job is None:
-        job = RenderJob(scene, **options)
-        _jobs[key] = job
-        while len(_jobs) > JOBS_KEPT:
-            _jobs.popitem(last=False)
-    _jobs.move_to_end(key)
+    with _jobs_lock:
+        job = _jobs.get(key)
+        if job is None:
+            job = RenderJob(scene, **options)
+            _jobs[key] = job
+            while len(_jobs) > JOBS_KEPT:
+                _jobs.popitem(last=False)
+        _jobs.move_to_end(key)
     return job
+
+
+def _replay(job, history) -> None:
+    """Refine job's lazy structures from the passes in history it has not seen."""
+    with _jobs_lock:
+        for q in range(job.refined, len(history) if job.lazy is not None else 0):
+            job.end_pass(q, history[q])
 
 
 def _plan_task(scene, scene_key, options):
@@ -73,8 +83,7 @@ def _plan_task(scene, scene_key, options):
 def _tiles_task(scene, scene_key, options, p, lo, hi, history):
     """Trace tiles lo..hi-1 of pass p on this worker; history: every earlier pass's lazy counts."""
     job = _worker_job(scene, scene_key, options)
-    for q in range(job.refined, len(history) if job.lazy is not None else 0):
-        job.end_pass(q, history[q])
+    _replay(job, history)
     from .engine.parallel import for_ranges
     first = job.passes[p][2]
     job.counts[first + lo:first + hi] = 0      # each task returns its own pass's counts, however often it runs
@@ -85,8 +94,7 @@ def _tiles_task(scene, scene_key, options, p, lo, hi, history):
 def _final_plan_task(scene, scene_key, options, history):
     """The build statistics once every pass has refined (lazy structures grow while traced)."""
     job = _worker_job(scene, scene_key, options)
-    for q in range(job.refined, len(history)):
-        job.end_pass(q, history[q])
+    _replay(job, history)
     return job.plan()
 
 
