@@ -335,7 +335,8 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("scene", help="a .json scene with an animation, or scene:NAME[:k=v,...] with a time parameter")
     an.add_argument("-o", "--output", help="a directory of PNG frames (OUT/frame-0000.png, ...), OUT.png (animated "
                     "PNG) or OUT.mp4 (pip install 'raykernel[video]'); default: the scene's name as a directory")
-    an.add_argument("--frames", type=_positive_int, help="number of frames (default: fps x duration + 1)")
+    an.add_argument("--frames", type=_positive_int, help="number of frames, spread evenly over the time range with both ends "
+                    "(default 24)")
     an.add_argument("--time", type=float, nargs=2, metavar=("T0", "T1"), help="time range in seconds (default: "
                     "the animation's)")
     an.add_argument("--fps", type=float, help="frames per second of the movie (default: the scene's, 24)")

@@ -35,6 +35,7 @@ __all__ = ["animate", "animation_of", "render_frame", "AnimationResult", "RECORD
 
 RECORD_FILE = "frames.json"
 SEGMENT = 8
+DEFAULT_FRAMES = 24
 MOVIE_SUFFIXES = (".png", ".mp4")
 
 
@@ -167,7 +168,7 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
             progress=None, cluster=None, log=None, **options) -> AnimationResult:
     """Render the frames of an animated scene (see the module docstring) and write them.
 
-    frames: how many (default: fps x the animation's duration, plus one); time: (t0, t1)
+    frames: how many, spread evenly over the time range, both ends included (default 24); time: (t0, t1)
     (default: the animation's); fps: frames per second of the movie (default: the scene's, 24).
     output: a directory, OUT.png or OUT.mp4 (default: the scene's name as a directory).
     incremental: build each frame from the last (False: every frame from scratch).
@@ -186,7 +187,7 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
     if not fps > 0.0:
         raise OptionError(f"fps must be > 0, got {fps!r}")
     if frames is None:
-        frames = int(round((span[1] - span[0]) * fps)) + 1
+        frames = DEFAULT_FRAMES
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
         raise OptionError(f"frames must be a positive integer, got {frames!r}")
     if isinstance(segment, bool) or not isinstance(segment, int) or segment < 1:
