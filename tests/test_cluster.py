@@ -39,9 +39,11 @@ def two_workers():
 
 @pytest.mark.parametrize("accel, options", [
     ("bvh", {"spd": True}),
-    ("grid", {"shading": "hall", "aa": "jitter", "samples": 4, "shadows": "filtered"}),
+    # the sampling kernel, compiled anew in each worker of a fresh install: make test-all
+    pytest.param("grid", {"shading": "hall", "aa": "jitter", "samples": 4, "shadows": "filtered"},
+                 marks=pytest.mark.slow),
     ("lazyoctree", {}),        # refined between passes: every worker replays the refinements
-    ("rc", {}),
+    pytest.param("rc", {}, marks=pytest.mark.slow),
 ])
 def test_local_cluster_equals_one_process(two_workers, accel, options):
     scene = load("spd:balls:1")
