@@ -68,7 +68,7 @@ def build_rows(label, subject, times, resolution):
     return (f"| {label} | {prims:,} | {len(times)} | {1e3 * inc_s:.1f} | {1e3 * scr_s:.1f} | {scr_s / inc_s:.1f}x "
             f"| {total('build.refit_nodes', 0):,} | {total('build.rebuilt_nodes', 0):,} "
             f"| {total('build.rebuilt_nodes', 1):,} | {mean('bounds.per_ray', 0):.2f} | {mean('bounds.per_ray', 1):.2f} "
-            f"| {mean('rays.total', 0):,.0f} |")
+            f"| {total('rays.total', 0):,} / {total('rays.total', 1):,} |")
 
 
 def dask_rows(resolution, repeat):
@@ -111,7 +111,8 @@ def main():
     stadium = moving_teapot(args.stadium_prims)
     raykernel.render(raykernel.load("spd:balls:1"), resolution=8, builder=Hierarchy())    # compile first
     head = ("| scene | primitives | frames | build ms/frame, incremental | from scratch | speed-up | refit nodes "
-            "| rebuilt nodes | nodes built from scratch | bounds/ray, incremental | from scratch | rays/frame |")
+            "| rebuilt nodes | nodes built from scratch | bounds/ray, incremental | from scratch "
+            "| rays, incremental / from scratch |")
     lines = [head, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
              build_rows("satellite (time 0-600 s)", sat, sat.times(args.frames), args.resolution),
              build_rows("stadium, moving teapot", stadium, stadium.animation.times(args.frames), args.resolution)]

@@ -73,7 +73,7 @@ from ..geometry.config import cached, compiled, njit, tell_once
 from ..scene.accel import Kind, Param
 from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push
 
-__all__ = ["BVHArrays", "build_bvh", "refit", "is_leaf"]
+__all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf"]
 
 _MAX_BINS = 1024
 
@@ -395,24 +395,53 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost):
 
 
 @njit
-def _refit_kernel(bounds, first, count, order, items):
-    """Recompute every node box from the item boxes, children before parents."""
-    for node in range(bounds.shape[0] - 1, -1, -1):
+def refit_moved(bounds, first, count, order, items, moved, margin):
+    """Recompute in place the boxes of the nodes above the items at `moved` positions of
+    order (all True: every node), widened by margin, children before parents. Returns the
+    nodes recomputed and how much the SAH sum of areas (inner areas plus leaf areas times
+    their items) grew."""
+    n = bounds.shape[0]
+    dirty = np.zeros(n, np.bool_)
+    touched = 0
+    grown = 0.0
+    for node in range(n - 1, -1, -1):
         f = first[node]
         c = count[node]
-        if c > 0 or f <= node:
+        leaf = c > 0 or f <= node
+        if leaf:
+            for p in range(f, f + c):
+                if moved[p]:
+                    dirty[node] = True
+                    break
+        else:
+            dirty[node] = dirty[f] or dirty[f + 1]
+        if not dirty[node]:
+            continue
+        touched += 1
+        old = _node_area(bounds, node)
+        if leaf:
             for k in range(3):
                 bounds[node, k] = np.inf
                 bounds[node, k + 3] = -np.inf
             for p in range(f, f + c):
                 it = order[p]
                 for k in range(3):
-                    bounds[node, k] = min(bounds[node, k], items[it, k])
-                    bounds[node, k + 3] = max(bounds[node, k + 3], items[it, k + 3])
+                    bounds[node, k] = min(bounds[node, k], items[it, k] - margin)
+                    bounds[node, k + 3] = max(bounds[node, k + 3], items[it, k + 3] + margin)
         else:
             for k in range(3):
                 bounds[node, k] = min(bounds[f, k], bounds[f + 1, k])
                 bounds[node, k + 3] = max(bounds[f, k + 3], bounds[f + 1, k + 3])
+        grown += (c if leaf else 1) * (_node_area(bounds, node) - old)
+    return touched, grown
+
+
+@njit(borrows=True)
+def _node_area(b, i):
+    dx = max(b[i, 3] - b[i, 0], 0.0)
+    dy = max(b[i, 4] - b[i, 1], 0.0)
+    dz = max(b[i, 5] - b[i, 2], 0.0)
+    return dx * dy + dy * dz + dz * dx
 
 
 def _as_item_bounds(bounds, what: str = "bounds") -> np.ndarray:
@@ -507,7 +536,7 @@ def refit(bvh: BVHArrays, item_bounds) -> None:
     b = bvh.bounds
     if b.dtype != np.float64 or not b.flags.c_contiguous or not b.flags.writeable:
         raise ValueError("bvh.bounds must be a writeable C-contiguous float64 array")
-    _refit_kernel(b, bvh.first, bvh.count, bvh.order, items)
+    refit_moved(b, bvh.first, bvh.count, bvh.order, items, np.ones(len(bvh.order), np.bool_), 0.0)
 
 
 # ----------------------------------------------------------------- flat layout (see the module docstring) and walk

@@ -36,8 +36,8 @@ import numpy as np
 
 from ..aggregates.bruteforce import CODE as LIST
 from ..aggregates.bvh import CODE as BVH
+from ..aggregates.bvh import refit_moved
 from ..geometry.boxes import cull_margin
-from ..geometry.config import njit
 from .flatten import AGGREGATE_FIELDS, Builder, flatten
 
 __all__ = ["Hierarchy", "sah_cost"]
@@ -71,54 +71,6 @@ def sah_cost(node_bounds, node_first, node_count, start: int, count: int) -> flo
     area = _area(b)
     root = area[0] if area[0] > 0 else 1.0
     return float((np.sum(area[n == 0]) + np.sum(area[n > 0] * n[n > 0])) / root)
-
-
-@njit
-def _refit_moved(bounds, first, count, order, items, moved, margin, cost_sum):
-    """Refit in place the nodes above moved items only (moved: per ref position), boxes widened
-    by margin, children before parents; returns (nodes refit, the SAH sum of areas updated)."""
-    n = bounds.shape[0]
-    dirty = np.zeros(n, np.bool_)
-    touched = 0
-    for node in range(n - 1, -1, -1):
-        f = first[node]
-        c = count[node]
-        leaf = c > 0 or f <= node
-        if leaf:
-            for p in range(f, f + c):
-                if moved[p]:
-                    dirty[node] = True
-                    break
-        else:
-            dirty[node] = dirty[f] or dirty[f + 1]
-        if not dirty[node]:
-            continue
-        touched += 1
-        old = _node_area(bounds, node)
-        if leaf:
-            for k in range(3):
-                bounds[node, k] = np.inf
-                bounds[node, k + 3] = -np.inf
-            for p in range(f, f + c):
-                it = order[p]
-                for k in range(3):
-                    bounds[node, k] = min(bounds[node, k], items[it, k] - margin)
-                    bounds[node, k + 3] = max(bounds[node, k + 3], items[it, k + 3] + margin)
-        else:
-            for k in range(3):
-                bounds[node, k] = min(bounds[f, k], bounds[f + 1, k])
-                bounds[node, k + 3] = max(bounds[f, k + 3], bounds[f + 1, k + 3])
-        weight = c if leaf else 1
-        cost_sum += weight * (_node_area(bounds, node) - old)
-    return touched, cost_sum
-
-
-@njit(borrows=True)
-def _node_area(b, i):
-    dx = max(b[i, 3] - b[i, 0], 0.0)
-    dy = max(b[i, 4] - b[i, 1], 0.0)
-    dz = max(b[i, 5] - b[i, 2], 0.0)
-    return dx * dy + dy * dz + dz * dx
 
 
 class _Record:
@@ -222,9 +174,9 @@ class _ReplayBuilder(Builder):
             rec.margin = m
         local_first = np.where(inner, first - s, first - rec.first_ref)
         view = nb[s:s + n]
-        touched, rec.cost_sum = _refit_moved(view, local_first, count, rec.order,
-                                             np.ascontiguousarray(bounds, np.float64), moved, rec.margin,
-                                             rec.cost_sum)
+        touched, grown = refit_moved(view, local_first, count, rec.order, np.ascontiguousarray(bounds, np.float64),
+                                     moved, rec.margin)
+        rec.cost_sum += grown
         root = _area(view[:1])[0]
         if rec.cost_sum / (root if root > 0 else 1.0) > self.threshold * rec.cost:
             return False

@@ -113,6 +113,8 @@ def _totals(frames: list) -> dict:
         del totals[k]
     totals["tests.per_ray"] = totals.get("tests.total", 0) / per
     totals["bounds.per_ray"] = totals.get("bounds.tests", 0) / per
+    trace = totals.get("time.trace", 0.0)
+    totals["time.rays_per_second"] = totals.get("rays.total", 0) / trace if trace > 0 else 0.0
     return totals
 
 
