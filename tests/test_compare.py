@@ -154,7 +154,9 @@ def test_predictions_positive_and_round_trip(tmp_path):
                                        "test.polygon": 1e-8, "step.grid": 1e-8, "bound.grid": 1e-8}, threads=1)
     p = model.predict(result.stats, "grid(density=3)")
     assert p is not None and p > 0
-    assert model.predict(result.stats, "bvh") is None           # kind not calibrated
+    bvh_stats = raykernel.render(raykernel.load("spd:balls:1"), accel="bvh", resolution=8, threads=1).stats
+    assert model.predict(bvh_stats) is None                     # the bvh walk was not calibrated
+    assert model.predict(bvh_stats, partial=True) > 0
     model.save(tmp_path / "cal.json")
     again = costmodel.CostModel.load(tmp_path / "cal.json")
     assert again.predict(result.stats, "grid") == pytest.approx(model.predict(result.stats, "grid"))
@@ -163,7 +165,9 @@ def test_predictions_positive_and_round_trip(tmp_path):
 def test_calibrate_small(tmp_path):
     model = costmodel.calibrate(kinds=["bvh"], scenes=("spd:balls:1", "spd:tetra:1"), resolutions=(8, 12),
                                 threads=1, repeats=1)
-    assert model.covers("bvh") and not model.covers("grid")
+    scene = raykernel.load("spd:balls:1")
+    assert model.covers(raykernel.render(scene, accel="bvh", resolution=4, threads=1).stats)
+    assert not model.covers(raykernel.render(scene, accel="grid", resolution=4, threads=1).stats)
     assert all(v >= 0 for v in model.costs.values())
     assert len(model.calibration) == 4
     assert all(r["predicted"] > 0 for r in model.calibration)

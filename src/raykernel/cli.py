@@ -285,6 +285,46 @@ def cmd_calibrate(args, console) -> int:
     return 0
 
 
+def cmd_anneal(args, console) -> int:
+    from .analysis import anneal
+    from .errors import OptionError
+    from .rendering.render import _options, render
+    from .scene.jsonscene import write_json
+    from .scene.loading import load
+    if not args.output.lower().endswith(".json"):
+        raise OptionError(f"--output {args.output}: the hierarchy is written as a JSON scene; name a .json file")
+    scene = load(args.scene)
+    options = dict(resolution=args.resolution, spd=args.spd, max_depth=args.max_depth, threads=args.threads)
+    _options(scene, **options)      # bad options fail here, before any search
+
+    def say(line):
+        console.print(line, markup=False, highlight=False, soft_wrap=True)
+
+    found = anneal.anneal(scene, seconds=args.seconds, seed=args.seed, memory=args.memory,
+                          evaluations=args.evaluations, sample=args.sample, options=options, log=say)
+    write_json(found.scene, args.output)
+    single, single_e = found.best_single
+    say("hierarchy before (the best start):")
+    say(found.before)
+    say("hierarchy found:")
+    say(found.after)
+    say(f"predicted trace: {found.energy:.4f} s found, {single_e:.4f} s with {single} (the best single kind), "
+        f"{found.start_energy:.4f} s at the start")
+    say(f"annealing: {found.seconds:.1f} s, {found.evaluations} candidates priced, stopped by {found.stopped}; "
+        f"saves a predicted {max(0.0, single_e - found.energy):.4f} s per render")
+    if args.plot:
+        anneal.plot(found, args.plot)
+        say(f"energy and temperature over the run -> {args.plot}")
+    if args.verify:
+        got = render(found.scene, **options).stats
+        ref = render(scene, accel=single, **options).stats
+        say(f"measured trace: {got['time.trace']:.4f} s found, {ref['time.trace']:.4f} s with {single} "
+            f"({ref['time.trace'] / max(got['time.trace'], 1e-12):.2f}x); rays {got['rays.total']:,} and "
+            f"{ref['rays.total']:,}")
+    say(f"wrote {args.output} (render it with: raykernel render {args.output})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="raykernel", description="Ray tracing with nestable acceleration "
                                      "structures and exact statistics.")
@@ -411,6 +451,25 @@ def build_parser() -> argparse.ArgumentParser:
                        "from `raykernel calibrate`, if any)")
         c.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "
                    "tcp://HOST:PORT joins a running scheduler (pip install 'raykernel[distributed]')")
+
+    an = sub.add_parser("anneal", help="find a hierarchy of structures for a scene by simulated annealing and "
+                        "write it as a JSON scene (what --accel auto does inside a render)")
+    an.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
+    an.add_argument("-o", "--output", required=True, help="the scene with the hierarchy found, as JSON")
+    an.add_argument("--seconds", type=float, default=30.0, help="time budget of the search (default 30)")
+    an.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    an.add_argument("--memory", type=float, default=0.0, help="seconds of predicted time one MiB is worth (default 0)")
+    an.add_argument("--evaluations", type=int, default=0, help="most candidates priced (default 0: no limit)")
+    an.add_argument("--sample", type=_positive_int, default=24, help="candidates are traced at SAMPLE x SAMPLE "
+                    "pixels (default 24)")
+    an.add_argument("--resolution", type=_positive_int, help="the render it tunes for (default: the scene's)")
+    an.add_argument("--spd", action="store_true", help="tune for an SPD render")
+    an.add_argument("--max-depth", type=_positive_int, default=5, help="ray depth of that render (default 5)")
+    an.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
+    an.add_argument("--plot", help="write energy and temperature over the run to this PNG")
+    an.add_argument("--verify", action="store_true", help="render the result and the best single kind and print "
+                    "the measured trace times")
+    an.set_defaults(func=cmd_anneal)
 
     cal = sub.add_parser("calibrate", help="fit the cost model (seconds per test, step, bound test) on this machine")
     cal.add_argument("-o", "--output", help="calibration JSON (default: ~/.cache/raykernel/calibration-HOST.json)")

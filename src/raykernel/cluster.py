@@ -192,12 +192,14 @@ class Cluster:
     def render(self, scene, progress=None, **options):
         """render(scene, **options) with its tiles traced on the workers; the same image and counters."""
         from .engine.compiletime import CompileClock
-        from .rendering.render import RenderJob
+        from .rendering.render import RenderJob, tune
         options.pop("builder", None)
+        scene, options, annealed = tune(scene, options)     # here, once: the workers build what it found
         options = self.task_options(options)
         future, key = self.scatter(scene)
         plan = self.client.submit(_plan_task, future, key, options, pure=False).result()
         job = RenderJob(scene, remote=plan, **options)
+        job.annealed = annealed
         done, total = 0, sum(job.work)
         t0 = time.perf_counter()
         history = []

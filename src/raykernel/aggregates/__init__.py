@@ -14,6 +14,7 @@ with another's (hgrid as grids, hybrid and lazyoctree as octrees).
 docs/adding-a-kind.md is the checklist for a new one.
 """
 
+from ..geometry.counters import WALK_NAMES
 from ..scene.accel import register
 from . import bruteforce, bvh, csg, grid, hgrid, hybrid, lazyoctree, octree, rc
 
@@ -24,3 +25,5 @@ for _kind in [m.KIND for m in (bruteforce, bvh, grid, hgrid, rc, octree, hybrid,
 
 if sorted(w.CODE for w in WALKS) != list(range(len(WALKS))):
     raise ImportError("aggregates: walk CODEs must be 0, 1, ... with none twice")
+if any(WALK_NAMES[w.CODE] != w.__name__.rsplit(".", 1)[1].replace("bruteforce", "list") for w in WALKS):
+    raise ImportError("aggregates: geometry/counters.py's WALK_NAMES must name the walks in CODE order")

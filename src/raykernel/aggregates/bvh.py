@@ -596,6 +596,11 @@ def flatten(builder, params, refs, bounds, name, box):
         tree, stats = build_gs(bounds, order=params["order"], seed=params["seed"])
     else:
         tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"])
+    if params.get("optimize", "none") != "none":
+        from .bvhopt import optimize
+        tree, info = optimize(tree, params["optimize"])
+        stats.update(max_depth=info["max_depth"], sah_before=info["sah_before"], sah_after=info["sah_after"],
+                     optimize_seconds=info["seconds"], optimize_steps=info["steps"])
     if stats.get("max_depth", 0) > MAX_TREE_DEPTH:
         raise SceneError(f"group {name or '(unnamed)'}: BVH depth {stats['max_depth']} exceeds {MAX_TREE_DEPTH}")
     return append_bvh(builder.flat, tree, refs, box, cull_margin(box)), dict(stats)
@@ -610,4 +615,7 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
     Param("order", "file", "gs insertion order: file (as given), shuffle (seeded permutation) or curve "
           "(Morton order of the box centres); ignored by sah", str, choices=("file", "shuffle", "curve")),
     Param("seed", 1, "seed of order=shuffle (gs only)", int, 0, 2 ** 31 - 1),
+    Param("optimize", "none", "after the build, lower the SAH cost keeping the leaves (bvhopt.py): rotations "
+          "(Kensler 2008) or reinsertion (Bittner, Hapala and Havran 2013)", str,
+          choices=("none", "rotations", "reinsertion")),
 ), flatten=flatten)

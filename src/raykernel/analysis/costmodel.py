@@ -1,8 +1,9 @@
 """A linear cost model of trace time: seconds per counted operation, fitted on this machine.
 
-    model = costmodel.calibrate()                   # renders the calibration set, ~1 minute
+    model = costmodel.calibrate()                   # renders the calibration set, a few minutes
     model.save(costmodel.default_path())
-    model.predict(result.stats, "bvh")              # predicted trace seconds
+    model.predict(result.stats)                     # predicted trace seconds
+    costmodel.current()                             # this machine's model, else the reference one
 
 Trace time is modelled as  sum(count * cost)  over these features:
 
@@ -10,24 +11,30 @@ Trace time is modelled as  sum(count * cost)  over these features:
   ray.shaded     eye + reflection + refraction rays (camera, shading, spawning)
   ray.shadow     shadow rays (no shading)
   test.KIND      ray/primitive tests, one cost per primitive kind
-  step.S         traversal steps (cells.visited, N_TS) of structure kind S
-  bound.S        ray/bounding-volume tests of structure kind S
+  entry.W        rays entering an aggregate of walk W (its set-up: a grid's first cell, an
+                 octree's entry point, a ray classification's face and key)
+  step.W         traversal steps (cells.visited, N_TS) of walk W
+  bound.W        ray/bounding-volume tests charged to walk W
+  transform      rays mapped into an instance; csg.crossing and csg.resolve: boolean operators
+  refine.*       lazy structures' refinement between passes (passes, subdivisions, references)
 
-The structure kind S is the kind of the accelerator spec given to the render
-(`grid(density=4)` counts as `grid`); a scene whose groups name their own
-structures charges all their steps to that kind. Costs are wall-clock
-seconds at the thread count of the calibration, so a model only predicts
-renders made with that many threads on that machine.
+W is one of the kernel's walks (geometry/counters.py WALK_NAMES: list, bvh, grid, octree,
+rc, csg); every structure kind runs one of them (hgrid runs grids, hybrid and lazyoctree
+octrees with BVHs inside), and the kernel counts each walk's share apart (walk.W.*), so one
+model prices any nesting of any kinds. Costs are wall-clock seconds at the thread count of
+the calibration, so a model only predicts renders made with that many threads on that
+machine; REFERENCE_PATH holds one fitted on a 2-core machine, used where this machine has
+none (analysis.anneal ranks candidates with it: rankings move less between machines than
+seconds do).
 
-Calibration set (CALIBRATION_SCENES): small SPD scenes and one triangle
-scene, rendered in SPD mode at two resolutions with every structure kind
-(the brute-force list only on scenes of at most LIST_MAX_PRIMS primitives);
-each render is repeated REPEATS times and its shortest trace time kept, since
-other work on the machine only ever adds time.
-The fit is least squares on relative error (each render weighs the same,
-whatever its length), with costs held non-negative and a small ridge term
-so that features that always move together (a grid's one root bound test
-per ray and the ray count) split their cost evenly instead of wildly.
+Calibration set (CALIBRATION_SCENES): small SPD scenes, a triangle scene and nested scenes,
+rendered in SPD mode at two resolutions with every structure kind (the brute-force list
+only on scenes of at most LIST_MAX_PRIMS primitives); each render is repeated REPEATS times
+and its shortest trace time kept, since other work on the machine only ever adds time.
+The fit is least squares on relative error (each render weighs the same, whatever its
+length), with costs held non-negative and a small ridge term so that features that always
+move together (a grid's one root bound test per ray and the ray count) split their cost
+evenly instead of wildly.
 """
 
 from __future__ import annotations
@@ -43,16 +50,20 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import OptionError
+from ..geometry.counters import WALK_NAMES
 
+VERSION = 2                 # calibration files of another version priced other features
+REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
 CALIBRATION_SCENES = (
     "spd:balls:1", "spd:balls:2", "spd:gears:1", "spd:gears:2", "spd:tetra:3", "spd:tetra:4",
     "spd:tree:4", "spd:tree:6", "spd:teapot:2", "spd:teapot:3", "spd:mount:2", "spd:mount:3",
     "spd:rings:1", "spd:rings:2", "spd:shells:2", "spd:lattice:2", "spd:jacks:1",
-    "scene:diamond:facets=300",
+    "scene:diamond:facets=300", "scene:stadium:stadium_prims=800,teapot_prims=400,teapot_bvh=1",
+    "scene:satellite:prims=600",
 )
-CALIBRATION_RESOLUTIONS = (32, 64)
+CALIBRATION_RESOLUTIONS = (64, 128)
 LIST_MAX_PRIMS = 1500
 REPEATS = 3
 RIDGE = 1e-4
@@ -65,9 +76,9 @@ def structure_kind(accel: str) -> str:
     return head or text
 
 
-def features(stats, accel: str) -> dict:
-    """The counted operations of one render, named as the model's features."""
-    kind = structure_kind(accel)
+def features(stats, accel: str | None = None) -> dict:
+    """The counted operations of one render, named as the model's features (`accel` is
+    not needed: the walks' own counters say which structures did the work)."""
     f = {
         "render": 1.0,
         "ray.shaded": float(stats["rays.eye"] + stats["rays.reflect"] + stats["rays.refract"]
@@ -76,9 +87,29 @@ def features(stats, accel: str) -> dict:
     }
     for k in PRIMITIVE_KINDS:
         f[f"test.{k}"] = float(stats.get(f"tests.{k}", 0))
-    f[f"step.{kind}"] = float(stats.get("cells.visited", 0))
-    f[f"bound.{kind}"] = float(stats.get("bounds.tests", 0))
+    for walk in WALK_NAMES:
+        f[f"entry.{walk}"] = float(stats.get(f"walk.{walk}.entries", 0))
+        f[f"step.{walk}"] = float(stats.get(f"walk.{walk}.steps", 0))
+        f[f"bound.{walk}"] = float(stats.get(f"walk.{walk}.bounds", 0))
+    f["transform"] = float(sum(stats.get(f"transforms.{k}", 0) for k in ("identity", "translation", "scale",
+                                                                          "affine")))
+    f["csg.crossing"] = float(stats.get("csg.crossings", 0))
+    f["csg.resolve"] = float(stats.get("csg.resolves", 0))
+    # lazy structures refine between passes of rays, inside the trace time
+    lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
+    if lazy:
+        f["refine.pass"] = float(stats.get("build.refine_passes", 0))
+        f["refine.subdivision"] = float(stats.get("build.subdivisions", 0))
+        f["refine.ref"] = float(sum(a.get("refs", 0) for a in lazy))
     return f
+
+
+UNSCALED = ("render", "refine.pass", "refine.subdivision", "refine.ref")   # not proportional to the rays
+
+
+def walks_used(stats) -> set:
+    """The walks that did work in a render."""
+    return {w for w in WALK_NAMES if stats.get(f"walk.{w}.entries", 0) or stats.get(f"walk.{w}.steps", 0)}
 
 
 def fit(rows: list[dict], times, ridge: float = RIDGE) -> dict:
@@ -120,28 +151,33 @@ class CostModel:
     machine: dict = field(default_factory=dict)
     calibration: list = field(default_factory=list)   # the renders it was fitted on
 
-    def kinds(self) -> set:
-        return {n.split(".", 1)[1] for n in self.costs if n.startswith(("step.", "bound."))}
+    def walks(self) -> set:
+        """The walks calibrated (a list is priced by its tests alone, so it always is)."""
+        return {n.split(".", 1)[1] for n in self.costs if n.startswith(("step.", "bound.", "entry."))} | {"list"}
 
-    def covers(self, accel: str) -> bool:
-        return structure_kind(accel) in self.kinds()
+    def covers(self, stats) -> bool:
+        """Whether every walk that did work in the render of `stats` was calibrated."""
+        return walks_used(stats) <= self.walks()
 
-    def predict(self, stats, accel: str) -> float | None:
-        """Predicted trace seconds, or None when the structure kind was not calibrated."""
-        if not self.covers(accel):
+    def predict(self, stats, accel: str | None = None, scale: float = 1.0, partial: bool = False) -> float | None:
+        """Predicted trace seconds, or None when a walk the render used was not calibrated
+        (partial: price what was, leaving the rest out). scale: multiplies every count but
+        the render's own (a sample of rays standing for `scale` times as many)."""
+        if not partial and not self.covers(stats):
             return None
-        return sum(count * self.costs.get(name, 0.0) for name, count in features(stats, accel).items())
+        return sum(count * (1.0 if name in UNSCALED else scale) * self.costs.get(name, 0.0)
+                   for name, count in features(stats).items())
 
-    def breakdown(self, stats, accel: str) -> dict:
+    def breakdown(self, stats, accel: str | None = None) -> dict:
         """Predicted seconds per feature group (rays, tests, traversal)."""
         out = {"rays": 0.0, "tests": 0.0, "traversal": 0.0}
-        for name, count in features(stats, accel).items():
+        for name, count in features(stats).items():
             group = {"ray": "rays", "render": "rays", "test": "tests"}.get(name.split(".")[0], "traversal")
             out[group] += count * self.costs.get(name, 0.0)
         return out
 
     def to_dict(self) -> dict:
-        return {"costs": self.costs, "threads": self.threads, "machine": self.machine,
+        return {"version": VERSION, "costs": self.costs, "threads": self.threads, "machine": self.machine,
                 "calibration": self.calibration}
 
     def save(self, path) -> None:
@@ -156,6 +192,9 @@ class CostModel:
     def load(cls, path) -> CostModel:
         try:
             data = json.loads(Path(path).read_text())
+            if data.get("version") != VERSION:
+                raise OptionError(f"{path}: a calibration of an older raykernel (its features differ); "
+                                  "run `raykernel calibrate` again")
             return cls(costs={k: float(v) for k, v in data["costs"].items()}, threads=int(data["threads"]),
                        machine=data.get("machine", {}), calibration=data.get("calibration", []))
         except (OSError, ValueError, KeyError, TypeError) as err:
@@ -169,8 +208,14 @@ def default_path() -> Path:
 
 
 def load_default() -> CostModel | None:
+    """This machine's calibration (raykernel calibrate), None where there is none."""
     path = default_path()
     return CostModel.load(path) if path.exists() else None
+
+
+def current() -> CostModel:
+    """This machine's calibration, else the reference costs shipped with raykernel."""
+    return load_default() or CostModel.load(REFERENCE_PATH)
 
 
 def machine_info() -> dict:
@@ -204,7 +249,7 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
     from ..rendering.render import render
     from ..scene.accel import KINDS
     from ..scene.loading import load
-    kinds = list(kinds or KINDS)
+    kinds = list(kinds or (name for name, kind in KINDS.items() if not kind.operands))
     loaded = [(name, load(name)) for name in scenes]
     rows, times, runs = [], [], []
     for kind in kinds:

@@ -262,6 +262,13 @@ def _mesh_refs(arr: FlatArrays, m):
     return make_ref(TRIANGLE, idx), np.hstack([tri.min(axis=1), tri.max(axis=1)])
 
 
+def _concrete(spec):
+    if spec[0] == accel.AUTO.name:
+        raise OptionError("auto is a search for a hierarchy, made by render() before anything is built "
+                          "(analysis/anneal.py); flatten takes the structures it found")
+    return spec
+
+
 class Builder:
     """Walks the scene's groups and builds each into the flat arrays (`flat`). Each kind's
     flatten (see aggregates/__init__.py) gets the builder, to store its arrays, build
@@ -270,7 +277,7 @@ class Builder:
     def __init__(self, default_accel: str, max_bytes: int):
         self.flat = FlatArrays()
         self.max_bytes = max_bytes     # the memory budget every build keeps within (memory.py)
-        self.default = accel.parse_spec(default_accel)
+        self.default = _concrete(accel.parse_spec(default_accel))
         if accel.KINDS[self.default[0]].operands:
             raise OptionError(f"{self.default[0]} is a boolean operator, not a structure for every group: "
                               "give it to a group (a JSON \"difference\", \"intersection\" or \"union\" item)")
@@ -288,7 +295,7 @@ class Builder:
             names = " -> ".join(g.name or "?" for g in self._active_groups) + f" -> {group.name or '?'}"
             raise SceneError(f"group cycle: {names}")
         self._active_groups.append(group)
-        spec = accel.parse_spec(group.accel) if group.accel else self.default
+        spec = _concrete(accel.parse_spec(group.accel)) if group.accel else self.default
         refs, bounds = [], []
         if accel.KINDS[spec[0]].operands:
             depth = self._collect_operands(group, spec[0], refs, bounds)

@@ -148,11 +148,13 @@ def _eager_normal(geo, kind, idx, px, py, pz, hit_f, cnt):
 def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b,
            stack_t, sp, cnt):
     """Test aggregate a's bounds and push its first entry; returns the new stack pointer."""
+    kind = agg_kind[a]
     cnt[C.BOUNDS_TESTS] += 1
+    cnt[C.WALK_BOUNDS + kind] += 1
     te = box_entry(agg_bounds, a, ox, oy, oz, ix, iy, iz, tmin, tmax)
     if te == INF:
         return sp
-    kind = agg_kind[a]
+    cnt[C.WALK_ENTRIES + kind] += 1
     if kind == LIST:
         return push(stack_a, stack_b, stack_t, sp, agg_start[a], agg_start[a] + agg_count[a], te)
     return push(stack_a, stack_b, stack_t, sp, agg_start[a], entry_tag(kind, START), te)
@@ -271,6 +273,7 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
         else:
             # a step of the frame's walk: its kind, then which step
             kind, step = entry_kind(b), entry_step(b)
+            visited, tested = cnt[C.CELLS_VISITED], cnt[C.BOUNDS_TESTS]
             if kind == bvh.CODE:
                 sp, s, e = bvh.step(geo.node_bounds, geo.node_first, geo.node_count, a, ox, oy, oz, ix, iy, iz, lo,
                                     best_t, stack_a, stack_b, stack_t, sp, cnt)
@@ -295,6 +298,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 sink, lo = f, -INF
             else:
                 s = e = 0
+            cnt[C.WALK_STEPS + kind] += cnt[C.CELLS_VISITED] - visited      # the walk's share, for the cost model
+            cnt[C.WALK_BOUNDS + kind] += cnt[C.BOUNDS_TESTS] - tested
         mbox = frame_f[f, F_MBOX_ON] != 0.0
         # the reference loop
         i = s

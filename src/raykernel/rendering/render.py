@@ -279,6 +279,9 @@ class RenderJob:
     (plan() of that job): this one only gathers its tiles (put_block) and gives the result."""
 
     def __init__(self, scene: Scene, builder=None, remote: dict | None = None, **kw):
+        self.annealed = None
+        if remote is None:
+            scene, kw, self.annealed = tune(scene, kw)
         o = self.options = _options(scene, **kw)
         if o["threads"] is not None:
             numba.set_num_threads(min(o["threads"], numba.config.NUMBA_NUM_THREADS))
@@ -433,6 +436,7 @@ class RenderJob:
         stats = Stats.from_counters(
             self.counts.sum(axis=0), build, preprocess=self.preprocess if preprocess is None else preprocess,
             trace=trace, compile=self.build_compile + compile,
+            anneal=self.annealed["seconds"] if self.annealed else 0.0,
             info={"scene": self.scene.source, "accel": o["accel"], "resolution": [width, height],
                   "spd": o["spd"], "max_depth": o["max_depth"], "shading": o["shading"],
                   "aa": None if aa == "none" else aa, "cutoff": o["cutoff"], "shadows": o["shadows"],
@@ -443,8 +447,24 @@ class RenderJob:
                   **({"aa_threshold": o["aa_threshold"], "aa_depth": o["aa_depth"]} if aa == "adaptive" else {}),
                   "eye_rays_per_pixel": int(self.counts[:, C.RAYS_EYE].sum()) / (width * height),
                   "threads": self.threads if threads is None else threads,
-                  "primitives": self.scene.count_primitives()})
+                  "primitives": self.scene.count_primitives(),
+                  **({"anneal": self.annealed["groups"]} if self.annealed else {})})
         return RenderResult(image=image, stats=stats)
+
+
+def tune(scene: Scene, kw: dict):
+    """Resolve `auto` specs (the render's accel or a group's) by annealing (analysis/anneal.py):
+    (the scene with the hierarchies found, the options with a concrete accel, what was
+    found: {"seconds", "groups"}, or None where nothing was auto)."""
+    from ..analysis import anneal
+    accel = kw.get("accel", "bvh")
+    if not anneal.is_auto(accel) and next(anneal._auto_targets(scene.root), None) is None:
+        return scene, kw, None
+    t0 = time.perf_counter()
+    options = {k: v for k, v in kw.items() if k != "accel"}
+    tuned, default, groups = anneal.resolve_auto(scene, accel, options)
+    tuned.source = scene.source
+    return tuned, {**kw, "accel": default}, {"seconds": time.perf_counter() - t0, "groups": groups}
 
 
 def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:

@@ -28,8 +28,9 @@ class Stats(dict):
 
     @classmethod
     def from_counters(cls, totals: np.ndarray, build: dict, preprocess: float, trace: float, info: dict,
-                      compile: float = 0.0):
-        """compile: seconds spent compiling kernels during the trace, already left out of `trace`."""
+                      compile: float = 0.0, anneal: float = 0.0):
+        """compile: seconds spent compiling kernels during the trace, already left out of `trace`;
+        anneal: seconds spent finding the hierarchy of an `auto` spec, before the build."""
         s = cls()
         for column, name in C.NAMES.items():
             s[name] = int(totals[column])
@@ -51,6 +52,7 @@ class Stats(dict):
         s["time.preprocess"] = preprocess
         s["time.trace"] = trace
         s["time.compile"] = compile
+        s["time.anneal"] = anneal
         mapped = sum(s[f"transforms.{k}"] for k in ("identity", "translation", "scale", "affine"))
         s["transforms.multiplies_saved"] = TRANSFORM_MULTIPLIES[AFFINE] * mapped - s["transforms.multiplies"]
         s["time.rays_per_second"] = rays / trace if trace > 0 else 0.0
@@ -106,6 +108,8 @@ class Stats(dict):
         out.append(("time", "preprocess", f"{self['time.preprocess']:.3f} s", ""))
         out.append(("time", "trace", f"{self['time.trace']:.3f} s",
                     f"{self['time.rays_per_second'] / 1e6:.2f} Mrays/s"))
+        if self.get("time.anneal"):
+            out.append(("time", "anneal", f"{self['time.anneal']:.1f} s", "finding the hierarchy (auto)"))
         if self.get("time.compile"):
             out.append(("time", "compile", f"{self['time.compile']:.1f} s", "kernels compiled (first run only)"))
         return out

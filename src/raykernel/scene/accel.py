@@ -77,6 +77,18 @@ class Kind:
 
 KINDS: dict[str, Kind] = {}    # filled by the registry, aggregates/__init__.py (imported by raykernel)
 
+# not a structure but a search for one: render() anneals a hierarchy of the others (analysis/anneal.py)
+AUTO = Kind("auto", "the hierarchy of structures found by simulated annealing (Arvo 1988) for this render's rays: "
+            "groups, kinds and parameters chosen to minimise the cost model's predicted trace time", (
+                Param("seconds", 30.0, "time budget of the search", float, 0.0, 1e7),
+                Param("seed", 0, "random seed: the same seed finds the same hierarchy (within the budget)", int, 0,
+                      2 ** 31 - 1),
+                Param("memory", 0.0, "weight of memory: seconds of predicted time one MiB is worth", float, 0.0, 1e9),
+                Param("evaluations", 0, "most candidates priced, 0: no limit (a limit that is reached first keeps "
+                      "the search deterministic)", int, 0, 10 ** 9),
+                Param("sample", 24, "candidates are traced at sample x sample pixels, scaled up", int, 2, 4096),
+            ))
+
 
 def register(kind: Kind) -> Kind:
     if kind.name in KINDS:
@@ -95,11 +107,11 @@ def parse_spec(spec: str) -> tuple[str, dict]:
     m = _SPEC.match(spec)
     if not m:
         raise OptionError(f"accelerator spec {spec!r} is not of the form kind or kind(key=value, ...); "
-                          f"kinds: {', '.join(KINDS)}")
+                          f"kinds: {', '.join(KINDS)}, auto")
     name, body = m.group(1).lower(), m.group(2)
-    if name not in KINDS:
-        raise OptionError(f"unknown accelerator {name!r} in spec {spec!r}; kinds: {', '.join(KINDS)}")
-    kind = KINDS[name]
+    if name not in KINDS and name != AUTO.name:
+        raise OptionError(f"unknown accelerator {name!r} in spec {spec!r}; kinds: {', '.join(KINDS)}, auto")
+    kind = AUTO if name == AUTO.name else KINDS[name]
     params = kind.defaults()
     allowed = {p.name: p for p in kind.params}
     given = set()
@@ -121,7 +133,7 @@ def parse_spec(spec: str) -> tuple[str, dict]:
 
 def format_spec(name: str, params: dict) -> str:
     """The canonical spec string: only parameters that differ from the defaults."""
-    kind = KINDS[name]
+    kind = AUTO if name == AUTO.name else KINDS[name]
     changed = [f"{p.name}={_fmt(params[p.name])}" for p in kind.params if params.get(p.name, p.default) != p.default]
     return f"{name}({', '.join(changed)})" if changed else name
 
@@ -135,7 +147,7 @@ def _fmt(value) -> str:
 def describe() -> str:
     """A plain-text list of every kind with its parameters and defaults."""
     lines = []
-    for kind in KINDS.values():
+    for kind in [*KINDS.values(), AUTO]:
         lines.append(f"{kind.name}: {kind.help}")
         for p in kind.params:
             lines.append(f"    {p.name}={_fmt(p.default)}  ({p._what()}) {p.help}")

@@ -45,6 +45,8 @@ teapot-room  A furnished room (walls, floor boards, a table, chairs, a
              bookcase of books, a lamp) with a teapot on the table, so small
              against the room that the first levels of an octree do not
              separate its facets.
+park         Arvo's amusement park (scene/park.py): rides, trees and a fractal
+             mountain, with his hand-made hierarchy of subspaces on its groups.
 diamond      Glassner's case of many facets sharing one vertex: a cut gem
              whose pavilion is a fan of `facets` triangles around the culet,
              with a crown of as many facets and a table.
@@ -60,6 +62,7 @@ import numpy as np
 
 from ..errors import OptionError
 from .model import Camera, Group, Material, Scene, TriangleMesh
+from .park import park
 
 __all__ = ["NAMES", "PARAMS", "TIME_SPANS", "load", "describe", "stadium", "satellite", "sun", "teapot_room", "diamond",
            "FEET_PER_MILE", "EARTH_RADIUS_MILES", "SUN_RADIUS_MILES", "SUN_DISTANCE_MILES", "STADIUM_LENGTH"]
@@ -108,6 +111,15 @@ _SPECS: dict[str, dict[str, _Param]] = {
     },
     "diamond": {
         "facets": _Param(1000, 3, 1_000_000, True, "triangles sharing the culet (and crown facets)"),
+    },
+    "park": {
+        "rides": _Param(6, 1, 64, True, "triple-decker merry-go-rounds"),
+        "horses": _Param(24, 1, 256, True, "horses with riders on each deck of a ride"),
+        "trees": _Param(500, 0, 1_000_000, True, "trees (one group, instanced)"),
+        "mountain_level": _Param(6, 0, 9, True, "the fractal mountain has 2 x 4^level triangles"),
+        "ride_grid": _Param(16, 1, 256, True, "cells along the longest side of each ride's grid"),
+        "top": _Param(0, 0, 1, True, "the structure over the park: 0 a coarse grid, 1 ray classification"),
+        "seed": _Param(1, 0, 2 ** 31 - 1, True, "random seed of the mountain and the trees' places"),
     },
 }
 
@@ -906,4 +918,4 @@ def diamond(facets: int = 1000) -> Scene:
 
 
 _SCENES = {"stadium": stadium, "satellite": satellite, "sun": sun, "teapot-room": teapot_room,
-           "diamond": diamond}
+           "diamond": diamond, "park": park}
