@@ -15,11 +15,13 @@ rotations    Kensler 2008, "Tree rotations for improving bounding volume hierarc
              shrinks the changed node's area the most applied; until a pass changes
              nothing or MAX_PASSES.
 reinsertion  Bittner, Hapala and Havran 2013, "Fast insertion-based optimization of bounding
-             volume hierarchies": a batch of the nodes of largest area is taken out one by
-             one (the sibling takes its parent's place) and put back where the induced cost
-             (the area the ancestors grow by plus the new parent's) is least, found by
-             branch and bound from the root; batches go on while the cost falls by more
-             than 0.1 % within PATIENCE batches, and the cheapest tree seen is kept.
+             volume hierarchies": a batch of the inner nodes of largest inefficiency (area
+             times area over the children's summed and smallest areas) is taken out one by
+             one with its parent (the sibling takes the parent's place), and its two
+             subtrees are put back apart, each where the induced cost (the area the
+             ancestors grow by plus the new parent's) is least, found by branch and bound
+             from the root; a node is not taken out in two batches in a row; batches go on while the cost falls by more than 0.1 %
+             within PATIENCE batches, and the cheapest tree seen is kept.
 """
 
 from __future__ import annotations
@@ -220,6 +222,27 @@ def _best_place(b, left, right, parent, root, node):
 
 
 @njit
+def _insert(b, left, right, parent, root, c, free):
+    """Put subtree c back where its induced cost is least, under the free inner node `free`;
+    returns the root."""
+    x = _best_place(b, left, right, parent, root, c)
+    q = parent[x]
+    if q >= 0:
+        if left[q] == x:
+            left[q] = free
+        else:
+            right[q] = free
+    else:
+        root = free
+    parent[free] = q
+    left[free], right[free] = x, c
+    parent[x] = free
+    parent[c] = free
+    _refit_up(b, left, right, parent, free)
+    return root
+
+
+@njit
 def _reinsert(b, left, right, parent, items, root, batch, max_batches, patience):
     """Bittner's insertion-based optimisation; returns (root, batches run) with the best tree
     seen in left/right/parent/b."""
@@ -228,44 +251,39 @@ def _reinsert(b, left, right, parent, items, root, batch, max_batches, patience)
     best = (b.copy(), left.copy(), right.copy(), parent.copy(), root)
     stale = 0
     runs = 0
+    last = np.zeros(n_nodes, np.bool_)      # taken out in the batch before: not again at once
     for _ in range(max_batches):
         runs += 1
-        # the nodes of largest area whose parent is not the root (and not the root itself)
-        areas = np.full(n_nodes, -1.0)
+        # Bittner's inefficiency of an inner node: its area times how much larger it is than its
+        # children (M_area * M_sum * M_min), over the nodes whose parent is not the root
+        score = np.full(n_nodes, -1.0)
         for n in range(n_nodes):
-            if n != root and parent[n] >= 0 and parent[n] != root:
-                areas[n] = _area(b, n)
-        picks = np.argsort(-areas)[:batch]
+            if n != root and parent[n] >= 0 and parent[n] != root and left[n] >= 0 and not last[n]:
+                a = _area(b, n)
+                al, ar = _area(b, left[n]), _area(b, right[n])
+                score[n] = a * a / max(al + ar, 1e-300) * a / max(min(al, ar), 1e-300)
+        picks = np.argsort(-score)[:batch]
+        last[:] = False
         for n in picks:
-            if areas[n] < 0:
+            if score[n] < 0:
                 continue
+            last[n] = True
             p = parent[n]
-            if p < 0 or p == root or parent[p] < 0:
+            if p < 0 or p == root or parent[p] < 0 or left[n] < 0:
                 continue
             g = parent[p]
             s = right[p] if left[p] == n else left[p]
-            # take n out: its sibling takes the parent's place, p is free
+            # take n and its parent out: the sibling takes the parent's place; n's two subtrees
+            # are put back one by one, the larger first, with p and n as their new parents
             if left[g] == p:
                 left[g] = s
             else:
                 right[g] = s
             parent[s] = g
             _refit_up(b, left, right, parent, g)
-            x = _best_place(b, left, right, parent, root, n)
-            # put it back as x's sibling under p
-            q = parent[x]
-            if q >= 0:
-                if left[q] == x:
-                    left[q] = p
-                else:
-                    right[q] = p
-            else:
-                root = p
-            parent[p] = q
-            left[p], right[p] = x, n
-            parent[x] = p
-            parent[n] = p
-            _refit_up(b, left, right, parent, p)
+            kids = (left[n], right[n]) if _area(b, left[n]) >= _area(b, right[n]) else (right[n], left[n])
+            for c, free in ((kids[0], p), (kids[1], n)):
+                root = _insert(b, left, right, parent, root, c, free)
         cost = _cost(b, left, right, items, root)
         if cost < best_cost * (1.0 - 1e-3):
             best_cost = cost

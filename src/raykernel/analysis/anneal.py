@@ -56,7 +56,8 @@ from ..scene.model import Cones, Group, Instance, Polygons, Scene, Spheres, Tria
 # a search has time for, so rc is left out too
 START_SPECS = ("bvh", "grid", "hgrid", "octree", "hybrid")
 CANDIDATES = (
-    "bvh", "bvh(leaf=1)", "bvh(leaf=8)", "bvh(build=gs)",
+    "bvh", "bvh(leaf=1)", "bvh(leaf=2)", "bvh(leaf=8)", "bvh(bins=32)", "bvh(optimize=reinsertion)",
+    "bvh(build=gs, optimize=reinsertion)",
     "grid", "grid(density=0.5)", "grid(density=8)", "grid(res=woo, density=16)",
     "hgrid", "octree", "octree(depth=8)", "octree(leaf=8)", "hybrid", "list",
 )
@@ -498,14 +499,18 @@ class Energy:
         o = _options(self.scene, **{k: v for k, v in self.options.items() if k != "accel"})
         w = o["resolution"] or self.scene.camera.width
         h = o["resolution"] or self.scene.camera.height
-        s = min(self.sample, w, h)
-        self.sample = s
-        extra = 1 if o["spd"] else 0
-        self.scale = (w + extra) * (h + extra) / float((s + extra) * (s + extra)) if o["resolution"] else \
-            (w + extra) * (h + extra) / float((s + extra) * (s + extra))
+        # the sample keeps the render's aspect (and so its view), its longer side `sample` pixels
+        sw = max(1, min(w, round(self.sample * w / max(w, h))))
+        sh = max(1, min(h, round(self.sample * h / max(w, h))))
+        self.camera = dataclasses.replace(self.scene.camera, width=sw, height=sh)
+        extra = 1 if o["spd"] else 0         # SPD mode traces the pixels' corners
+        self.scale = (w + extra) * (h + extra) / float((sw + extra) * (sh + extra))
 
     def candidate(self, state: Node) -> Scene:
-        return _with_group(self.scene, self.target, _node_group(state, self.atoms, self.target.name or "auto"))
+        """The scene with the state's hierarchy, seen by the sample's camera."""
+        scene = _with_group(self.scene, self.target, _node_group(state, self.atoms, self.target.name or "auto"))
+        scene.camera = self.camera
+        return scene
 
     def __call__(self, state: Node) -> float:
         key = state.key()
@@ -518,7 +523,7 @@ class Energy:
         from ..rendering.render import render
         self.evaluations += 1
         options = {k: v for k, v in self.options.items() if k not in ("accel", "resolution", "progress", "builder")}
-        stats = render(self.candidate(state), accel=self.default, resolution=self.sample, **options).stats
+        stats = render(self.candidate(state), accel=self.default, **options).stats
         predicted = self.model.predict(stats, scale=self.scale, partial=True)
         memory = stats.get("build.bytes", 0)
         return predicted + self.memory * memory / 2 ** 20, predicted, memory, stats

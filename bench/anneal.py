@@ -1,0 +1,237 @@
+"""Annealed hierarchies against the anchors: every single kind at its defaults, the SAH BVH
+and its two optimisers, the best hand-nested specs, and `auto`; the cost model's error on
+every run; re-annealing between the frames of an animation.
+
+    .venv/bin/python bench/anneal.py [--resolution 256] [--seconds 30] [--scenes spd:balls,scene:park]
+                                     [--frames 6] [--repeat 2]
+
+Scenes: the 13 SPD default scenes, the 5 pathological scenes and scene:park, each rendered
+in SPD mode at --resolution with every structure (best trace time of --repeat renders, the
+first one after a warm-up). `auto` is annealed for that render (auto(seconds=...), seed 0);
+its annealing seconds are reported apart, never inside the trace time. Every structure of
+a scene must give the same ray counts (a difference aborts the run). The brute-force list
+is left out: on these scenes it takes hours. Predicted: the cost model's trace seconds
+from each render's own counts (costmodel.current(): this machine's calibration, else the
+reference costs shipped with raykernel), against the measured trace seconds.
+
+Hand-nested: the stadium's teapot in a BVH of its own (teapot_bvh=1) under a grid and
+under an octree (Haines's fix), the better kept; the park's own hierarchy (Arvo's: a coarse
+grid over the park, a grid per ride, BVHs around a horse and its rider and around a tree);
+ray classification at the park's top (top=1), his later variant.
+
+Frames: the satellite over --frames frames of its orbit, annealed from scratch for each
+frame against re-annealed from the previous frame's hierarchy (short schedule, a quarter of
+the candidates), the cost per frame and the energy reached.
+Writes the `anneal` section of BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+from _report import machine, replace_section
+
+import raykernel
+from raykernel.analysis import anneal, costmodel
+from raykernel.scene import pathological, spd
+
+KINDS = ("bvh", "grid", "hgrid", "octree", "hybrid", "rc", "lazyoctree")
+OPTIMISED = ("bvh(optimize=rotations)", "bvh(optimize=reinsertion)")
+RAYS = ("rays.eye", "rays.reflect", "rays.refract", "rays.shadow")
+
+
+def scenes(names):
+    everything = [f"spd:{n}" for n in spd.NAMES] + [f"scene:{n}" for n in pathological.NAMES]
+    for name in names or everything:
+        yield name
+
+
+def hand_variants(name):
+    """(label, scene, accel) of the best hand-nested specs a scene has."""
+    if name.startswith("scene:stadium"):
+        nested = raykernel.load(name + (",teapot_bvh=1" if ":" in name[6:] else ":teapot_bvh=1"))
+        return [("hand: grid + teapot bvh", nested, "grid"), ("hand: octree + teapot bvh", nested, "octree")]
+    if name.startswith("scene:park"):
+        return [("hand: Arvo's (grid top)", raykernel.load(name), None),
+                ("hand: Arvo's (rc top)", raykernel.load(name + ":top=1" if ":" not in name[6:] else name + ",top=1"),
+                 None)]
+    return []
+
+
+def run(scene, accel, options, repeat):
+    best = None
+    for _ in range(repeat):
+        r = raykernel.render(scene, **options) if accel is None else raykernel.render(scene, accel=accel, **options)
+        if best is None or r.stats["time.trace"] < best.stats["time.trace"]:
+            best = r
+    return best.stats
+
+
+def scene_rows(name, args, model, errors):
+    scene = raykernel.load(name)
+    options = dict(resolution=args.resolution, spd=True)
+    raykernel.render(scene, resolution=8, spd=True)          # warm up (kernels, caches)
+    rows = []
+    for accel in KINDS + OPTIMISED:
+        rows.append((accel, run(scene, accel, options, args.repeat), None))
+    for label, hand_scene, accel in hand_variants(name):
+        rows.append((label, run(hand_scene, accel, options, args.repeat), None))
+    t0 = time.perf_counter()
+    found = anneal.anneal(scene, seconds=args.seconds, seed=0, options=options)
+    seconds = time.perf_counter() - t0
+    rows.append(("auto", run(found.scene, None, options, args.repeat), found))
+    ref = rows[0][1]
+    for label, stats, _ in rows:
+        if any(stats[k] != ref[k] for k in RAYS):
+            sys.exit(f"{name}: {label} casts other rays than bvh: "
+                     f"{[stats[k] for k in RAYS]} against {[ref[k] for k in RAYS]}")
+    out = []
+    singles = {label: s["time.trace"] for label, s, _ in rows if label in KINDS}
+    best_single = min(singles, key=singles.get)
+    for label, stats, f in rows:
+        predicted = model.predict(stats)
+        measured = stats["time.trace"]
+        if predicted is not None and label in KINDS:
+            errors.append((name, label, predicted / measured - 1.0))
+        out.append({"scene": name, "structure": label, "predicted": predicted, "measured": measured,
+                    "tests_per_ray": stats["tests.per_ray"], "bounds_per_ray": stats["bounds.per_ray"],
+                    "mb": stats.get("build.bytes", 0) / 2 ** 20, "rays": stats["rays.total"],
+                    "anneal": seconds if f is not None else None, "vs_best": singles[best_single] / measured,
+                    "found": f})
+    print(f"{name}: best single {best_single} {singles[best_single]:.4f} s; auto {out[-1]['measured']:.4f} s "
+          f"({out[-1]['vs_best']:.2f}x), annealed {seconds:.1f} s", flush=True)
+    return out, best_single
+
+
+def fmt(x, spec):
+    return "-" if x is None else format(x, spec)
+
+
+def frame_rows(frames, resolution, evaluations):
+    """Satellite frames: anneal from scratch each frame against re-annealing from the last."""
+    options = dict(resolution=resolution, spd=True)
+    lines = []
+    previous = None
+    times = np.linspace(0.0, 600.0, frames)
+    for k, t in enumerate(times):
+        scene = raykernel.load(f"scene:satellite:time={t:g}")
+        t0 = time.perf_counter()
+        scratch = anneal.anneal(scene, seed=0, evaluations=evaluations, seconds=1e6, options=options)
+        s_sec = time.perf_counter() - t0
+        if previous is None:
+            again, a_sec = scratch, s_sec
+        else:
+            start, atoms = anneal.rebind(previous.state, previous.atoms, scene)
+            t0 = time.perf_counter()
+            again = anneal.anneal(scene, seed=0, evaluations=max(8, evaluations // 4), seconds=1e6, start=start,
+                                  atoms=atoms, short=True, options=options)
+            a_sec = time.perf_counter() - t0
+        previous = again
+        lines.append(f"| {k} | {t:g} | {scratch.evaluations} | {s_sec:.1f} | {scratch.energy * 1e3:.2f} "
+                     f"| {again.evaluations} | {a_sec:.1f} | {again.energy * 1e3:.2f} |")
+    return lines
+
+
+def main():
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--resolution", type=int, default=256)
+    parser.add_argument("--seconds", type=float, default=30.0)
+    parser.add_argument("--scenes", help="comma-separated scene names (default: the 19)")
+    parser.add_argument("--frames", type=int, default=6)
+    parser.add_argument("--frame-evaluations", type=int, default=200)
+    parser.add_argument("--repeat", type=int, default=2)
+    args = parser.parse_args()
+    model = costmodel.current()
+    names = args.scenes.split(",") if args.scenes else None
+    table, errors, verdicts = [], [], []
+    stadium = {}
+    for name in scenes(names):
+        rows, best_single = scene_rows(name, args, model, errors)
+        table += rows
+        auto = rows[-1]
+        hand = [r for r in rows if r["structure"].startswith("hand")]
+        verdicts.append((name, best_single, auto["vs_best"],
+                         min((r["measured"] for r in hand), default=None), auto["measured"]))
+        if name.startswith("scene:stadium"):
+            stadium[name] = (min(hand, key=lambda r: r["tests_per_ray"] + r["bounds_per_ray"]), auto)
+    if names is None:       # the stadium at ratio 600 is its default; and at 10^6
+        rows, _ = scene_rows("scene:stadium:ratio=1e6", args, model, errors)
+        hand = [r for r in rows if r["structure"].startswith("hand")]
+        stadium["scene:stadium:ratio=1e6"] = (min(hand, key=lambda r: r["tests_per_ray"] + r["bounds_per_ray"]),
+                                              rows[-1])
+    lines = ["| scene | structure | predicted s | measured s | model error | tests/ray | bounds/ray | MB "
+             "| anneal s | best single / this |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in table:
+        err = None if r["predicted"] is None else r["predicted"] / r["measured"] - 1.0
+        lines.append(f"| {r['scene']} | {r['structure']} | {fmt(r['predicted'], '.4f')} | {r['measured']:.4f} "
+                     f"| {fmt(None if err is None else 100 * err, '+.0f')}% | {r['tests_per_ray']:.2f} "
+                     f"| {r['bounds_per_ray']:.2f} | {r['mb']:.1f} | {fmt(r['anneal'], '.1f')} "
+                     f"| {r['vs_best']:.2f}x |")
+    found_trees = [f"**{r['scene']}**, auto found (predicted {r['found'].energy:.4f} s against "
+                   f"{r['found'].best_single[1]:.4f} s for {r['found'].best_single[0]}):\n\n```\n{r['found'].after}\n```"
+                   for r in table if r["found"] is not None and r["scene"].startswith("scene:")]
+    errs = np.array([e for _, _, e in errors])
+    by_kind = {}
+    for _, kind, e in errors:
+        by_kind.setdefault(kind, []).append(e)
+    model_lines = ["| kind | runs | mean abs error | worst |", "|---|---:|---:|---:|"]
+    for kind, es in by_kind.items():
+        es = np.array(es)
+        model_lines.append(f"| {kind} | {len(es)} | {100 * np.abs(es).mean():.0f}% "
+                           f"| {100 * es[np.argmax(np.abs(es))]:+.0f}% |")
+    verdict_lines = ["| scene | best single kind | best single / auto | best hand / auto |", "|---|---|---:|---:|"]
+    for name, single, ratio, hand, auto in verdicts:
+        verdict_lines.append(f"| {name} | {single} | {ratio:.2f}x | {fmt(None if hand is None else hand / auto, '.2f')}"
+                             f"{'' if hand is None else 'x'} |")
+    stadium_lines = ["| scene | hand-nested (fewest tests + bounds per ray) | tests + bounds per ray | auto "
+                     "| auto / hand |", "|---|---|---:|---:|---:|"]
+    for name, (hand, auto) in stadium.items():
+        h = hand["tests_per_ray"] + hand["bounds_per_ray"]
+        a = auto["tests_per_ray"] + auto["bounds_per_ray"]
+        stadium_lines.append(f"| {name} | {hand['structure']} | {h:.2f} | {a:.2f} | {a / h:.2f}x |")
+    frames = frame_rows(args.frames, max(64, args.resolution // 4), args.frame_evaluations) if args.frames else []
+    text = "\n".join([
+        "## Annealed hierarchies (`auto`) against the anchors",
+        "",
+        f"Command: `.venv/bin/python bench/anneal.py --resolution {args.resolution} --seconds {args.seconds:g} "
+        f"--frames {args.frames} --repeat {args.repeat}`. Machine: {machine()}. "
+        f"Cost model: {'this machine' if costmodel.load_default() else 'the reference costs'} "
+        f"({len(model.calibration)} calibration renders).",
+        "",
+        f"SPD mode, {args.resolution}x{args.resolution}, every structure of a scene casts the same rays "
+        "(checked). Trace seconds: the best of the repeats; anneal seconds apart (seed 0).",
+        "",
+        "Verdicts (measured trace time):",
+        "",
+        *verdict_lines,
+        "",
+        "The stadium, tests plus bound tests per ray:",
+        "",
+        *stadium_lines,
+        "",
+        f"The cost model on every single-kind run above ({len(errs)} runs): mean absolute error "
+        f"{100 * np.abs(errs).mean():.0f}%, worst {100 * errs[np.argmax(np.abs(errs))]:+.0f}%.",
+        "",
+        *model_lines,
+        "",
+        *([f"Re-annealing between frames: the satellite, {args.frames} frames over 600 s of its orbit, at "
+           f"{max(64, args.resolution // 4)} pixels; from scratch ({args.frame_evaluations} candidates) against "
+           "from the previous frame's hierarchy (a short schedule, a quarter of the candidates); energy in "
+           "predicted ms.", "",
+           "| frame | time s | scratch: candidates | seconds | energy | re-annealed: candidates | seconds "
+           "| energy |", "|---:|---:|---:|---:|---:|---:|---:|---:|", *frames, ""] if frames else []),
+        "Every run:",
+        "",
+        *lines,
+        "",
+        *found_trees,
+    ])
+    replace_section("anneal", text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
