@@ -358,7 +358,8 @@ def optimize(tree, method: str):
         raise ValueError(f"unknown BVH optimisation {method!r}; choose from {', '.join(METHODS)}")
     before = sah(tree)
     n = len(tree.count)
-    info = {"method": method, "sah_before": before, "sah_after": before, "seconds": 0.0, "steps": 0}
+    info = {"method": method, "sah_before": before, "sah_after": before, "seconds": 0.0, "steps": 0,
+            "max_depth": _depth(tree.first, tree.count)}
     if method == "none" or n < 5:
         return tree, info
     t0 = time.perf_counter()
