@@ -181,6 +181,15 @@ def test_bad_options_are_clear_errors():
         anneal.anneal(scene, start=anneal.Node("bvh", [0]), evaluations=2, options=SMALL)
 
 
+def test_a_candidate_that_cannot_be_built_is_never_accepted():
+    scene = raykernel.load("spd:tetra:5")
+    atoms, _ = anneal.atoms_of(scene)
+    energy = anneal.Energy(scene, scene.root, atoms, dict(SMALL), "bvh", costmodel.current())
+    everything = list(range(len(atoms.groups)))
+    assert energy(anneal.Node("grid(res=woo, density=1000, max_res=4096)", everything)) == np.inf
+    assert 0 < energy(anneal.Node("bvh", everything)) < np.inf
+
+
 def test_empty_and_tiny_scenes():
     empty = Scene()
     found = anneal.anneal(empty, evaluations=5, options=SMALL)

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import OptionError
+from ..errors import OptionError, RayKernelError
 from ..scene.model import Cones, Group, Instance, Polygons, Scene, Spheres, TriangleMesh
 
 # lazy structures (lazyoctree, rc's default) refine as rays arrive, so a sample of rays would
@@ -513,9 +513,14 @@ class Energy:
         return scene
 
     def __call__(self, state: Node) -> float:
+        """The state's energy; infinite where it cannot be built (a grid of too many cells, a
+        structure past the memory budget), so that it is never accepted."""
         key = state.key()
         if key not in self.cache:
-            self.cache[key] = self.measure(state)[0]
+            try:
+                self.cache[key] = self.measure(state)[0]
+            except RayKernelError:
+                self.cache[key] = math.inf
         return self.cache[key]
 
     def measure(self, state: Node):
@@ -656,6 +661,8 @@ def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, a
         if log:
             log(f"start {name:12s} predicted {starts[name]:.4f} s")
     first = min(starts, key=starts.get)
+    if starts[first] == math.inf:
+        raise OptionError("anneal: no starting structure could be built for this scene (see raykernel accels)")
     current = best = candidates[first]
     e_cur = e_best = starts[first]
 
@@ -674,7 +681,7 @@ def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, a
         _, cand = propose(current, atoms, rng)
         if cand is not None:
             d = energy(cand) - e_cur
-            if d > 0:
+            if 0 < d < math.inf:
                 ups.append(d)
     t_start = (-float(np.median(ups)) / math.log(accept0)) if ups else max(e_cur, 1e-9) * 0.01
     if short:
