@@ -6,8 +6,10 @@ every run; re-annealing between the frames of an animation.
                                      [--frames 6] [--repeat 2]
 
 Scenes: the 13 SPD default scenes, the 5 pathological scenes and scene:park, each rendered
-in SPD mode at --resolution with every structure (best trace time of --repeat renders, the
-first one after a warm-up). `auto` is annealed for that render (auto(seconds=...), seed 0);
+in SPD mode at --resolution with every structure: a single kind puts the whole scene under
+that kind (anneal.without_specs: no group keeps a spec of its own), the hand-nested runs
+keep their groups' specs. Trace time: the best of --repeat rounds over all of a scene's
+structures, auto's included, so that none is timed first or right after the annealing. `auto` is annealed for that render (auto(seconds=...), seed 0);
 its annealing seconds are reported apart, never inside the trace time. Every structure of
 a scene must give the same ray counts (a difference aborts the run). The brute-force list
 is left out: on these scenes it takes hours. Predicted: the cost model's trace seconds
@@ -61,46 +63,44 @@ def hand_variants(name):
     return []
 
 
-def run(scene, accel, options, repeat):
-    best = None
-    for _ in range(repeat):
-        r = raykernel.render(scene, **options) if accel is None else raykernel.render(scene, accel=accel, **options)
-        if best is None or r.stats["time.trace"] < best.stats["time.trace"]:
-            best = r
-    return best.stats
-
-
 def scene_rows(name, args, model, errors):
     scene = raykernel.load(name)
     options = dict(resolution=args.resolution, spd=True)
-    raykernel.render(scene, resolution=8, spd=True)          # warm up (kernels, caches)
-    rows = []
-    for accel in KINDS + OPTIMISED:
-        rows.append((accel, run(scene, accel, options, args.repeat), None))
-    for label, hand_scene, accel in hand_variants(name):
-        rows.append((label, run(hand_scene, accel, options, args.repeat), None))
     t0 = time.perf_counter()
     found = anneal.anneal(scene, seconds=args.seconds, seed=0, options=options)
     seconds = time.perf_counter() - t0
-    rows.append(("auto", run(found.scene, None, options, args.repeat), found))
-    ref = rows[0][1]
-    for label, stats, _ in rows:
+    single = anneal.without_specs(scene)        # every group under the one kind
+    runs = [(accel, single, accel) for accel in KINDS + OPTIMISED] + hand_variants(name) + [("auto", found.scene, None)]
+    # rounds over every structure, the best of `repeat` kept: no structure is timed first or
+    # just after the annealing (a first render after other work runs slow)
+    best = {}
+    raykernel.render(scene, resolution=8, spd=True)
+    for _ in range(args.repeat):
+        for label, s, accel in runs:
+            stats = raykernel.render(s, **options).stats if accel is None else \
+                raykernel.render(s, accel=accel, **options).stats
+            if label not in best or stats["time.trace"] < best[label]["time.trace"]:
+                best[label] = stats
+    ref = best["bvh"]
+    for label, stats in best.items():
         if any(stats[k] != ref[k] for k in RAYS):
             sys.exit(f"{name}: {label} casts other rays than bvh: "
                      f"{[stats[k] for k in RAYS]} against {[ref[k] for k in RAYS]}")
     out = []
-    singles = {label: s["time.trace"] for label, s, _ in rows if label in KINDS}
+    singles = {label: best[label]["time.trace"] for label in KINDS}
     best_single = min(singles, key=singles.get)
-    for label, stats, f in rows:
+    for label, _, _ in runs:
+        stats = best[label]
         predicted = model.predict(stats)
         measured = stats["time.trace"]
         if predicted is not None and label in KINDS:
             errors.append((name, label, predicted / measured - 1.0))
+        auto = label == "auto"
         out.append({"scene": name, "structure": label, "predicted": predicted, "measured": measured,
                     "tests_per_ray": stats["tests.per_ray"], "bounds_per_ray": stats["bounds.per_ray"],
                     "mb": stats.get("build.bytes", 0) / 2 ** 20, "rays": stats["rays.total"],
-                    "anneal": seconds if f is not None else None, "vs_best": singles[best_single] / measured,
-                    "found": f})
+                    "anneal": seconds if auto else None, "vs_best": singles[best_single] / measured,
+                    "found": found if auto else None})
     print(f"{name}: best single {best_single} {singles[best_single]:.4f} s; auto {out[-1]['measured']:.4f} s "
           f"({out[-1]['vs_best']:.2f}x), annealed {seconds:.1f} s", flush=True)
     return out, best_single
@@ -142,7 +142,7 @@ def main():
     parser.add_argument("--scenes", help="comma-separated scene names (default: the 19)")
     parser.add_argument("--frames", type=int, default=6)
     parser.add_argument("--frame-evaluations", type=int, default=200)
-    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
     model = costmodel.current()
     names = args.scenes.split(",") if args.scenes else None

@@ -96,7 +96,12 @@ def cmd_render(args, console) -> int:
     check_output_directory(out)
     if args.stats_json:
         check_output_directory(args.stats_json)
-    parse_spec(args.accel)
+    _, auto = parse_spec(args.accel)
+    from .analysis.anneal import is_auto
+    if is_auto(args.accel):
+        console.print(f"Annealing a hierarchy for this render first (auto: up to {auto['seconds']:g} s; "
+                      "raykernel anneal writes one to reuse).", markup=False, highlight=False)
+        tell_once("anneal", None)
     compiling = first_run()
     tell_once("render", None)       # the line below says it, and the progress bar covers the wait
     if compiling:

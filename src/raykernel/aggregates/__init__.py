@@ -14,7 +14,7 @@ with another's (hgrid as grids, hybrid and lazyoctree as octrees).
 docs/adding-a-kind.md is the checklist for a new one.
 """
 
-from ..geometry.counters import WALK_NAMES
+from ..geometry import counters as C
 from ..scene.accel import register
 from . import bruteforce, bvh, csg, grid, hgrid, hybrid, lazyoctree, octree, rc
 
@@ -25,5 +25,12 @@ for _kind in [m.KIND for m in (bruteforce, bvh, grid, hgrid, rc, octree, hybrid,
 
 if sorted(w.CODE for w in WALKS) != list(range(len(WALKS))):
     raise ImportError("aggregates: walk CODEs must be 0, 1, ... with none twice")
-if any(WALK_NAMES[w.CODE] != w.__name__.rsplit(".", 1)[1].replace("bruteforce", "list") for w in WALKS):
-    raise ImportError("aggregates: geometry/counters.py's WALK_NAMES must name the walks in CODE order")
+if len(WALKS) > C.MAX_WALKS:
+    raise ImportError(f"aggregates: more walks than the {C.MAX_WALKS} counter columns of geometry/counters.py")
+# the walks by CODE, named as their kinds (the brute-force module's kind is list); their counters
+WALK_NAMES = tuple(m.KIND.name if hasattr(m, "KIND") else m.__name__.rsplit(".", 1)[1]
+                   for m in sorted(WALKS, key=lambda m: m.CODE))
+for _code, _walk in enumerate(WALK_NAMES):
+    C.NAMES[C.WALK_ENTRIES + _code] = f"walk.{_walk}.entries"
+    C.NAMES[C.WALK_BOUNDS + _code] = f"walk.{_walk}.bounds"
+    C.NAMES[C.WALK_STEPS + _code] = f"walk.{_walk}.steps"

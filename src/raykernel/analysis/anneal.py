@@ -476,6 +476,20 @@ def _replace(root: Group, target: Group, new: Group) -> Group:
     return visit(root)
 
 
+def without_specs(scene: Scene) -> Scene:
+    """The scene with no group naming a structure (boolean operators kept): rendered with
+    accel=KIND, everything is under that one kind. The primitive sets are shared, not copied."""
+    memo: dict[int, Group] = {}
+
+    def visit(g: Group) -> Group:
+        if id(g) not in memo:
+            kids = [Instance(visit(c.group), c.matrix) if isinstance(c, Instance) else visit(c) for c in g.children]
+            memo[id(g)] = dataclasses.replace(g, children=kids, accel=g.accel if _is_operator(g) else None)
+        return memo[id(g)]
+
+    return dataclasses.replace(scene, root=visit(scene.root))
+
+
 def _with_group(scene: Scene, target: Group, new: Group) -> Scene:
     return dataclasses.replace(scene, root=_replace(scene.root, target, new))
 

@@ -18,8 +18,8 @@ Trace time is modelled as  sum(count * cost)  over these features:
   transform      rays mapped into an instance; csg.crossing and csg.resolve: boolean operators
   refine.*       lazy structures' refinement between passes (passes, subdivisions, references)
 
-W is one of the kernel's walks (geometry/counters.py WALK_NAMES: list, bvh, grid, octree,
-rc, csg); every structure kind runs one of them (hgrid runs grids, hybrid and lazyoctree
+W is one of the kernel's walks (aggregates.WALK_NAMES: list, bvh, grid, octree, rc,
+csg); every structure kind runs one of them (hgrid runs grids, hybrid and lazyoctree
 octrees with BVHs inside), and the kernel counts each walk's share apart (walk.W.*), so one
 model prices any nesting of any kinds. Costs are wall-clock seconds at the thread count of
 the calibration, so a model only predicts renders made with that many threads on that
@@ -49,8 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..aggregates import WALK_NAMES
 from ..errors import OptionError
-from ..geometry.counters import WALK_NAMES
 
 VERSION = 2                 # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
@@ -152,8 +152,8 @@ class CostModel:
     calibration: list = field(default_factory=list)   # the renders it was fitted on
 
     def walks(self) -> set:
-        """The walks calibrated (a list is priced by its tests alone, so it always is)."""
-        return {n.split(".", 1)[1] for n in self.costs if n.startswith(("step.", "bound.", "entry."))} | {"list"}
+        """The walks calibrated."""
+        return {n.split(".", 1)[1] for n in self.costs if n.startswith(("step.", "bound.", "entry."))}
 
     def covers(self, stats) -> bool:
         """Whether every walk that did work in the render of `stats` was calibrated."""

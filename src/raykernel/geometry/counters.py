@@ -36,12 +36,13 @@ START_LISTS = 36          # secondary rays that began with their object's start 
 SHADOW_STEPS = 37         # closest-hit queries of filtered shadow rays walking through transparent surfaces
 START_LISTS_HITS = 38     # searches a start list bounded, shadow rays it settled
 START_LISTS_BUILT = 39    # start lists built (rendering/startlists.py)
-# each walk's share of the traversal (engine/traverse.py), by the walk's CODE (aggregates/__init__.py):
-WALK_NAMES = ("list", "bvh", "grid", "octree", "rc", "csg")
+# each walk's share of the traversal (engine/traverse.py), by the walk's CODE; the registry
+# (aggregates/__init__.py) names them walk.<walk>.entries, .bounds and .steps
+MAX_WALKS = 8
 WALK_ENTRIES = 40         # + walk: rays that entered an aggregate of that walk (its box was hit)
-WALK_BOUNDS = 46          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
-WALK_STEPS = 52           # + walk: its traversal steps (its part of cells.visited)
-N_COUNTERS = 58
+WALK_BOUNDS = 48          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
+WALK_STEPS = 56           # + walk: its traversal steps (its part of cells.visited)
+N_COUNTERS = 64
 
 NAMES = {
     RAYS_EYE: "rays.eye", RAYS_EYE_HIT: "rays.eye_hit",
@@ -62,8 +63,4 @@ NAMES = {
     SHADOW_STEPS: "shadow.steps", START_LISTS_HITS: "start_lists.hits", START_LISTS_BUILT: "start_lists.built",
     RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
 }
-for _code, _walk in enumerate(WALK_NAMES):
-    NAMES[WALK_ENTRIES + _code] = f"walk.{_walk}.entries"
-    NAMES[WALK_BOUNDS + _code] = f"walk.{_walk}.bounds"
-    NAMES[WALK_STEPS + _code] = f"walk.{_walk}.steps"
 

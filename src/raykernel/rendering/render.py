@@ -460,6 +460,8 @@ def tune(scene: Scene, kw: dict):
     accel = kw.get("accel", "bvh")
     if not anneal.is_auto(accel) and next(anneal._auto_targets(scene.root), None) is None:
         return scene, kw, None
+    from ..geometry.config import tell_once
+    tell_once("anneal", "raykernel: annealing a hierarchy for an auto spec before the render (see time.anneal)")
     t0 = time.perf_counter()
     options = {k: v for k, v in kw.items() if k != "accel"}
     tuned, default, groups = anneal.resolve_auto(scene, accel, options)
