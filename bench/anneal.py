@@ -156,12 +156,11 @@ def main():
         verdicts.append((name, best_single, auto["vs_best"],
                          min((r["measured"] for r in hand), default=None), auto["measured"]))
         if name.startswith("scene:stadium"):
-            stadium[name] = (min(hand, key=lambda r: r["tests_per_ray"] + r["bounds_per_ray"]), auto)
+            stadium[name] = (min(hand, key=lambda r: r["tests_per_ray"]), auto)
     if names is None:       # the stadium at ratio 600 is its default; and at 10^6
         rows, _ = scene_rows("scene:stadium:ratio=1e6", args, model, errors)
         hand = [r for r in rows if r["structure"].startswith("hand")]
-        stadium["scene:stadium:ratio=1e6"] = (min(hand, key=lambda r: r["tests_per_ray"] + r["bounds_per_ray"]),
-                                              rows[-1])
+        stadium["scene:stadium:ratio=1e6"] = (min(hand, key=lambda r: r["tests_per_ray"]), rows[-1])
     lines = ["| scene | structure | predicted s | measured s | model error | tests/ray | bounds/ray | MB "
              "| anneal s | best single / this |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in table:
@@ -186,12 +185,12 @@ def main():
     for name, single, ratio, hand, auto in verdicts:
         verdict_lines.append(f"| {name} | {single} | {ratio:.2f}x | {fmt(None if hand is None else hand / auto, '.2f')}"
                              f"{'' if hand is None else 'x'} |")
-    stadium_lines = ["| scene | hand-nested (fewest tests + bounds per ray) | tests + bounds per ray | auto "
-                     "| auto / hand |", "|---|---|---:|---:|---:|"]
+    stadium_lines = ["| scene | hand-nested (fewest tests per ray) | tests per ray | bounds per ray | auto: tests "
+                     "per ray | bounds per ray | auto tests / hand's |", "|---|---|---:|---:|---:|---:|---:|"]
     for name, (hand, auto) in stadium.items():
-        h = hand["tests_per_ray"] + hand["bounds_per_ray"]
-        a = auto["tests_per_ray"] + auto["bounds_per_ray"]
-        stadium_lines.append(f"| {name} | {hand['structure']} | {h:.2f} | {a:.2f} | {a / h:.2f}x |")
+        stadium_lines.append(f"| {name} | {hand['structure']} | {hand['tests_per_ray']:.2f} "
+                             f"| {hand['bounds_per_ray']:.2f} | {auto['tests_per_ray']:.2f} "
+                             f"| {auto['bounds_per_ray']:.2f} | {auto['tests_per_ray'] / hand['tests_per_ray']:.2f}x |")
     frames = frame_rows(args.frames, max(64, args.resolution // 4), args.frame_evaluations) if args.frames else []
     text = "\n".join([
         "## Annealed hierarchies (`auto`) against the anchors",
@@ -208,7 +207,8 @@ def main():
         "",
         *verdict_lines,
         "",
-        "The stadium, tests plus bound tests per ray:",
+        "The stadium, ray/primitive tests per ray (N_IT) and bound tests per ray, against the hand-nested "
+        "teapot BVH:",
         "",
         *stadium_lines,
         "",

@@ -221,7 +221,8 @@ def test_curve_order_is_sane():
 # ---------------------------------------------------------------- accelerator spec and flatten
 
 def test_spec_parameters():
-    assert parse_spec("bvh")[1] == {"leaf": 4, "bins": 16, "build": "sah", "order": "file", "seed": 1}
+    assert parse_spec("bvh")[1] == {"leaf": 4, "bins": 16, "build": "sah", "order": "file", "seed": 1,
+                                    "optimize": "none"}
     assert parse_spec("bvh(build=gs, order=curve, seed=9)")[1]["order"] == "curve"
     for bad in ("bvh(build=gsx)", "bvh(order=zorder)", "bvh(seed=-1)"):
         with pytest.raises(OptionError):

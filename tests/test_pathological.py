@@ -27,11 +27,15 @@ def child(group: Group, name: str) -> Group:
     return found[0]
 
 
-def groups(group: Group):
+def groups(group: Group, seen=None):
+    """The group and every group below it, instanced ones once (the park instances some)."""
+    seen = set() if seen is None else seen
     yield group
     for c in group.children:
-        assert not isinstance(c, Instance)
-        yield from groups(c)
+        g = c.group if isinstance(c, Instance) else c
+        if id(g) not in seen:
+            seen.add(id(g))
+            yield from groups(g, seen)
 
 
 def points(group: Group) -> np.ndarray:
@@ -241,7 +245,7 @@ def test_diamond_facets_share_the_apex(facets):
 
 def test_params_match_the_functions():
     functions = {"stadium": P.stadium, "satellite": P.satellite, "sun": P.sun, "teapot-room": P.teapot_room,
-                 "diamond": P.diamond}
+                 "diamond": P.diamond, "park": P.park}
     assert set(P.NAMES) == set(functions) == set(P.PARAMS)
     for name, fn in functions.items():
         sig = inspect.signature(fn)
@@ -295,12 +299,13 @@ def test_string_parameters_and_inline_parameters():
 
 
 def test_groups_are_natural():
-    names = {n: [c.name for c in P.load(n).root.children] for n in P.NAMES}
+    names = {n: [c.name for c in P.load(n).root.children if isinstance(c, Group)] for n in P.NAMES}
     assert names["stadium"] == ["stadium", "teapot"]
     assert names["satellite"] == ["earth", "satellite"]
     assert "sun" in names["sun"] and "houses" in names["sun"]
     assert "teapot" in names["teapot-room"]
     assert names["diamond"] == ["diamond", "display"]
+    assert names["park"] == [f"ride{k}" for k in range(6)] + ["mountain", "fence"]
     stadium = child(P.stadium(stadium_prims=600, teapot_prims=100).root, "stadium")
     assert {c.name for c in stadium.children} >= {"field", "stands", "goalposts", "towers"}
 

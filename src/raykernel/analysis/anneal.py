@@ -199,12 +199,6 @@ def _cut(elements, boxes, leaf: int):
     return out
 
 
-def _prim_count(source) -> int:
-    if isinstance(source, Instance):
-        return source.group.count_primitives()
-    return source.count_primitives()
-
-
 def _sources(region: _Region, out=None) -> list:
     """The distinct primitive sets and opaque children of a region tree, in the order met."""
     out = [] if out is None else out
@@ -218,7 +212,7 @@ def _sources(region: _Region, out=None) -> list:
     return out
 
 
-def _make_atoms(region: _Region, total: int, sources: dict, atoms: list, leaf: int):
+def _make_atoms(region: _Region, sources: dict, atoms: list, leaf: int):
     """Cut every region's elements into atoms; returns the region's tree as (atom ids, children)."""
     ids = []
     if region.elements:
@@ -249,7 +243,7 @@ def _make_atoms(region: _Region, total: int, sources: dict, atoms: list, leaf: i
                 if region.elements[ks[0]][1] is None:
                     opaque += [region.elements[k][0] for k in ks]
                     members.append((ordinal, None))
-                    count += _prim_count(src)
+                    count += src.count_primitives()
                     continue
                 idx = np.array(sorted(region.elements[k][1] for k in ks), np.int64)
                 members.append((ordinal, idx))
@@ -258,7 +252,7 @@ def _make_atoms(region: _Region, total: int, sources: dict, atoms: list, leaf: i
             b = boxes[part]
             atoms.append((_group_of("", None, sets, opaque), np.concatenate([b[:, :3].min(axis=0), b[:, 3:].max(axis=0)]), count, members))
             ids.append(len(atoms) - 1)
-    return ids, [(_make_atoms(sub, total, sources, atoms, leaf), sub.spec) for sub in region.children]
+    return ids, [(_make_atoms(sub, sources, atoms, leaf), sub.spec) for sub in region.children]
 
 
 def _group_of(name: str, spec, sets, children) -> Group:
@@ -576,7 +570,8 @@ class Annealed:
 
     @property
     def best_single(self) -> tuple[str, float]:
-        singles = {k: v for k, v in self.starts.items() if k != "scene"}
+        """The best single kind among the starts (the start itself where none was tried)."""
+        singles = {k: v for k, v in self.starts.items() if k in START_SPECS} or self.starts
         name = min(singles, key=singles.get)
         return name, singles[name]
 
@@ -590,11 +585,8 @@ class Annealed:
 
 
 def _check(name, value, lo, hi, integer=False):
-    kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
-    if isinstance(value, bool) or not isinstance(value, kinds) or not lo <= value <= hi:
-        raise OptionError(f"anneal: {name} must be {'an integer' if integer else 'a number'} in [{lo:g}, {hi:g}], "
-                          f"got {value!r}")
-    return value
+    from ..rendering.render import _number
+    return _number(value, f"anneal {name}", lo, hi, integer)
 
 
 def atoms_of(scene: Scene, target: Group | None = None, max_atoms: int = MAX_ATOMS):
@@ -605,7 +597,7 @@ def atoms_of(scene: Scene, target: Group | None = None, max_atoms: int = MAX_ATO
     leaf = max(MIN_ATOM, -(-total // max_atoms))
     raw = []
     listed = _sources(region)
-    tree = _make_atoms(region, total, {id(src): k for k, src in enumerate(listed)}, raw, leaf)
+    tree = _make_atoms(region, {id(src): k for k, src in enumerate(listed)}, raw, leaf)
     atoms = Atoms([r[0] for r in raw], np.array([r[1] for r in raw]).reshape(-1, 6),
                   np.array([r[2] for r in raw], np.int64), [r[3] for r in raw], _shape(listed))
     return atoms, tree

@@ -104,7 +104,7 @@ def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tma
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
     # counters in locals (registers), written once per chunk
-    n_bounds = n_nodes = n_leaves = n_tests = np.int64(0)
+    n_bounds = n_nodes = n_leaves = n_tests = n_entries = np.int64(0)
     for r in range(r0, r1):
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
@@ -123,6 +123,7 @@ def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tma
             stack[0] = root
             stack_t[0] = te
             sp = 1
+            n_entries += 1
         while sp > 0:
             sp -= 1
             if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
@@ -199,5 +200,8 @@ def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tma
     counters[c, C.RAYS_CAST] = r1 - r0
     counters[c, C.BOUNDS_TESTS] = n_bounds
     counters[c, C.CELLS_VISITED] = n_nodes
+    counters[c, C.WALK_ENTRIES + BVH] = n_entries      # all of it the BVH walk's, as the general kernel counts it
+    counters[c, C.WALK_BOUNDS + BVH] = n_bounds
+    counters[c, C.WALK_STEPS + BVH] = n_nodes
     counters[c, C.CELLS_LEAVES] = n_leaves
     counters[c, C.TESTS + TRIANGLE] = n_tests

@@ -311,9 +311,7 @@ class Group:
     def count_primitives(self, _seen=None) -> int:
         """Primitives reachable from this group, instances counted each time."""
         n = sum(len(s) for s in self.primitive_sets())
-        for child in self.children:
-            n += (child.group if isinstance(child, Instance) else child).count_primitives()
-        return n
+        return n + sum(child.count_primitives() for child in self.children)
 
 
 @dataclass
@@ -334,6 +332,9 @@ class Instance:
         if abs(np.linalg.det(m[:3, :3])) < 1e-300:
             raise SceneError("an instance matrix must be invertible")
         self.matrix = m
+
+    def count_primitives(self) -> int:
+        return self.group.count_primitives()
 
 
 @dataclass
