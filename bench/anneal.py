@@ -46,9 +46,8 @@ RAYS = ("rays.eye", "rays.reflect", "rays.refract", "rays.shadow")
 
 
 def scenes(names):
-    everything = [f"spd:{n}" for n in spd.NAMES] + [f"scene:{n}" for n in pathological.NAMES]
-    for name in names or everything:
-        yield name
+    """The names given, else the 13 SPD default scenes, the pathological scenes and the park."""
+    return names or [f"spd:{n}" for n in spd.NAMES] + [f"scene:{n}" for n in pathological.NAMES]
 
 
 def hand_variants(name):

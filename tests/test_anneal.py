@@ -155,6 +155,16 @@ def test_annealing_is_deterministic_for_a_seed_and_never_worse_than_its_start():
     assert other.history != runs[0].history
 
 
+def test_two_threads_anneal_at_once_and_agree():
+    from concurrent.futures import ThreadPoolExecutor
+    scene = _stadium()
+    with ThreadPoolExecutor(2) as pool:
+        runs = list(pool.map(lambda seed: anneal.anneal(scene, seed=seed, evaluations=20, options=SMALL), [5, 5]))
+    alone = anneal.anneal(scene, seed=5, evaluations=20, options=SMALL)
+    assert runs[0].state.key() == runs[1].state.key() == alone.state.key()
+    assert runs[0].energy == runs[1].energy == alone.energy
+
+
 def test_the_result_is_the_scene_regrouped():
     scene = _park()
     found = anneal.anneal(scene, seed=1, evaluations=30, options=SMALL)

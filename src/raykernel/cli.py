@@ -465,8 +465,8 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     an.add_argument("--memory", type=float, default=0.0, help="seconds of predicted time one MiB is worth (default 0)")
     an.add_argument("--evaluations", type=int, default=0, help="most candidates priced (default 0: no limit)")
-    an.add_argument("--sample", type=_positive_int, default=24, help="candidates are traced at SAMPLE x SAMPLE "
-                    "pixels (default 24)")
+    an.add_argument("--sample", type=_positive_int, default=24, help="candidates are traced at SAMPLE pixels along "
+                    "the image's longer side (default 24)")
     an.add_argument("--resolution", type=_positive_int, help="the render it tunes for (default: the scene's)")
     an.add_argument("--spd", action="store_true", help="tune for an SPD render")
     an.add_argument("--max-depth", type=_positive_int, default=5, help="ray depth of that render (default 5)")

@@ -20,8 +20,8 @@ replacement).
 
 Energy: the predicted trace time of the render the caller will make, plus `memory` seconds
 per MiB the structures take. A candidate is built and traced with the render's own options
-at `sample` x `sample` pixels (eye rays, their reflections, refractions and shadow rays:
-the same distribution of rays at lower density), and its exact counts, scaled to the full
+at `sample` pixels along the image's longer side, its aspect kept (eye rays, their
+reflections, refractions and shadow rays: the same distribution of rays at lower density), and its exact counts, scaled to the full
 render, priced by the cost model (costmodel.current(): this machine's calibration, else
 the reference costs). Counts are exact, so energies, and the whole run, are deterministic
 for a seed, except where the time budget (`seconds`) cuts it short.
@@ -33,9 +33,11 @@ Each temperature tries `moves` moves (default 4 per atom, 16 to 48), accepting a
 dE with probability exp(-dE / T) (Metropolis); then T *= `cooling` (0.8). It stops when frozen
 (`patience` temperatures in a row, 3, accepting changes in under 2 % of their moves), at T
 below T0 / 1000, after `evaluations` candidates, or at the time budget (compiling, on a
-first run, is not counted). The best state seen is
-the result. anneal(..., start=previous.state) re-anneals from a state found for another
-frame of an animation (the atoms follow their primitives) with `short=True`: T0 a tenth.
+first run, is not counted). The best state seen is the result.
+
+Between frames: `state, atoms = rebind(previous.state, previous.atoms, next_frame)` moves
+the atoms with their primitives, and anneal(next_frame, start=state, atoms=atoms,
+short=True) re-anneals from there with T0 a tenth.
 """
 
 from __future__ import annotations

@@ -86,7 +86,8 @@ AUTO = Kind("auto", "the hierarchy of structures found by simulated annealing (A
                 Param("memory", 0.0, "weight of memory: seconds of predicted time one MiB is worth", float, 0.0, 1e9),
                 Param("evaluations", 0, "most candidates priced, 0: no limit (a limit that is reached first keeps "
                       "the search deterministic)", int, 0, 10 ** 9),
-                Param("sample", 24, "candidates are traced at sample x sample pixels, scaled up", int, 2, 4096),
+                Param("sample", 24, "candidates are traced at this many pixels along the longer side, the counts "
+                      "scaled up", int, 2, 4096),
             ))
 
 
