@@ -53,6 +53,15 @@ def test_local_cluster_equals_one_process(two_workers, accel, options):
     assert spread.stats.info["dask"]["workers"] == 2
 
 
+def test_auto_is_annealed_once_here_and_the_workers_build_it(two_workers):
+    scene = load("scene:stadium:stadium_prims=600,teapot_prims=200")
+    alone = render(scene, accel="auto(evaluations=12)", resolution=24, spd=True)
+    spread = two_workers.render(scene, accel="auto(evaluations=12)", resolution=24, spd=True)
+    assert_same(alone, spread)
+    assert spread.stats["time.anneal"] > 0
+    assert spread.stats.info["anneal"][0]["state"] == alone.stats.info["anneal"][0]["state"]
+
+
 def test_a_worker_killed_mid_render_changes_nothing(two_workers, monkeypatch):
     monkeypatch.setattr(cluster_module, "TASKS_PER_WORKER", 64)    # many small tasks: most are left at the kill
     scene = load("spd:gears:1")

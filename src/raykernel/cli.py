@@ -79,7 +79,7 @@ def cmd_render(args, console) -> int:
     from .rendering.imageio import image_format
     from .rendering.render import render
     from .scene import examples
-    from .scene.accel import parse_spec
+    from .scene.accel import is_auto, parse_spec
     from .scene.loading import load
 
     scene = load(args.scene)
@@ -97,7 +97,6 @@ def cmd_render(args, console) -> int:
     if args.stats_json:
         check_output_directory(args.stats_json)
     _, auto = parse_spec(args.accel)
-    from .analysis.anneal import is_auto
     if is_auto(args.accel):
         console.print(f"Annealing a hierarchy for this render first (auto: up to {auto['seconds']:g} s; "
                       "raykernel anneal writes one to reuse).", markup=False, highlight=False)

@@ -50,6 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import OptionError, RayKernelError
+from ..scene.accel import is_auto
 from ..scene.model import Cones, Group, Instance, Polygons, Scene, Spheres, TriangleMesh
 
 # lazy structures (lazyoctree, rc's default) refine as rays arrive, so a sample of rays would
@@ -757,10 +758,6 @@ def rebind(state: Node, previous: Atoms, scene: Scene, target: Group | None = No
 
 # ---- the auto spec -------------------------------------------------------------------------------
 
-def is_auto(spec) -> bool:
-    return isinstance(spec, str) and spec.strip().lower().split("(", 1)[0].strip() == "auto"
-
-
 def _auto_targets(group: Group, seen=None):
     seen = set() if seen is None else seen
     if id(group) in seen:
@@ -774,12 +771,17 @@ def _auto_targets(group: Group, seen=None):
 
 
 def resolve_auto(scene: Scene, accel: str, options: dict, log=None):
-    """render()'s step for `auto` specs: (the scene with every auto group annealed, the default
-    spec for the rest, a summary per annealed group). With accel auto the root is annealed."""
+    """render()'s step for `auto` specs (rendering/render.py AUTO_RESOLVERS): (the scene with
+    every auto group annealed, the default spec for the rest, a summary per annealed group),
+    None where nothing is auto. With accel auto the root is annealed."""
+    from ..geometry.config import tell_once
     from ..scene.accel import parse_spec
     default = "bvh" if is_auto(accel) else accel
     targets = [(scene.root, parse_spec(accel)[1])] if is_auto(accel) else \
         [(g, parse_spec(g.accel)[1]) for g in _auto_targets(scene.root)]
+    if not targets:
+        return None
+    tell_once("anneal", "raykernel: annealing a hierarchy for an auto spec before the render (see time.anneal)")
     reports = []
     for target, params in targets:
         label = "(root)" if target is scene.root else (target.name or "(unnamed group)")

@@ -452,21 +452,24 @@ class RenderJob:
         return RenderResult(image=image, stats=stats)
 
 
+AUTO_RESOLVERS: list = []
+"""What turns `auto` specs into hierarchies: analysis/anneal.py's resolve_auto, registered by
+the package (raykernel/__init__.py), since the annealer renders and so sits above this layer."""
+
+
 def tune(scene: Scene, kw: dict):
-    """Resolve `auto` specs (the render's accel or a group's) by annealing (analysis/anneal.py):
-    (the scene with the hierarchies found, the options with a concrete accel, what was
-    found: {"seconds", "groups"}, or None where nothing was auto)."""
-    from ..analysis import anneal
-    accel = kw.get("accel", "bvh")
-    if not anneal.is_auto(accel) and next(anneal._auto_targets(scene.root), None) is None:
-        return scene, kw, None
-    from ..geometry.config import tell_once
-    tell_once("anneal", "raykernel: annealing a hierarchy for an auto spec before the render (see time.anneal)")
+    """Resolve `auto` specs (the render's accel or a group's) by annealing: (the scene with the
+    hierarchies found, the options with a concrete accel, what was found: {"seconds",
+    "groups"}, or None where nothing was auto)."""
     t0 = time.perf_counter()
     options = {k: v for k, v in kw.items() if k != "accel"}
-    tuned, default, groups = anneal.resolve_auto(scene, accel, options)
-    tuned.source = scene.source
-    return tuned, {**kw, "accel": default}, {"seconds": time.perf_counter() - t0, "groups": groups}
+    for resolve in AUTO_RESOLVERS:
+        found = resolve(scene, kw.get("accel", "bvh"), options)
+        if found is not None:
+            tuned, default, groups = found
+            tuned.source = scene.source
+            return tuned, {**kw, "accel": default}, {"seconds": time.perf_counter() - t0, "groups": groups}
+    return scene, kw, None
 
 
 def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:

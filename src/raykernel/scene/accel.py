@@ -98,6 +98,11 @@ def register(kind: Kind) -> Kind:
     return kind
 
 
+def is_auto(spec) -> bool:
+    """Whether a spec asks for the annealed hierarchy (auto or auto(...))."""
+    return isinstance(spec, str) and spec.strip().lower().split("(", 1)[0].strip() == AUTO.name
+
+
 _SPEC = re.compile(r"^\s*([A-Za-z_][\w-]*)\s*(?:\((.*)\))?\s*$", re.S)
 
 
