@@ -96,20 +96,27 @@ def povray_rays(text: str) -> int:
     return 0
 
 
+def spd_files(names: str, tmp: str):
+    """(stem, .nff, .pov) of each named SPD scene at its default size that ../shared holds,
+    with the files its .pov reads copied into tmp (the sombrero's height field)."""
+    for name in names.split(","):
+        stem = f"{name}-sf{spd.default_size(name)}"
+        nff, pov = SHARED_SPD / f"{stem}.nff", SHARED_SPD / f"{stem}.pov"
+        if not (nff.exists() and pov.exists()):
+            print(f"skipping {name}: {stem}.nff/.pov not in {SHARED_SPD}")
+            continue
+        for extra in SHARED_SPD.glob("*.tga"):
+            shutil.copy(extra, tmp)
+        yield stem, nff, pov
+
+
 def antialiased(args) -> None:
     """The labelled antialiased comparison (the renders_aa section)."""
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         timed(RAYKERNEL + ["render", "spd:balls:1", "--resolution", "8", "--aa", "jitter", "--samples", "9",
                            "-o", f"{tmp}/warm.png"], tmp)
-        for name in args.antialiased.split(","):
-            stem = f"{name}-sf{spd.default_size(name)}"
-            nff, pov = SHARED_SPD / f"{stem}.nff", SHARED_SPD / f"{stem}.pov"
-            if not (nff.exists() and pov.exists()):
-                print(f"skipping {name}: {stem}.nff/.pov not in {SHARED_SPD}")
-                continue
-            for extra in SHARED_SPD.glob("*.tga"):
-                shutil.copy(extra, tmp)
+        for stem, nff, pov in spd_files(args.antialiased, tmp):
             rk_cmd = RAYKERNEL + ["render", str(nff), "--resolution", "512", "--aa", "jitter", "--samples", "9",
                                   "--cutoff", "0", "--max-depth", "5", "--threads", str(args.threads),
                                   "-o", f"{tmp}/{stem}.png", "--stats-json", f"{tmp}/{stem}.json"]
@@ -167,15 +174,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         # warm the kernel cache once, so no render below pays for compilation
         timed(RAYKERNEL + ["render", "spd:balls:1", "--resolution", "8", "-o", f"{tmp}/warm.png"], tmp)
-        for name in args.scenes.split(","):
-            stem = f"{name}-sf{spd.default_size(name)}"
-            nff, pov = SHARED_SPD / f"{stem}.nff", SHARED_SPD / f"{stem}.pov"
-            if not (nff.exists() and pov.exists()):
-                print(f"skipping {name}: {stem}.nff/.pov not in {SHARED_SPD}")
-                continue
-            # the sombrero's .pov reads its height field from the current directory
-            for extra in SHARED_SPD.glob("*.tga"):
-                shutil.copy(extra, tmp)
+        for stem, nff, pov in spd_files(args.scenes, tmp):
             rk_cmd = RAYKERNEL + ["render", str(nff), "--spd", "--resolution", "512", "--threads",
                                   str(args.threads), "-o", f"{tmp}/{stem}.png", "--stats-json", f"{tmp}/{stem}.json"]
             pov_cmd = ["povray", f"+I{pov}", f"+O{tmp}/{stem}-pov.png", "+W512", "+H512", "-D", "-A",
