@@ -152,14 +152,14 @@ def test_predictions_positive_and_round_trip(tmp_path):
     result = raykernel.render(raykernel.load("spd:balls:1"), accel="grid(density=3)", resolution=8, threads=1)
     model = costmodel.CostModel(costs={"render": 1e-4, "ray.shaded": 1e-7, "ray.shadow": 5e-8, "test.sphere": 1e-8,
                                        "test.polygon": 1e-8, "step.grid": 1e-8, "bound.grid": 1e-8}, threads=1)
-    p = model.predict(result.stats, "grid(density=3)")
+    p = model.predict(result.stats)
     assert p is not None and p > 0
     bvh_stats = raykernel.render(raykernel.load("spd:balls:1"), accel="bvh", resolution=8, threads=1).stats
     assert model.predict(bvh_stats) is None                     # the bvh walk was not calibrated
     assert model.predict(bvh_stats, partial=True) > 0
     model.save(tmp_path / "cal.json")
     again = costmodel.CostModel.load(tmp_path / "cal.json")
-    assert again.predict(result.stats, "grid") == pytest.approx(model.predict(result.stats, "grid"))
+    assert again.predict(result.stats) == pytest.approx(model.predict(result.stats))
 
 
 def test_calibrate_small(tmp_path):

@@ -88,13 +88,13 @@ def _is_operator(group: Group) -> bool:
     return KINDS[parse_spec(group.accel)[0]].operands
 
 
-def _regions(group: Group, spec) -> _Region:
+def _regions(group: Group) -> _Region:
     """The target group's primitives and opaque children, by the groups with specs below it."""
-    region = _Region(spec)
+    region = _Region(None)
 
     def collect(g: Group, into: _Region):
         for s in g.primitive_sets():
-            into.elements += [(s, i) for i in range(len(s) if not isinstance(s, TriangleMesh) else len(s.faces))]
+            into.elements += [(s, i) for i in range(len(s))]
         for child in g.children:
             if isinstance(child, Instance) or _is_operator(child):
                 into.elements.append((child, None))
@@ -125,26 +125,17 @@ def _set_boxes(s) -> np.ndarray:
     return np.hstack([tri.min(axis=1), tri.max(axis=1)])
 
 
-def _group_box(group: Group, matrix=None) -> np.ndarray:
-    """Box of everything in `group` (through `matrix`, local to world)."""
-    pts = []
-    for s in group.primitive_sets():
-        b = _set_boxes(s)
-        pts += [b[:, :3], b[:, 3:]]
-    for child in group.children:
-        inner = child.group if isinstance(child, Instance) else child
-        m = child.matrix if isinstance(child, Instance) else None
-        box = _group_box(inner, m)
-        if np.all(np.isfinite(box)):
-            pts.append(np.array([[x, y, z] for x in box[0::3] for y in box[1::3] for z in box[2::3]]))
-    if not pts:
+def _box(src) -> np.ndarray:
+    """Box of everything in a group or an instance (in the space it is placed in)."""
+    from ..engine.flatten import transform_box
+    if isinstance(src, Instance):
+        return transform_box(_box(src.group), src.matrix)
+    boxes = [_set_boxes(s) for s in src.primitive_sets()] + [_box(c)[None] for c in src.children]
+    b = np.vstack(boxes) if boxes else np.zeros((0, 6))
+    b = b[np.all(b[:, :3] <= b[:, 3:], axis=1)]         # empty children add nothing
+    if not len(b):
         return np.array([np.inf] * 3 + [-np.inf] * 3)
-    p = np.vstack(pts)
-    if matrix is not None:
-        corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], bool)
-        lo, hi = p.min(axis=0), p.max(axis=0)
-        p = np.where(corners, hi, lo) @ matrix[:3, :3].T + matrix[:3, 3]
-    return np.concatenate([p.min(axis=0), p.max(axis=0)])
+    return np.concatenate([b[:, :3].min(axis=0), b[:, 3:].max(axis=0)])
 
 
 def _subset(s, idx: np.ndarray):
@@ -219,20 +210,15 @@ def _make_atoms(region: _Region, sources: dict, atoms: list, leaf: int):
     """Cut every region's elements into atoms; returns the region's tree as (atom ids, children)."""
     ids = []
     if region.elements:
-        boxes = []
+        # each element's box, one set's members at a time
         by_set: dict[int, list] = {}
-        for k, (src, i) in enumerate(region.elements):
+        for k, (src, _) in enumerate(region.elements):
             by_set.setdefault(id(src), []).append(k)
-        box_of = np.zeros((len(region.elements), 6))
+        boxes = np.zeros((len(region.elements), 6))
         for members in by_set.values():
-            src = region.elements[members[0]][0]
-            if region.elements[members[0]][1] is None:
-                box_of[members] = _group_box(src.group, src.matrix) if isinstance(src, Instance) else _group_box(src)
-            else:
-                box_of[members] = _set_boxes(src)[[region.elements[k][1] for k in members]]
-        boxes = box_of
-        finite = np.all(np.isfinite(boxes), axis=1)
-        boxes = np.where(finite[:, None], boxes, 0.0)
+            src, index = region.elements[members[0]]
+            boxes[members] = _box(src) if index is None else _set_boxes(src)[[region.elements[k][1] for k in members]]
+        boxes = np.where(np.all(np.isfinite(boxes), axis=1)[:, None], boxes, 0.0)    # empty ones at the origin
         for part in _cut(region.elements, boxes, leaf):
             sets, opaque = [], []
             members = []
@@ -253,7 +239,8 @@ def _make_atoms(region: _Region, sources: dict, atoms: list, leaf: int):
                 sets.append(_subset(src, idx))
                 count += len(idx)
             b = boxes[part]
-            atoms.append((_group_of("", None, sets, opaque), np.concatenate([b[:, :3].min(axis=0), b[:, 3:].max(axis=0)]), count, members))
+            atoms.append((_group_of("", None, sets, opaque), np.concatenate([b[:, :3].min(axis=0), b[:, 3:].max(axis=0)]),
+                          count, members))
             ids.append(len(atoms) - 1)
     return ids, [(_make_atoms(sub, sources, atoms, leaf), sub.spec) for sub in region.children]
 
@@ -595,7 +582,7 @@ def _check(name, value, lo, hi, integer=False):
 def atoms_of(scene: Scene, target: Group | None = None, max_atoms: int = MAX_ATOMS):
     """The atoms of `target` (default: the root) and the scene's own hierarchy over them."""
     target = scene.root if target is None else target
-    region = _regions(target, target.accel if target.accel and not is_auto(target.accel) else None)
+    region = _regions(target)
     total = target.count_primitives()
     leaf = max(MIN_ATOM, -(-total // max_atoms))
     raw = []
@@ -742,7 +729,7 @@ def rebind(state: Node, previous: Atoms, scene: Scene, target: Group | None = No
     """(state, atoms) for anneal(scene, start=state, atoms=atoms, ...) on `scene`, another frame
     of the same structure: each atom keeps its primitives, wherever they moved."""
     target = scene.root if target is None else target
-    sources = _sources(_regions(target, None))
+    sources = _sources(_regions(target))
     if _shape(sources) != previous.shape:
         raise OptionError("anneal: this scene's structure differs from the previous frame's; anneal from scratch")
     groups, boxes = [], []
@@ -751,7 +738,7 @@ def rebind(state: Node, previous: Atoms, scene: Scene, target: Group | None = No
         opaque = [sources[o] for o, idx in members if idx is None]
         g = _group_of("", None, sets, opaque)
         groups.append(g)
-        boxes.append(_group_box(g))
+        boxes.append(_box(g))
     atoms = Atoms(groups, np.array(boxes).reshape(-1, 6), previous.counts.copy(), previous.members, previous.shape)
     return state.copy(), atoms
 

@@ -187,7 +187,7 @@ def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=
                     log(f"{label} {accel}: trace {runs[-1].stats['time.trace']:.3f} s")
     for run in runs:
         if model is not None:
-            run.predicted = model.predict(run.stats, run.accel)
+            run.predicted = model.predict(run.stats)
     return Comparison(runs=runs, options={"spd": spd, "resolution": resolution, "threads": threads,
                                           "max_depth": max_depth},
                       machine=machine_info(), command=command or command_line(),

@@ -69,16 +69,9 @@ REPEATS = 3
 RIDGE = 1e-4
 
 
-def structure_kind(accel: str) -> str:
-    """'grid(density=4)' -> 'grid'; any spec string, whether or not its kind is registered."""
-    text = str(accel).strip()
-    head = text.split("(", 1)[0].strip().lower()
-    return head or text
-
-
-def features(stats, accel: str | None = None) -> dict:
-    """The counted operations of one render, named as the model's features (`accel` is
-    not needed: the walks' own counters say which structures did the work)."""
+def features(stats) -> dict:
+    """The counted operations of one render, named as the model's features (the walks' own
+    counters say which structures did the work)."""
     f = {
         "render": 1.0,
         "ray.shaded": float(stats["rays.eye"] + stats["rays.reflect"] + stats["rays.refract"]
@@ -159,7 +152,7 @@ class CostModel:
         """Whether every walk that did work in the render of `stats` was calibrated."""
         return walks_used(stats) <= self.walks()
 
-    def predict(self, stats, accel: str | None = None, scale: float = 1.0, partial: bool = False) -> float | None:
+    def predict(self, stats, scale: float = 1.0, partial: bool = False) -> float | None:
         """Predicted trace seconds, or None when a walk the render used was not calibrated
         (partial: price what was, leaving the rest out). scale: multiplies every count but
         the render's own (a sample of rays standing for `scale` times as many)."""
@@ -168,7 +161,7 @@ class CostModel:
         return sum(count * (1.0 if name in UNSCALED else scale) * self.costs.get(name, 0.0)
                    for name, count in features(stats).items())
 
-    def breakdown(self, stats, accel: str | None = None) -> dict:
+    def breakdown(self, stats) -> dict:
         """Predicted seconds per feature group (rays, tests, traversal)."""
         out = {"rays": 0.0, "tests": 0.0, "traversal": 0.0}
         for name, count in features(stats).items():
@@ -267,7 +260,7 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
                         f"({time.perf_counter() - t0:.2f} s)")
                 if stats["time.trace"] <= 0:
                     continue
-                rows.append(features(stats, kind))
+                rows.append(features(stats))
                 times.append(stats["time.trace"])
                 runs.append({"scene": name, "accel": kind, "resolution": res, "trace": stats["time.trace"]})
     costs = fit(rows, times)

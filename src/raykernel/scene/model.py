@@ -308,7 +308,7 @@ class Group:
             if len(s):
                 yield s
 
-    def count_primitives(self, _seen=None) -> int:
+    def count_primitives(self) -> int:
         """Primitives reachable from this group, instances counted each time."""
         n = sum(len(s) for s in self.primitive_sets())
         return n + sum(child.count_primitives() for child in self.children)
