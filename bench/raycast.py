@@ -210,6 +210,11 @@ def worker(data_path, threads):
             rs.intersect(o[:1000], d[:1000])
             sec_generic, _ = best_of(lambda: rs.intersect(o, d), repeat=1)
             rs._mesh = mesh
+            # the same mesh kernel on the binary tree the 4-wide one is collapsed from
+            narrow = RayScene.from_mesh(v, f, accel="bvh(width=2)")
+            narrow.intersect(o[:1000], d[:1000])
+            sec_binary, _ = best_of(lambda: narrow.intersect(o, d), repeat=1)
+            nodes_binary = narrow.last_stats.get("cells.visited", 0) / len(o)
             es.run(o32[:1000], d32[:1000], output=1)
             sec_em, (geom_em, t_em) = best_of(lambda: embree_run(es, o32, d32, threads))
             hit_rk = np.isfinite(h.t)
@@ -230,7 +235,8 @@ def worker(data_path, threads):
             rows.append(dict(mesh=str(name), tris=len(f), kind=kind, rays=len(o), threads=threads, peers=peer_rates,
                              missing=missing,
                              rk=len(o) / sec_rk / 1e6, em=len(o) / sec_em / 1e6, agree=float(same.mean()),
-                             generic=len(o) / sec_generic / 1e6,
+                             generic=len(o) / sec_generic / 1e6, binary=len(o) / sec_binary / 1e6,
+                             nodes_binary=nodes_binary, bounds=stats.get("bounds.tests", 0) / len(o),
                              hit=float(hit_rk.mean()), build_rk=build_rk, build_em=build_em,
                              tests=stats.get("tests.triangle", 0) / len(o),
                              nodes=stats.get("cells.visited", 0) / len(o)))
@@ -293,8 +299,12 @@ def main():
              "closest hit (output=1) for embreex, whose run() is single-threaded and releases the GIL: at 2 threads "
              "it runs on two Python threads over halves of the rays; best of 2 runs. Each thread count runs in a "
              "process pinned to that many cores with taskset, so both libraries get the same cores. agree: same "
-             "hit/miss and |t - t_embree| <= 1e-5 t. generic: "
-             "raykernel through the general traversal (traverse.py) instead of the mesh kernel (meshcast.py), one run.",
+             "hit/miss and |t - t_embree| <= 1e-5 t. raykernel casts through its mesh kernel (meshcast.py) on the "
+             "4-wide BVH (the default, bvh(width=4)); width 2: the same kernel on the binary tree it is collapsed "
+             "from (bvh(width=2)), one run; generic: "
+             "raykernel through the general traversal (traverse.py) instead of the mesh kernel, one run. "
+             "tests/ray: triangle tests; boxes/ray: child boxes tested (4-wide: one per used child slot of "
+             "each node visited); nodes/ray: 4-wide nodes visited, and binary nodes with width 2.",
              "",
              "Mitsuba 3 (variant llvm_ad_rgb, `scene.ray_intersect`, Embree underneath, its thread count "
              "set with drjit) and Open3D (`RaycastingScene.cast_rays`, nthreads) on the same rays, float32, "
@@ -305,16 +315,17 @@ def main():
              "",
              "| mesh | triangles | rays | threads | raykernel Mrays/s | embreex Mrays/s | ratio | agree | "
              "mitsuba Mrays/s | ratio | agree | open3d Mrays/s | ratio | agree | "
-             "generic Mrays/s | tests/ray | nodes/ray |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "width 2 Mrays/s | generic Mrays/s | tests/ray | boxes/ray | nodes/ray | nodes/ray width 2 |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         cells = []
         for peer in ("mitsuba", "open3d"):
             rate, agree = r["peers"].get(peer, (None, None))
             cells += ["-", "-", "-"] if rate is None else [f"{rate:.2f}", f"{r['rk'] / rate:.2f}", f"{agree:.4f}"]
         lines.append(f"| {r['mesh']} | {r['tris']} | {r['kind']} | {r['threads']} | {r['rk']:.2f} | {r['em']:.2f} | "
-                     f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {' | '.join(cells)} | {r['generic']:.2f} | "
-                     f"{r['tests']:.1f} | {r['nodes']:.1f} |")
+                     f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {' | '.join(cells)} | {r['binary']:.2f} | "
+                     f"{r['generic']:.2f} | {r['tests']:.1f} | {r['bounds']:.1f} | {r['nodes']:.1f} | "
+                     f"{r['nodes_binary']:.1f} |")
     for peer, why in (rows[0]["missing"] if rows else {}).items():
         lines += ["", f"{peer} is not in this table: it does not run here ({why})."]
     lines += ["", f"JIT compile in a fresh process (import, build a 1-triangle scene, intersect and count_hits): "

@@ -1,8 +1,10 @@
 """The mesh fast path of RayScene against the generic kernel, and geometry identities.
 
-The fast kernel (meshcast.py) must give exactly what the generic traversal
-gives on the same BVH: the same t, identities, surfaces and counters, bit
-for bit, for every query kind.
+The fast kernel (meshcast.py) on the binary tree (bvh(width=2)) must give
+exactly what the generic traversal gives on the same BVH: the same t,
+identities, surfaces and counters, bit for bit, for every query kind. On the
+4-wide tree (the default) the hits, surfaces and ray counts are the same and
+only the walk's own counters (nodes, box tests, triangle tests) differ.
 """
 
 from __future__ import annotations
@@ -14,7 +16,10 @@ import pytest
 from test_watertight import MESHES, rays_through, targets
 
 from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
+from raykernel.aggregates.widebvh import CHILD, COUNT, collapse
 from raykernel.geometry.primitives import SPHERE, TRIANGLE
+
+WALK = ("bounds.tests", "cells.visited", "cells.leaves", "tests.triangle", "walk.bvh.bounds", "walk.bvh.steps")
 
 
 def generic(scene: RayScene) -> RayScene:
@@ -24,23 +29,43 @@ def generic(scene: RayScene) -> RayScene:
     return other
 
 
+def binary(scene: RayScene) -> RayScene:
+    """The same scene cast through the mesh kernel on the binary tree."""
+    return RayScene(scene.scene, "bvh(width=2)", edges=scene.edges)
+
+
+def _run(scene, query, o, d, tmin, tmax):
+    out = getattr(scene, query)(o, d, tmin, tmax)
+    return out, {k: v for k, v in scene.last_stats.items() if not k.startswith("time.")}
+
+
+def _same_output(query, a, b):
+    if query == "intersect":
+        for field in ("t", "prim_id", "geom_id", "inst_id", "kind", "uv", "normal", "shading_normal"):
+            assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+    elif query == "intersect_all":
+        for x, y in zip(a, b):
+            assert np.array_equal(x, y)
+    else:
+        assert np.array_equal(a, b)
+
+
 def assert_same_queries(scene: RayScene, o, d, tmin=0.0, tmax=np.inf):
-    assert scene._mesh is not None, "this scene should take the fast path"
-    slow = generic(scene)
+    """The wide kernel, the binary mesh kernel and the generic kernel agree on every query;
+    the binary mesh kernel and the generic one on every counter too."""
+    assert scene._mesh is not None and len(scene._mesh.wide.nodes), "this scene should take the wide fast path"
+    narrow = binary(scene)
+    slow = generic(narrow)
     for query in ("intersect", "occluded", "count_hits", "intersect_all"):
-        fast_out = getattr(scene, query)(o, d, tmin, tmax)
-        fast_stats = {k: v for k, v in scene.last_stats.items() if not k.startswith("time.")}
-        slow_out = getattr(slow, query)(o, d, tmin, tmax)
-        slow_stats = {k: v for k, v in slow.last_stats.items() if not k.startswith("time.")}
+        wide_out, wide_stats = _run(scene, query, o, d, tmin, tmax)
+        fast_out, fast_stats = _run(narrow, query, o, d, tmin, tmax)
+        slow_out, slow_stats = _run(slow, query, o, d, tmin, tmax)
         assert fast_stats == slow_stats, query
-        if query == "intersect":
-            for field in ("t", "prim_id", "geom_id", "inst_id", "kind", "uv", "normal", "shading_normal"):
-                assert np.array_equal(getattr(fast_out, field), getattr(slow_out, field), equal_nan=True), field
-        elif query == "intersect_all":
-            for a, b in zip(fast_out, slow_out):
-                assert np.array_equal(a, b)
-        else:
-            assert np.array_equal(fast_out, slow_out)
+        assert {k: v for k, v in wide_stats.items() if k not in WALK} == \
+            {k: v for k, v in fast_stats.items() if k not in WALK}, query
+        assert wide_stats.get("cells.visited", 0) <= fast_stats.get("cells.visited", 0), query
+        _same_output(query, fast_out, slow_out)
+        _same_output(query, wide_out, slow_out)
     return scene.intersect(o, d, tmin, tmax)
 
 
@@ -147,3 +172,64 @@ def test_geometry_ids_count_within_each_geometry():
     assert ray.tolist() == [0, 1, 2, 3, 4, 5] and prim.tolist() == [0, 1, 0, 1, 0, 1]
     assert geom.tolist() == h.geom_id[:6].tolist() and inst.tolist() == [-1] * 6
 
+
+
+def test_collapse_keeps_every_leaf_and_contains_every_box():
+    """The 4-wide tree holds each binary leaf exactly once, at most 4 children a node, used
+    slots first, and float32 boxes that contain the binary tree's float64 boxes (both taken
+    relative to the tree's center)."""
+    rng = np.random.default_rng(15)
+    v = rng.uniform(-1, 1, (3000, 3)) * rng.choice([1e-6, 1.0, 1e7], (3000, 1))
+    rs = RayScene.from_mesh(v, np.arange(3000).reshape(-1, 3), accel="bvh(leaf=2)")
+    g = rs.geo
+    leaf = g.node_count > 0
+    wide = collapse(g.node_bounds, g.node_first, g.node_count, 0)
+    count = wide.nodes[:, COUNT:]
+    child = wide.nodes[:, CHILD:COUNT]
+    used = count >= 0
+    assert np.all(used[:, 0]) and np.all(used[:, :-1] | ~used[:, 1:])        # used slots come first
+    got = sorted(zip(child[count > 0].tolist(), count[count > 0].tolist()))
+    assert got == sorted(zip(g.node_first[leaf].tolist(), g.node_count[leaf].tolist()))
+    inner = child[count == 0]
+    assert sorted(inner.tolist()) == list(range(1, len(wide.nodes)))           # every node but the root once
+    assert np.all(inner > np.nonzero(count == 0)[0])                          # children after their parent
+    # each leaf slot's box contains the binary leaf's box
+    box = wide.boxes[:, :24].reshape(-1, 6, 4)
+    by_first = {int(f): i for i, f in zip(np.flatnonzero(leaf), g.node_first[leaf])}
+    for w, s in zip(*np.nonzero(count > 0)):
+        b = g.node_bounds[by_first[int(child[w, s])]] - np.tile(wide.center, 2)     # stored relative to center
+        assert np.all(box[w, :3, s].astype(float) <= b[:3]) and np.all(box[w, 3:, s].astype(float) >= b[3:])
+    assert np.all(box[:, :3][~np.broadcast_to(used[:, None, :], box[:, :3].shape)] == np.inf)
+
+
+def test_wide_kernel_against_brute_force():
+    """Closest hits of the 4-wide kernel against testing every triangle (the list), at
+    scales from 1e-6 to 1e7, with axis-parallel rays and rays from inside the mesh."""
+    v0, f = MESHES["icosphere"]
+    rng = np.random.default_rng(16)
+    for scale, shift in ((1e-6, 0.0), (1.0, 0.0), (1e7, 0.0), (1.0, 1e7)):
+        v = v0 * scale + shift
+        o = np.r_[rng.normal(size=(600, 3)) * 3, rng.uniform(-0.5, 0.5, (200, 3))] * scale + shift
+        d = rng.normal(size=(800, 3))
+        d[:150] = 0.0
+        d[np.arange(150), rng.integers(0, 3, 150)] = rng.choice([-1.0, 1.0], 150)
+        wide = RayScene.from_mesh(v, f)
+        brute = RayScene.from_mesh(v, f, accel="list")
+        a, b = wide.intersect(o, d), brute.intersect(o, d)
+        assert np.array_equal(a.t, b.t) and np.array_equal(a.prim_id, b.prim_id), scale
+        assert np.array_equal(wide.occluded(o, d), brute.occluded(o, d))
+        assert np.array_equal(wide.count_hits(o, d), brute.count_hits(o, d))
+        assert 0.2 < np.mean(np.isfinite(a.t)) < 1.0      # rays from inside all hit, many from outside miss
+
+
+def test_wide_counters_are_per_box_and_per_node():
+    """One ray into a single 4-triangle leaf's mesh: one wide node (the root) visited, one box
+    test for the root's own box and one per used child slot."""
+    v = np.array([(0, 0, 0), (1, 0, 0), (0, 1, 0)], float)
+    quads = np.concatenate([v + (2 * i, 0, 0) for i in range(4)])
+    rs = RayScene.from_mesh(quads, np.arange(12).reshape(-1, 3), accel="bvh(leaf=1)")
+    h = rs.intersect([(0.2, 0.2, 1.0)], [(0, 0, -1.0)])
+    s = rs.last_stats
+    slots = int((rs._mesh.wide.nodes[0, COUNT:] >= 0).sum())
+    assert h.prim_id.tolist() == [0] and len(rs._mesh.wide.nodes) == 1 and slots == 4
+    assert s["cells.visited"] == 1 and s["bounds.tests"] == 1 + slots and s["tests.triangle"] == 1

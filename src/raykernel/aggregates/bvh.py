@@ -603,7 +603,7 @@ def flatten(builder, params, refs, bounds, name, box):
                      optimize_seconds=info["seconds"], optimize_steps=info["steps"])
     if stats.get("max_depth", 0) > MAX_TREE_DEPTH:
         raise SceneError(f"group {name or '(unnamed)'}: BVH depth {stats['max_depth']} exceeds {MAX_TREE_DEPTH}")
-    return append_bvh(builder.flat, tree, refs, box, cull_margin(box)), dict(stats)
+    return append_bvh(builder.flat, tree, refs, box, cull_margin(box)), dict(stats, width=params["width"])
 
 
 KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (build=sah) or "
@@ -618,4 +618,7 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
     Param("optimize", "none", "after the build, lower the SAH cost keeping the leaves (bvhopt.py): rotations "
           "(Kensler 2008) or reinsertion (Bittner, Hapala and Havran 2013)", str,
           choices=("none", "rotations", "reinsertion")),
+    Param("width", 4, "children per node where the ray is cast: 4 collapses the binary tree into 4-wide "
+          "nodes tested with one vector slab test (widebvh.py), 2 walks the binary tree; RayScene's mesh "
+          "kernel uses it, renders walk the binary tree", int, choices=(2, 4)),
 ), flatten=flatten)

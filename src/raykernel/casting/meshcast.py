@@ -1,18 +1,24 @@
 """The fast path of RayScene: one triangle mesh (or several) under one BVH.
 
     mesh = MeshKernel.of(geo, geometries)   # None unless geo is triangles under a single BVH, no instances
-    query(geo, *mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayscene's generic kernel
+    mesh.kernel(geo, *mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayscene's generic kernel
 
 The generic intersection routine (traverse.py) carries every aggregate kind,
 nesting frames, instances and mailboxes through one loop; for the common
 case of ray casting against a plain mesh that generality costs several
-times the work. This kernel walks the same BVH (same nodes, same order,
-same conservative box test) and runs the same watertight triangle test, so
-its hits, ties and counters are identical to the generic kernel's (tested),
-with three changes that make it fast:
+times the work. This kernel walks the same BVH with the same conservative
+box test and runs the same watertight triangle test, so its hits, ties and
+surfaces are identical to the generic kernel's (tested), with four changes
+that make it fast:
 
+* `query` walks the BVH collapsed 4-wide (aggregates/widebvh.py): a node's
+  four child boxes are tested in one vector slab test and the children the
+  ray enters are visited nearest first. The leaves are the binary tree's,
+  so a ray meets the same triangles; `query_binary` (bvh(width=2)) walks the
+  binary tree node for node as the generic kernel does, counters included;
 * the ray's permutation and shear for the watertight test are computed once
-  per ray instead of once per triangle (the same arithmetic, bit for bit);
+  per ray instead of once per triangle (the same arithmetic, bit for bit),
+  and the test is inlined into the leaf loop;
 * the triangles' corners are copied into leaf order, nine numbers per
   reference, so a leaf's triangles are read from one contiguous block;
 * the loop knows only BVH nodes and triangles.
@@ -29,16 +35,18 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..aggregates.widebvh import CHILD, COUNT, NO_WIDE, WideBVH, box4_entries, box4_still, collapse, near_planes
 from ..engine.flatten import BVH, Geometry
 from ..engine.traverse import ALL_HITS
 from ..geometry import counters as C
-from ..geometry.boxes import CONSERVATIVE, box_entry, inverse
+from ..geometry.boxes import CONSERVATIVE, STILL, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
 from .hitsurface import store_miss, store_surface
 
 INF = np.inf
 STACK = 192                  # a BVH is at most 96 nodes deep (flatten.MAX_TREE_DEPTH): 2 entries per level
+STACK4 = 384                 # the 4-wide tree is no deeper: 4 entries per level
 _IDENTITY = np.array([1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0])
 
 
@@ -48,11 +56,13 @@ class MeshKernel(NamedTuple):
     geom: np.ndarray         # (R,) int64 geometry (mesh) of each leaf reference
     local: np.ndarray        # (R,) int64 face index within that mesh
     root: int                # root node of the BVH
+    wide: WideBVH            # the BVH collapsed 4-wide (widebvh.py); empty arrays for width 2
 
     @classmethod
-    def of(cls, geo: Geometry, geometries: np.ndarray) -> "MeshKernel | None":
+    def of(cls, geo: Geometry, geometries: np.ndarray, width: int = 4) -> "MeshKernel | None":
         """The fast-path arrays, or None when geo holds anything but triangles under one BVH.
-        geometries: flatten's (kind, first global index, count) rows, all triangle meshes here."""
+        geometries: flatten's (kind, first global index, count) rows, all triangle meshes here.
+        width 4: walk the BVH collapsed 4-wide (query); 2: the binary tree as built (query_binary)."""
         if (len(geo.agg_kind) != 1 or geo.agg_kind[0] != BVH or len(geo.inst_agg) or len(geo.sph_radius)
                 or len(geo.cone_length) or len(geo.poly_start) or not len(geo.tri_faces)):
             return None
@@ -60,28 +70,53 @@ class MeshKernel(NamedTuple):
         corners = geo.tri_verts[geo.tri_faces[prim]].reshape(-1, 9)
         geom = np.searchsorted(geometries[:, 1], prim, side="right") - 1
         local = prim - geometries[geom, 1]
-        return cls(np.ascontiguousarray(corners), prim, geom.astype(np.int64), local.astype(np.int64),
-                   int(geo.agg_start[geo.root]))
+        root = int(geo.agg_start[geo.root])
+        wide = collapse(geo.node_bounds, geo.node_first, geo.node_count, root) if width == 4 else NO_WIDE
+        return cls(np.ascontiguousarray(corners), prim, geom.astype(np.int64), local.astype(np.int64), root, wide)
+
+    @property
+    def kernel(self):
+        return query if len(self.wide.nodes) else query_binary
+
+
+# the same test, inlined here where it is the inner loop (a call spills its 15 arguments)
+_hit_sheared = njit(inline="always")(hit_sheared.py_func)
 
 
 @njit(inline="always")
 def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax, edges):
     """primitives.hit_triangle for corners row j with the ray's shear precomputed."""
-    return hit_sheared(c[j, kx] - o[kx], c[j, ky] - o[ky], c[j, kz] - o[kz],
+    return _hit_sheared(c[j, kx] - o[kx], c[j, ky] - o[ky], c[j, kz] - o[kz],
                        c[j, 3 + kx] - o[kx], c[j, 3 + ky] - o[ky], c[j, 3 + kz] - o[kz],
                        c[j, 6 + kx] - o[kx], c[j, 6 + ky] - o[ky], c[j, 6 + kz] - o[kz], sx, sy, sz, tmin, tmax,
                        edges)
 
 
 @njit
-def query(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out,
+def query(geo, corners, prim, geom, local, root, wide, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out,
           geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
     outputs of rayscene._query, identities as the user sees them: geometry and
     index within it (-1 on a miss). All hits: with len(offsets) == 0 counts them
     into idx_out, else writes ray r's hits to rows offsets[r] .. offsets[r + 1]
     of all_t / all_i as (kind, global index, instance), like the generic kernel.
-    Chunks c0..c1-1 of `chunk` rays, counting into counters[c]."""
+    Chunks c0..c1-1 of `chunk` rays, counting into counters[c]. Walks the 4-wide tree."""
+    n = origins.shape[0]
+    for c in range(c0, c1):
+        stack = np.empty(STACK4, np.int64)
+        stack_t = np.empty(STACK4)
+        o = np.empty(3)
+        t4 = np.empty(4)
+        _chunk4(geo, corners, prim, geom, local, wide, origins, directions, tmin, tmax, mode, t_out, kind_out,
+                geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c,
+                c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o, t4)
+
+
+@njit
+def query_binary(geo, corners, prim, geom, local, root, wide, origins, directions, tmin, tmax, mode, chunk, t_out,
+                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
+                 counters, c0, c1):
+    """query on the binary tree as built (bvh(width=2)), node for node the general kernel's walk."""
     n = origins.shape[0]
     for c in range(c0, c1):
         stack = np.empty(STACK, np.int64)
@@ -172,32 +207,137 @@ def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tma
                     if mode != 0:
                         sp = 0
                         break
-        if mode == ALL_HITS:
-            if not store:
-                idx_out[r] = n_all
-            continue
-        if best_j < 0:
-            store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
-            if kind_out.shape[0]:
-                kind_out[r] = -1
-            if geom_out.shape[0]:
-                geom_out[r] = -1
-            if inst_out.shape[0]:
-                inst_out[r] = -1
-            continue
-        t_out[r] = best
-        if kind_out.shape[0]:           # (outputs not asked for have no rows)
-            kind_out[r] = TRIANGLE
+        _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
+                geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
+    _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
+
+
+@njit(private=True)
+def _chunk4(geo, corners, prim, geom, local, wide, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
+            idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c, r0, r1,
+            stack, stack_t, o, t4):
+    """_chunk on the 4-wide tree. Stack entries: v >= 0 a wide node to visit, v < 0 the leaf in
+    child slot -v - 1 (node * 4 + slot); a node's children the ray enters go on the stack
+    nearest on top."""
+    store = offsets.shape[0] > 0
+    nodes, boxes, center = wide
+    edges = geo.tri_edges[0]
+    per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1
+    n_bounds = n_nodes = n_leaves = n_tests = n_entries = np.int64(0)
+    for r in range(r0, r1):
+        ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
+        dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+        o[0], o[1], o[2] = ox, oy, oz
+        ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+        still = ix == STILL or iy == STILL or iz == STILL
+        near = near_planes(ix, iy, iz)
+        wx, wy, wz = ox - center[0], oy - center[1], oz - center[2]      # the origin as the wide boxes see it
+        kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
+        lo = tmin[r if per_lo else 0]
+        best = tmax[r if per_hi else 0]
+        best_j = np.int64(-1)
+        n_all = np.int64(0)
+        base = offsets[r] if store else 0
+        sp = 0
+        n_bounds += 1
+        te = box_entry(geo.agg_bounds, geo.root, ox, oy, oz, ix, iy, iz, lo, best)
+        if te != INF:
+            stack[0] = 0
+            stack_t[0] = te
+            sp = 1
+            n_entries += 1
+        while sp > 0:
+            sp -= 1
+            if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
+                continue        # entered beyond the closest hit, beyond rounding (ties need the node)
+            v = stack[sp]
+            if v >= 0:
+                n_nodes += 1
+                if still:
+                    mask = box4_still(boxes, v, wx, wy, wz, ix, iy, iz, lo, best, t4)
+                else:
+                    mask = box4_entries(nodes, v, wx, wy, wz, ix, iy, iz, near, lo, best, t4)
+                bottom = sp
+                for s in range(4):
+                    k = nodes[v, COUNT + s]
+                    if k < 0:
+                        break           # the used slots come first
+                    n_bounds += 1
+                    if mask & (1 << s) == 0:
+                        continue
+                    t = t4[s]
+                    e = np.int64(nodes[v, CHILD + s]) if k == 0 else -(v * 4 + s) - 1
+                    j = sp      # insertion: the farthest deepest, so the nearest is popped first
+                    while j > bottom and stack_t[j - 1] < t:
+                        stack[j] = stack[j - 1]
+                        stack_t[j] = stack_t[j - 1]
+                        j -= 1
+                    stack[j] = e
+                    stack_t[j] = t
+                    sp += 1
+                continue
+            slot = -v - 1
+            n_leaves += 1
+            s0 = np.int64(nodes[slot >> 2, CHILD + (slot & 3)])
+            for j in range(s0, s0 + nodes[slot >> 2, COUNT + (slot & 3)]):
+                n_tests += 1
+                t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
+                if t == INF:
+                    continue
+                if mode == ALL_HITS:
+                    if store and n_all < offsets[r + 1] - base:
+                        all_t[base + n_all] = t
+                        all_i[base + n_all, 0] = TRIANGLE
+                        all_i[base + n_all, 1] = prim[j]
+                        all_i[base + n_all, 2] = -1
+                    n_all += 1
+                    continue
+                # ties at equal t go to the smaller triangle index, as in the generic kernel
+                if best_j < 0 or t < best or prim[j] < prim[best_j]:
+                    best = t
+                    best_j = j
+                    if mode != 0:
+                        sp = 0
+                        break
+        _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
+                geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
+    _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
+
+
+@njit(inline="always")
+def _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
+            geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface):
+    """Ray r's outputs: its hit count (all hits), its miss, or its closest hit's identity and surface."""
+    if mode == ALL_HITS:
+        if not store:
+            idx_out[r] = n_all
+        return
+    if best_j < 0:
+        store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
+        if kind_out.shape[0]:
+            kind_out[r] = -1
         if geom_out.shape[0]:
-            geom_out[r] = geom[best_j]
-        if idx_out.shape[0]:
-            idx_out[r] = local[best_j]
+            geom_out[r] = -1
         if inst_out.shape[0]:
             inst_out[r] = -1
-        if with_surface:
-            store_surface(geo, r, TRIANGLE, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz,
-                          _IDENTITY, uv_out, gn_out, sn_out)
-    counters[c, C.RAYS_CAST] = r1 - r0
+        return
+    t_out[r] = best
+    if kind_out.shape[0]:           # (outputs not asked for have no rows)
+        kind_out[r] = TRIANGLE
+    if geom_out.shape[0]:
+        geom_out[r] = geom[best_j]
+    if idx_out.shape[0]:
+        idx_out[r] = local[best_j]
+    if inst_out.shape[0]:
+        inst_out[r] = -1
+    if with_surface:
+        store_surface(geo, r, TRIANGLE, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz,
+                      _IDENTITY, uv_out, gn_out, sn_out)
+
+
+@njit(inline="always")
+def _count(counters, c, rays, n_bounds, n_nodes, n_entries, n_leaves, n_tests):
+    counters[c, C.RAYS_CAST] = rays
     counters[c, C.BOUNDS_TESTS] = n_bounds
     counters[c, C.CELLS_VISITED] = n_nodes
     counters[c, C.WALK_ENTRIES + BVH] = n_entries      # all of it the BVH walk's, as the general kernel counts it

@@ -52,7 +52,6 @@ from ..geometry import counters as C
 from ..geometry.config import cached, compiled, njit, tell_once
 from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
 from ..scene.model import Scene, TriangleMesh
-from . import meshcast
 from .hitsurface import store_miss, store_surface
 from .meshcast import MeshKernel
 from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, point_index, surface_normals
@@ -326,7 +325,11 @@ class RayScene:
         # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
         self._lazy = self.build_stats.get("lazy")
         self._may_repeat = self._may_repeat or self._lazy is not None or edges == "inclusive"
-        self._mesh = MeshKernel.of(self.geo, table)
+        width = self.build_stats["aggregates"][0].get("width", 4)
+        self._mesh = MeshKernel.of(self.geo, table, width)
+        if self._mesh is not None and width == 4:
+            self.build_stats["aggregates"][0].update(wide_nodes=len(self._mesh.wide.nodes),
+                                                     wide_bytes=self._mesh.wide.nbytes)
         self._lock = threading.RLock()      # held by queries that refine lazy structures
         self._local = threading.local()     # last_stats, per thread
 
@@ -452,7 +455,8 @@ class RayScene:
         all_t = np.zeros(0) if all_t is None else all_t
         all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
-        kernel, name = (meshcast.query, "meshcast.query") if self._mesh is not None else (_query, "rayscene._query")
+        kernel = self._mesh.kernel if self._mesh is not None else _query
+        name = f"meshcast.{kernel.__name__}" if self._mesh is not None else "rayscene._query"
         if n and not compiled(kernel) and not cached("casting", name):
             seconds = FIRST_MESH_SECONDS if self._mesh is not None else FIRST_QUERY_SECONDS
             tell_once(name, f"raykernel: compiling the ray-casting kernels (first use after install, about "
@@ -461,10 +465,9 @@ class RayScene:
             start = time.perf_counter()         # (after waiting for the lock)
             if n and self._mesh is not None:
                 mesh = self._mesh
-                for_ranges(lambda c0, c1: meshcast.query(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind,
-                                                         geom, idx, inst, uv, gn, sn, with_surface, offsets, all_t,
-                                                         all_i, counters, c0, c1), len(counters),
-                           threads, kernel=meshcast.query)
+                for_ranges(lambda c0, c1: kernel(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom,
+                                                 idx, inst, uv, gn, sn, with_surface, offsets, all_t, all_i, counters,
+                                                 c0, c1), len(counters), threads, kernel=kernel)
             elif n and self._lazy is not None:
                 # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
                 # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
