@@ -187,26 +187,12 @@ def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tma
                 continue
             n_leaves += 1
             s = first[node]
-            for j in range(s, s + k):
-                n_tests += 1
-                t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
-                if t == INF:
-                    continue
-                if mode == ALL_HITS:
-                    if store and n_all < offsets[r + 1] - base:
-                        all_t[base + n_all] = t
-                        all_i[base + n_all, 0] = TRIANGLE
-                        all_i[base + n_all, 1] = prim[j]
-                        all_i[base + n_all, 2] = -1
-                    n_all += 1
-                    continue
-                # ties at equal t go to the smaller triangle index, as in the generic kernel
-                if best_j < 0 or t < best or prim[j] < prim[best_j]:
-                    best = t
-                    best_j = j
-                    if mode != 0:
-                        sp = 0
-                        break
+            best, best_j, n_all, tested, done = _leaf(corners, prim, s, s + k, o, kx, ky, kz, sx, sy, sz, lo, best,
+                                                      best_j, edges, mode, store, offsets, r, base, n_all, all_t,
+                                                      all_i)
+            n_tests += tested
+            if done:
+                sp = 0
         _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
                 geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
     _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
@@ -279,29 +265,42 @@ def _chunk4(geo, corners, prim, geom, local, wide, origins, directions, tmin, tm
             slot = -v - 1
             n_leaves += 1
             s0 = np.int64(nodes[slot >> 2, CHILD + (slot & 3)])
-            for j in range(s0, s0 + nodes[slot >> 2, COUNT + (slot & 3)]):
-                n_tests += 1
-                t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
-                if t == INF:
-                    continue
-                if mode == ALL_HITS:
-                    if store and n_all < offsets[r + 1] - base:
-                        all_t[base + n_all] = t
-                        all_i[base + n_all, 0] = TRIANGLE
-                        all_i[base + n_all, 1] = prim[j]
-                        all_i[base + n_all, 2] = -1
-                    n_all += 1
-                    continue
-                # ties at equal t go to the smaller triangle index, as in the generic kernel
-                if best_j < 0 or t < best or prim[j] < prim[best_j]:
-                    best = t
-                    best_j = j
-                    if mode != 0:
-                        sp = 0
-                        break
+            best, best_j, n_all, tested, done = _leaf(corners, prim, s0, s0 + nodes[slot >> 2, COUNT + (slot & 3)], o, kx, ky, kz, sx, sy, sz, lo, best,
+                                                      best_j, edges, mode, store, offsets, r, base, n_all, all_t,
+                                                      all_i)
+            n_tests += tested
+            if done:
+                sp = 0
         _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
                 geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
     _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
+
+
+@njit(inline="always")
+def _leaf(corners, prim, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r, base,
+          n_all, all_t, all_i):
+    """Test the leaf's references s..e-1 against ray r, both walks' leaf loop: returns the closest
+    hit so far (best, best_j), the hits counted or stored (all hits), the tests made, and
+    whether the ray is done (any hit found)."""
+    for j in range(s, e):
+        t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
+        if t == INF:
+            continue
+        if mode == ALL_HITS:
+            if store and n_all < offsets[r + 1] - base:
+                all_t[base + n_all] = t
+                all_i[base + n_all, 0] = TRIANGLE
+                all_i[base + n_all, 1] = prim[j]
+                all_i[base + n_all, 2] = -1
+            n_all += 1
+            continue
+        # ties at equal t go to the smaller triangle index, as in the generic kernel
+        if best_j < 0 or t < best or prim[j] < prim[best_j]:
+            best = t
+            best_j = j
+            if mode != 0:
+                return best, best_j, n_all, j - s + 1, True
+    return best, best_j, n_all, e - s, False
 
 
 @njit(inline="always")
