@@ -100,18 +100,19 @@ def test_the_kernels_inner_loops_count_no_references():
     # reference counts there are atomics the threads fight over (they took half the time of a query)
     from raykernel.aggregates import bvh, csg, grid, octree, rc
     from raykernel.casting import meshcast, proximity, rayscene
-    from raykernel.engine import transforms, traverse
+    from raykernel.engine import transforms, traverse, widewalk
     from raykernel.geometry import primitives
     from raykernel.rendering import hall, heckbert, render, sampling, startlists, tricks, whitted
 
-    per_item = [primitives.hit_polygon, primitives.point_in_polygon, rc.meets_beam, proximity._closest_on_polygon,
-                traverse.intersect, whitted.trace, heckbert.trace, hall.trace, tricks.test_ref, tricks.list_hint,
+    per_item = [primitives.hit_polygon, primitives.hit_plane_polygon, primitives.point_in_polygon, rc.meets_beam, proximity._closest_on_polygon,
+                traverse.walk, widewalk.intersect_wide, whitted.trace, heckbert.trace, hall.trace, tricks.test_ref, tricks.list_hint,
                 startlists.start_list,
                 sampling._render_tile, render._render_tile,
                 rayscene._cast, meshcast._chunk, meshcast._chunk4, bvh.step, grid.step, rc.step,
                 csg.start, csg.record, csg.resolve, octree._parametric, octree._point_walk, transforms.map_ray]
     for kernel in per_item:
         assert kernel.targetoptions.get("_nrt") is False, kernel.py_func.__qualname__
+    assert traverse.intersect.targetoptions.get("inline") == "always"     # a dispatcher, inlined where called
 
 
 def test_a_geometry_is_typed_once_per_layout_as_numba_would():

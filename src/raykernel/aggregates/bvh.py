@@ -620,5 +620,6 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
           choices=("none", "rotations", "reinsertion")),
     Param("width", 4, "children per node where the ray is cast: 4 collapses the binary tree into 4-wide "
           "nodes tested with one vector slab test (widebvh.py), 2 walks the binary tree; RayScene's mesh "
-          "kernel uses it, renders walk the binary tree", int, choices=(2, 4)),
+          "kernel and the fast walk of a scene that is one BVH over primitives (engine/widewalk.py) use it, "
+          "a BVH nested with other aggregates is walked binary", int, choices=(2, 4)),
 ), flatten=flatten)

@@ -35,7 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates.widebvh import CHILD, COUNT, NO_WIDE, WideBVH, box4_entries, box4_still, collapse, near_planes
+from ..aggregates.widebvh import CHILD, COUNT, WideBVH, box4_entries, box4_still, near_planes
 from ..engine.flatten import BVH, Geometry
 from ..engine.traverse import ALL_HITS
 from ..geometry import counters as C
@@ -59,10 +59,11 @@ class MeshKernel(NamedTuple):
     wide: WideBVH            # the BVH collapsed 4-wide (widebvh.py); empty arrays for width 2
 
     @classmethod
-    def of(cls, geo: Geometry, geometries: np.ndarray, width: int = 4) -> "MeshKernel | None":
+    def of(cls, geo: Geometry, geometries: np.ndarray) -> "MeshKernel | None":
         """The fast-path arrays, or None when geo holds anything but triangles under one BVH.
         geometries: flatten's (kind, first global index, count) rows, all triangle meshes here.
-        width 4: walk the BVH collapsed 4-wide (query); 2: the binary tree as built (query_binary)."""
+        Walks the BVH collapsed 4-wide (query) where flatten collapsed it (bvh(width=4)), else
+        the binary tree as built (query_binary)."""
         if (len(geo.agg_kind) != 1 or geo.agg_kind[0] != BVH or len(geo.inst_agg) or len(geo.sph_radius)
                 or len(geo.cone_length) or len(geo.poly_start) or not len(geo.tri_faces)):
             return None
@@ -71,7 +72,7 @@ class MeshKernel(NamedTuple):
         geom = np.searchsorted(geometries[:, 1], prim, side="right") - 1
         local = prim - geometries[geom, 1]
         root = int(geo.agg_start[geo.root])
-        wide = collapse(geo.node_bounds, geo.node_first, geo.node_count, root) if width == 4 else NO_WIDE
+        wide = WideBVH(geo.wide_nodes, geo.wide_boxes, geo.wide_center)
         return cls(np.ascontiguousarray(corners), prim, geom.astype(np.int64), local.astype(np.int64), root, wide)
 
     @property

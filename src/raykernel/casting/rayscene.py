@@ -125,7 +125,7 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
                 cap = max(cap, offsets[r + 1] - offsets[r])
         hit_f = np.zeros(HIT_F + cap)
         hit_i = np.zeros(HIT_I + 3 * cap, np.int64)
-        ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i, ws0[7], ws0[8], ws0[9], ws0[10])
+        ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i, ws0[7], ws0[8], ws0[9], ws0[10], ws0[11])
         cnt = np.zeros(counters.shape[1], np.int64)     # columns past N_COUNTERS: lazy octree passes
         _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, uv_out, gn_out, sn_out,
               with_surface, offsets, all_t, all_i, r0, r1, ws, cnt)
@@ -325,11 +325,7 @@ class RayScene:
         # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
         self._lazy = self.build_stats.get("lazy")
         self._may_repeat = self._may_repeat or self._lazy is not None or edges == "inclusive"
-        width = self.build_stats["aggregates"][0].get("width", 4)
-        self._mesh = MeshKernel.of(self.geo, table, width)
-        if self._mesh is not None and width == 4:
-            self.build_stats["aggregates"][0].update(wide_nodes=len(self._mesh.wide.nodes),
-                                                     wide_bytes=self._mesh.wide.nbytes)
+        self._mesh = MeshKernel.of(self.geo, table)
         self._lock = threading.RLock()      # held by queries that refine lazy structures
         self._local = threading.local()     # last_stats, per thread
 

@@ -16,7 +16,9 @@ aggregate can hold a primitive, an aggregate or an instance.
 
 Geometry is one named tuple of arrays: the primitives' and the aggregates'
 fields below, then the fields each walk kind declares in its module
-(FIELDS: grid_*, node_*, oct_*, rc_*), in registry order.
+(FIELDS: grid_*, node_*, oct_*, rc_*), in registry order, then, for a
+scene that is one BVH over primitives, that BVH collapsed 4-wide (wide_*),
+which the driver hands to its fast walk (widewalk.py).
 
 With lazy octrees in the scene, build["lazy"] holds them
 (aggregates/lazyoctree.py): whoever traces rays refines them between passes.
@@ -42,6 +44,7 @@ from ..aggregates.memory import memory_limit
 from ..aggregates.octree import CODE as OCTREE
 from ..aggregates.rc import CODE as RC
 from ..aggregates.walk import MAX_NESTING, MAX_TREE_DEPTH, STACK_SIZE, Field
+from ..aggregates.widebvh import NO_WIDE
 from ..errors import OptionError, SceneError
 from ..geometry.boxes import cull_margin
 from ..geometry.primitives import (
@@ -58,6 +61,7 @@ from ..geometry.primitives import (
 )
 from ..scene import accel
 from ..scene.model import Group, Instance, Scene
+from . import widewalk
 from .transforms import transform_class
 
 __all__ = ["Geometry", "flatten", "transform_box", "LIST", "BVH", "GRID", "OCTREE", "RC", "MAX_NESTING",
@@ -100,8 +104,15 @@ AGGREGATE_FIELDS = (
     Field("inst_class", np.int64),        # (I,) the map's class (transform_class): what mapping a ray needs
 ) + tuple(f for w in WALKS for f in w.FIELDS)
 
+WIDE_FIELDS = (         # a scene that is one BVH over primitives: that BVH collapsed 4-wide (widebvh.py), which
+    "wide_nodes",       # engine/widewalk.py walks; (0, 32) arrays otherwise
+    "wide_boxes",
+    "wide_center",
+    "wide_prims",       # its leaves' primitives in leaf order, a 128-byte record each (widewalk.py)
+)
 Geometry = NamedTuple("Geometry", [(name, np.ndarray) for name in PRIMITIVE_FIELDS] +
-                      [(f.name, np.ndarray) for f in AGGREGATE_FIELDS] + [("root", int)])
+                      [(f.name, np.ndarray) for f in AGGREGATE_FIELDS] +
+                      [(name, np.ndarray) for name in WIDE_FIELDS] + [("root", int)])
 Geometry.__module__ = __name__
 Geometry.__doc__ = "Flat arrays of a built scene, read by the kernels (see the module docstring)."
 
@@ -505,8 +516,11 @@ def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None, builder=N
         tri_mat=_concat([m.material for m, _ in arr.mesh], (0,), np.int32),
         tri_edges=np.zeros(1, np.int64),
         mat_clear=np.array([m.t > 0.0 for m in scene.materials] or [False], np.bool_),
+        wide_nodes=NO_WIDE.nodes, wide_boxes=NO_WIDE.boxes, wide_center=NO_WIDE.center,
+        wide_prims=np.zeros((0, widewalk.PRIM_COLUMNS)),
         root=int(root), **fields,
     )
+    geo = widewalk.prepare(geo, b.agg_stats)
     lazy = None
     if arr.lazy:
         # lazy octrees take over the octree and reference arrays to grow them between passes

@@ -47,41 +47,27 @@ from ..aggregates.walk import (
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, box_entry, inverse
 from ..geometry.config import njit
-from ..geometry.primitives import (
-    AGGREGATE,
-    CONE,
-    INDEX_MASK,
-    INSTANCE,
-    KIND_SHIFT,
-    PATCH,
-    POLYGON,
-    SPHERE,
-    TRIANGLE,
-    hit_cone,
-    hit_polygon,
-    hit_sphere,
-    hit_triangle,
-    normalize,
-    sphere_roots,
+from ..geometry.primitives import AGGREGATE, INDEX_MASK, INSTANCE, KIND_SHIFT, SPHERE, sphere_roots
+from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, for intersect's callers)
+    ALL_HITS,
+    ANY_HIT,
+    ANY_OPAQUE,
+    CLOSEST,
+    CLOSEST_EAGER,
+    CSG_SURFACE,
+    FLIP,
+    HIT_F,
+    HIT_I,
+    clear_material,
+    eager_normal,
+    hit_primitive,
+    take,
 )
-from ..geometry.surface import surface
 from .flatten import LIST, MAX_NESTING, STACK_SIZE
 from .parallel import for_ranges
 from .transforms import compose_map, map_ray
+from .widewalk import intersect_wide
 
-# intersect's mode: the closest hit, any hit, every hit. numpy integers, not Python ints: numba
-# compiles a function again for each literal int value it is passed
-CLOSEST, ANY_HIT, ALL_HITS = np.int64(0), np.int64(1), np.int64(2)
-# the closest hit, computing the surface normal of every closer hit as it is found (what a tracer
-# without Haines's trick 5, "normals only for the final hit", does; rendering/tricks.py)
-CLOSEST_EAGER = np.int64(3)
-# any hit on an opaque surface: transparent primitives (geo.mat_clear) are passed over (Haines's trick 4)
-ANY_OPAQUE = np.int64(4)
-HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that was hit (then, in a workspace's,
-                             # room for CLOSEST_EAGER's normal)
-HIT_I = 4                    # hit_i: kind, index, innermost instance (-1: none), flags:
-FLIP, CSG_SURFACE = 1, 2     # hit_i[3] bits: reverse the normal; a surface of a CSG result (not its primitive's
-                             # own surface everywhere, so a test of the primitive alone may disagree with it)
 KEYED = entry_tag(LIST, 1)   # stack entry: go on with the frame's keyed list at stack_a
 DONE = np.int64(-2)          # _resolve's sink when an ANY_HIT query is answered
 
@@ -90,58 +76,11 @@ DONE = np.int64(-2)          # _resolve's sink when an ANY_HIT query is answered
 def workspace():
     """Scratch arrays for one thread, allocated once per tile or chunk:
     (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, then csg.py's crossing buffer:
-    csg_t, csg_i, csg_m, csg_n)."""
+    csg_t, csg_i, csg_m, csg_n, then the 4-wide walk's entry distances t4)."""
     csg_t, csg_i, csg_m, csg_n = csg.buffers()
     return (np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
             np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, FRAME_I), np.int64),
-            np.zeros(HIT_F + 3), np.zeros(HIT_I, np.int64), csg_t, csg_i, csg_m, csg_n)
-
-
-@njit(private=True)
-def _take(mode, t, kind, idx, inst, flip, maps, row, col, hit_f, hit_i, found, best_t, best_ref, best_inst):
-    """The hit rule: hit (t, kind, idx, inst) with the map maps[row, col:col + 12] against
-    the best so far; returns the new (found, best_t, best_ref, best_inst)."""
-    if mode == ALL_HITS:
-        # every hit: hit_i[0] counts them; hit k is t = hit_f[HIT_F + k] and
-        # (kind, index, instance) = hit_i[HIT_I + 3k ..], stored while they fit
-        k = hit_i[0]
-        if HIT_F + k < hit_f.shape[0] and HIT_I + 3 * k + 2 < hit_i.shape[0]:
-            hit_f[HIT_F + k] = t
-            hit_i[HIT_I + 3 * k] = kind
-            hit_i[HIT_I + 3 * k + 1] = idx
-            hit_i[HIT_I + 3 * k + 2] = inst
-        hit_i[0] = k + 1
-        return True, best_t, best_ref, best_inst
-    # t <= best_t here; ties at equal t go to the smaller
-    # (ref, instance), so every traversal order reports the same primitive
-    ref = (kind << KIND_SHIFT) | idx
-    if not found or t < best_t or ref < best_ref or (ref == best_ref and inst < best_inst):
-        hit_f[0] = t
-        for k in range(12):
-            hit_f[1 + k] = maps[row, col + k]
-        hit_i[0], hit_i[1], hit_i[2], hit_i[3] = kind, idx, inst, flip
-        return True, t, ref, inst
-    return found, best_t, best_ref, best_inst
-
-
-@njit(inline="always")
-def clear_material(geo, kind, idx):
-    """True when primitive (kind, idx) has a transparent material."""
-    if kind == SPHERE:
-        return geo.mat_clear[geo.sph_mat[idx]]
-    if kind == POLYGON or kind == PATCH:
-        return geo.mat_clear[geo.poly_mat[idx]]
-    if kind == CONE:
-        return geo.mat_clear[geo.cone_mat[idx]]
-    return geo.mat_clear[geo.tri_mat[idx]]
-
-
-@njit(private=True)
-def _eager_normal(geo, kind, idx, px, py, pz, hit_f, cnt):
-    """CLOSEST_EAGER: the shading normal of the hit just taken, at its local point p, into hit_f."""
-    _, _, _, sx, sy, sz, _ = surface(geo, kind, idx, px, py, pz)
-    hit_f[HIT_F], hit_f[HIT_F + 1], hit_f[HIT_F + 2] = normalize(sx, sy, sz)
-    cnt[C.NORMALS_COMPUTED] += 1
+            np.zeros(HIT_F + 3), np.zeros(HIT_I, np.int64), csg_t, csg_i, csg_m, csg_n, np.empty(4))
 
 
 @njit(inline="always")
@@ -180,7 +119,7 @@ def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, h
     for k in range(region, region + n):
         t = csg_t[k]
         if tmin <= t <= best_t and not (mode == ANY_OPAQUE and clear_material(geo, csg_i[k, 1], csg_i[k, 2])):
-            found, best_t, best_ref, best_inst = _take(mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3],
+            found, best_t, best_ref, best_inst = take(mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3],
                                                        csg_i[k, 4] | CSG_SURFACE, csg_m, k, 0, hit_f, hit_i, found,
                                                        best_t, best_ref, best_inst)
             if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
@@ -209,16 +148,28 @@ def _operand(frame_f, frame_i, f, sink, position):
     return frame_i[f, FI_OPERAND]
 
 
-@njit(private=True)
+@njit(inline="always")
 def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     """Closest hit (mode CLOSEST) or the first hit found (ANY_HIT) of the ray with the
     scene in [tmin, tmax]. On a hit returns True and fills hit_f (t, world-to-local map
     of the hit's frame) and hit_i (kind, index, innermost instance, flip). Counts tests,
-    bounds tests and steps into cnt. ALL_HITS records every hit instead (see _take).
+    bounds tests and steps into cnt. ALL_HITS records every hit instead (see take).
+    A scene that is one BVH over primitives goes to its fast walk (widewalk.py), which
+    takes only the arrays it reads; every other to the general one, `walk`."""
+    if geo.wide_nodes.shape[0] and mode != CLOSEST_EAGER:
+        return intersect_wide(geo.wide_nodes, geo.wide_boxes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
+                              geo.wide_prims, geo.poly_verts, geo.tri_edges, ox, oy, oz, dx, dy, dz, tmin, tmax, mode,
+                              ws[0], ws[2], ws[3], ws[5], ws[6], ws[11], cnt)
+    return walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
+
+
+@njit(private=True)
+def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
+    """intersect through the general driver: any nesting of any kinds, instances, CSG.
     Below a CSG node the frames collect crossings instead (aggregates/csg.py): `sink` is
     the frame that gathers them, -1 above every CSG node, and `lo` the lower end of the
     tested interval, -inf there, since a solid's inside depends on crossings behind tmin."""
-    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, csg_t, csg_i, csg_m, csg_n = ws
+    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, csg_t, csg_i, csg_m, csg_n, _ = ws
     best_t = tmax
     found = False
     best_ref = np.int64(-1)
@@ -322,30 +273,13 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 frame_f[f, slot] = tag
             if mode == ANY_OPAQUE and sink < 0 and kind < AGGREGATE and clear_material(geo, kind, idx):
                 continue        # transparent: left to the walk that filters light through it
-            if kind == SPHERE:
-                cnt[C.TESTS + SPHERE] += 1
-                if sink >= 0:
+            if kind < AGGREGATE:
+                cnt[C.TESTS + kind] += 1
+                if kind == SPHERE and sink >= 0:
                     _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, _operand(frame_f, frame_i, f, sink, i - 1),
                                    frame_i[f, FI_INST], frame_f, f, csg_t, csg_i, csg_m, csg_n, cnt)
                     continue
-                t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
-                               geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, lo, best_t)
-            elif kind == POLYGON or kind == PATCH:
-                cnt[C.TESTS + kind] += 1
-                t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, lo, best_t)
-            elif kind == TRIANGLE:
-                cnt[C.TESTS + TRIANGLE] += 1
-                fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
-                v = geo.tri_verts
-                t = hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
-                                 v[fc, 0], v[fc, 1], v[fc, 2], ox, oy, oz, dx, dy, dz, lo, best_t, geo.tri_edges[0])
-            elif kind == CONE:
-                cnt[C.TESTS + CONE] += 1
-                t = hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
-                             geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
-                             geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx],
-                             ox, oy, oz, dx, dy, dz, lo, best_t)
+                t = hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, lo, best_t)
             else:
                 # a child aggregate: keep the rest of this range, open a frame for the child
                 if i < e:
@@ -385,12 +319,12 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                     csg.record(csg_t, csg_i, csg_m, csg_n, t, operand, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
                                cnt)
                     continue
-                found, best_t, best_ref, best_inst = _take(mode, t, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
+                found, best_t, best_ref, best_inst = take(mode, t, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
                                                            F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
                 if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                     return True
                 if mode == CLOSEST_EAGER and best_t == t and hit_i[0] == kind and hit_i[1] == idx:
-                    _eager_normal(geo, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f, cnt)
+                    eager_normal(geo, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f, cnt)
     return found
 
 

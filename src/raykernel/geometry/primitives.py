@@ -138,18 +138,23 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
 
 @njit(borrows=True)   # called per candidate: no reference counting
 def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    return hit_plane_polygon(normals[i, 0], normals[i, 1], normals[i, 2], starts[i], counts[i], axes[i], verts,
+                             ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(borrows=True)
+def hit_plane_polygon(nx, ny, nz, v0, count, axis, verts, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """hit_polygon of the polygon with unit normal n and corners verts[v0:v0 + count]."""
     # t from the first vertex, not the stored plane offset: (v0 - o) keeps its
     # digits when the polygon is far from the world origin but near the ray
-    nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
     den = nx * dx + ny * dy + nz * dz
     if den == 0.0:
         return INF
-    v0 = starts[i]
     wx, wy, wz = ox - verts[v0, 0], oy - verts[v0, 1], oz - verts[v0, 2]
     t = -(nx * wx + ny * wy + nz * wz) / den
     if not (tmin <= t <= tmax):
         return INF
-    if point_in_polygon(verts, v0, counts[i], axes[i], ox + t * dx, oy + t * dy, oz + t * dz):
+    if point_in_polygon(verts, v0, count, axis, ox + t * dx, oy + t * dy, oz + t * dz):
         return t
     return INF
 

@@ -34,24 +34,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..engine.hitrule import hit_primitive
 from ..engine.traverse import ALL_HITS, ANY_OPAQUE, CLOSEST, CLOSEST_EAGER, CSG_SURFACE, clear_material, intersect
 from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.boxes import INF
 from ..geometry.config import njit
-from ..geometry.primitives import (
-    CONE,
-    INDEX_MASK,
-    KIND_SHIFT,
-    PATCH,
-    POLYGON,
-    SPHERE,
-    TRIANGLE,
-    hit_cone,
-    hit_polygon,
-    hit_sphere,
-    hit_triangle,
-)
+from ..geometry.primitives import INDEX_MASK, KIND_SHIFT
 from . import startlists
 
 CLOSEST_CUT, RAYTREE, SHADOWCACHE, TRANSPARENTLAST, LAZYNORMALS, STARTLISTS = 1, 2, 4, 8, 16, 32
@@ -151,22 +140,7 @@ def test_ref(geo, kind, idx, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax
     ey = m[4] * dx + m[5] * dy + m[6] * dz
     ez = m[8] * dx + m[9] * dy + m[10] * dz
     cnt[C.TESTS + kind] += 1
-    if kind == SPHERE:
-        return hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
-                          geo.sph_radius[idx], lx, ly, lz, ex, ey, ez, tmin, tmax)
-    if kind == POLYGON or kind == PATCH:
-        return hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                           geo.poly_verts, idx, lx, ly, lz, ex, ey, ez, tmin, tmax)
-    if kind == TRIANGLE:
-        fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
-        v = geo.tri_verts
-        return hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
-                            v[fc, 0], v[fc, 1], v[fc, 2], lx, ly, lz, ex, ey, ez, tmin, tmax, geo.tri_edges[0])
-    if kind == CONE:
-        return hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
-                        geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
-                        geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx], lx, ly, lz, ex, ey, ez, tmin, tmax)
-    return INF
+    return hit_primitive(geo, kind, idx, lx, ly, lz, ex, ey, ez, tmin, tmax)
 
 
 @njit(inline="always")

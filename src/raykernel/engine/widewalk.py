@@ -1,0 +1,199 @@
+"""The fast walk of a scene that is one BVH over primitives (every SPD scene at its default).
+
+    geo = prepare(geo, agg_stats)        # flatten: collapse the root BVH 4-wide, lay out its primitives
+    if geo.wide_nodes.shape[0]:          # traverse.intersect then hands each query here
+        found = intersect_wide(geo.wide_nodes, geo.wide_boxes, geo.wide_center, geo.agg_bounds, geo.root,
+                               geo.refs, geo.wide_prims, geo.poly_verts, geo.tri_edges, ox, oy, oz, dx, dy, dz,
+                               tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt)
+
+Why a walk of its own: the general driver carries frames, instances, mailboxes and CSG, and
+every call that takes the scene's Geometry (about 75 arrays, which numba passes as some 650
+numbers) costs about a quarter of a microsecond, more than a coherent ray's whole walk. This
+walk takes only the arrays it reads: the root BVH collapsed 4-wide (aggregates/widebvh.py),
+whose node tests its four child boxes in one vector slab test, children entered nearest first;
+and the leaves' primitives laid out in leaf order (wide_prims), one 128-byte record per
+reference, so a leaf's primitives are read from one block. The leaves are the binary tree's
+and the tests and the hit rule the driver's (hitrule.py, the same arithmetic), so every query
+gets the same hit as the general walk, tie for tie.
+
+wide_prims, one row of 16 float64 per reference of geo.refs (R, 16):
+    sphere     centre (3), signed radius
+    polygon    unit normal (3), first corner in poly_verts, corner count, dropped axis
+    and patch
+    triangle   corners v0, v1, v2 (9)
+    cone       base (3), unit axis (3), length, base radius, apex radius
+    column 15  1.0 when the material transmits (ANY_OPAQUE passes it over), else 0.0
+
+Counting, as RayScene's mesh kernel counts its 4-wide walk: one `cells.visited` per wide node,
+one `bounds.tests` per child box tested (the used slots of each visited node) and one for the
+root's box; `cells.leaves` per leaf; all of it the BVH walk's (`walk.bvh.*`).
+"""
+
+import numpy as np
+
+from ..aggregates.bvh import CODE as BVH
+from ..aggregates.walk import F_MAP
+from ..aggregates.widebvh import CHILD, COUNT, box4_entries, box4_still, collapse, near_planes
+from ..geometry import counters as C
+from ..geometry.boxes import CONSERVATIVE, INF, STILL, box_entry, inverse
+from ..geometry.config import njit
+from ..geometry.primitives import (
+    CONE,
+    INDEX_MASK,
+    KIND_SHIFT,
+    PATCH,
+    POLYGON,
+    SPHERE,
+    TRIANGLE,
+    hit_cone,
+    hit_plane_polygon,
+    hit_sphere,
+    hit_triangle,
+)
+from .hitrule import ANY_HIT, ANY_OPAQUE, take
+
+PRIM_COLUMNS = 16
+CLEAR = 15
+
+
+def prepare(geo, agg_stats: list):
+    """geo with its wide_* fields filled when it is one BVH of width 4 over primitives (no other
+    aggregate, no instance); agg_stats[0], that BVH's build statistics, gains the wide tree's size."""
+    if not (len(geo.agg_kind) == 1 and geo.agg_kind[0] == BVH and not len(geo.inst_agg)
+            and agg_stats[0].get("width", 4) == 4):
+        return geo
+    wide = collapse(geo.node_bounds, geo.node_first, geo.node_count, int(geo.agg_start[geo.root]))
+    prims = _records(geo)
+    agg_stats[0].update(wide_nodes=len(wide.nodes), wide_bytes=wide.nbytes + prims.nbytes)
+    return geo._replace(wide_nodes=wide.nodes, wide_boxes=wide.boxes, wide_center=wide.center, wide_prims=prims)
+
+
+def _records(geo) -> np.ndarray:
+    """wide_prims (see the module docstring) for geo.refs."""
+    kind = geo.refs >> KIND_SHIFT
+    idx = geo.refs & INDEX_MASK
+    rec = np.zeros((len(kind), PRIM_COLUMNS))
+    clear = geo.mat_clear
+    k = kind == SPHERE
+    rec[k, :3] = geo.sph_center[idx[k]]
+    rec[k, 3] = geo.sph_radius[idx[k]]
+    rec[k, CLEAR] = clear[geo.sph_mat[idx[k]]]
+    k = (kind == POLYGON) | (kind == PATCH)
+    rec[k, :3] = geo.poly_normal[idx[k]]
+    rec[k, 3] = geo.poly_start[idx[k]]
+    rec[k, 4] = geo.poly_count[idx[k]]
+    rec[k, 5] = geo.poly_axis[idx[k]]
+    rec[k, CLEAR] = clear[geo.poly_mat[idx[k]]]
+    k = kind == TRIANGLE
+    rec[k, :9] = geo.tri_verts[geo.tri_faces[idx[k]]].reshape(-1, 9)
+    rec[k, CLEAR] = clear[geo.tri_mat[idx[k]]]
+    k = kind == CONE
+    rec[k, :3] = geo.cone_base[idx[k]]
+    rec[k, 3:6] = geo.cone_axis[idx[k]]
+    rec[k, 6] = geo.cone_length[idx[k]]
+    rec[k, 7] = geo.cone_r0[idx[k]]
+    rec[k, 8] = geo.cone_r1[idx[k]]
+    rec[k, CLEAR] = clear[geo.cone_mat[idx[k]]]
+    return rec
+
+
+@njit(inline="always")
+def _hit(kind, p, i, verts, edges, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """hitrule.hit_primitive for the record p[i]: the same tests on the same numbers."""
+    if kind == SPHERE:
+        return hit_sphere(p[i, 0], p[i, 1], p[i, 2], p[i, 3], ox, oy, oz, dx, dy, dz, tmin, tmax)
+    if kind == POLYGON or kind == PATCH:
+        return hit_plane_polygon(p[i, 0], p[i, 1], p[i, 2], np.int64(p[i, 3]), np.int64(p[i, 4]),
+                                 np.int64(p[i, 5]), verts, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    if kind == TRIANGLE:
+        return hit_triangle(p[i, 0], p[i, 1], p[i, 2], p[i, 3], p[i, 4], p[i, 5], p[i, 6], p[i, 7], p[i, 8],
+                            ox, oy, oz, dx, dy, dz, tmin, tmax, edges)
+    return hit_cone(p[i, 0], p[i, 1], p[i, 2], p[i, 3], p[i, 4], p[i, 5], p[i, 6], p[i, 7], p[i, 8],
+                    ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(inline="always")
+def _flush(cnt, n_bounds, n_nodes, n_leaves):
+    cnt[C.BOUNDS_TESTS] += n_bounds
+    cnt[C.WALK_BOUNDS + BVH] += n_bounds
+    cnt[C.CELLS_VISITED] += n_nodes
+    cnt[C.WALK_STEPS + BVH] += n_nodes
+    cnt[C.CELLS_LEAVES] += n_leaves
+
+
+@njit(private=True)
+def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, tri_edges, ox, oy, oz, dx, dy, dz, tmin,
+                   tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
+    """traverse.intersect (modes CLOSEST, ANY_HIT, ALL_HITS, ANY_OPAQUE) on the arrays prepare()
+    made, with the workspace's stack, frames, hit record and t4. Stack entries: v >= 0 a wide
+    node to visit, v < 0 the leaf in child slot -v - 1 (node * 4 + slot)."""
+    for k in range(12):     # the hit's frame is the world: an identity map for take
+        frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
+    found = False
+    best_t = tmax
+    best_ref = np.int64(-1)
+    best_inst = np.int64(-1)
+    edges = tri_edges[0]
+    ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+    n_bounds, n_nodes, n_leaves = np.int64(1), np.int64(0), np.int64(0)
+    te = box_entry(agg_bounds, root, ox, oy, oz, ix, iy, iz, tmin, best_t)
+    if te == INF:
+        _flush(cnt, n_bounds, n_nodes, n_leaves)
+        return False
+    cnt[C.WALK_ENTRIES + BVH] += 1
+    still = ix == STILL or iy == STILL or iz == STILL
+    near = near_planes(ix, iy, iz)
+    wx, wy, wz = ox - center[0], oy - center[1], oz - center[2]      # the origin as the wide boxes see it
+    stack[0] = 0
+    stack_t[0] = te
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        if stack_t[sp] > best_t and stack_t[sp] > best_t * CONSERVATIVE:
+            continue        # entered beyond the closest hit, beyond rounding (ties need the node)
+        v = stack[sp]
+        if v >= 0:
+            # a node: its children the ray enters go on the stack, the nearest on top
+            n_nodes += 1
+            if still:
+                mask = box4_still(boxes, v, wx, wy, wz, ix, iy, iz, tmin, best_t, t4)
+            else:
+                mask = box4_entries(nodes, v, wx, wy, wz, ix, iy, iz, near, tmin, best_t, t4)
+            bottom = sp
+            for s in range(4):
+                k = nodes[v, COUNT + s]
+                if k < 0:
+                    break           # the used slots come first
+                n_bounds += 1
+                if mask & (1 << s) == 0:
+                    continue
+                t = t4[s]
+                j = sp
+                while j > bottom and stack_t[j - 1] < t:
+                    stack[j] = stack[j - 1]
+                    stack_t[j] = stack_t[j - 1]
+                    j -= 1
+                stack[j] = np.int64(nodes[v, CHILD + s]) if k == 0 else -(v * 4 + s) - 1
+                stack_t[j] = t
+                sp += 1
+            continue
+        # a leaf: its references, all primitives
+        slot = -v - 1
+        n_leaves += 1
+        s = np.int64(nodes[slot >> 2, CHILD + (slot & 3)])
+        for i in range(s, s + nodes[slot >> 2, COUNT + (slot & 3)]):
+            if mode == ANY_OPAQUE and prims[i, CLEAR] != 0.0:
+                continue        # transparent: left to the walk that filters light through it
+            ref = refs[i]
+            kind = ref >> KIND_SHIFT
+            cnt[C.TESTS + kind] += 1
+            t = _hit(kind, prims, i, verts, edges, ox, oy, oz, dx, dy, dz, tmin, best_t)
+            if t == INF:
+                continue
+            found, best_t, best_ref, best_inst = take(mode, t, kind, ref & INDEX_MASK, np.int64(-1), 0, frame_f, 0,
+                                                      F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
+            if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
+                _flush(cnt, n_bounds, n_nodes, n_leaves)
+                return True
+    _flush(cnt, n_bounds, n_nodes, n_leaves)
+    return found

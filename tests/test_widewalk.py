@@ -1,0 +1,212 @@
+"""The fast walk of a scene that is one BVH over primitives (engine/widewalk.py).
+
+It must answer every query exactly as the general driver does on the same tree (bvh(width=2)
+keeps the general driver), and as the brute-force reference: the same primitive and the same
+t, hit for hit, for closest, any, opaque-only and every hit; renders must give the same image
+bytes and the same rays.* counters. Only the walk's own counters (nodes, box tests, and the
+tests an any-hit query makes before it stops) may differ.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import reference as ref
+from conftest import make_scene, ray_counts, work_counts
+from test_intersect import assert_same, random_scene, scene_rays
+
+import raykernel
+from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
+from raykernel.engine.flatten import flatten
+from raykernel.engine.traverse import cast_rays
+from raykernel.geometry.primitives import SPHERE
+from raykernel.scene import Material
+
+WALK = ("bounds.tests", "cells.visited", "cells.leaves", "walk.bvh.bounds", "walk.bvh.steps")
+
+
+def wide(scene, accel="bvh"):
+    geo, stats = flatten(scene, accel)
+    return geo, stats
+
+
+# ----------------------------------------------------------------- when the fast walk is taken
+
+def test_one_bvh_over_primitives_takes_the_fast_walk():
+    geo, stats = wide(random_scene(1))
+    assert len(geo.wide_nodes) > 0 and geo.wide_prims.shape == (len(geo.refs), 16)
+    assert stats["aggregates"][0]["wide_nodes"] == len(geo.wide_nodes)
+    assert stats["build.bytes"] >= geo.wide_nodes.nbytes + geo.wide_prims.nbytes
+
+
+@pytest.mark.parametrize("accel", ["bvh(width=2)", "list", "grid", "octree", "bvh(build=gs, width=2)"])
+def test_other_structures_keep_the_general_walk(accel):
+    geo, _ = wide(random_scene(1), accel)
+    assert len(geo.wide_nodes) == 0 and len(geo.wide_prims) == 0
+
+
+def test_nesting_and_instances_keep_the_general_walk():
+    scene = random_scene(2)
+    child = Group(accel="bvh")
+    child.spheres.add((0, 0, 9), 1.0)
+    scene.root.add(child)
+    assert len(wide(scene)[0].wide_nodes) == 0
+    inst = random_scene(2)
+    inst.root.add(Instance(child, np.eye(4)))
+    assert len(wide(inst)[0].wide_nodes) == 0
+
+
+def test_an_empty_scene_has_no_tree():
+    geo, _ = wide(Scene())
+    assert len(geo.wide_nodes) == 0
+    t, kind, *_ = cast_rays(geo, np.zeros((3, 3)), np.eye(3))
+    assert np.all(np.isinf(t)) and np.all(kind == -1)
+
+
+# ----------------------------------------------------------------- the same answers as the general walk
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+@pytest.mark.parametrize("scale", [1e-6, 1.0, 1e7])
+def test_every_query_equals_the_general_walk_and_brute_force(seed, scale):
+    scene = random_scene(seed, n=(30, 12, 14, 8, 30), extent=5.0 * scale)
+    rng = np.random.default_rng(seed)
+    o, d, tmin, tmax = scene_rays(rng, 900, extent=5.0 * scale)
+    tmin, tmax = tmin * scale, tmax * scale
+    fast, slow = RayScene(scene, "bvh"), RayScene(scene, "bvh(width=2)")
+    assert len(fast.geo.wide_nodes) and not len(slow.geo.wide_nodes)
+    a, b = fast.intersect(o, d, tmin, tmax), slow.intersect(o, d, tmin, tmax)
+    for field in ("t", "prim_id", "geom_id", "kind", "uv", "normal", "shading_normal"):
+        assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+    assert np.array_equal(fast.occluded(o, d, tmin, tmax), slow.occluded(o, d, tmin, tmax))
+    assert np.array_equal(fast.count_hits(o, d, tmin, tmax), slow.count_hits(o, d, tmin, tmax))
+    for x, y in zip(fast.intersect_all(o, d, tmin, tmax), slow.intersect_all(o, d, tmin, tmax)):
+        assert np.array_equal(x, y)
+    # against brute force on the rays whose answer is not sensitive to rounding
+    geo, _ = flatten(scene, "bvh")
+    got = cast_rays(geo, o, d, tmin, tmax)
+    prims = ref.world_primitives(scene)
+    want = ref.cast(prims, o, d, tmin, tmax)
+    stable = ~ref.unstable(prims, o, d, 1e-6 * scale, tmin, tmax)
+    assert stable.mean() > 0.9
+    assert_same(got, want, stable, f"fast walk at scale {scale}")
+    assert np.isfinite(got[0]).mean() > 0.2
+
+
+def test_axis_parallel_and_grazing_rays_on_a_closed_mesh():
+    # a cube of 12 triangles, rays along the axes through its shared edges and corners
+    v = np.array([(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    f = np.array([(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1), (2, 3, 7), (2, 7, 6),
+                  (0, 2, 6), (0, 6, 4), (1, 5, 7), (1, 7, 3)])
+    scene = Scene()
+    scene.root.add(TriangleMesh(v, f))
+    scene.root.spheres.add((3, 3, 3), 0.5)      # not a mesh alone: the render path's walk, not RayScene's
+    grid = np.linspace(0, 1, 5)
+    pts = np.array([(x, y) for x in grid for y in grid])
+    rays_o, rays_d = [], []
+    for axis in range(3):
+        o = np.zeros((len(pts), 3))
+        others = [a for a in range(3) if a != axis]
+        o[:, others] = pts
+        o[:, axis] = -2.0
+        dvec = np.zeros(3)
+        dvec[axis] = 1.0
+        rays_o.append(o)
+        rays_d.append(np.tile(dvec, (len(pts), 1)))
+    o, d = np.vstack(rays_o), np.vstack(rays_d)
+    fast, slow = RayScene(scene, "bvh"), RayScene(scene, "list")
+    assert len(fast.geo.wide_nodes)
+    a, b = fast.intersect(o, d), slow.intersect(o, d)
+    assert np.array_equal(a.t, b.t) and np.array_equal(a.prim_id, b.prim_id)
+    # watertight: every ray through the inside of a face, across the diagonal edges the face's two
+    # triangles share, enters the closed cube exactly once and leaves it once (the rays along its
+    # outer edges graze the silhouette: hit or miss by the edge rule, the same for both walks)
+    inner = np.all((o > 0.0) & (o < 1.0) | (o == -2.0), axis=1)
+    assert inner.sum() == 27
+    assert np.all(a.t[inner] == 2.0)
+    assert np.array_equal(fast.count_hits(o, d)[inner], np.full(27, 2))
+    assert np.array_equal(fast.count_hits(o, d), slow.count_hits(o, d))
+
+
+def test_opaque_only_queries_pass_over_transparent_primitives():
+    scene = make_scene()
+    glass = scene.add_material(Material(color=(1, 1, 1), t=0.9, ior=1.5))
+    solid = scene.add_material(Material(color=(1, 1, 1)))
+    scene.root.spheres.add((0, 0, 0), 1.0, glass)
+    scene.root.spheres.add((0, 3, 0), 1.0, solid)
+    scene.root.spheres.add((5, 0, 0), 1.0, glass)
+    from raykernel.engine.traverse import ANY_OPAQUE, intersect, workspace
+    from raykernel.geometry import counters as C
+
+    geo, _ = flatten(scene, "bvh")
+    slow, _ = flatten(scene, "bvh(width=2)")
+    assert len(geo.wide_nodes)
+    for g in (geo, slow):
+        ws = workspace()
+        cnt = np.zeros(C.N_COUNTERS, np.int64)
+        # through the glass sphere only: no opaque blocker
+        assert not intersect(g, 0.0, -5.0, 0.0, 0.0, 1.0, 0.0, 0.0, 4.5, ANY_OPAQUE, ws, cnt)
+        # on to the solid one behind it
+        assert intersect(g, 0.0, -5.0, 0.0, 0.0, 1.0, 0.0, 0.0, 20.0, ANY_OPAQUE, ws, cnt)
+        assert ws[6][0] == SPHERE and ws[6][1] == 1
+
+
+# ----------------------------------------------------------------- the walk's counters
+
+def test_counters_of_one_sphere_are_exact():
+    scene = Scene()
+    scene.root.spheres.add((0, 0, 0), 1.0)
+    rs = RayScene(scene, "bvh")
+    assert len(rs.geo.wide_nodes) == 1
+    rs.intersect(np.array([[0.0, 0.0, -5.0], [3.0, 3.0, -5.0]]), np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]))
+    s = rs.last_stats
+    # ray 1: the root box, then the one node's one child box, its leaf, its sphere; ray 2 misses the root box
+    assert s["bounds.tests"] == 3 and s["walk.bvh.bounds"] == 3
+    assert s["cells.visited"] == 1 and s["walk.bvh.steps"] == 1 and s["walk.bvh.entries"] == 1
+    assert s["cells.leaves"] == 1 and s["tests.sphere"] == 1
+
+
+def test_the_walk_counts_its_steps_and_bounds_as_the_bvh_walk():
+    rs = RayScene(random_scene(6), "bvh")
+    o, d, tmin, tmax = scene_rays(np.random.default_rng(6), 600)
+    rs.intersect(o, d, tmin, tmax)
+    s = rs.last_stats
+    assert s["walk.bvh.steps"] == s["cells.visited"] > 0
+    assert s["walk.bvh.bounds"] == s["bounds.tests"] > s["cells.visited"]
+    narrow = RayScene(random_scene(6), "bvh(width=2)")
+    narrow.intersect(o, d, tmin, tmax)
+    assert s["cells.visited"] < narrow.last_stats["cells.visited"]
+
+
+# ----------------------------------------------------------------- renders
+
+RENDER_SCENES = ["spd:balls:1", "spd:gears:1", "spd:tree:2", "spd:teapot:2", "spd:rings:1", "spd:mount:2"]
+
+
+@pytest.mark.parametrize("name", RENDER_SCENES)
+def test_renders_equal_the_general_walk_and_the_list(name):
+    scene = raykernel.load(name)
+    fast = raykernel.render(scene, accel="bvh", resolution=48, spd=True)
+    assert fast.stats.aggregates[0].get("wide_nodes", 0) > 0
+    for other in ("bvh(width=2)", "list"):
+        slow = raykernel.render(scene, accel=other, resolution=48, spd=True)
+        assert np.array_equal(fast.to_uint8(), slow.to_uint8()), other
+        assert np.array_equal(fast.image, slow.image), other
+        assert ray_counts(fast.stats) == ray_counts(slow.stats), other
+
+
+@pytest.mark.parametrize("options", [dict(shading="hall", shadows="filtered"), dict(tricks="all"),
+                                     dict(tricks="none"), dict(shading="heckbert")])
+def test_renders_with_other_options_equal_the_general_walk(options):
+    scene = raykernel.load("spd:gears:1")
+    fast = raykernel.render(scene, accel="bvh", resolution=32, **options)
+    slow = raykernel.render(scene, accel="bvh(width=2)", resolution=32, **options)
+    assert np.array_equal(fast.image, slow.image)
+    assert ray_counts(fast.stats) == ray_counts(slow.stats)
+
+
+def test_render_counts_do_not_depend_on_threads():
+    scene = raykernel.load("spd:balls:1")
+    one = raykernel.render(scene, accel="bvh", resolution=48, spd=True, threads=1)
+    two = raykernel.render(scene, accel="bvh", resolution=48, spd=True, threads=2)
+    assert np.array_equal(one.image, two.image)
+    assert work_counts(one.stats) == work_counts(two.stats)
