@@ -7,8 +7,10 @@ from there (PYTHONPATH), this tree from src/. Both sides render the same
 scenes with the same kinds in SPD mode, each in its own warm process (kernels
 compiled before timing), alternating revision by revision for every round;
 the table gives the best trace seconds of each side and their ratio, and
-checks that both sides made the same image bytes and the same ray and test
-counts. The last rows time RayScene.intersect (the mesh kernel) on 512 x 512
+checks that both sides made the same image bytes and the same ray counts; the
+primitive tests of each side are printed beside them (a walk that visits
+the tree in another order, as the 4-wide one does, makes other tests before
+an any-hit query stops). The last rows time RayScene.intersect (the mesh kernel) on 512 x 512
 coherent and incoherent rays against an 80k-triangle sphere and SPD teapot,
 checking the same t and triangle ids. Writes the `against` section of
 BENCHMARKS.md.
@@ -51,11 +53,10 @@ for name in scenes:
             r = raykernel.render(scene, accel=k, resolution=res, spd=True)
             best = r.stats["time.trace"] if best is None else min(best, r.stats["time.trace"])
         counts = {c: v for c, v in r.stats.items() if c.startswith(("rays.eye", "rays.reflect", "rays.refract",
-                                                                      "rays.shadow", "tests.")) and
-                  isinstance(v, int)}
+                                                                      "rays.shadow")) and isinstance(v, int)}
         counts["threads"] = r.stats.info["threads"]
         out[f"{name}|{k}"] = dict(trace=best, image=hashlib.sha1(np.ascontiguousarray(r.image).tobytes()).hexdigest(),
-                                  counts=counts)
+                                  counts=counts, tests=int(r.stats["tests.total"]))
 # the mesh kernel: RayScene.intersect on meshes, coherent (a camera) and incoherent (random) rays
 rng = np.random.default_rng(7)
 import trimesh
@@ -84,7 +85,8 @@ for name, mesh in (("sphere-80k", trimesh.creation.icosphere(subdivisions=6)),
             best = dt if best is None else min(best, dt)
         out[f"{name} {label}|RayScene.intersect"] = dict(
             trace=best, image=hashlib.sha1(np.ascontiguousarray(h.t).tobytes() + h.prim_id.tobytes()).hexdigest(),
-            counts={"rays.cast": int(n), "hits": int(np.isfinite(h.t).sum()), "threads": numba.get_num_threads()})
+            counts={"rays.cast": int(n), "hits": int(np.isfinite(h.t).sum()), "threads": numba.get_num_threads()},
+            tests=int(sum(v for c, v in rs.last_stats.items() if c.startswith("tests.") and isinstance(v, int))))
 print(json.dumps(out))
 """
 
@@ -126,10 +128,12 @@ def main() -> int:
              f"`{('python bench/against.py ' + ' '.join(sys.argv[1:])).strip()}`: SPD mode at "
              f"{args.resolution}x{args.resolution}, best trace seconds of {args.repeat} renders x {args.rounds} "
              f"alternating rounds per side; ratio = {rev} / this tree (above 1: this tree is faster). Both sides "
-             "made the same image bytes and the same ray and test counts (checked).",
+             "made the same image bytes and the same ray counts (checked); the primitive tests of each side are "
+             "beside them.",
              "", f"Machine: {machine()}.", "",
-             f"| scene | structure | rays ({rev}) | rays (this) | threads | {rev} trace s | this trace s | ratio |",
-             "|---|---|---:|---:|---:|---:|---:|---:|"]
+             f"| scene | structure | rays ({rev}) | rays (this) | tests ({rev}) | tests (this) | threads | "
+             f"{rev} trace s | this trace s | ratio |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     ratios = []
     for key in sides["this"][0]:
         a = [r[key] for r in sides["other"]]
@@ -143,8 +147,8 @@ def main() -> int:
         ca, cb = a[0]["counts"], b[0]["counts"]
         rays_a = sum(v for c, v in ca.items() if c.startswith("rays.") and not c.endswith(("_hit", "_blocked")))
         rays_b = sum(v for c, v in cb.items() if c.startswith("rays.") and not c.endswith(("_hit", "_blocked")))
-        lines.append(f"| {scene} | `{kind}` | {rays_a:,} | {rays_b:,} | {cb['threads']} | {ta:.3f} | {tb:.3f} | "
-                     f"{ta / tb:.2f} |")
+        lines.append(f"| {scene} | `{kind}` | {rays_a:,} | {rays_b:,} | {a[0].get('tests', 0):,} | "
+                     f"{b[0].get('tests', 0):,} | {cb['threads']} | {ta:.3f} | {tb:.3f} | {ta / tb:.2f} |")
         print(lines[-1], flush=True)
     lines += ["", f"Ratios from {min(ratios):.2f} to {max(ratios):.2f}, geometric mean "
                   f"{(__import__('math').prod(ratios)) ** (1 / len(ratios)):.2f}."]

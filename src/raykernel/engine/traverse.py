@@ -47,7 +47,22 @@ from ..aggregates.walk import (
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, box_entry, inverse
 from ..geometry.config import njit
-from ..geometry.primitives import AGGREGATE, INDEX_MASK, INSTANCE, KIND_SHIFT, SPHERE, sphere_roots
+from ..geometry.primitives import (
+    AGGREGATE,
+    CONE,
+    INDEX_MASK,
+    INSTANCE,
+    KIND_SHIFT,
+    PATCH,
+    POLYGON,
+    SPHERE,
+    TRIANGLE,
+    hit_cone,
+    hit_polygon,
+    hit_sphere,
+    hit_triangle,
+    sphere_roots,
+)
 from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, for intersect's callers)
     ALL_HITS,
     ANY_HIT,
@@ -60,7 +75,6 @@ from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, fo
     HIT_I,
     clear_material,
     eager_normal,
-    hit_primitive,
     take,
 )
 from .flatten import LIST, MAX_NESTING, STACK_SIZE
@@ -273,13 +287,30 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 frame_f[f, slot] = tag
             if mode == ANY_OPAQUE and sink < 0 and kind < AGGREGATE and clear_material(geo, kind, idx):
                 continue        # transparent: left to the walk that filters light through it
-            if kind < AGGREGATE:
-                cnt[C.TESTS + kind] += 1
-                if kind == SPHERE and sink >= 0:
+            if kind == SPHERE:
+                cnt[C.TESTS + SPHERE] += 1
+                if sink >= 0:
                     _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, _operand(frame_f, frame_i, f, sink, i - 1),
                                    frame_i[f, FI_INST], frame_f, f, csg_t, csg_i, csg_m, csg_n, cnt)
                     continue
-                t = hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, lo, best_t)
+                t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
+                               geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, lo, best_t)
+            elif kind == POLYGON or kind == PATCH:
+                cnt[C.TESTS + kind] += 1
+                t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
+                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, lo, best_t)
+            elif kind == TRIANGLE:
+                cnt[C.TESTS + TRIANGLE] += 1
+                fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
+                v = geo.tri_verts
+                t = hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
+                                 v[fc, 0], v[fc, 1], v[fc, 2], ox, oy, oz, dx, dy, dz, lo, best_t, geo.tri_edges[0])
+            elif kind == CONE:
+                cnt[C.TESTS + CONE] += 1
+                t = hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
+                             geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
+                             geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx],
+                             ox, oy, oz, dx, dy, dz, lo, best_t)
             else:
                 # a child aggregate: keep the rest of this range, open a frame for the child
                 if i < e:
