@@ -6,8 +6,10 @@ primitive tests and the hit rule.
                                               found, best_t, best_ref, best_inst)
 
 The general driver (traverse.py) and the fast walk of a scene that is one BVH over
-primitives (widewalk.py) both call these, so the two answer every query with the same hit,
-tie for tie.
+primitives (widewalk.py) both apply `take`, so the two answer every query with the same hit,
+tie for tie. Both make the primitive tests of `hit_primitive` (the same functions on the same
+numbers) inline in their own loops, the driver from Geometry's arrays, the fast walk from its
+leaf-order records; hit_primitive itself tests the objects Haines's tricks remember.
 """
 
 import numpy as np
