@@ -18,22 +18,18 @@ from test_intersect import assert_same, random_scene, scene_rays
 import raykernel
 from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
 from raykernel.engine.flatten import flatten
-from raykernel.engine.traverse import cast_rays
+from raykernel.engine.traverse import ANY_OPAQUE, cast_rays, intersect, workspace
+from raykernel.geometry import counters as C
 from raykernel.geometry.primitives import SPHERE
 from raykernel.scene import Material
 
 WALK = ("bounds.tests", "cells.visited", "cells.leaves", "walk.bvh.bounds", "walk.bvh.steps")
 
 
-def wide(scene, accel="bvh"):
-    geo, stats = flatten(scene, accel)
-    return geo, stats
-
-
 # ----------------------------------------------------------------- when the fast walk is taken
 
 def test_one_bvh_over_primitives_takes_the_fast_walk():
-    geo, stats = wide(random_scene(1))
+    geo, stats = flatten(random_scene(1), "bvh")
     assert len(geo.wide_nodes) > 0 and geo.wide_prims.shape == (len(geo.refs), 16)
     assert stats["aggregates"][0]["wide_nodes"] == len(geo.wide_nodes)
     assert stats["build.bytes"] >= geo.wide_nodes.nbytes + geo.wide_prims.nbytes
@@ -41,7 +37,7 @@ def test_one_bvh_over_primitives_takes_the_fast_walk():
 
 @pytest.mark.parametrize("accel", ["bvh(width=2)", "list", "grid", "octree", "bvh(build=gs, width=2)"])
 def test_other_structures_keep_the_general_walk(accel):
-    geo, _ = wide(random_scene(1), accel)
+    geo, _ = flatten(random_scene(1), accel)
     assert len(geo.wide_nodes) == 0 and len(geo.wide_prims) == 0
 
 
@@ -50,14 +46,14 @@ def test_nesting_and_instances_keep_the_general_walk():
     child = Group(accel="bvh")
     child.spheres.add((0, 0, 9), 1.0)
     scene.root.add(child)
-    assert len(wide(scene)[0].wide_nodes) == 0
+    assert len(flatten(scene)[0].wide_nodes) == 0
     inst = random_scene(2)
     inst.root.add(Instance(child, np.eye(4)))
-    assert len(wide(inst)[0].wide_nodes) == 0
+    assert len(flatten(inst)[0].wide_nodes) == 0
 
 
 def test_an_empty_scene_has_no_tree():
-    geo, _ = wide(Scene())
+    geo, _ = flatten(Scene())
     assert len(geo.wide_nodes) == 0
     t, kind, *_ = cast_rays(geo, np.zeros((3, 3)), np.eye(3))
     assert np.all(np.isinf(t)) and np.all(kind == -1)
@@ -134,9 +130,6 @@ def test_opaque_only_queries_pass_over_transparent_primitives():
     scene.root.spheres.add((0, 0, 0), 1.0, glass)
     scene.root.spheres.add((0, 3, 0), 1.0, solid)
     scene.root.spheres.add((5, 0, 0), 1.0, glass)
-    from raykernel.engine.traverse import ANY_OPAQUE, intersect, workspace
-    from raykernel.geometry import counters as C
-
     geo, _ = flatten(scene, "bvh")
     slow, _ = flatten(scene, "bvh(width=2)")
     assert len(geo.wide_nodes)

@@ -252,3 +252,42 @@ def box4_still(box, node, ox, oy, oz, ix, iy, iz, tmin, tmax, t4):
 
 
 NO_WIDE = WideBVH(np.zeros((0, 32), np.int32), np.zeros((0, 32), np.float32), np.zeros(3))   # "no wide tree" (width 2)
+
+
+@njit(inline="always")
+def visit(nodes, boxes, v, still, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4, stack, stack_t, sp):
+    """Test node v's children and push those the ray enters on the stack above sp, the nearest
+    on top: an inner child as its node, a leaf as -(v * 4 + slot) - 1 (leaf_range decodes it).
+    The origin is relative to the tree's center; still: the ray has a STILL axis. Returns the
+    new sp and the child boxes tested (the node's used slots)."""
+    if still:
+        mask = box4_still(boxes, v, ox, oy, oz, ix, iy, iz, tmin, tmax, t4)
+    else:
+        mask = box4_entries(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4)
+    bottom = sp
+    tested = 0
+    for s in range(4):
+        k = nodes[v, COUNT + s]
+        if k < 0:
+            break           # the used slots come first
+        tested += 1
+        if mask & (1 << s) == 0:
+            continue
+        t = t4[s]
+        j = sp              # insertion: the farthest deepest, so the nearest is popped first
+        while j > bottom and stack_t[j - 1] < t:
+            stack[j] = stack[j - 1]
+            stack_t[j] = stack_t[j - 1]
+            j -= 1
+        stack[j] = np.int64(nodes[v, CHILD + s]) if k == 0 else -(v * 4 + s) - 1
+        stack_t[j] = t
+        sp += 1
+    return sp, tested
+
+
+@njit(inline="always")
+def leaf_range(nodes, entry):
+    """The references first .. end of the leaf a stack entry < 0 names (see visit)."""
+    slot = -entry - 1
+    first = np.int64(nodes[slot >> 2, CHILD + (slot & 3)])
+    return first, first + nodes[slot >> 2, COUNT + (slot & 3)]

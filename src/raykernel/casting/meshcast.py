@@ -19,8 +19,10 @@ that make it fast:
 * the ray's permutation and shear for the watertight test are computed once
   per ray instead of once per triangle (the same arithmetic, bit for bit),
   and the test is inlined into the leaf loop;
-* the triangles' corners are copied into leaf order, nine numbers per
-  reference, so a leaf's triangles are read from one contiguous block;
+* the triangles' corners are in leaf order, so a leaf's triangles are read
+  from one contiguous block: the fast walk's 128-byte records (engine/
+  widewalk.py, corners in their first nine columns) on the 4-wide tree, nine
+  numbers per reference copied here for the binary one;
 * the loop knows only BVH nodes and triangles.
 
 Tracing large incoherent batches in Morton order of origin and direction
@@ -35,7 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates.widebvh import CHILD, COUNT, WideBVH, box4_entries, box4_still, near_planes
+from ..aggregates.widebvh import WideBVH, leaf_range, near_planes, visit
 from ..engine.flatten import BVH, Geometry
 from ..engine.traverse import ALL_HITS
 from ..geometry import counters as C
@@ -51,7 +53,7 @@ _IDENTITY = np.array([1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0])
 
 
 class MeshKernel(NamedTuple):
-    corners: np.ndarray      # (R, 9) float64: v0, v1, v2 of the triangle of each leaf reference
+    corners: np.ndarray      # (R, 9 or more) float64: v0, v1, v2 of the triangle of each leaf reference
     prim: np.ndarray         # (R,) int64 global triangle index of each leaf reference
     geom: np.ndarray         # (R,) int64 geometry (mesh) of each leaf reference
     local: np.ndarray        # (R,) int64 face index within that mesh
@@ -68,7 +70,8 @@ class MeshKernel(NamedTuple):
                 or len(geo.cone_length) or len(geo.poly_start) or not len(geo.tri_faces)):
             return None
         prim = (geo.refs & INDEX_MASK).astype(np.int64)
-        corners = geo.tri_verts[geo.tri_faces[prim]].reshape(-1, 9)
+        # a triangle's corners in leaf order: the fast walk's records hold them in their first nine columns
+        corners = geo.wide_prims if len(geo.wide_prims) else geo.tri_verts[geo.tri_faces[prim]].reshape(-1, 9)
         geom = np.searchsorted(geometries[:, 1], prim, side="right") - 1
         local = prim - geometries[geom, 1]
         root = int(geo.agg_start[geo.root])
@@ -240,33 +243,13 @@ def _chunk4(geo, corners, prim, geom, local, wide, origins, directions, tmin, tm
             v = stack[sp]
             if v >= 0:
                 n_nodes += 1
-                if still:
-                    mask = box4_still(boxes, v, wx, wy, wz, ix, iy, iz, lo, best, t4)
-                else:
-                    mask = box4_entries(nodes, v, wx, wy, wz, ix, iy, iz, near, lo, best, t4)
-                bottom = sp
-                for s in range(4):
-                    k = nodes[v, COUNT + s]
-                    if k < 0:
-                        break           # the used slots come first
-                    n_bounds += 1
-                    if mask & (1 << s) == 0:
-                        continue
-                    t = t4[s]
-                    e = np.int64(nodes[v, CHILD + s]) if k == 0 else -(v * 4 + s) - 1
-                    j = sp      # insertion: the farthest deepest, so the nearest is popped first
-                    while j > bottom and stack_t[j - 1] < t:
-                        stack[j] = stack[j - 1]
-                        stack_t[j] = stack_t[j - 1]
-                        j -= 1
-                    stack[j] = e
-                    stack_t[j] = t
-                    sp += 1
+                sp, tested = visit(nodes, boxes, v, still, wx, wy, wz, ix, iy, iz, near, lo, best, t4, stack, stack_t,
+                                   sp)
+                n_bounds += tested
                 continue
-            slot = -v - 1
             n_leaves += 1
-            s0 = np.int64(nodes[slot >> 2, CHILD + (slot & 3)])
-            best, best_j, n_all, tested, done = _leaf(corners, prim, s0, s0 + nodes[slot >> 2, COUNT + (slot & 3)], o, kx, ky, kz, sx, sy, sz, lo, best,
+            s0, e0 = leaf_range(nodes, v)
+            best, best_j, n_all, tested, done = _leaf(corners, prim, s0, e0, o, kx, ky, kz, sx, sy, sz, lo, best,
                                                       best_j, edges, mode, store, offsets, r, base, n_all, all_t,
                                                       all_i)
             n_tests += tested

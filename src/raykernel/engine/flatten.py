@@ -44,7 +44,6 @@ from ..aggregates.memory import memory_limit
 from ..aggregates.octree import CODE as OCTREE
 from ..aggregates.rc import CODE as RC
 from ..aggregates.walk import MAX_NESTING, MAX_TREE_DEPTH, STACK_SIZE, Field
-from ..aggregates.widebvh import NO_WIDE
 from ..errors import OptionError, SceneError
 from ..geometry.boxes import cull_margin
 from ..geometry.primitives import (
@@ -516,9 +515,7 @@ def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None, builder=N
         tri_mat=_concat([m.material for m, _ in arr.mesh], (0,), np.int32),
         tri_edges=np.zeros(1, np.int64),
         mat_clear=np.array([m.t > 0.0 for m in scene.materials] or [False], np.bool_),
-        wide_nodes=NO_WIDE.nodes, wide_boxes=NO_WIDE.boxes, wide_center=NO_WIDE.center,
-        wide_prims=np.zeros((0, widewalk.PRIM_COLUMNS)),
-        root=int(root), **fields,
+        root=int(root), **fields, **widewalk.NO_WALK,
     )
     geo = widewalk.prepare(geo, b.agg_stats)
     lazy = None

@@ -1,6 +1,6 @@
 """The fast walk of a scene that is one BVH over primitives (every SPD scene at its default).
 
-    geo = prepare(geo, agg_stats)        # flatten: collapse the root BVH 4-wide, lay out its primitives
+    geo = prepare(Geometry(..., **NO_WALK), agg_stats)   # flatten: collapse the root BVH 4-wide, lay out its primitives
     if geo.wide_nodes.shape[0]:          # traverse.intersect then hands each query here
         found = intersect_wide(geo.wide_nodes, geo.wide_boxes, geo.wide_center, geo.agg_bounds, geo.root,
                                geo.refs, geo.wide_prims, geo.poly_verts, geo.tri_edges, ox, oy, oz, dx, dy, dz,
@@ -18,9 +18,9 @@ gets the same hit as the general walk, tie for tie.
 
 wide_prims, one row of 16 float64 per reference of geo.refs (R, 16):
     sphere     centre (3), signed radius
+    triangle   corners v0, v1, v2 (9): also the mesh kernel's corners (casting/meshcast.py)
     polygon    unit normal (3), first corner in poly_verts, corner count, dropped axis
     and patch
-    triangle   corners v0, v1, v2 (9)
     cone       base (3), unit axis (3), length, base radius, apex radius
     column 15  1.0 when the material transmits (ANY_OPAQUE passes it over), else 0.0
 
@@ -33,7 +33,7 @@ import numpy as np
 
 from ..aggregates.bvh import CODE as BVH
 from ..aggregates.walk import F_MAP
-from ..aggregates.widebvh import CHILD, COUNT, box4_entries, box4_still, collapse, near_planes
+from ..aggregates.widebvh import NO_WIDE, collapse, leaf_range, near_planes, visit
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, STILL, box_entry, inverse
 from ..geometry.config import njit
@@ -54,6 +54,9 @@ from .hitrule import ANY_HIT, ANY_OPAQUE, take
 
 PRIM_COLUMNS = 16
 CLEAR = 15
+# the wide_* fields of every other scene: nothing to walk
+NO_WALK = dict(wide_nodes=NO_WIDE.nodes, wide_boxes=NO_WIDE.boxes, wide_center=NO_WIDE.center,
+               wide_prims=np.zeros((0, PRIM_COLUMNS)))
 
 
 def prepare(geo, agg_stats: list):
@@ -125,8 +128,8 @@ def _flush(cnt, n_bounds, n_nodes, n_leaves):
 def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, tri_edges, ox, oy, oz, dx, dy, dz, tmin,
                    tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
     """traverse.intersect (modes CLOSEST, ANY_HIT, ALL_HITS, ANY_OPAQUE) on the arrays prepare()
-    made, with the workspace's stack, frames, hit record and t4. Stack entries: v >= 0 a wide
-    node to visit, v < 0 the leaf in child slot -v - 1 (node * 4 + slot)."""
+    made, with the workspace's stack, frames, hit record and t4. Stack entries as widebvh.visit
+    pushes them: v >= 0 a wide node to visit, v < 0 a leaf."""
     for k in range(12):     # the hit's frame is the world: an identity map for take
         frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
     found = False
@@ -153,35 +156,15 @@ def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, t
             continue        # entered beyond the closest hit, beyond rounding (ties need the node)
         v = stack[sp]
         if v >= 0:
-            # a node: its children the ray enters go on the stack, the nearest on top
             n_nodes += 1
-            if still:
-                mask = box4_still(boxes, v, wx, wy, wz, ix, iy, iz, tmin, best_t, t4)
-            else:
-                mask = box4_entries(nodes, v, wx, wy, wz, ix, iy, iz, near, tmin, best_t, t4)
-            bottom = sp
-            for s in range(4):
-                k = nodes[v, COUNT + s]
-                if k < 0:
-                    break           # the used slots come first
-                n_bounds += 1
-                if mask & (1 << s) == 0:
-                    continue
-                t = t4[s]
-                j = sp
-                while j > bottom and stack_t[j - 1] < t:
-                    stack[j] = stack[j - 1]
-                    stack_t[j] = stack_t[j - 1]
-                    j -= 1
-                stack[j] = np.int64(nodes[v, CHILD + s]) if k == 0 else -(v * 4 + s) - 1
-                stack_t[j] = t
-                sp += 1
+            sp, tested = visit(nodes, boxes, v, still, wx, wy, wz, ix, iy, iz, near, tmin, best_t, t4, stack, stack_t,
+                               sp)
+            n_bounds += tested
             continue
         # a leaf: its references, all primitives
-        slot = -v - 1
         n_leaves += 1
-        s = np.int64(nodes[slot >> 2, CHILD + (slot & 3)])
-        for i in range(s, s + nodes[slot >> 2, COUNT + (slot & 3)]):
+        first, end = leaf_range(nodes, v)
+        for i in range(first, end):
             if mode == ANY_OPAQUE and prims[i, CLEAR] != 0.0:
                 continue        # transparent: left to the walk that filters light through it
             ref = refs[i]
