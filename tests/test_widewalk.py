@@ -20,7 +20,7 @@ from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import ANY_OPAQUE, cast_rays, intersect, workspace
 from raykernel.geometry import counters as C
-from raykernel.geometry.primitives import SPHERE
+from raykernel.geometry.primitives import CONE, INDEX_MASK, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE
 from raykernel.scene import Material
 
 WALK = ("bounds.tests", "cells.visited", "cells.leaves", "walk.bvh.bounds", "walk.bvh.steps")
@@ -30,9 +30,32 @@ WALK = ("bounds.tests", "cells.visited", "cells.leaves", "walk.bvh.bounds", "wal
 
 def test_one_bvh_over_primitives_takes_the_fast_walk():
     geo, stats = flatten(random_scene(1), "bvh")
-    assert len(geo.wide_nodes) > 0 and geo.wide_prims.shape == (len(geo.refs), 16)
+    assert len(geo.wide_nodes) > 0 and geo.wide_prims.shape == (len(geo.refs), 10)     # 80 bytes a reference
     assert stats["aggregates"][0]["wide_nodes"] == len(geo.wide_nodes)
     assert stats["build.bytes"] >= geo.wide_nodes.nbytes + geo.wide_prims.nbytes
+
+
+def test_the_records_hold_each_references_primitive():
+    scene = random_scene(7)
+    assert not flatten(scene, "bvh")[0].wide_prims[:, 9].any()      # opaque
+    scene.add_material(Material(t=0.5))     # every primitive's material 0 now transmits: flagged
+    geo, _ = flatten(scene, "bvh")
+    kind, idx = geo.refs >> KIND_SHIFT, geo.refs & INDEX_MASK
+    rec = geo.wide_prims
+    for k in (SPHERE, POLYGON, PATCH, CONE, TRIANGLE):
+        assert np.any(kind == k), k
+    s = kind == SPHERE
+    assert np.array_equal(rec[s, :4], np.column_stack([geo.sph_center[idx[s]], geo.sph_radius[idx[s]]]))
+    t = kind == TRIANGLE
+    assert np.array_equal(rec[t, :9], geo.tri_verts[geo.tri_faces[idx[t]]].reshape(-1, 9))
+    c = kind == CONE
+    assert np.array_equal(rec[c, 6], geo.cone_length[idx[c]])
+    p = (kind == POLYGON) | (kind == PATCH)
+    assert np.array_equal(rec[p, 3:6].astype(np.int64),
+                          np.column_stack([geo.poly_start[idx[p]], geo.poly_count[idx[p]], geo.poly_axis[idx[p]]]))
+    mats = np.select([kind == SPHERE, p, kind == CONE], [geo.sph_mat[idx * s], geo.poly_mat[idx * p],
+                                                         geo.cone_mat[idx * c]], geo.tri_mat[idx * t])
+    assert np.array_equal(rec[:, 9] != 0.0, geo.mat_clear[mats]) and rec[:, 9].all()
 
 
 @pytest.mark.parametrize("accel", ["bvh(width=2)", "list", "grid", "octree", "bvh(build=gs, width=2)"])

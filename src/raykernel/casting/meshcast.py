@@ -20,7 +20,7 @@ that make it fast:
   per ray instead of once per triangle (the same arithmetic, bit for bit),
   and the test is inlined into the leaf loop;
 * the triangles' corners are in leaf order, so a leaf's triangles are read
-  from one contiguous block: the fast walk's 128-byte records (engine/
+  from one contiguous block: the fast walk's 80-byte records (engine/
   widewalk.py, corners in their first nine columns) on the 4-wide tree, nine
   numbers per reference copied here for the binary one;
 * the loop knows only BVH nodes and triangles.

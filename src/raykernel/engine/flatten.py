@@ -107,7 +107,7 @@ WIDE_FIELDS = (         # a scene that is one BVH over primitives: that BVH coll
     "wide_nodes",       # engine/widewalk.py walks; (0, 32) arrays otherwise
     "wide_boxes",
     "wide_center",
-    "wide_prims",       # its leaves' primitives in leaf order, a 128-byte record each (widewalk.py)
+    "wide_prims",       # its leaves' primitives in leaf order, an 80-byte record each (widewalk.py)
 )
 Geometry = NamedTuple("Geometry", [(name, np.ndarray) for name in PRIMITIVE_FIELDS] +
                       [(f.name, np.ndarray) for f in AGGREGATE_FIELDS] +

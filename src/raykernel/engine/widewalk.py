@@ -11,18 +11,18 @@ every call that takes the scene's Geometry (about 75 arrays, which numba passes 
 numbers) costs about a quarter of a microsecond, more than a coherent ray's whole walk. This
 walk takes only the arrays it reads: the root BVH collapsed 4-wide (aggregates/widebvh.py),
 whose node tests its four child boxes in one vector slab test, children entered nearest first;
-and the leaves' primitives laid out in leaf order (wide_prims), one 128-byte record per
+and the leaves' primitives laid out in leaf order (wide_prims), one 80-byte record per
 reference, so a leaf's primitives are read from one block. The leaves are the binary tree's
 and the tests and the hit rule the driver's (hitrule.py, the same arithmetic), so every query
 gets the same hit as the general walk, tie for tie.
 
-wide_prims, one row of 16 float64 per reference of geo.refs (R, 16):
+wide_prims, one row of 10 float64 per reference of geo.refs (R, 10):
     sphere     centre (3), signed radius
     triangle   corners v0, v1, v2 (9): also the mesh kernel's corners (casting/meshcast.py)
     polygon    unit normal (3), first corner in poly_verts, corner count, dropped axis
     and patch
     cone       base (3), unit axis (3), length, base radius, apex radius
-    column 15  1.0 when the material transmits (ANY_OPAQUE passes it over), else 0.0
+    column 9   1.0 when the material transmits (ANY_OPAQUE passes it over), else 0.0
 
 Counting, as RayScene's mesh kernel counts its 4-wide walk: one `cells.visited` per wide node,
 one `bounds.tests` per child box tested (the used slots of each visited node) and one for the
@@ -52,8 +52,8 @@ from ..geometry.primitives import (
 )
 from .hitrule import ANY_HIT, ANY_OPAQUE, take
 
-PRIM_COLUMNS = 16
-CLEAR = 15
+PRIM_COLUMNS = 10      # the most a kind needs (a triangle's or a cone's nine numbers), and the flag
+CLEAR = 9
 # the wide_* fields of every other scene: nothing to walk
 NO_WALK = dict(wide_nodes=NO_WIDE.nodes, wide_boxes=NO_WIDE.boxes, wide_center=NO_WIDE.center,
                wide_prims=np.zeros((0, PRIM_COLUMNS)))

@@ -142,7 +142,7 @@ def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, 
                              ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
-@njit(borrows=True)
+@njit(inline="always")     # in hit_polygon's body as it was: a call per candidate costs grids and octrees
 def hit_plane_polygon(nx, ny, nz, v0, count, axis, verts, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """hit_polygon of the polygon with unit normal n and corners verts[v0:v0 + count]."""
     # t from the first vertex, not the stored plane offset: (v0 - o) keeps its
