@@ -135,8 +135,8 @@ def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, h
         t = csg_t[k]
         if tmin <= t <= best_t and not (mode == ANY_OPAQUE and clear_material(geo, csg_i[k, 1], csg_i[k, 2])):
             found, best_t, best_ref, best_inst = take(mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3],
-                                                       csg_i[k, 4] | CSG_SURFACE, csg_m, k, 0, hit_f, hit_i, found,
-                                                       best_t, best_ref, best_inst)
+                                                      csg_i[k, 4] | CSG_SURFACE, csg_m, k, 0, hit_f, hit_i, found,
+                                                      best_t, best_ref, best_inst)
             if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                 return found, best_t, best_ref, best_inst, DONE
     return found, best_t, best_ref, best_inst, sink
@@ -352,7 +352,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                                cnt)
                     continue
                 found, best_t, best_ref, best_inst = take(mode, t, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
-                                                           F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
+                                                          F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
                 if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                     return True
                 if mode == CLOSEST_EAGER and best_t == t and hit_i[0] == kind and hit_i[1] == idx:
