@@ -5,7 +5,7 @@ import pytest
 
 from raykernel.aggregates import WALKS
 from raykernel.aggregates.walk import STEP_BITS, entry_kind, entry_step, entry_tag
-from raykernel.engine.flatten import AGGREGATE_FIELDS, PRIMITIVE_FIELDS, Geometry
+from raykernel.engine.flatten import AGGREGATE_FIELDS, PRIMITIVE_FIELDS, WIDE_FIELDS, Geometry
 from raykernel.errors import OptionError
 from raykernel.scene import accel
 
@@ -31,7 +31,7 @@ def test_tags_of_different_kinds_never_collide():
 
 
 def test_geometry_holds_every_field_once():
-    names = list(PRIMITIVE_FIELDS) + [f.name for f in AGGREGATE_FIELDS]
+    names = list(PRIMITIVE_FIELDS) + [f.name for f in AGGREGATE_FIELDS] + list(WIDE_FIELDS)
     assert len(names) == len(set(names))
     assert list(Geometry._fields) == names + ["root"]
     for w in WALKS:
