@@ -12,6 +12,7 @@ $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test,distributed,video]'
+	$(PY) -m compileall -q src/raykernel    # bytecode, as pip writes for an installed package (not for -e)
 	touch $(STAMP)
 
 demo: $(STAMP)

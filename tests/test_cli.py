@@ -24,7 +24,7 @@ COUNTER_KEYS = [
     "rays.eye", "rays.eye_hit", "rays.reflect", "rays.reflect_hit", "rays.refract", "rays.refract_hit",
     "rays.shadow", "rays.shadow_blocked", "tests.total", "tests.sphere", "tests.polygon", "tests.patch",
     "tests.cone", "tests.triangle", "bounds.tests", "cells.visited", "build.nodes", "build.bytes",
-    "time.preprocess", "time.trace", "time.compile", "transforms.affine",
+    "time.parse", "time.preprocess", "time.trace", "time.compile", "time.load", "transforms.affine",
 ]
 
 # lines 1-7

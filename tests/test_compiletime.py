@@ -29,6 +29,52 @@ def test_the_clock_counts_compiles_of_its_own_thread_only():
     assert again.seconds == 0.0
 
 
+LOAD_CHILD = """
+import sys, numba
+from raykernel.engine.compiletime import CompileClock
+@numba.njit(cache=True)
+def f(x):
+    return x * 2 + 1
+with CompileClock() as clock:
+    assert f(2.0) == 5.0
+print(clock.seconds, clock.loading)
+"""
+
+
+def test_the_clock_tells_loading_from_the_cache_apart_from_compiling(tmp_path):
+    """A cached kernel compiles in the first process and loads in the next: the clock counts
+    the first as compile time and the second as loading, never both."""
+    import os
+    import subprocess
+    import sys
+    script = tmp_path / "kernel.py"
+    script.write_text(LOAD_CHILD)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    runs = [subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True, check=True)
+            for _ in range(2)]
+    (compiled_s, _), (again_s, loaded_s) = (map(float, r.stdout.split()) for r in runs)
+    assert compiled_s > 0.0
+    assert again_s == 0.0 and loaded_s > 0.0
+
+
+def test_render_reports_parse_and_load_apart_from_the_work():
+    """time.parse is the loading of the scene; a scene built in Python has none. Loading kernels
+    from the cache is start-up (time.load), in neither time.preprocess nor time.trace."""
+    import subprocess
+    import sys
+    code = ("import raykernel; s = raykernel.load('spd:balls:1'); assert s.parse_seconds > 0\n"
+            "r = raykernel.render(s, resolution=8)\n"
+            "print(r.stats['time.parse'], r.stats['time.load'], r.stats['time.compile'], r.stats['time.trace'])")
+    raykernel.render(raykernel.load("spd:balls:1"), resolution=8)       # compiled and cached, if it was not
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    parse, load, compile_s, trace = map(float, out.stdout.split())
+    assert parse > 0.0 and load > 0.0 and compile_s == 0.0 and trace >= 0.0
+    scene = raykernel.load("spd:balls:1")
+    scene.parse_seconds = 0.0
+    built = raykernel.render(scene, resolution=8)
+    assert built.stats["time.parse"] == 0.0 and built.stats["time.load"] == 0.0    # loaded in this process already
+
+
 def test_render_reports_compile_apart_and_first_run_turns_false():
     r = raykernel.render(raykernel.load("spd:balls:1"), resolution=8)
     assert r.stats["time.compile"] >= 0.0 and r.stats["time.trace"] >= 0.0

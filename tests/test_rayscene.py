@@ -374,7 +374,7 @@ def test_threads_per_call_give_the_same_answers(accel):
     np.testing.assert_array_equal(a.t, b.t)
     np.testing.assert_array_equal(a.prim_id, b.prim_id)
     assert one.last_stats == {**two.last_stats, "time.trace": one.last_stats["time.trace"],
-                              "time.compile": one.last_stats["time.compile"]}
+                              "time.compile": one.last_stats["time.compile"], "time.load": one.last_stats["time.load"]}
     np.testing.assert_array_equal(one.count_hits(o, d, threads=1), two.count_hits(o, d, threads=2))
 
 

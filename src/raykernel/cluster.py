@@ -84,10 +84,9 @@ def _tiles_task(scene, scene_key, options, p, lo, hi, history):
     """Trace tiles lo..hi-1 of pass p on this worker; history: every earlier pass's lazy counts."""
     job = _worker_job(scene, scene_key, options)
     _replay(job, history)
-    from .engine.parallel import for_ranges
     first = job.passes[p][2]
     job.counts[first + lo:first + hi] = 0      # each task returns its own pass's counts, however often it runs
-    for_ranges(lambda a, b: job.trace(p, lo + a, lo + b), hi - lo, job.threads, kernel=job.kernel)
+    job.trace(p, lo, hi, job.threads)
     return job.tile_block(p, lo, hi)
 
 

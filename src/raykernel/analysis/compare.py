@@ -27,7 +27,8 @@ import numpy as np
 from ..errors import OptionError
 from ..rendering.render import render
 
-TIMING_KEYS = ("time.preprocess", "time.trace", "time.compile", "time.rays_per_second", "build.seconds")
+TIMING_KEYS = ("time.parse", "time.preprocess", "time.trace", "time.compile", "time.load", "time.rays_per_second",
+               "build.seconds")
 
 # (header, stats key or callable, format)
 COLUMNS = (

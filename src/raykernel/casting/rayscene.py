@@ -499,12 +499,13 @@ class RayScene:
                 for_ranges(lambda c0, c1: _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv,
                                                  gn, sn, with_surface, offsets, all_t, all_i, counters, c0, c1),
                            len(counters), threads, kernel=_query)
-        seconds = time.perf_counter() - start - clock.seconds
+        seconds = time.perf_counter() - start - clock.seconds - clock.loading
         totals = counters.sum(axis=0)
         stats = {name: int(totals[k]) for k, name in C.NAMES.items() if totals[k]}
         stats["rays.cast"] = n
         stats["time.trace"] = seconds
         stats["time.compile"] = clock.seconds
+        stats["time.load"] = clock.loading
         return stats
 
     def _outputs(self, shape: tuple, fields=None, dtype="float64", out=None) -> tuple[dict, dict]:

@@ -83,7 +83,8 @@ from .parallel import for_ranges
 from .transforms import compose_map, map_ray
 from .widewalk import intersect_wide
 
-KEYED = entry_tag(LIST, 1)   # stack entry: go on with the frame's keyed list at stack_a
+# stack entry: go on with the frame's keyed list at stack_a (py_func: calling the kernel would load it at import)
+KEYED = entry_tag.py_func(LIST, 1)
 DONE = np.int64(-2)          # _resolve's sink when an ANY_HIT query is answered
 
 

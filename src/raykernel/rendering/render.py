@@ -38,7 +38,7 @@ import numpy as np
 from ..aggregates.lazyoctree import pass_ranges
 from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock, first_run
 from ..engine.flatten import flatten
-from ..engine.parallel import default_threads, for_ranges
+from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..errors import OptionError
 from ..geometry import counters as C
@@ -56,39 +56,47 @@ from .tricks import parse as parse_tricks
 from .whitted import RAY_COLUMNS, RAY_STACK, trace
 
 TILE = 16
-RANGE_SAMPLES = 512          # samples a thread is handed at least: fewer cost more to hand over than to trace
 CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change an 8-bit pixel
 
 
 @njit
-def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, first, last, row0,
+def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, counter, last, row0,
                   max_depth, cutoff, filtered, tricks, starts, out, counters, passes, step, coarse):
-    """Trace tiles first..last-1 of the sample grid into `out`, adding into one counter row per tile.
+    """Trace tiles of the sample grid into `out`, adding into one counter row per tile: those
+    claimed from `counter` (parallel.claim: every thread of a pass calls this once) below `last`.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
     Within each tile only the samples on the lattice of `step` (every step-th row and column),
     less those on the coarser lattice of `coarse` (0: none) traced before.
     passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py)."""
-    for tile in range(first, last):
-        ws = workspace()
+    eyes = np.zeros((TILE * TILE, 3))
+    colors = np.zeros((TILE * TILE, 3))
+    while True:
+        tile = claim(counter)
+        if tile >= last:
+            break
+        ws = workspace()        # each tile starts from the same state, whichever thread claims it
         rays = np.zeros((RAY_STACK, RAY_COLUMNS))
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         if starts is None:      # tricks.LEAN: no trick needs a memory, and numba compiles none of their code
             _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile],
-                         max_depth, cutoff, filtered, tricks, None, out, step, coarse, rays, ws, cnt)
+                         max_depth, cutoff, filtered, tricks, None, out, step, coarse, rays, eyes, colors, ws, cnt)
         else:
             _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile],
                          max_depth, cutoff, filtered, tricks, memo(lights.shape[0], starts), out, step, coarse, rays,
-                         ws, cnt)
+                         eyes, colors, ws, cnt)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
             passes[tile - row0, k] = cnt[C.N_COUNTERS + k]
+        finished(counter)
 
 
-@njit(private=True)     # one call per tile: the pixels' calls into trace count no references
+@njit(private=True)     # one call per tile: the call into trace counts no references
 def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff, filtered,
-                 tricks, state, out, step, coarse, rays, ws, cnt):
-    """The samples of the tile at (x0, y0) for _render_tiles, with the tile's workspace and counters."""
+                 tricks, state, out, step, coarse, rays, eyes, colors, ws, cnt):
+    """The samples of the tile at (x0, y0) for _render_tiles, with the tile's workspace and counters:
+    their eye rays traced in one call, in the order of the tile's rows."""
+    n = 0
     for j in range(y0, min(y0 + TILE, samples_h), step):
         for i in range(x0, min(x0 + TILE, samples_w), step):
             if coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0:
@@ -96,12 +104,17 @@ def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y
             dx = cam[3] + i * cam[6] + j * cam[9]
             dy = cam[4] + i * cam[7] + j * cam[10]
             dz = cam[5] + i * cam[8] + j * cam[11]
-            dx, dy, dz = normalize(dx, dy, dz)
-            r, g, b = trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz,
-                             max_depth, cutoff, filtered, tricks, state, rays, ws, cnt)
-            out[j, i, 0] = r
-            out[j, i, 1] = g
-            out[j, i, 2] = b
+            eyes[n, 0], eyes[n, 1], eyes[n, 2] = normalize(dx, dy, dz)
+            n += 1
+    trace(geo, mats, lights, background, cam[0], cam[1], cam[2], eyes, n, colors, max_depth, cutoff, filtered,
+          tricks, state, rays, ws, cnt)
+    n = 0
+    for j in range(y0, min(y0 + TILE, samples_h), step):
+        for i in range(x0, min(x0 + TILE, samples_w), step):
+            if coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0:
+                continue
+            out[j, i, 0], out[j, i, 1], out[j, i, 2] = colors[n, 0], colors[n, 1], colors[n, 2]
+            n += 1
 
 
 def lazy_passes(n_tiles: int, batch: int) -> list[tuple[int, int, int, int]]:
@@ -268,7 +281,7 @@ class RenderJob:
 
         job = RenderJob(scene, accel="bvh", spd=True)       # checks the options, builds the structures
         for p in range(len(job.passes)):
-            job.trace(p, 0, job.pass_tiles(p))              # any split of a pass's tiles, in any order
+            job.trace(p, 0, job.pass_tiles(p), threads=2)   # any split of a pass's tiles, in any order
             job.end_pass(p)                                 # lazy structures refine here
         result = job.result(trace_seconds, compile_seconds)
 
@@ -297,13 +310,15 @@ class RenderJob:
                 build_fn = flatten if builder is None else builder.flatten
                 self.geo, self.build = build_fn(scene, o["accel"], o["max_memory"])
                 self.starts = prepare_starts(self.geo, bool(o["trick_bits"] & STARTLISTS))    # trick 6's view of the BVHs
-            self.preprocess = time.perf_counter() - t0 - build_clock.seconds
+            self.preprocess = time.perf_counter() - t0 - build_clock.seconds - build_clock.loading
             self.build_compile = build_clock.seconds
+            self.build_load = build_clock.loading
             self.lazy = self.build.get("lazy")     # lazy structures: refined after each pass
             self.lazy_columns = None if self.lazy is None else self.lazy.columns
         else:
             self.geo = self.starts = self.lazy = None
             self.build, self.preprocess, self.build_compile = remote["build"], remote["preprocess"], remote["compile"]
+            self.build_load = remote["load"]
             self.lazy_columns = remote["lazy_columns"]
 
         spd = o["spd"]
@@ -326,13 +341,11 @@ class RenderJob:
         self.background = np.asarray(scene.background, np.float64)
         self.trick_bits = np.int64(o["trick_bits"])
 
-        batch = max(1, n_tiles // 32)     # lazy: the pass schedule, which must not depend on the threads
         if self.lazy_columns is None:
-            # passes of about 1/32 of the image (the progress bar's steps), with enough tiles for every thread
-            size = max(batch, 4 * self.threads)
-            self.passes = [(1, 0, a, min(n_tiles, a + size)) for a in range(0, n_tiles, size)]
+            self.passes = [(1, 0, 0, n_tiles)]      # one pass: the threads claim its tiles one at a time
         else:
-            self.passes = lazy_passes(n_tiles, batch)
+            # lazy: the pass schedule, which must not depend on the threads
+            self.passes = lazy_passes(n_tiles, max(1, n_tiles // 32))
         # samples of full tiles each pass traces, for the progress report
         self.work = [(last - first) * ((TILE // step) ** 2 - (TILE // coarse) ** 2 if coarse else (TILE // step) ** 2)
                      for step, coarse, first, last in self.passes]
@@ -346,7 +359,7 @@ class RenderJob:
         if self.lazy is not None:
             self.lazy.update_stats(build, self.geo)
         return {"build": build, "preprocess": self.preprocess, "compile": self.build_compile,
-                "lazy_columns": self.lazy_columns}
+                "load": self.build_load, "lazy_columns": self.lazy_columns}
 
     @property
     def threads(self) -> int:
@@ -356,33 +369,45 @@ class RenderJob:
         step, coarse, first, last = self.passes[p]
         return last - first
 
-    def trace(self, p: int, lo: int, hi: int) -> None:
-        """Trace tiles lo..hi-1 of pass p (counted from the pass's first tile) on this thread."""
+    def trace(self, p: int, lo: int, hi: int, threads: int = 1, report=None) -> None:
+        """Trace tiles lo..hi-1 of pass p (counted from the pass's first tile) on `threads` threads,
+        which claim them one at a time; report(k), if given, is called every tenth of a second
+        or so with the number of tiles finished."""
         o = self.options
         step, coarse, first, last = self.passes[p]
         if self.pass_counts[p] is None:
-            with self._lock:        # threads tracing parts of one pass share its counts
+            with self._lock:        # callers tracing parts of one pass share its counts
                 if self.pass_counts[p] is None:
                     columns = 0 if self.lazy is None else self.lazy.columns     # (lazy structures change them)
                     self.pass_counts[p] = np.zeros((last - first, columns), np.int64)
         if self.plain:
-            _render_tiles(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
-                          self.tile_x, self.tile_y, first + lo, first + hi, first, o["max_depth"], o["cutoff"],
-                          True if self.filtered else None, self.trick_bits,
-                          None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
-                          self.pass_counts[p], step, coarse)
+            def run(counter, limit):
+                _render_tiles(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
+                              self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
+                              True if self.filtered else None, self.trick_bits,
+                              None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
+                              self.pass_counts[p], step, coarse)
         else:
-            _render_pixels(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
-                           self.tile_x, self.tile_y, first + lo, first + hi, first, o["max_depth"], o["cutoff"],
-                           self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
-                           SHADINGS[o["shading"]], self.filtered, self.trick_bits, self.starts, self.medium,
-                           SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"])
+            def run(counter, limit):
+                _render_pixels(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
+                               self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
+                               self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
+                               SHADINGS[o["shading"]], self.filtered, self.trick_bits, self.starts, self.medium,
+                               SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"])
+        start = first + lo
+        threads = max(1, min(threads, hi - lo))
+        if threads > 1 and not compiled(self.kernel):
+            # the first tile alone, while the kernel compiles (or loads): threads calling an
+            # uncompiled kernel at once would each compile it
+            run(np.array([start, 0], np.int64), start + 1)
+            start += 1
+        counter = np.array([start, start - first - lo], np.int64)      # next tile, tiles finished
+        on_threads(lambda: run(counter, first + hi), threads,
+                   poll=None if report is None else lambda: report(int(counter[1])))
 
-    def trace_pass(self, p: int, threads: int) -> None:
-        """Trace all of pass p over `threads` threads."""
-        n = self.pass_tiles(p)
-        for_ranges(lambda lo, hi: self.trace(p, lo, hi), n, threads, kernel=self.kernel,
-                   min_size=-(-RANGE_SAMPLES * n // max(1, self.work[p])))
+    def trace_pass(self, p: int, threads: int, report=None) -> None:
+        """Trace all of pass p over `threads` threads (report: as for trace)."""
+        self.trace(p, 0, self.pass_tiles(p), threads, report)
 
     def end_pass(self, p: int, pass_counts=None) -> None:
         """After every tile of pass p: lazy structures refine from the pass's counts (this
@@ -423,9 +448,10 @@ class RenderJob:
         self.pass_counts[p][lo:hi] = rows
 
     def result(self, trace: float, compile: float, threads: int | None = None, build: dict | None = None,
-               preprocess: float | None = None) -> RenderResult:
+               preprocess: float | None = None, load: float = 0.0) -> RenderResult:
         """The image and the statistics of the traced job (build and preprocess: another
-        process's, where the structures were built there)."""
+        process's, where the structures were built there); compile and load: the seconds the
+        trace spent compiling kernels and loading them from the cache, left out of `trace`."""
         o = self.options
         build = self.build if build is None else build
         if self.lazy is not None:
@@ -435,7 +461,8 @@ class RenderJob:
         width, height, aa = self.width, self.height, o["aa"]
         stats = Stats.from_counters(
             self.counts.sum(axis=0), build, preprocess=self.preprocess if preprocess is None else preprocess,
-            trace=trace, compile=self.build_compile + compile,
+            trace=trace, compile=self.build_compile + compile, load=self.build_load + load,
+            parse=self.scene.parse_seconds,
             anneal=self.annealed["seconds"] if self.annealed else 0.0,
             info={"scene": self.scene.source, "accel": o["accel"], "resolution": [width, height],
                   "spd": o["spd"], "max_depth": o["max_depth"], "shading": o["shading"],
@@ -532,10 +559,12 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     tell_compiling(job.kernel)
     with CompileClock() as clock:
         for p, part in enumerate(job.work):
-            job.trace_pass(p, n_threads)
+            report = None
+            if progress is not None:
+                per_tile = part / max(1, job.pass_tiles(p))
+                report = lambda tiles, base=done, per_tile=per_tile: progress(base + round(tiles * per_tile), total)
+            job.trace_pass(p, n_threads, report)
             job.end_pass(p)
             done += part
-            if progress is not None:
-                progress(done, total)
-    trace = time.perf_counter() - t1 - clock.seconds
-    return job.result(trace, clock.seconds)
+    trace = time.perf_counter() - t1 - clock.seconds - clock.loading
+    return job.result(trace, clock.seconds, load=clock.loading)

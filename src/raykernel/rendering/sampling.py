@@ -22,6 +22,7 @@ count and in any tile order.
 
 import numpy as np
 
+from ..engine.parallel import claim, finished
 from ..engine.traverse import workspace
 from ..geometry import counters as C
 from ..geometry.config import njit
@@ -50,8 +51,9 @@ def _uniform(seed, pixel, k):
 
 @njit(inline="always")
 def _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff, filtered, tricks, medium, state,
-            rays, ws, cnt):
-    """Colour seen through point (u, v) of the image plane, in pixels from pixel (0, 0)."""
+            rays, eye, color, ws, cnt):
+    """Colour seen through point (u, v) of the image plane, in pixels from pixel (0, 0).
+    eye, color: (1, 3) scratch for whitted.trace, which traces batches of eye rays."""
     dx = cam[3] + u * cam[6] + v * cam[9]
     dy = cam[4] + u * cam[7] + v * cam[10]
     dz = cam[5] + u * cam[8] + v * cam[11]
@@ -62,18 +64,25 @@ def _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff
     if shading == HALL:
         return hall.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz, max_depth, cutoff,
                           medium, filtered, tricks, state, rays, ws, cnt)
-    return whitted.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz, max_depth, cutoff,
-                         filtered, tricks, state, rays, ws, cnt)
+    eye[0, 0], eye[0, 1], eye[0, 2] = dx, dy, dz
+    whitted.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], eye, 1, color, max_depth, cutoff, filtered,
+                  tricks, state, rays, ws, cnt)
+    return color[0, 0], color[0, 1], color[0, 2]
 
 
 @njit
-def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, first, last, row0,
+def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, counter, last, row0,
                    max_depth, cutoff, out, counters, passes, step, coarse,
                    tile_size, shading, filtered, tricks, starts, medium, sampler, samples, seed, threshold, aa_depth):
     """render._render_tiles over pixels (tiles of tile_size), each from `sampler`'s samples
     under `shading`; filtered shadows or not, the camera's medium (-1: air) for Hall's."""
     cells = tile_size << aa_depth if sampler == ADAPTIVE else 0
-    for tile in range(first, last):
+    eye = np.zeros((1, 3))      # whitted.trace's batch of one ray
+    color = np.zeros((1, 3))
+    while True:
+        tile = claim(counter)
+        if tile >= last:
+            break
         ws = workspace()
         rays = np.zeros((whitted.RAY_STACK, whitted.RAY_COLUMNS))
         state = tricks_memo(lights.shape[0], starts)
@@ -83,17 +92,18 @@ def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, ti
         squares = np.zeros((_SQUARES, 4), np.int64)
         _render_tile(geo, mats, lights, background, cam, width, height, tile_x[tile], tile_y[tile], tile_size,
                      max_depth, cutoff, out, step, coarse, shading, filtered, tricks, medium, sampler, samples, seed,
-                     threshold, aa_depth, state, rays, ws, cnt, lattice, known, squares)
+                     threshold, aa_depth, state, rays, eye, color, ws, cnt, lattice, known, squares)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
             passes[tile - row0, k] = cnt[C.N_COUNTERS + k]
+        finished(counter)
 
 
 @njit(private=True)     # one call per tile: the samples' calls count no references
 def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile_size, max_depth, cutoff, out,
                  step, coarse, shading, filtered, tricks, medium, sampler, samples, seed, threshold, aa_depth, state,
-                 rays, ws, cnt, lattice, known, squares):
+                 rays, eye, color, ws, cnt, lattice, known, squares):
     """The pixels of the tile at (x0, y0) for _render_pixels. lattice, known: the adaptive
     sampler's points of the tile, 2^aa_depth per pixel side, traced on first use; squares: its
     stack of squares, rows of (column, row, size) on that lattice and the cuts made."""
@@ -107,14 +117,14 @@ def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile
             r, g, b = 0.0, 0.0, 0.0
             if sampler == SINGLE:
                 r, g, b = _sample(geo, mats, lights, background, cam, float(i), float(j), shading, max_depth,
-                                  cutoff, filtered, tricks, medium, state, rays, ws, cnt)
+                                  cutoff, filtered, tricks, medium, state, rays, eye, color, ws, cnt)
             elif sampler == JITTER:
                 pixel = j * width + i
                 for s in range(k * k):
                     u = i - 0.5 + (s % k + _uniform(seed, pixel, 2 * s)) / k
                     v = j - 0.5 + (s // k + _uniform(seed, pixel, 2 * s + 1)) / k
                     sr, sg, sb = _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff,
-                                         filtered, tricks, medium, state, rays, ws, cnt)
+                                         filtered, tricks, medium, state, rays, eye, color, ws, cnt)
                     r += sr
                     g += sg
                     b += sb
@@ -122,7 +132,7 @@ def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile
             else:
                 r, g, b = _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks,
                                     medium, threshold, aa_depth, x0, y0, i, j, lattice, known, squares, state, rays,
-                                    ws, cnt)
+                                    eye, color, ws, cnt)
             out[j, i, 0] = r
             out[j, i, 1] = g
             out[j, i, 2] = b
@@ -130,19 +140,19 @@ def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile
 
 @njit(inline="always")
 def _point(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, aa_depth, x0,
-           y0, a, e, lattice, known, state, rays, ws, cnt):
+           y0, a, e, lattice, known, state, rays, eye, color, ws, cnt):
     """Trace lattice point (a, e) of the tile at (x0, y0) unless it is known."""
     if not known[e, a]:
         scale = 1.0 / (1 << aa_depth)
         r, g, b = _sample(geo, mats, lights, background, cam, x0 - 0.5 + a * scale, y0 - 0.5 + e * scale,
-                          shading, max_depth, cutoff, filtered, tricks, medium, state, rays, ws, cnt)
+                          shading, max_depth, cutoff, filtered, tricks, medium, state, rays, eye, color, ws, cnt)
         lattice[e, a, 0], lattice[e, a, 1], lattice[e, a, 2] = r, g, b
         known[e, a] = True
 
 
 @njit(inline="always")
 def _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, threshold,
-              aa_depth, x0, y0, i, j, lattice, known, squares, state, rays, ws, cnt):
+              aa_depth, x0, y0, i, j, lattice, known, squares, state, rays, eye, color, ws, cnt):
     """Whitted's subdivision of pixel (i, j): the area-weighted mean of its squares' corner means."""
     full = 1 << aa_depth
     r, g, b = 0.0, 0.0, 0.0
@@ -153,7 +163,8 @@ def _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, fi
         a, e, size, cut = squares[top, 0], squares[top, 1], squares[top, 2], squares[top, 3]
         for corner in range(4):
             _point(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, aa_depth,
-                   x0, y0, a + size * (corner % 2), e + size * (corner // 2), lattice, known, state, rays, ws, cnt)
+                   x0, y0, a + size * (corner % 2), e + size * (corner // 2), lattice, known, state, rays, eye, color,
+                   ws, cnt)
         spread = 0.0
         for q in range(3):
             c0, c1 = lattice[e, a, q], lattice[e, a + size, q]

@@ -28,9 +28,10 @@ class Stats(dict):
 
     @classmethod
     def from_counters(cls, totals: np.ndarray, build: dict, preprocess: float, trace: float, info: dict,
-                      compile: float = 0.0, anneal: float = 0.0):
-        """compile: seconds spent compiling kernels during the trace, already left out of `trace`;
-        anneal: seconds spent finding the hierarchy of an `auto` spec, before the build."""
+                      compile: float = 0.0, anneal: float = 0.0, load: float = 0.0, parse: float = 0.0):
+        """compile, load: seconds spent compiling kernels and loading compiled ones from the cache
+        (start-up), already left out of `preprocess` and `trace`; anneal: seconds spent finding
+        the hierarchy of an `auto` spec, before the build; parse: seconds spent reading the scene."""
         s = cls()
         for column, name in C.NAMES.items():
             s[name] = int(totals[column])
@@ -49,9 +50,11 @@ class Stats(dict):
         for key, value in build.items():
             if key.startswith("build."):
                 s[key] = value
+        s["time.parse"] = parse
         s["time.preprocess"] = preprocess
         s["time.trace"] = trace
         s["time.compile"] = compile
+        s["time.load"] = load
         s["time.anneal"] = anneal
         mapped = sum(s[f"transforms.{k}"] for k in ("identity", "translation", "scale", "affine"))
         s["transforms.multiplies_saved"] = TRANSFORM_MULTIPLIES[AFFINE] * mapped - s["transforms.multiplies"]
@@ -105,6 +108,8 @@ class Stats(dict):
                     f"{self.get('build.aggregates', 0)} aggregate(s)"))
         out.append(("build", "refs", f"{self.get('build.refs', 0):,}", ""))
         out.append(("build", "bytes", f"{self.get('build.bytes', 0):,}", ""))
+        if self.get("time.parse"):
+            out.append(("time", "parse", f"{self['time.parse']:.3f} s", "reading the scene"))
         out.append(("time", "preprocess", f"{self['time.preprocess']:.3f} s", ""))
         out.append(("time", "trace", f"{self['time.trace']:.3f} s",
                     f"{self['time.rays_per_second'] / 1e6:.2f} Mrays/s"))
@@ -112,6 +117,8 @@ class Stats(dict):
             out.append(("time", "anneal", f"{self['time.anneal']:.1f} s", "finding the hierarchy (auto)"))
         if self.get("time.compile"):
             out.append(("time", "compile", f"{self['time.compile']:.1f} s", "kernels compiled (first run only)"))
+        if self.get("time.load"):
+            out.append(("time", "load", f"{self['time.load']:.3f} s", "compiled kernels loaded (start-up)"))
         return out
 
     def table(self, title: str | None = None):

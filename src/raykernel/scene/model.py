@@ -345,6 +345,7 @@ class Scene:
     materials: list = field(default_factory=list)
     root: Group = field(default_factory=lambda: Group(name="root"))
     source: str = ""
+    parse_seconds: float = 0.0  # reading it from its file or generator (loading.load); 0 when built in Python
     animation: object = None    # an animation.Animation: what moves over time (JSON "animation" and "motion")
 
     def __post_init__(self):
