@@ -106,6 +106,25 @@ def test_render_subprocess_exit_zero(spd_dir, tmp_path):
         assert img.size == (12, 12)
 
 
+def test_console_script_exits_with_mains_status_and_freezes_the_heap(monkeypatch, capsys):
+    """run() (the `raykernel` script) returns main's status as the exit code, and leaves the
+    objects made so far out of the exit's garbage collections (gc.freeze)."""
+    import gc
+
+    from raykernel import cli
+    monkeypatch.setattr(sys, "argv", ["raykernel", "accels"])
+    try:
+        with pytest.raises(SystemExit) as done:
+            cli.run()
+        assert done.value.code == 0 and gc.get_freeze_count() > 0
+        monkeypatch.setattr(sys, "argv", ["raykernel", "render", "no-such-scene.nff"])
+        with pytest.raises(SystemExit) as failed:
+            cli.run()
+        assert failed.value.code == 2 and "no such file" in capsys.readouterr().err
+    finally:
+        gc.unfreeze()
+
+
 # ---------------------------------------------------------------- bad inputs
 
 BAD_FILES = {

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import sys
 import time
 from pathlib import Path
@@ -496,5 +497,14 @@ def main(argv=None) -> int:
         return 130
 
 
+def run() -> None:
+    """The console script: main(), then the objects it made frozen out of the garbage collector
+    (gc.freeze), so that the full collections of the interpreter's exit do not walk the
+    hundreds of thousands of objects numba's compiler keeps: 0.15-0.35 s of every command."""
+    status = main()
+    gc.freeze()
+    sys.exit(status)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()
