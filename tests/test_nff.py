@@ -743,3 +743,97 @@ def test_write_into_missing_directory(tmp_path):
     with pytest.raises(SceneError) as info:
         write_nff(scene, tmp_path / "no" / "such" / "dir.nff")
     assert str(info.value).startswith(str(tmp_path / "no" / "such" / "dir.nff"))
+
+
+# ---------------------------------------------------------------- the fast reading of plain files
+
+def _same_scene(a: Scene, b: Scene) -> None:
+    """Every array, material, light and the view of two read scenes are identical."""
+    assert a.materials == b.materials and a.source == b.source
+    np.testing.assert_array_equal(a.background, b.background)
+    assert [(list(x.position), x.color if x.color is None else list(x.color)) for x in a.lights] == \
+        [(list(x.position), x.color if x.color is None else list(x.color)) for x in b.lights]
+    for name in ("eye", "look_at", "up"):
+        np.testing.assert_array_equal(getattr(a.camera, name), getattr(b.camera, name))
+    assert (a.camera.angle, a.camera.hither, a.camera.width, a.camera.height) == \
+        (b.camera.angle, b.camera.hither, b.camera.width, b.camera.height)
+    ra, rb = a.root, b.root
+    fields = {"spheres": ("center", "radius", "material"),
+              "cones": ("base", "base_radius", "apex", "apex_radius", "material"),
+              "polygons": ("vertices", "start", "count", "material"),
+              "patches": ("vertices", "normals", "start", "count", "material")}
+    for group, names in fields.items():
+        x, y = getattr(ra, group).freeze(), getattr(rb, group).freeze()
+        for name in names:
+            u, v = getattr(x, name), getattr(y, name)
+            assert u.dtype == v.dtype and u.shape == v.shape, (group, name)
+            np.testing.assert_array_equal(u, v, err_msg=f"{group}.{name}")
+
+
+def _slow(text: str, path: str = "<string>") -> Scene:
+    from raykernel.scene.nff import _Reader
+    return _Reader(text, path).parse()
+
+
+@pytest.mark.parametrize("name", ["balls", "gears", "mount", "rings", "teapot", "tetra", "tree", "jacks", "lattice",
+                                  "shells", "sombrero", "sample", "nurbtst"])
+def test_plain_files_read_fast_to_the_same_scene(name):
+    """The SPD programs' output takes the fast reading, and gives what token-by-token reading gives."""
+    from raykernel.scene import spd
+    from raykernel.scene.nff import _Reader
+    text = spd.generate(name, 2 if name in ("balls", "gears", "tetra", "tree", "jacks", "lattice", "teapot") else 1)
+    fast = _Reader(text, "x.nff", fast=True).parse()        # no fallback: it must not raise
+    _same_scene(fast, _slow(text, "x.nff"))
+    _same_scene(parse_nff(text, "x.nff"), fast)
+
+
+@needs_spd
+@pytest.mark.parametrize("path", sorted(SPD_DIR.glob("*.nff")) if SPD_DIR.is_dir() else [], ids=lambda p: p.name)
+def test_reference_files_read_fast_to_the_same_scene(path):
+    text = path.read_text()
+    _same_scene(read_nff(path), _slow(text, str(path)))
+
+
+def test_what_the_fast_reading_leaves_to_the_careful_one():
+    """Comments and non-ASCII text are not plain; a file with a zero-area patch (allowed) or an
+    error reads as the token-by-token reader reads it, error messages and lines included."""
+    from raykernel.scene.nff import _NotPlain, _Reader
+    for text in (VIEW + "# a comment\ns 0 0 0 1\n", VIEW + "s 0 0 0 1 \u00e9\n", VIEW + "s 0 0 0 1_0\n"):
+        with pytest.raises(_NotPlain):
+            _Reader(text, "x", fast=True)
+    zero_area = VIEW + "pp 3\n0 0 0 0 0 1\n1 0 0 0 0 1\n2 0 0 0 0 1\n"
+    _same_scene(parse_nff(zero_area), _slow(zero_area))
+    assert parse_nff(zero_area).root.patches.count.tolist() == [3]
+    bad = {"s 0 0 0 0\n": 9, "c 0 0 0 1 0 0 0 1\n": 9, "c 0 0 0 0 0 0 1 0\n": 9,     # (the body starts on line 9)
+           "p 3\n0 0 0\n1 0 0\n2 0 0\n": 9, "pp 3\n0 0 0 0 0 0\n1 0 0 0 0 1\n0 1 0 0 0 1\n": 10,
+           "s 0 0 nan 1\n": 9, "s 0 0 1e999 1\n": 9, "p 3\n0 0 0\n1 0 0\n": 9, "s 0 0 0\np 3\n": 10,
+           "s 0 0 0 1\n\nv\n": 11}
+    for body, line in bad.items():
+        text = VIEW + "l 1 1 1\n" + body
+        with pytest.raises(SceneError) as fast_error:
+            parse_nff(text, "bad.nff")
+        with pytest.raises(SceneError) as slow_error:
+            _slow(text, "bad.nff")
+        assert str(fast_error.value) == str(slow_error.value)
+        assert str(fast_error.value).startswith(f"bad.nff:{line}:"), (body, str(fast_error.value))
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_fuzzed_plain_files_read_as_the_careful_reader_reads_them(data):
+    """Tokens of a small SPD file swapped, dropped or replaced: parse_nff gives the token-by-token
+    reader's scene or its error, whichever reading took it."""
+    from raykernel.scene import spd
+    tokens = spd.generate("rings", 1).split()
+    for _ in range(data.draw(st.integers(1, 3))):
+        k = data.draw(st.integers(0, len(tokens) - 1))
+        tokens[k] = data.draw(st.sampled_from(["0", "1", "-2.5", "p", "s", "3", "nan", "1e400", "x", ""]))
+    text = " ".join(t for t in tokens if t)
+    try:
+        expected = _slow(text, "f.nff")
+    except SceneError as err:
+        with pytest.raises(SceneError) as got:
+            parse_nff(text, "f.nff")
+        assert str(got.value) == str(err)
+    else:
+        _same_scene(parse_nff(text, "f.nff"), expected)

@@ -14,6 +14,7 @@ group may be instanced many times and is built only once.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -119,7 +120,7 @@ class Material:
         object.__setattr__(self, "color", color)
         for name in ("kd", "ks", "shine", "t", "ior", "kl"):
             value = float(getattr(self, name))
-            if not np.isfinite(value):
+            if not math.isfinite(value):
                 raise SceneError(f"material {name} must be finite, got {value}")
             object.__setattr__(self, name, value)
         if self.kl < 0.0:

@@ -9,6 +9,12 @@ line), and `#` starts a comment wherever it appears, up to the end of its line.
 Every token keeps its line number, so each error is one `SceneError` that
 names the file, the line and what was expected there.
 
+A plain file (ASCII, no comments, as the SPD programs write) is read fast:
+split in one call, and the numbers of its spheres, cones, polygons and
+patches converted and checked in bulk at the end. Anything that reading does
+not accept at once (a comment, a bad token, a failed check) sends the file
+to the token-by-token reading, which gives the same scene or names the error.
+
 How strict the reader is:
 
 * `b`, `l` and `f` are accepted before the `v` block; the SPD itself writes `b`
@@ -55,6 +61,7 @@ about 5e-6 relative otherwise.
 from __future__ import annotations
 
 import math
+import operator
 import os
 import re
 
@@ -150,8 +157,27 @@ def _decode(data: bytes, path: str) -> str:
     return text
 
 
+class _NotPlain(Exception):
+    """The fast reading met what only the token-by-token reading handles or reports."""
+
+
+def _tokens_and_lines(text: str) -> tuple[list[str], list[int]]:
+    """The tokens of `text` with comments removed, and the line of each."""
+    tokens: list[str] = []
+    lines: list[int] = []
+    for number, line in enumerate(text.split("\n"), 1):
+        cut = line.find("#")
+        if cut >= 0:
+            line = line[:cut]
+        parts = line.split()
+        if parts:
+            tokens += parts
+            lines += [number] * len(parts)
+    return tokens, lines
+
+
 class _Reader:
-    def __init__(self, text: str, path: str):
+    def __init__(self, text: str, path: str, fast: bool = False):
         self.path = path
         if text.startswith("\ufeff"):
             text = text[1:]
@@ -160,30 +186,29 @@ class _Reader:
             raise SceneError("not a text NFF file (contains a NUL character)",
                              path=path, line=text.count("\n", 0, nul) + 1)
         text = text.replace("\r\n", "\n").replace("\r", "\n")
-        tokens: list[str] = []
-        lines: list[int] = []
-        number = 0
-        for number, line in enumerate(text.split("\n"), 1):
-            cut = line.find("#")
-            if cut >= 0:
-                line = line[:cut]
-            parts = line.split()
-            if parts:
-                tokens += parts
-                lines += [number] * len(parts)
-        self.toks = tokens
-        self.lines = lines
-        self.n = len(tokens)
-        self.eof_line = max(1, number - 1 if text.endswith("\n") else number)
-        joined = "".join(tokens)
-        # float() also reads "1_0" and non-ASCII digits; such files get checked token by token.
-        self.strict = not (joined.isascii() and "_" not in joined)
+        self.fast = fast
+        if fast:
+            if "#" in text or not text.isascii() or "_" in text:
+                raise _NotPlain
+            self.toks, self._text, self._lines = text.split(), text, None     # lines when a message needs them
+        else:
+            self.toks, self._lines = _tokens_and_lines(text)
+        self.n = len(self.toks)
+        breaks = text.count("\n")
+        self.eof_line = max(1, breaks if text.endswith("\n") else breaks + 1)
+        if not fast:
+            joined = "".join(self.toks)
+            # float() also reads "1_0" and non-ASCII digits; such files get checked token by token.
+            self.strict = not (joined.isascii() and "_" not in joined)
+        else:
+            self.strict = False
         self.pos = 0
+        self.deferred: dict[str, list] = {"s": [], "c": [], "p": [], "pp": []}     # fast: (position, count, material)
 
         self.background = np.zeros(3)
         self.lights: list[Light] = []
         self.camera: Camera | None = None
-        self.view_line = 0
+        self.view_start = -1
         self.materials: list[Material] = []
         self.material_ids: dict[Material, int] = {}
         self.material = Material()
@@ -194,6 +219,12 @@ class _Reader:
         self.patches: list = []
 
     # -- errors ---------------------------------------------------------------------------------
+
+    @property
+    def lines(self) -> list[int]:
+        if self._lines is None:
+            self._lines = _tokens_and_lines(self._text)[1]
+        return self._lines
 
     def line_of(self, index: int) -> int:
         if index < self.n:
@@ -252,6 +283,8 @@ class _Reader:
             raise self.error("empty file: no view and no geometry", line=self.eof_line)
         handlers = {"v": self.view, "b": self.background_color, "l": self.light, "f": self.fill,
                     "c": self.cone, "s": self.sphere, "p": self.polygon, "pp": self.patch}
+        if self.fast:
+            handlers.update(c=self.defer_cone, s=self.defer_sphere, p=self.defer_polygon, pp=self.defer_patch)
         toks = self.toks
         while self.pos < self.n:
             start = self.pos
@@ -263,7 +296,7 @@ class _Reader:
         if self.camera is None:
             raise self.error("no view block: NFF needs 'v' with from, at, up, angle, hither and resolution",
                              self.n)
-        return self.build()
+        return self.build_fast() if self.fast else self.build()
 
     def unexpected(self, index: int):
         token = self.toks[index]
@@ -297,20 +330,19 @@ class _Reader:
 
     def view(self, start: int):
         if self.camera is not None:
-            raise self.error(f"a second view block (the first is at line {self.view_line})", start)
+            raise self.error(f"a second view block (the first is at line {self.line_of(self.view_start)})", start)
         seen: dict[str, tuple[int, list[float]]] = {}
-        v_line = self.line_of(start)
         while len(seen) < len(VIEW_KEYWORDS):
             missing = [k for k in VIEW_KEYWORDS if k not in seen]
             names = ", ".join(repr(k) for k in missing)
             index = self.pos
             if index >= self.n:
-                raise self.error(f"unexpected end of file: the view block at line {v_line} is missing {names}",
-                                 index)
+                raise self.error(f"unexpected end of file: the view block at line {self.line_of(start)} is "
+                                 f"missing {names}", index)
             key = self.toks[index]
             if key not in VIEW_KEYWORDS:
                 got = f"the number {key!r}" if _looks_numeric(key) else repr(key)
-                raise self.error(f"the view block at line {v_line} is missing {names}: expected "
+                raise self.error(f"the view block at line {self.line_of(start)} is missing {names}: expected "
                                  f"{' or '.join(repr(k) for k in missing)}, got {got}", index)
             if key in seen:
                 raise self.error(f"a second {key!r} in the view block (the first is at line "
@@ -357,8 +389,8 @@ class _Reader:
             self.camera = Camera(eye=eye, look_at=look_at, up=up, angle=angle, hither=hither,
                                  width=width, height=height)
         except SceneError as exc:
-            raise self.error(exc.message, line=v_line) from None
-        self.view_line = v_line
+            raise self.error(exc.message, line=self.line_of(start)) from None
+        self.view_start = start
 
     def light(self, start: int):
         position = self.numbers(3, _XYZ.__getitem__, "light position", start)
@@ -429,6 +461,83 @@ class _Reader:
                 raise self.error(f"the patch normal at vertex {k + 1} has {problem}", first + 6 * k + 3)
         self.patches.append((values, count, self.current_material()))
 
+    # -- the fast reading: numbers noted now, converted and checked together in build_fast ---------
+
+    def defer(self, kind: str, per_vertex: int, count: int = 1):
+        if self.pos + per_vertex * count > self.n:
+            raise _NotPlain
+        self.deferred[kind].append((self.pos, count, self.current_material()))
+        self.pos += per_vertex * count
+
+    def defer_sphere(self, start: int):
+        self.require_view(start, "a sphere")
+        self.defer("s", 4)
+
+    def defer_cone(self, start: int):
+        self.require_view(start, "a cone")
+        self.defer("c", 8)
+
+    def defer_polygon(self, start: int):
+        self.require_view(start, "a polygon")
+        self.defer("p", 3, self.vertex_count(start, "polygon", 3))
+
+    def defer_patch(self, start: int):
+        self.require_view(start, "a patch")
+        self.defer("pp", 6, self.vertex_count(start, "patch", 6))
+
+    def deferred_numbers(self, kind: str, per_vertex: int):
+        """(the numbers of every deferred entity of `kind`, one row per vertex; vertices per
+        entity; materials), or _NotPlain unless every token is a finite number."""
+        runs = self.deferred[kind]
+        if not runs:
+            return np.zeros((0, per_vertex)), np.zeros(0, np.int64), np.zeros(0, np.int32)
+        position, count, material = (np.array(column) for column in zip(*runs))
+        sizes = per_vertex * count
+        first = np.cumsum(sizes) - sizes
+        index = (np.repeat(position - first, sizes) + np.arange(int(sizes.sum()))).tolist()
+        try:
+            values = np.fromiter(map(float, operator.itemgetter(*index)(self.toks)), np.float64, len(index))
+        except ValueError:
+            raise _NotPlain from None
+        if not np.isfinite(values).all():
+            raise _NotPlain
+        return values.reshape(-1, per_vertex), count.astype(np.int64), material.astype(np.int32)
+
+    def build_fast(self) -> Scene:
+        """build()'s scene from the deferred numbers, after the checks the entities' own
+        readers make (any that fails: _NotPlain, and the token-by-token reading names it)."""
+        scene = Scene(camera=self.camera, background=self.background, lights=self.lights,
+                      materials=self.materials, source=self.path)
+        root = scene.root
+        v, _, material = self.deferred_numbers("s", 4)
+        if np.any(v[:, 3] == 0.0):
+            raise _NotPlain
+        root.spheres.center, root.spheres.radius, root.spheres.material = v[:, :3].copy(), v[:, 3].copy(), material
+        v, _, material = self.deferred_numbers("c", 8)
+        if np.any(np.all(v[:, 0:3] == v[:, 4:7], axis=1) | ((v[:, 3] == 0.0) & (v[:, 7] == 0.0))):
+            raise _NotPlain
+        cones = root.cones
+        cones.base, cones.base_radius, cones.apex, cones.apex_radius = (v[:, 0:3].copy(), v[:, 3].copy(),
+                                                                       v[:, 4:7].copy(), v[:, 7].copy())
+        cones.material = material
+        for kind, target in (("p", root.polygons), ("pp", root.patches)):
+            per_vertex = 3 if kind == "p" else 6
+            v, count, material = self.deferred_numbers(kind, per_vertex)
+            start = np.cumsum(count) - count
+            vertices = np.ascontiguousarray(v[:, :3])
+            if len(count):
+                extent = (np.maximum.reduceat(vertices, start) - np.minimum.reduceat(vertices, start)).max(axis=1)
+                if not _corners_are_proper(vertices[start], vertices[start + 1], vertices[start + 2], extent).all():
+                    raise _NotPlain     # (a patch with no area at all is allowed: the slow reading knows)
+            if kind == "pp":
+                nx, ny, nz = v[:, 3], v[:, 4], v[:, 5]
+                length2 = nx * nx + ny * ny + nz * nz
+                if not np.all((length2 > 0.0) & (length2 < math.inf)):
+                    raise _NotPlain
+                target.normals = np.ascontiguousarray(v[:, 3:])
+            target.vertices, target.start, target.count, target.material = vertices, start, count, material
+        return scene
+
     def check_corner(self, values: list[float], stride: int, start: int, entity: str,
                      allow_zero_area: bool = False):
         xs, ys, zs = values[0::stride], values[1::stride], values[2::stride]
@@ -468,7 +577,10 @@ def parse_nff(text: str | bytes, path: str = "<string>") -> Scene:
         text = _decode(bytes(text), path)
     elif not isinstance(text, str):
         raise SceneError(f"NFF text must be str or bytes, not {type(text).__name__}", path=path)
-    return _Reader(text, path).parse()
+    try:
+        return _Reader(text, path, fast=True).parse()
+    except (_NotPlain, SceneError):
+        return _Reader(text, path).parse()      # the same scene, or the error with its line
 
 
 def read_nff(path) -> Scene:
