@@ -17,8 +17,9 @@ sampling.py's, which tiles, passes and counts the same way.
 
 The image is traced in tiles of TILE x TILE samples, in parallel; each
 tile owns one row of counters, so counts and image bytes do not depend on
-the number of threads. The tiles are traced in batches of n_tiles // 32 (at
-least one), in a fixed order. With lazy structures (aggregates/lazyoctree.py,
+the number of threads. Each thread makes one call of the tile kernel and
+claims tiles from a shared counter (engine/parallel.py) until none are
+left, and a tile's eye rays go to the shading kernel in one call. With lazy structures (aggregates/lazyoctree.py,
 rc.py) the image is traced coarse to fine (lazy_passes): one sample per tile
 first, in passes that start with one tile, then the samples between them
 level by level, so that the trees, refined after each pass from its counts,

@@ -73,106 +73,113 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
     colors[:n]: each ray's whole ray tree, depth first, on an explicit stack.
     rays[k] = origin(3), direction(3), weight(3), depth, kind (0 eye, 1 reflect, 2 refract)."""
     n_lights = lights.shape[0]
-    for e in range(n):
-        r_out, g_out, b_out = 0.0, 0.0, 0.0
-        spawn(rays, 0, 0.0, ex, ey, ez, eyes[e, 0], eyes[e, 1], eyes[e, 2], 1.0, 1.0, 1.0, 1, 0, -1, 1, None, cnt)
-        rays[0, ORIGIN] = -1.0      # leaves no object
-        top = 1
-        while top > 0:
-            top -= 1
-            ox, oy, oz = rays[top, 0], rays[top, 1], rays[top, 2]
-            dx, dy, dz = rays[top, 3], rays[top, 4], rays[top, 5]
-            wr, wg, wb = rays[top, 6], rays[top, 7], rays[top, 8]
-            depth = int(rays[top, 9])
-            ray_kind = int(rays[top, 10])
-            node = np.int64(rays[top, 12])
-            cnt[C.RAYS_EYE + 2 * ray_kind] += 1
-            if not closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt):
-                r_out += wr * background[0]
-                g_out += wg * background[1]
-                b_out += wb * background[2]
-                continue
-            cnt[C.RAYS_EYE_HIT + 2 * ray_kind] += 1
-            hit_f, hit_i = ws[5], ws[6]
-            t = hit_f[0]
-            px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-            gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
-            cnt[C.NORMALS_COMPUTED] += 1
-            hold_origin(state, ws)      # the object the shadow and secondary rays below leave
-            entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
-            if not entering:
-                # two-sided: shade the side the ray sees
-                gx, gy, gz = -gx, -gy, -gz
-            if _dot(sx, sy, sz, gx, gy, gz) < 0.0:
-                # vertex normals may disagree with the winding; keep them on the seen side
-                sx, sy, sz = -sx, -sy, -sz
-            eps = OFFSET * max(max(abs(px), abs(py)), max(abs(pz), max(max(abs(ox), abs(oy)), abs(oz))))
-            ax, ay, az = px + eps * gx, py + eps * gy, pz + eps * gz     # on the side the ray came from
-            cr, cg, cb = mats[mat, 0], mats[mat, 1], mats[mat, 2]
-            kd, ks, shine, tr, ior = mats[mat, 3], mats[mat, 4], mats[mat, 5], mats[mat, 6], mats[mat, 7]
-            ndx, ndy, ndz = normalize(dx, dy, dz)
-            cos_i = -_dot(ndx, ndy, ndz, sx, sy, sz)
-            # mirror direction, also used for the Phong highlight
-            rx, ry, rz = ndx + 2.0 * cos_i * sx, ndy + 2.0 * cos_i * sy, ndz + 2.0 * cos_i * sz
-            dr, dg, db = 0.0, 0.0, 0.0
-            hr, hg, hb = 0.0, 0.0, 0.0
-            for li in range(n_lights):
-                tlx, tly, tlz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
-                ulx, uly, ulz = normalize(tlx, tly, tlz)
-                n_dot_l = _dot(sx, sy, sz, ulx, uly, ulz)
-                if n_dot_l <= 0.0 or _dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
-                    continue        # the surface faces away from this light: no shadow ray
-                lr, lg, lb = lights[li, 3], lights[li, 4], lights[li, 5]
-                if lights[li, 7] != 0.0 and ray_kind == 0:
-                    # Haines's light at the eye: an eye ray's hit is seen from it, so it is lit
-                    cnt[C.EYE_LIGHT_SKIPPED] += 1
-                elif filtered is not None:      # None: opaque shadows, and numba compiles no walk through glass
-                    cnt[C.RAYS_SHADOW] += 1
-                    fr, fg, fb = light_through(geo, mats, ax, ay, az, tlx, tly, tlz,
-                                               shadow_reach(lights, li, tlx, tly, tlz), np.int64(-1), filtered,
-                                               shadow_slot(node, n_lights, li), tricks, state, ws, cnt)
-                    if fr == 0.0 and fg == 0.0 and fb == 0.0:
-                        cnt[C.RAYS_SHADOW_BLOCKED] += 1
-                        continue
-                    lr, lg, lb = lr * fr, lg * fg, lb * fb
-                else:
-                    cnt[C.RAYS_SHADOW] += 1
-                    if blocked(geo, ax, ay, az, tlx, tly, tlz, shadow_reach(lights, li, tlx, tly, tlz), ANY_HIT,
-                               shadow_slot(node, n_lights, li), tricks, state, ws, cnt):
-                        cnt[C.RAYS_SHADOW_BLOCKED] += 1
-                        continue
-                dr += n_dot_l * lr
-                dg += n_dot_l * lg
-                db += n_dot_l * lb
-                if ks > 0.0:
-                    r_dot_l = _dot(rx, ry, rz, ulx, uly, ulz)
-                    if r_dot_l > 0.0:
-                        spec = ks * r_dot_l ** shine
-                        hr += spec * lr
-                        hg += spec * lg
-                        hb += spec * lb
-            kl = mats[mat, 8]
-            r_out += wr * (kd * cr * dr + hr + kl * cr)
-            g_out += wg * (kd * cg * dg + hg + kl * cg)
-            b_out += wb * (kd * cb * db + hb + kl * cb)
-            if depth >= max_depth or (ks <= 0.0 and tr <= 0.0):
-                continue
-            reflect_weight = ks
-            if tr > 0.0:
-                eta = 1.0 / ior if entering else ior
-                if ior <= 0.0:
-                    eta = 1.0
-                k = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
-                if k < 0.0:
-                    reflect_weight += tr        # total internal reflection
-                    cnt[C.RAYS_TIR] += 1
-                else:
-                    c2 = eta * cos_i - math.sqrt(k)
-                    tx, ty, tz = normalize(eta * ndx + c2 * sx, eta * ndy + c2 * sy, eta * ndz + c2 * sz)
-                    # from the far side
-                    top = spawn(rays, top, cutoff, px - eps * gx, py - eps * gy, pz - eps * gz, tx, ty, tz, wr * tr,
-                                wg * tr, wb * tr, depth + 1, 2, -1, 2 * node + 1, state, cnt)
-            rx, ry, rz = normalize(rx, ry, rz)
-            top = spawn(rays, top, cutoff, ax, ay, az, rx, ry, rz, wr * reflect_weight, wg * reflect_weight,
-                        wb * reflect_weight, depth + 1, 1, -1, 2 * node, state, cnt)
-        colors[e, 0], colors[e, 1], colors[e, 2] = r_out, g_out, b_out
+    r_out, g_out, b_out = 0.0, 0.0, 0.0
+    e = 0
+    top = 0
+    while True:     # one loop over the eye rays and their trees (a loop nest compiles slower)
+        if top == 0:
+            if e > 0:
+                colors[e - 1, 0], colors[e - 1, 1], colors[e - 1, 2] = r_out, g_out, b_out
+            if e == n:
+                break
+            r_out, g_out, b_out = 0.0, 0.0, 0.0
+            spawn(rays, 0, 0.0, ex, ey, ez, eyes[e, 0], eyes[e, 1], eyes[e, 2], 1.0, 1.0, 1.0, 1, 0, -1, 1, None, cnt)
+            rays[0, ORIGIN] = -1.0      # leaves no object
+            top = 1
+            e += 1
+        top -= 1
+        ox, oy, oz = rays[top, 0], rays[top, 1], rays[top, 2]
+        dx, dy, dz = rays[top, 3], rays[top, 4], rays[top, 5]
+        wr, wg, wb = rays[top, 6], rays[top, 7], rays[top, 8]
+        depth = int(rays[top, 9])
+        ray_kind = int(rays[top, 10])
+        node = np.int64(rays[top, 12])
+        cnt[C.RAYS_EYE + 2 * ray_kind] += 1
+        if not closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt):
+            r_out += wr * background[0]
+            g_out += wg * background[1]
+            b_out += wb * background[2]
+            continue
+        cnt[C.RAYS_EYE_HIT + 2 * ray_kind] += 1
+        hit_f, hit_i = ws[5], ws[6]
+        t = hit_f[0]
+        px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+        gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
+        cnt[C.NORMALS_COMPUTED] += 1
+        hold_origin(state, ws)      # the object the shadow and secondary rays below leave
+        entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
+        if not entering:
+            # two-sided: shade the side the ray sees
+            gx, gy, gz = -gx, -gy, -gz
+        if _dot(sx, sy, sz, gx, gy, gz) < 0.0:
+            # vertex normals may disagree with the winding; keep them on the seen side
+            sx, sy, sz = -sx, -sy, -sz
+        eps = OFFSET * max(max(abs(px), abs(py)), max(abs(pz), max(max(abs(ox), abs(oy)), abs(oz))))
+        ax, ay, az = px + eps * gx, py + eps * gy, pz + eps * gz     # on the side the ray came from
+        cr, cg, cb = mats[mat, 0], mats[mat, 1], mats[mat, 2]
+        kd, ks, shine, tr, ior = mats[mat, 3], mats[mat, 4], mats[mat, 5], mats[mat, 6], mats[mat, 7]
+        ndx, ndy, ndz = normalize(dx, dy, dz)
+        cos_i = -_dot(ndx, ndy, ndz, sx, sy, sz)
+        # mirror direction, also used for the Phong highlight
+        rx, ry, rz = ndx + 2.0 * cos_i * sx, ndy + 2.0 * cos_i * sy, ndz + 2.0 * cos_i * sz
+        dr, dg, db = 0.0, 0.0, 0.0
+        hr, hg, hb = 0.0, 0.0, 0.0
+        for li in range(n_lights):
+            tlx, tly, tlz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
+            ulx, uly, ulz = normalize(tlx, tly, tlz)
+            n_dot_l = _dot(sx, sy, sz, ulx, uly, ulz)
+            if n_dot_l <= 0.0 or _dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
+                continue        # the surface faces away from this light: no shadow ray
+            lr, lg, lb = lights[li, 3], lights[li, 4], lights[li, 5]
+            if lights[li, 7] != 0.0 and ray_kind == 0:
+                # Haines's light at the eye: an eye ray's hit is seen from it, so it is lit
+                cnt[C.EYE_LIGHT_SKIPPED] += 1
+            elif filtered is not None:      # None: opaque shadows, and numba compiles no walk through glass
+                cnt[C.RAYS_SHADOW] += 1
+                fr, fg, fb = light_through(geo, mats, ax, ay, az, tlx, tly, tlz,
+                                           shadow_reach(lights, li, tlx, tly, tlz), np.int64(-1), filtered,
+                                           shadow_slot(node, n_lights, li), tricks, state, ws, cnt)
+                if fr == 0.0 and fg == 0.0 and fb == 0.0:
+                    cnt[C.RAYS_SHADOW_BLOCKED] += 1
+                    continue
+                lr, lg, lb = lr * fr, lg * fg, lb * fb
+            else:
+                cnt[C.RAYS_SHADOW] += 1
+                if blocked(geo, ax, ay, az, tlx, tly, tlz, shadow_reach(lights, li, tlx, tly, tlz), ANY_HIT,
+                           shadow_slot(node, n_lights, li), tricks, state, ws, cnt):
+                    cnt[C.RAYS_SHADOW_BLOCKED] += 1
+                    continue
+            dr += n_dot_l * lr
+            dg += n_dot_l * lg
+            db += n_dot_l * lb
+            if ks > 0.0:
+                r_dot_l = _dot(rx, ry, rz, ulx, uly, ulz)
+                if r_dot_l > 0.0:
+                    spec = ks * r_dot_l ** shine
+                    hr += spec * lr
+                    hg += spec * lg
+                    hb += spec * lb
+        kl = mats[mat, 8]
+        r_out += wr * (kd * cr * dr + hr + kl * cr)
+        g_out += wg * (kd * cg * dg + hg + kl * cg)
+        b_out += wb * (kd * cb * db + hb + kl * cb)
+        if depth >= max_depth or (ks <= 0.0 and tr <= 0.0):
+            continue
+        reflect_weight = ks
+        if tr > 0.0:
+            eta = 1.0 / ior if entering else ior
+            if ior <= 0.0:
+                eta = 1.0
+            k = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
+            if k < 0.0:
+                reflect_weight += tr        # total internal reflection
+                cnt[C.RAYS_TIR] += 1
+            else:
+                c2 = eta * cos_i - math.sqrt(k)
+                tx, ty, tz = normalize(eta * ndx + c2 * sx, eta * ndy + c2 * sy, eta * ndz + c2 * sz)
+                # from the far side
+                top = spawn(rays, top, cutoff, px - eps * gx, py - eps * gy, pz - eps * gz, tx, ty, tz, wr * tr,
+                            wg * tr, wb * tr, depth + 1, 2, -1, 2 * node + 1, state, cnt)
+        rx, ry, rz = normalize(rx, ry, rz)
+        top = spawn(rays, top, cutoff, ax, ay, az, rx, ry, rz, wr * reflect_weight, wg * reflect_weight,
+                    wb * reflect_weight, depth + 1, 1, -1, 2 * node, state, cnt)
