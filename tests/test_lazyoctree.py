@@ -547,12 +547,14 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
     kernel = RENDER._render_tiles
 
     def recording(*args):
-        # (geo, mats, lights, background, cam, w, h, tile_x, tile_y, first, last, row0, max_depth, cutoff,
-        #  filtered, tricks, starts, out, counters, passes, step, coarse)
-        rows = args[18][args[9]:args[10], C.RAYS_EYE]      # this call's tiles (others may run at once)
+        # (geo, mats, lights, background, cam, w, h, tile_x, tile_y, counter, last, row0, max_depth, cutoff,
+        #  filtered, tricks, starts, out, counters, passes, step, coarse); the call claims tiles from
+        # counter[0] up to last (a pass this small runs on one thread, so from its first tile)
+        first = int(args[9][0])
+        rows = args[18][first:args[10], C.RAYS_EYE]
         before = rows.sum()
         kernel(*args)
-        seen.append((args[20], args[21], args[9], args[10], int(rows.sum() - before)))
+        seen.append((args[20], args[21], first, args[10], int(rows.sum() - before)))
 
     monkeypatch.setattr(RENDER, "_render_tiles", recording)
     scene = raykernel.load("spd:balls:1")
@@ -571,11 +573,10 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
     assert [s[0] for s in seen] == [16] * 16 + [8] * 16 + [4] * 16 + [2] * 16 + [1] * 16
     assert [s[4] for s in seen[:16]] == [1] * 16      # one sample per tile first
     assert got.stats["rays.eye"] == 49 * 49 and got.stats["build.refine_passes"] == len(seen)
-    # other structures trace whole tiles, every sample at once, each sample once
+    # other structures trace whole tiles in one pass, every sample at once, each sample once
     seen.clear()
-    raykernel.render(scene, accel="bvh", resolution=48, spd=True)
-    assert all(step == 1 and coarse == 0 for step, coarse, *_ in seen)
-    assert sum(s[4] for s in seen) == 49 * 49 and sum(s[3] - s[2] for s in seen) == 16
+    whole = raykernel.render(scene, accel="bvh", resolution=48, spd=True, threads=1)
+    assert [s[:4] for s in seen] == [(1, 0, 0, 16)] and seen[0][4] == 49 * 49 == whole.stats["rays.eye"]
 
 
 @pytest.mark.parametrize("spec", ["lazyoctree", "bvh"])

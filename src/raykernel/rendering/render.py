@@ -57,6 +57,7 @@ from .tricks import parse as parse_tricks
 from .whitted import RAY_COLUMNS, RAY_STACK, trace
 
 TILE = 16
+THREAD_SAMPLES = 512        # samples a thread must have at least: fewer cost more to hand over than to trace
 CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change an 8-bit pixel
 
 
@@ -396,7 +397,8 @@ class RenderJob:
                                SHADINGS[o["shading"]], self.filtered, self.trick_bits, self.starts, self.medium,
                                SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"])
         start = first + lo
-        threads = max(1, min(threads, hi - lo))
+        samples = self.work[p] * (hi - lo) // max(1, last - first)
+        threads = max(1, min(threads, hi - lo, -(-samples // THREAD_SAMPLES)))
         if threads > 1 and not compiled(self.kernel):
             # the first tile alone, while the kernel compiles (or loads): threads calling an
             # uncompiled kernel at once would each compile it
