@@ -26,7 +26,7 @@ from numba.core import event
 from ..geometry.config import cached
 from .parallel import WORKER_PREFIX
 
-FIRST_RUN_SECONDS = 40      # about how long the first render compiles on a 2-core machine (bench/startup.py)
+FIRST_RUN_SECONDS = 60      # about how long the first render compiles on a 2-core machine (bench/startup.py)
 FIRST_QUERY_SECONDS = 45    # the same for a first RayScene query on a general scene
 FIRST_MESH_SECONDS = 13     # and on a mesh (the mesh kernel)
 
