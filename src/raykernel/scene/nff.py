@@ -196,12 +196,9 @@ class _Reader:
         self.n = len(self.toks)
         breaks = text.count("\n")
         self.eof_line = max(1, breaks if text.endswith("\n") else breaks + 1)
-        if not fast:
-            joined = "".join(self.toks)
-            # float() also reads "1_0" and non-ASCII digits; such files get checked token by token.
-            self.strict = not (joined.isascii() and "_" not in joined)
-        else:
-            self.strict = False
+        joined = "" if fast else "".join(self.toks)     # (a fast one is ASCII without "_")
+        # float() also reads "1_0" and non-ASCII digits; such files get checked token by token.
+        self.strict = not (joined.isascii() and "_" not in joined)
         self.pos = 0
         self.deferred: dict[str, list] = {"s": [], "c": [], "p": [], "pp": []}     # fast: (position, count, material)
 
