@@ -76,8 +76,8 @@ Passes and determinism
 ----------------------
 The tree changes only between passes, never while rays are in flight.
 The renderer traces its image coarse to fine (render.lazy_passes): first
-one sample per 16 x 16 tile, in passes of 1, 1, 2, 4, ... tiles up to its
-usual batch of n_tiles // 32, so the tree is deepened over the whole view
+one sample per 16 x 16 tile, in passes of 1, 1, 2, 4, ... tiles up to a
+batch of n_tiles // 32, so the tree is deepened over the whole view
 by a few rays at a time; then the samples halfway between those traced,
 level by level (steps of 8, 4, 2 and 1 sample), in batches of tiles. Each
 ray then meets a tree that the rays of its neighbours have already
