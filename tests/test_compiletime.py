@@ -57,6 +57,17 @@ def test_the_clock_tells_loading_from_the_cache_apart_from_compiling(tmp_path):
     assert again_s == 0.0 and loaded_s > 0.0
 
 
+def test_numbas_typing_set_up_is_timed_once_per_process():
+    """typing_setup: numba's first typeof in a fresh process takes time, every later call none."""
+    import subprocess
+    import sys
+    code = ("from raykernel.engine.compiletime import typing_setup as t\n"
+            "print(t(), t())")
+    first, again = map(float, subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                             check=True).stdout.split())
+    assert first > 0.0 and again == 0.0
+
+
 def test_render_reports_parse_and_load_apart_from_the_work():
     """time.parse is the loading of the scene; a scene built in Python has none. Loading kernels
     from the cache is start-up (time.load), in neither time.preprocess nor time.trace."""

@@ -5,6 +5,7 @@
     clock.seconds                       # of the time inside, spent compiling
     clock.loading                       # spent loading compiled kernels from the cache
     first_run()                         # True when this install's kernels are not yet in the cache
+    typing_setup()                      # seconds numba's first argument typing took (0 after the first call)
 
 A render or query subtracts both from its trace time and reports them as
 time.compile and time.load, so that no figure mixes start-up with work.
@@ -21,6 +22,8 @@ from __future__ import annotations
 import threading
 import time
 
+import numba
+import numpy as np
 from numba.core import event
 
 from ..geometry.config import cached
@@ -83,6 +86,22 @@ class CompileClock:
         event.unregister("numba:compile", self._compile)
         event.unregister("numba:compiler_lock", self._lock)
         return False
+
+
+_typing_ready = threading.Event()
+
+
+def typing_setup() -> float:
+    """Seconds numba took to set up its typing of arguments, when this is the first call in
+    the process (0 afterwards): the first typeof of an array loads that machinery, about
+    20 ms, which would otherwise fall into whatever kernel's call came first (a render's
+    BVH build). Start-up, reported with time.load."""
+    if _typing_ready.is_set():
+        return 0.0
+    start = time.perf_counter()
+    numba.typeof(np.zeros((1, 3)))
+    _typing_ready.set()
+    return time.perf_counter() - start
 
 
 def first_run() -> bool:

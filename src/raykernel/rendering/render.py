@@ -37,7 +37,7 @@ import numba
 import numpy as np
 
 from ..aggregates.lazyoctree import pass_ranges
-from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock, first_run
+from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock, first_run, typing_setup
 from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
@@ -307,6 +307,7 @@ class RenderJob:
         if o["resolution"] is None:
             self.width, self.height = scene.camera.width, scene.camera.height
         if remote is None:
+            setup = typing_setup()      # numba's, on a process's first kernel call: start-up, not preprocess
             t0 = time.perf_counter()
             with CompileClock() as build_clock:     # the builders' kernels compile on first use too
                 build_fn = flatten if builder is None else builder.flatten
@@ -314,7 +315,7 @@ class RenderJob:
                 self.starts = prepare_starts(self.geo, bool(o["trick_bits"] & STARTLISTS))    # trick 6's view of the BVHs
             self.preprocess = time.perf_counter() - t0 - build_clock.seconds - build_clock.loading
             self.build_compile = build_clock.seconds
-            self.build_load = build_clock.loading
+            self.build_load = setup + build_clock.loading
             self.lazy = self.build.get("lazy")     # lazy structures: refined after each pass
             self.lazy_columns = None if self.lazy is None else self.lazy.columns
         else:
