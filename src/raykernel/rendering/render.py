@@ -70,7 +70,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
     Within each tile only the samples on the lattice of `step` (every step-th row and column),
     less those on the coarser lattice of `coarse` (0: none) traced before.
     passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py)."""
-    eyes = np.zeros((TILE * TILE, 3))
+    eyes = np.zeros((TILE * TILE, 5))      # direction, then the sample's row and column
     colors = np.zeros((TILE * TILE, 3))
     while True:
         tile = claim(counter)
@@ -107,16 +107,13 @@ def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y
             dy = cam[4] + i * cam[7] + j * cam[10]
             dz = cam[5] + i * cam[8] + j * cam[11]
             eyes[n, 0], eyes[n, 1], eyes[n, 2] = normalize(dx, dy, dz)
+            eyes[n, 3], eyes[n, 4] = j, i       # where its colour goes
             n += 1
     trace(geo, mats, lights, background, cam[0], cam[1], cam[2], eyes, n, colors, max_depth, cutoff, filtered,
           tricks, state, rays, ws, cnt)
-    n = 0
-    for j in range(y0, min(y0 + TILE, samples_h), step):
-        for i in range(x0, min(x0 + TILE, samples_w), step):
-            if coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0:
-                continue
-            out[j, i, 0], out[j, i, 1], out[j, i, 2] = colors[n, 0], colors[n, 1], colors[n, 2]
-            n += 1
+    for k in range(n):
+        j, i = int(eyes[k, 3]), int(eyes[k, 4])
+        out[j, i, 0], out[j, i, 1], out[j, i, 2] = colors[k, 0], colors[k, 1], colors[k, 2]
 
 
 def lazy_passes(n_tiles: int, batch: int) -> list[tuple[int, int, int, int]]:

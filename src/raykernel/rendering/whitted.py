@@ -69,7 +69,7 @@ def spawn(rays, top, cutoff, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, kind, me
 @njit(private=True)
 def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth, cutoff, filtered, tricks, state,
           rays, ws, cnt):
-    """Colours of n eye rays from the eye (ex, ey, ez) along the unit directions eyes[:n], in order, into
+    """Colours of n eye rays from the eye (ex, ey, ez) along the unit directions eyes[:n, :3], in order, into
     colors[:n]: each ray's whole ray tree, depth first, on an explicit stack.
     rays[k] = origin(3), direction(3), weight(3), depth, kind (0 eye, 1 reflect, 2 refract)."""
     n_lights = lights.shape[0]
