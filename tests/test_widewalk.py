@@ -75,6 +75,45 @@ def test_nesting_and_instances_keep_the_general_walk():
     assert len(flatten(inst)[0].wide_nodes) == 0
 
 
+def test_kernels_given_a_wide_geometry_compile_no_general_driver():
+    # the geometry's type tells numba: a 2-D wide_only when the scene is one 4-wide BVH
+    from numba import njit, typeof
+
+    from raykernel.engine.traverse import CLOSEST, CLOSEST_EAGER
+    from raykernel.engine.widewalk import with_driver
+
+    wide, _ = flatten(random_scene(1), "bvh")
+    general, _ = flatten(random_scene(1), "bvh(width=2)")
+    assert wide.wide_only.ndim == 2 and general.wide_only.ndim == 1
+    driven = with_driver(wide)
+    assert driven.wide_only.ndim == 1 and typeof(driven) != typeof(wide)
+    assert all(a is b for a, b in zip(driven[:-2], wide[:-2]))     # the same arrays
+
+    @njit
+    def first_hit(geo, mode, ws, cnt):
+        return intersect(geo, 0.0, 0.0, -50.0, 0.0, 0.0, 1.0, 0.0, np.inf, mode, ws, cnt)
+
+    ws, cnt = workspace(), np.zeros(C.N_COUNTERS, np.int64)
+    first_hit(wide, CLOSEST, ws, cnt)
+    code = first_hit.inspect_llvm(first_hit.signatures[0])
+    assert "intersect_wide" in code and "traverse4walk" not in code
+    with pytest.raises(ValueError, match="with_driver"):
+        first_hit(wide, CLOSEST_EAGER, ws, cnt)     # eager normals need the driver: given with_driver(geo)
+    assert first_hit(driven, CLOSEST_EAGER, ws, cnt) == first_hit(driven, CLOSEST, ws, cnt)
+
+
+def test_eager_normals_render_one_bvh_with_the_driver_and_the_same_image():
+    # tricks without lazy normals take CLOSEST_EAGER queries, which only the general driver answers:
+    # a render with tricks gets the geometry typed with it
+    scene = raykernel.load("spd:balls:1")
+    eager = raykernel.render(scene, resolution=24, tricks="closest")
+    lazy = raykernel.render(scene, resolution=24, tricks="closest,lazynormals")
+    binary = raykernel.render(scene, resolution=24, tricks="closest", accel="bvh(width=2)")
+    assert np.array_equal(eager.image, lazy.image) and np.array_equal(eager.image, binary.image)
+    assert eager.stats["normals.computed"] > lazy.stats["normals.computed"]
+    assert eager.stats["normals.computed"] == binary.stats["normals.computed"]
+
+
 def test_an_empty_scene_has_no_tree():
     geo, _ = flatten(Scene())
     assert len(geo.wide_nodes) == 0

@@ -15,10 +15,13 @@ into its space for an instance) and the child's START entry pushed above. A
 frame ends when the stack falls to its base. Instance maps are affine and
 the direction is not renormalised, so t means the same in every frame and
 one closest t shrinks through all. A scene that is one 4-wide BVH over
-primitives skips all of that: `intersect` hands it to widewalk.py.
+primitives skips all of that: `intersect` hands it to widewalk.py, and
+kernels given its geometry compile no general driver at all (its type says
+so: widewalk.WIDE_ONLY).
 """
 
 import numpy as np
+from numba.extending import overload
 
 from ..aggregates import bvh, csg, grid, octree, rc
 from ..aggregates.walk import (
@@ -176,7 +179,25 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
         return intersect_wide(geo.wide_nodes, geo.wide_boxes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
                               geo.wide_prims, geo.poly_verts, geo.tri_edges, ox, oy, oz, dx, dy, dz, tmin, tmax, mode,
                               ws[0], ws[2], ws[3], ws[5], ws[6], ws[11], cnt)
-    return walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
+    return _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
+
+
+def _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
+    """`walk`, in kernels whose geometry may need it: chosen by geo's type as numba compiles."""
+
+
+@overload(_driver, inline="always")
+def _driver_for_type(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
+    if geo.types[geo.fields.index("wide_only")].ndim == 2:
+        # one 4-wide BVH (widewalk.WIDE_ONLY): intersect gets here only for eager normals, and
+        # RenderJob gives renders with tricks a geometry typed with the driver (widewalk.with_driver)
+        def no_driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
+            raise ValueError("CLOSEST_EAGER on a wide-only geometry: pass widewalk.with_driver(geo)")
+        return no_driver
+
+    def driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
+        return walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
+    return driver
 
 
 @njit(private=True)

@@ -41,6 +41,7 @@ from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock, first_run, typ
 from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
+from ..engine.widewalk import with_driver
 from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.config import compiled, njit, tell_once
@@ -310,6 +311,10 @@ class RenderJob:
                 build_fn = flatten if builder is None else builder.flatten
                 self.geo, self.build = build_fn(scene, o["accel"], o["max_memory"])
                 self.starts = prepare_starts(self.geo, bool(o["trick_bits"] & STARTLISTS))    # trick 6's view of the BVHs
+            if o["trick_bits"] != LEAN:
+                # the tricks' kernels take the general driver (eager normals need it) on any scene:
+                # one compile of them for every scene, not one per geometry type
+                self.geo = with_driver(self.geo)
             self.preprocess = time.perf_counter() - t0 - build_clock.seconds - build_clock.loading
             self.build_compile = build_clock.seconds
             self.build_load = setup + build_clock.loading

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from ..engine.traverse import ANY_HIT
+from ..engine.traverse import ANY_HIT, CLOSEST, intersect
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
@@ -95,7 +95,13 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
         ray_kind = int(rays[top, 10])
         node = np.int64(rays[top, 12])
         cnt[C.RAYS_EYE + 2 * ray_kind] += 1
-        if not closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt):
+        # `state is None` tested here, on trace's own argument: numba then prunes the tricks'
+        # calls before it would inline them (it inlines before it prunes the callees' tests)
+        if state is None:
+            found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, CLOSEST, ws, cnt)
+        else:
+            found = closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt)
+        if not found:
             r_out += wr * background[0]
             g_out += wg * background[1]
             b_out += wb * background[2]
@@ -106,7 +112,8 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
         gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
         cnt[C.NORMALS_COMPUTED] += 1
-        hold_origin(state, ws)      # the object the shadow and secondary rays below leave
+        if state is not None:
+            hold_origin(state, ws)      # the object the shadow and secondary rays below leave
         entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
         if not entering:
             # two-sided: shade the side the ray sees
@@ -145,8 +152,13 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
                 lr, lg, lb = lr * fr, lg * fg, lb * fb
             else:
                 cnt[C.RAYS_SHADOW] += 1
-                if blocked(geo, ax, ay, az, tlx, tly, tlz, shadow_reach(lights, li, tlx, tly, tlz), ANY_HIT,
-                           shadow_slot(node, n_lights, li), tricks, state, ws, cnt):
+                reach = shadow_reach(lights, li, tlx, tly, tlz)
+                if state is None:
+                    shadowed = intersect(geo, ax, ay, az, tlx, tly, tlz, 0.0, reach, ANY_HIT, ws, cnt)
+                else:
+                    shadowed = blocked(geo, ax, ay, az, tlx, tly, tlz, reach, ANY_HIT, shadow_slot(node, n_lights, li),
+                                       tricks, state, ws, cnt)
+                if shadowed:
                     cnt[C.RAYS_SHADOW_BLOCKED] += 1
                     continue
             dr += n_dot_l * lr
