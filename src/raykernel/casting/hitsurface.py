@@ -1,6 +1,7 @@
 """Surface quantities of a hit, shared by every ray-casting kernel.
 
     store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip=0)
+    store_triangle_surface(geo, r, idx, px, py, pz, m, uv_out, gn_out, sn_out)  # kernels that meet only triangles
 
 `m` is the world-to-local 3x4 map (row-major, 12 numbers) of the frame the
 hit was found in; p is the world hit point; flip (hit_i[3]) reverses the
@@ -16,24 +17,30 @@ import numpy as np
 
 from ..geometry.config import njit
 from ..geometry.primitives import CONE, SPHERE, TRIANGLE, normalize
-from ..geometry.surface import surface
+from ..geometry.surface import surface, triangle_surface
+
+
+@njit(inline="always")
+def triangle_uv(geo, idx, px, py, pz):
+    """(u, v) of local point p on triangle idx: barycentric, of its second and third corners."""
+    f = geo.tri_faces
+    v = geo.tri_verts
+    a, b, c = f[idx, 0], f[idx, 1], f[idx, 2]
+    e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+    e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+    gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    area = gx * gx + gy * gy + gz * gz
+    wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
+    cx, cy, cz = wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x
+    dx, dy, dz = e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx
+    return (cx * gx + cy * gy + cz * gz) / area, (dx * gx + dy * gy + dz * gz) / area
 
 
 @njit(inline="always")
 def surface_uv(geo, kind, idx, px, py, pz):
     """(u, v) of local point p on primitive (kind, idx)."""
     if kind == TRIANGLE:
-        f = geo.tri_faces
-        v = geo.tri_verts
-        a, b, c = f[idx, 0], f[idx, 1], f[idx, 2]
-        e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-        e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-        gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        area = gx * gx + gy * gy + gz * gz
-        wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
-        cx, cy, cz = wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x
-        dx, dy, dz = e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx
-        return (cx * gx + cy * gy + cz * gz) / area, (dx * gx + dy * gy + dz * gz) / area
+        return triangle_uv(geo, idx, px, py, pz)
     if kind == SPHERE:
         x, y, z = normalize(px - geo.sph_center[idx, 0], py - geo.sph_center[idx, 1], pz - geo.sph_center[idx, 2])
         u = math.atan2(y, x) / (2.0 * math.pi)
@@ -64,10 +71,33 @@ def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip
     """Write (u, v) and the world-space unit normals of the hit into row r of those asked
     for (the others have no rows), reversed where flip is set: a surface a CSG difference cut."""
     # the hit point in the primitive's own frame; normals back by the transpose
-    lx = m[0] * px + m[1] * py + m[2] * pz + m[3]
-    ly = m[4] * px + m[5] * py + m[6] * pz + m[7]
-    lz = m[8] * px + m[9] * py + m[10] * pz + m[11]
+    lx, ly, lz = to_local(m, px, py, pz)
     gx, gy, gz, sx, sy, sz, _ = surface(geo, kind, idx, lx, ly, lz)
+    _store_normals(r, m, gx, gy, gz, sx, sy, sz, flip, gn_out, sn_out)
+    if uv_out.shape[0]:
+        uv_out[r, 0], uv_out[r, 1] = surface_uv(geo, kind, idx, lx, ly, lz)
+
+
+@njit(inline="always")
+def store_triangle_surface(geo, r, idx, px, py, pz, m, uv_out, gn_out, sn_out):
+    """store_surface of a hit on triangle idx, compiling the triangle's code alone (the mesh kernel's)."""
+    lx, ly, lz = to_local(m, px, py, pz)
+    gx, gy, gz, sx, sy, sz, _ = triangle_surface(geo, idx, lx, ly, lz)
+    _store_normals(r, m, gx, gy, gz, sx, sy, sz, 0, gn_out, sn_out)
+    if uv_out.shape[0]:
+        uv_out[r, 0], uv_out[r, 1] = triangle_uv(geo, idx, lx, ly, lz)
+
+
+@njit(inline="always")
+def to_local(m, px, py, pz):
+    """Point p mapped by the 3x4 row-major map m."""
+    return (m[0] * px + m[1] * py + m[2] * pz + m[3], m[4] * px + m[5] * py + m[6] * pz + m[7],
+            m[8] * px + m[9] * py + m[10] * pz + m[11])
+
+
+@njit(inline="always")
+def _store_normals(r, m, gx, gy, gz, sx, sy, sz, flip, gn_out, sn_out):
+    """Local normals to world space by the transpose of m, unit, reversed where flip is set, into row r."""
     gx, gy, gz = normalize(m[0] * gx + m[4] * gy + m[8] * gz, m[1] * gx + m[5] * gy + m[9] * gz,
                       m[2] * gx + m[6] * gy + m[10] * gz)
     sx, sy, sz = normalize(m[0] * sx + m[4] * sy + m[8] * sz, m[1] * sx + m[5] * sy + m[9] * sz,
@@ -80,10 +110,6 @@ def store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip
         gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz
     if sn_out.shape[0]:
         sn_out[r, 0], sn_out[r, 1], sn_out[r, 2] = sx, sy, sz
-    if uv_out.shape[0]:
-        u, v = surface_uv(geo, kind, idx, lx, ly, lz)
-        uv_out[r, 0] = u
-        uv_out[r, 1] = v
 
 
 @njit(inline="always")

@@ -44,7 +44,7 @@ from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, STILL, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
-from .hitsurface import store_miss, store_surface
+from .hitsurface import store_miss, store_triangle_surface
 
 INF = np.inf
 STACK = 192                  # a BVH is at most 96 nodes deep (flatten.MAX_TREE_DEPTH): 2 entries per level
@@ -314,8 +314,8 @@ def _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy,
     if inst_out.shape[0]:
         inst_out[r] = -1
     if with_surface:
-        store_surface(geo, r, TRIANGLE, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz,
-                      _IDENTITY, uv_out, gn_out, sn_out)
+        store_triangle_surface(geo, r, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz, _IDENTITY,
+                               uv_out, gn_out, sn_out)
 
 
 @njit(inline="always")

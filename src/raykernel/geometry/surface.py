@@ -70,7 +70,12 @@ def surface(geo, kind, idx, px, py, pz):
                                  geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
                                  r0, slope, px, py, pz)
         return nx, ny, nz, nx, ny, nz, geo.cone_mat[idx]
-    # triangle
+    return triangle_surface(geo, idx, px, py, pz)
+
+
+@njit(inline="always")
+def triangle_surface(geo, idx, px, py, pz):
+    """surface of triangle idx: its code alone, for kernels that meet only triangles."""
     f = geo.tri_faces
     v = geo.tri_verts
     a, b, c = f[idx, 0], f[idx, 1], f[idx, 2]
