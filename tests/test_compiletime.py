@@ -1,8 +1,11 @@
 """Compile time measured apart from the work, and the first-run check the CLI uses."""
 
 import threading
+import time
 
 import numba
+import numpy as np
+import pytest
 
 import raykernel
 from raykernel.engine.compiletime import CompileClock, first_run
@@ -27,6 +30,38 @@ def test_the_clock_counts_compiles_of_its_own_thread_only():
     with CompileClock() as again:
         assert mine(3.0) == 7.0              # compiled already: nothing to count
     assert again.seconds == 0.0
+
+
+def test_the_clocks_notice_fires_once_for_a_compile_that_lasts():
+    said = []
+    with CompileClock(notice=lambda: said.append(1), after=0.0) as clock:      # 0: at a compile's start
+        fresh_kernel()(1.0)
+        fresh_kernel()(2.0)
+    assert said == [1] and clock.seconds > 0.0                                  # once per clock
+    with CompileClock(notice=lambda: said.append(2), after=3600.0):
+        fresh_kernel()(1.0)                  # over long before an hour: nothing said
+    compiled = fresh_kernel()
+    compiled(1.0)
+    with CompileClock(notice=lambda: said.append(3), after=0.0):
+        compiled(2.0)                        # no compile at all
+    assert said == [1]
+
+    @numba.njit
+    def slow(a):                             # a compile that takes well over 10 ms
+        return np.sort(a).cumsum().argmax() + np.unique(a).size + np.median(a)
+    with CompileClock(notice=lambda: said.append(4), after=0.01):
+        slow(np.arange(5.0))
+    time.sleep(0.05)
+    assert said == [1, 4]                    # the timer, on its own thread
+
+
+def test_a_compile_notice_is_said_again_for_each_later_compile(capsys):
+    from raykernel.engine.compiletime import compile_notice
+    from raykernel.geometry.config import tell_once
+    tell_once("test-notice", None)           # the caller said the first one its own way
+    for _ in range(3):
+        compile_notice("test-notice", "compiling test kernels")()
+    assert capsys.readouterr().err.count("compiling test kernels") == 2
 
 
 LOAD_CHILD = """
@@ -104,5 +139,21 @@ def test_a_first_query_that_compiles_says_so_once(tmp_path):
     first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert first.stderr.count("raykernel: compiling the ray-casting kernels") == 1
     assert "compiling the BVH builder" in first.stderr
+    again = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert "compiling" not in again.stderr
+
+
+@pytest.mark.slow
+def test_each_kind_of_render_that_compiles_says_so(tmp_path):
+    """On an empty cache: a render of a one-BVH scene and then one of a nested structure compile
+    different specialisations, and each says so; a later process loads both and says nothing."""
+    import os
+    import subprocess
+    import sys
+    code = ("import raykernel; s = raykernel.load('spd:balls:1'); raykernel.render(s, resolution=8); "
+            "raykernel.render(s, resolution=8, accel='grid')")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert first.stderr.count("raykernel: compiling the renderer's kernels") == 2
     again = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert "compiling" not in again.stderr

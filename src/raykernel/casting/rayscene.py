@@ -43,13 +43,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock
+from ..engine.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock, compile_notice
 from ..engine.flatten import BVH, LIST, flatten
 from ..engine.parallel import for_ranges
 from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..errors import RayKernelError
 from ..geometry import counters as C
-from ..geometry.config import cached, compiled, njit, tell_once
+from ..geometry.config import njit
 from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
 from ..scene.model import Scene, TriangleMesh
 from .hitsurface import store_miss, store_surface
@@ -453,11 +453,10 @@ class RayScene:
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
         kernel = self._mesh.kernel if self._mesh is not None else _query
         name = f"meshcast.{kernel.__name__}" if self._mesh is not None else "rayscene._query"
-        if n and not compiled(kernel) and not cached("casting", name):
-            seconds = FIRST_MESH_SECONDS if self._mesh is not None else FIRST_QUERY_SECONDS
-            tell_once(name, f"raykernel: compiling the ray-casting kernels (first use after install, about "
-                            f"{seconds} s; cached for later processes)")
-        with self._turn(), CompileClock() as clock:
+        seconds = FIRST_MESH_SECONDS if self._mesh is not None else FIRST_QUERY_SECONDS
+        notice = compile_notice(name, f"raykernel: compiling the ray-casting kernels (first use after install, "
+                                      f"about {seconds} s; cached for later processes)")
+        with self._turn(), CompileClock(notice=notice) as clock:
             start = time.perf_counter()         # (after waiting for the lock)
             if n and self._mesh is not None:
                 mesh = self._mesh

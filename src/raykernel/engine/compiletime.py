@@ -1,8 +1,8 @@
 """Compile time, measured apart from the work: numba's compile events on this thread.
 
-    with CompileClock() as clock:
+    with CompileClock(notice=say) as clock:
         kernel(...)                     # may compile first, or load from the cache
-    clock.seconds                       # of the time inside, spent compiling
+    clock.seconds                       # of the time inside, spent compiling (say() ran if over a second)
     clock.loading                       # spent loading compiled kernels from the cache
     first_run()                         # True when this install's kernels are not yet in the cache
     typing_setup()                      # seconds numba's first argument typing took (0 after the first call)
@@ -26,29 +26,46 @@ import numba
 import numpy as np
 from numba.core import event
 
-from ..geometry.config import cached
+from ..geometry.config import cached, tell_once
 from .parallel import WORKER_PREFIX
 
-FIRST_RUN_SECONDS = 60      # about how long the first render compiles on a 2-core machine (bench/startup.py)
-FIRST_QUERY_SECONDS = 45    # the same for a first RayScene query on a general scene
-FIRST_MESH_SECONDS = 13     # and on a mesh (the mesh kernel)
+# about how long a first compile takes on a 2-core machine (bench/startup.py), for the notices
+FIRST_RUN_SECONDS = 35      # a first render of a scene that is one BVH (every SPD scene); nested ones about a minute
+FIRST_QUERY_SECONDS = 35    # a first RayScene query on a general scene
+FIRST_MESH_SECONDS = 20     # and on a mesh (the mesh kernel)
+NOTICE_AFTER = 1.0          # seconds of compiling before CompileClock's notice
 
 
 class _Span(event.Listener):
-    """Seconds inside the outermost events of one kind, on the clock's threads."""
+    """Seconds inside the outermost events of one kind, on the clock's threads; notice(), if
+    given, is called once when one of them has lasted `after` seconds (at its start if 0)."""
 
-    def __init__(self, ours):
+    def __init__(self, ours, notice=None, after=0.0):
         super().__init__()
         self.seconds = 0.0
         self._ours = ours
         self._depth = 0
         self._start = 0.0
+        self._notice, self._after = notice, after
+        self._timer = None
+
+    def _tell(self):
+        notice, self._notice = self._notice, None
+        if notice is not None:
+            notice()
 
     def on_start(self, ev):
         if not self._ours():
             return
         if self._depth == 0:
             self._start = time.perf_counter()
+            if self._notice is not None:
+                if self._after <= 0.0:
+                    self._tell()
+                else:
+                    self._timer = threading.Timer(self._after, self._tell)
+                    self._timer.daemon = True
+                    self._timer.start()
         self._depth += 1
 
     def on_end(self, ev):
@@ -57,12 +74,19 @@ class _Span(event.Listener):
         self._depth -= 1
         if self._depth == 0:
             self.seconds += time.perf_counter() - self._start
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
 
 
 class CompileClock:
-    def __init__(self):
+    """notice: called once, on a timer thread, when a compile inside the clock has lasted
+    `after` seconds: a first call that compiles says so, and one that loads from the cache
+    or compiles a moment does not (whichever kernel and specialisation it is)."""
+
+    def __init__(self, notice=None, after=NOTICE_AFTER):
         self._thread = threading.get_ident()
-        self._compile = _Span(self._ours)
+        self._compile = _Span(self._ours, notice, after)
         self._lock = _Span(self._ours)
 
     def _ours(self) -> bool:
@@ -86,6 +110,21 @@ class CompileClock:
         event.unregister("numba:compile", self._compile)
         event.unregister("numba:compiler_lock", self._lock)
         return False
+
+
+_notices: dict = {}
+_notices_lock = threading.Lock()
+
+
+def compile_notice(key: str, message: str):
+    """A CompileClock notice that prints `message` on stderr. Its first firing in a process is
+    said under `key`, once (a caller that said it its own way marks it: tell_once(key, None));
+    every later one is said again: another specialisation is compiling."""
+    def fire():
+        with _notices_lock:
+            n = _notices[key] = _notices.get(key, -1) + 1
+        tell_once(key if n == 0 else f"{key} {n}", message)
+    return fire
 
 
 _typing_ready = threading.Event()

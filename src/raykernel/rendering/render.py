@@ -37,14 +37,14 @@ import numba
 import numpy as np
 
 from ..aggregates.lazyoctree import pass_ranges
-from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock, first_run, typing_setup
+from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock, compile_notice, typing_setup
 from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..engine.widewalk import with_driver
 from ..errors import OptionError
 from ..geometry import counters as C
-from ..geometry.config import compiled, njit, tell_once
+from ..geometry.config import compiled, njit
 from ..geometry.primitives import normalize
 from ..scene.model import Scene
 from . import heckbert
@@ -514,10 +514,10 @@ def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:
     return mask
 
 
-def tell_compiling(kernel) -> None:
-    if not compiled(kernel) and first_run():
-        tell_once("render", f"raykernel: compiling the renderer's kernels (first render after install, about "
-                            f"{FIRST_RUN_SECONDS} s; cached for later processes)")
+# CompileClock's notice for a render's kernels, whichever specialisation compiles
+tell_compiling = compile_notice(
+    "render", f"raykernel: compiling the renderer's kernels for this kind of render (once after install: about "
+              f"{FIRST_RUN_SECONDS} s, a minute for nested structures; cached for later processes)")
 
 
 def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd: bool = False,
@@ -562,8 +562,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     n_threads = job.threads
     t1 = time.perf_counter()
     done, total = 0, sum(job.work)
-    tell_compiling(job.kernel)
-    with CompileClock() as clock:
+    with CompileClock(notice=tell_compiling) as clock:
         for p, part in enumerate(job.work):
             report = None
             if progress is not None:
