@@ -76,18 +76,21 @@ def test_nesting_and_instances_keep_the_general_walk():
 
 
 def test_kernels_given_a_wide_geometry_compile_no_general_driver():
-    # the geometry's type tells numba: a 2-D wide_only when the scene is one 4-wide BVH
+    # the geometry's type tells numba: a read-only wide_center when the scene is one 4-wide BVH
     from numba import njit, typeof
 
+    from raykernel.engine.flatten import Geometry
     from raykernel.engine.traverse import CLOSEST, CLOSEST_EAGER
-    from raykernel.engine.widewalk import with_driver
+    from raykernel.engine.widewalk import wide_only, with_driver
 
     wide, _ = flatten(random_scene(1), "bvh")
     general, _ = flatten(random_scene(1), "bvh(width=2)")
-    assert wide.wide_only.ndim == 2 and general.wide_only.ndim == 1
+    assert wide_only(wide) and not wide_only(general)
     driven = with_driver(wide)
-    assert driven.wide_only.ndim == 1 and typeof(driven) != typeof(wide)
-    assert all(a is b for a, b in zip(driven[:-2], wide[:-2]))     # the same arrays
+    assert not wide_only(driven) and typeof(driven) != typeof(wide) and with_driver(general) is general
+    assert np.array_equal(driven.wide_center, wide.wide_center)
+    same = [name for name in Geometry._fields if name not in ("wide_center", "root")]
+    assert all(getattr(driven, name) is getattr(wide, name) for name in same)     # the same arrays
 
     @njit
     def first_hit(geo, mode, ws, cnt):

@@ -106,9 +106,8 @@ AGGREGATE_FIELDS = (
 WIDE_FIELDS = (         # a scene that is one BVH over primitives: that BVH collapsed 4-wide (widebvh.py), which
     "wide_nodes",       # engine/widewalk.py walks; (0, 32) arrays otherwise
     "wide_boxes",
-    "wide_center",
+    "wide_center",      # read-only when the scene is that BVH: kernels then compile no general driver (widewalk.py)
     "wide_prims",       # its leaves' primitives in leaf order, an 80-byte record each (widewalk.py)
-    "wide_only",        # empty; 2-D when the scene is that BVH, so kernels compile no general driver (widewalk.py)
 )
 Geometry = NamedTuple("Geometry", [(name, np.ndarray) for name in PRIMITIVE_FIELDS] +
                       [(f.name, np.ndarray) for f in AGGREGATE_FIELDS] +

@@ -17,7 +17,7 @@ the direction is not renormalised, so t means the same in every frame and
 one closest t shrinks through all. A scene that is one 4-wide BVH over
 primitives skips all of that: `intersect` hands it to widewalk.py, and
 kernels given its geometry compile no general driver at all (its type says
-so: widewalk.WIDE_ONLY).
+so: widewalk.wide_only).
 """
 
 import numpy as np
@@ -188,8 +188,8 @@ def _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
 
 @overload(_driver, inline="always")
 def _driver_for_type(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
-    if geo.types[geo.fields.index("wide_only")].ndim == 2:
-        # one 4-wide BVH (widewalk.WIDE_ONLY): intersect gets here only for eager normals, and
+    if not geo.types[geo.fields.index("wide_center")].mutable:
+        # one 4-wide BVH (widewalk.wide_only): intersect gets here only for eager normals, and
         # RenderJob gives renders with tricks a geometry typed with the driver (widewalk.with_driver)
         def no_driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
             raise ValueError("CLOSEST_EAGER on a wide-only geometry: pass widewalk.with_driver(geo)")

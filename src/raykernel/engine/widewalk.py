@@ -54,14 +54,9 @@ from .hitrule import ANY_HIT, ANY_OPAQUE, take
 
 PRIM_COLUMNS = 10      # the most a kind needs (a triangle's or a cone's nine numbers), and the flag
 CLEAR = 9
-# Geometry.wide_only, read by numba through its type alone (it compiles a kernel once per type):
-# a 2-D array when the scene is one 4-wide BVH, and kernels then compile this walk without the
-# general driver (about 20 s of a first render's compile); a 1-D one when the driver may be needed
-WIDE_ONLY = np.zeros((0, 0), np.int8)
-WITH_DRIVER = np.zeros(0, np.int8)
 # the wide_* fields of every other scene: nothing to walk
 NO_WALK = dict(wide_nodes=NO_WIDE.nodes, wide_boxes=NO_WIDE.boxes, wide_center=NO_WIDE.center,
-               wide_prims=np.zeros((0, PRIM_COLUMNS)), wide_only=WITH_DRIVER)
+               wide_prims=np.zeros((0, PRIM_COLUMNS)))
 
 
 def prepare(geo, agg_stats: list):
@@ -73,14 +68,24 @@ def prepare(geo, agg_stats: list):
     wide = collapse(geo.node_bounds, geo.node_first, geo.node_count, int(geo.agg_start[geo.root]))
     prims = _records(geo)
     agg_stats[0].update(wide_nodes=len(wide.nodes), wide_bytes=wide.nbytes + prims.nbytes)
-    return geo._replace(wide_nodes=wide.nodes, wide_boxes=wide.boxes, wide_center=wide.center, wide_prims=prims,
-                        wide_only=WIDE_ONLY)
+    center = wide.center.copy()
+    center.flags.writeable = False      # the type that says "wide only" (see wide_only)
+    return geo._replace(wide_nodes=wide.nodes, wide_boxes=wide.boxes, wide_center=center, wide_prims=prims)
+
+
+def wide_only(geo) -> bool:
+    """True when kernels given geo compile this walk alone, without the general driver (about 20 s
+    of a first render's compile). numba compiles a kernel once per argument type, and a read-only
+    array is a type of its own: a scene that is one 4-wide BVH has a read-only wide_center. (A
+    field of its own for the mark slowed the general driver's octree walks by a fifth: it made
+    the Geometry one array longer.)"""
+    return not geo.wide_center.flags.writeable
 
 
 def with_driver(geo):
     """geo, typed so that the kernels it is given to compile the general driver too: queries in
-    mode CLOSEST_EAGER (eager normals, tricks.py) go to it even on a 4-wide BVH. The same arrays."""
-    return geo._replace(wide_only=WITH_DRIVER)
+    mode CLOSEST_EAGER (eager normals, tricks.py) go to it even on a 4-wide BVH."""
+    return geo._replace(wide_center=geo.wide_center.copy()) if wide_only(geo) else geo
 
 
 def _records(geo) -> np.ndarray:
