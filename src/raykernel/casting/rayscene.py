@@ -453,9 +453,10 @@ class RayScene:
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
         kernel = self._mesh.kernel if self._mesh is not None else _query
         name = f"meshcast.{kernel.__name__}" if self._mesh is not None else "rayscene._query"
-        seconds = FIRST_MESH_SECONDS if self._mesh is not None else FIRST_QUERY_SECONDS
+        about = (f"{FIRST_MESH_SECONDS} s" if self._mesh is not None
+                 else f"{FIRST_QUERY_SECONDS} s, a minute for nested structures")
         notice = compile_notice(name, f"raykernel: compiling the ray-casting kernels (first use after install, "
-                                      f"about {seconds} s; cached for later processes)")
+                                      f"about {about}; cached for later processes)")
         with self._turn(), CompileClock(notice=notice) as clock:
             start = time.perf_counter()         # (after waiting for the lock)
             if n and self._mesh is not None:

@@ -31,7 +31,7 @@ from .parallel import WORKER_PREFIX
 
 # about how long a first compile takes on a 2-core machine (bench/startup.py), for the notices
 FIRST_RUN_SECONDS = 35      # a first render of a scene that is one BVH (every SPD scene); nested ones about a minute
-FIRST_QUERY_SECONDS = 35    # a first RayScene query on a general scene
+FIRST_QUERY_SECONDS = 35    # a first RayScene query on a scene that is one BVH; nested ones about a minute
 FIRST_MESH_SECONDS = 20     # and on a mesh (the mesh kernel)
 NOTICE_AFTER = 1.0          # seconds of compiling before CompileClock's notice
 
