@@ -98,7 +98,7 @@ def test_a_private_kernel_may_not_allocate():
 def test_the_kernels_inner_loops_count_no_references():
     # what kernels call per ray, per candidate or per pixel with arrays borrows them (or is inlined):
     # reference counts there are atomics the threads fight over (they took half the time of a query)
-    from raykernel.aggregates import bvh, csg, grid, octree, rc
+    from raykernel.aggregates import bvh, collect, csg, grid, octree, rc
     from raykernel.casting import meshcast, proximity, rayscene
     from raykernel.engine import transforms, traverse, widewalk
     from raykernel.geometry import primitives
@@ -109,7 +109,7 @@ def test_the_kernels_inner_loops_count_no_references():
                 startlists.start_list,
                 sampling._render_tile, render._render_tile,
                 rayscene._cast, meshcast._chunk, meshcast._chunk4, bvh.step, grid.step, rc.step,
-                csg.start, csg.record, csg.resolve, octree._parametric, octree._point_walk, transforms.map_ray]
+                csg.start, collect.record, csg.resolve, octree._parametric, octree._point_walk, transforms.map_ray]
     for kernel in per_item:
         assert kernel.targetoptions.get("_nrt") is False, kernel.py_func.__qualname__
     assert traverse.intersect.targetoptions.get("inline") == "always"     # a dispatcher, inlined where called

@@ -40,6 +40,7 @@ from test_csg import Node, random_solid, random_tree
 from test_intersect import affine, fill_group, similarity
 
 import raykernel
+from raykernel.aggregates import csg
 from raykernel.aggregates.octree import BUDGET_SLACK, build_octree
 from raykernel.casting.rayscene import RayScene
 from raykernel.engine.flatten import flatten
@@ -318,7 +319,7 @@ def check_csg(seed: int, op: str, outer: str, inner: str, n_rays: int = 300):
         reference = csg_scene(seed, op, "list", "list")
         rays = probe_rays(reference, np.random.default_rng(seed + 1), n_rays, 3.0)
         counts = cast_rays(flatten(reference, "list")[0], *rays)[4]
-        if counts[C.CSG_SURFACES] > 20 and counts[C.TRANSFORMS:C.TRANSFORMS + 4].sum() > 0:
+        if counts[csg.SURFACES] > 20 and counts[C.TRANSFORMS:C.TRANSFORMS + 4].sum() > 0:
             break
     else:
         pytest.fail(f"no seed gave a {op} that the rays meet")

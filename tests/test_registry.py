@@ -68,3 +68,58 @@ def test_format_spec_round_trips():
         kind, params = accel.parse_spec(name)
         assert accel.parse_spec(accel.format_spec(kind, params)) == (kind, params)
     assert np.all([accel.format_spec(*accel.parse_spec(n)) == n for n in accel.KINDS])
+
+
+def test_walks_own_counters_have_columns_and_names_of_their_own():
+    from raykernel.aggregates import WALK_COUNTERS
+    from raykernel.geometry import counters as C
+    named = list(C.NAMES.values())
+    assert len(named) == len(set(named))
+    columns = [C.walk_own(w.CODE, j) for w in WALKS for j in range(len(getattr(w, "COUNTERS", ())))]
+    assert len(columns) == len(WALK_COUNTERS) and len(set(columns)) == len(columns)
+    assert all(C.WALK_OWN <= c < C.N_COUNTERS for c in columns)
+    shared = [k for k in C.NAMES if k < C.WALK_OWN]
+    assert max(shared) < C.WALK_OWN
+    for w in WALKS:
+        for j, (name, _) in enumerate(getattr(w, "COUNTERS", ())):
+            assert C.NAMES[C.walk_own(w.CODE, j)] == name
+
+
+def test_a_walks_own_counters_reach_the_stats_table_and_the_cost_model():
+    from raykernel.aggregates import csg
+    from raykernel.analysis.costmodel import features
+    from raykernel.geometry import counters as C
+    from raykernel.rendering.stats import Stats
+    totals = np.zeros(C.N_COUNTERS, np.int64)
+    totals[C.RAYS_EYE] = 10
+    totals[C.walk_own(csg.CODE, 0)], totals[csg.RESOLVES], totals[csg.SURFACES] = 12, 4, 6
+    s = Stats.from_counters(totals, {}, 0.0, 1.0, {})
+    assert (s["csg.crossings"], s["csg.resolves"], s["csg.surfaces"]) == (12, 4, 6)
+    rows = [r for r in s.rows() if r[0] == "csg"]
+    assert [r[2] for r in rows] == ["4", "12", "6"] and "3.00 operand surfaces per node" in rows[1][3]
+    f = features(s)
+    assert f["csg.crossing"] == 12 and f["csg.resolve"] == 4 and "csg.surfaces" not in f
+    assert not [r for r in Stats.from_counters(np.zeros(C.N_COUNTERS, np.int64), {}, 0.0, 1.0, {}).rows()
+                if r[0] == "csg"]
+
+
+def test_an_operator_kind_registered_is_a_json_item_of_its_own(monkeypatch):
+    # a kind's JSON item comes from its Kind alone: lists, spec from their lengths, operand limit
+    from raykernel.errors import SceneError
+    from raykernel.scene.jsonscene import scene_from_json
+    toy = accel.Kind("toyop", "a test operator", (accel.Param("first", 1, "operands in the first list", int, 0, 9),),
+                     operands=True, operand_lists=("left", "right"), max_operands=3,
+                     operand_spec=lambda counts: f"toyop(first={counts['left']})")
+    monkeypatch.setitem(accel.KINDS, "toyop", toy)
+    ball = {"sphere": {"center": [0, 0, 0], "radius": 1}}
+    doc = {"scene": {"items": [{"toyop": {"left": [ball, ball], "right": [ball]}}]}}
+    group = scene_from_json(doc).root.children[0]
+    assert group.accel == "toyop(first=2)" and len(group.children) == 3
+    doc = {"scene": {"items": [{"toyop": {"left": [ball, ball], "right": [ball, ball]}}]}}
+    with pytest.raises(SceneError, match=r"/scene/items/0/toyop.*at most 3 operands, got 4"):
+        scene_from_json(doc)
+    with pytest.raises(SceneError, match="right"):
+        scene_from_json({"scene": {"items": [{"toyop": {"left": [ball]}}]}})
+    monkeypatch.delitem(accel.KINDS, "toyop")
+    with pytest.raises(SceneError, match="toyop"):
+        scene_from_json({"scene": {"items": [{"toyop": {"left": [ball], "right": []}}]}})

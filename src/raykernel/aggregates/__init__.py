@@ -9,7 +9,10 @@ parameters, and `flatten`, which builds the aggregate into the flat arrays
 and returns (aggregate index, build statistics). WALKS lists the modules
 that own a walk, each with its CODE (agg_kind and stack-entry kind), the
 Geometry FIELDS it stores and its compiled `step`, which the driver
-(traverse.py) calls; kinds without a walk of their own store themselves
+(traverse.py) calls, and, if it counts work of its own, COUNTERS ((name,
+cost-model feature or None), at most OWN_PER_WALK, in columns
+counters.walk_own(CODE, j)) and `stats_rows(stats)`, its rows of the
+statistics table; kinds without a walk of their own store themselves
 with another's (hgrid as grids, hybrid and lazyoctree as octrees).
 docs/adding-a-kind.md is the checklist for a new one.
 """
@@ -20,8 +23,9 @@ from . import bruteforce, bvh, csg, grid, hgrid, hybrid, lazyoctree, octree, rc
 
 WALKS = (bruteforce, bvh, grid, octree, rc, csg)
 
-for _kind in [m.KIND for m in (bruteforce, bvh, grid, hgrid, rc, octree, hybrid, lazyoctree)] + list(csg.KINDS):
-    register(_kind)
+for _module in (bruteforce, bvh, grid, hgrid, rc, octree, hybrid, lazyoctree, csg):
+    for _kind in getattr(_module, "KINDS", None) or (_module.KIND,):     # a module may hold several kinds
+        register(_kind)
 
 if sorted(w.CODE for w in WALKS) != list(range(len(WALKS))):
     raise ImportError("aggregates: walk CODEs must be 0, 1, ... with none twice")
@@ -34,3 +38,12 @@ for _code, _walk in enumerate(WALK_NAMES):
     C.NAMES[C.WALK_ENTRIES + _code] = f"walk.{_walk}.entries"
     C.NAMES[C.WALK_BOUNDS + _code] = f"walk.{_walk}.bounds"
     C.NAMES[C.WALK_STEPS + _code] = f"walk.{_walk}.steps"
+# the walks' own counters, and the cost-model features they are priced as (analysis/costmodel.py)
+WALK_COUNTERS = tuple(c for w in WALKS for c in getattr(w, "COUNTERS", ()))
+for _w in WALKS:
+    if len(getattr(_w, "COUNTERS", ())) > C.OWN_PER_WALK:
+        raise ImportError(f"aggregates: {_w.__name__} has more own counters than counters.OWN_PER_WALK")
+    for _j, (_name, _feature) in enumerate(getattr(_w, "COUNTERS", ())):
+        if _name in C.NAMES.values():
+            raise ImportError(f"aggregates: counter {_name!r} of {_w.__name__} is named twice")
+        C.NAMES[C.walk_own(_w.CODE, _j)] = _name

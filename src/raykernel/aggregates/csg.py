@@ -12,14 +12,12 @@ groups, instances and other CSG nodes of them.
 
 How a ray is answered
 ---------------------
-Entering a CSG node (step START), the ray's origin moves back to before
-where the line enters the box of all operands, and its frame becomes a *sink*: every
-primitive in the operands below it records its crossings with the line
-(both roots of a sphere, one crossing of a triangle or polygon) in the
-workspace's crossing buffer instead of offering them to the hit rule,
-from the box entry up to the closest hit so far. When the frame ends
-(`resolve`), the crossings are sorted, duplicates (an item a grid or octree
-tested twice) dropped, and each operand's inside state toggled at its
+An operator kind (collect.py): entering a CSG node (step START), the ray's
+origin moves back to before where the line enters the box of all operands,
+and its frame becomes a sink that collects every operand surface the line
+crosses, from the box entry up to the closest hit so far. When the frame
+ends (`resolve`), the crossings are sorted, duplicates (an item a grid or
+octree tested twice) dropped, and each operand's inside state toggled at its
 crossings (parity, so the winding of a mesh does not matter); where the
 operator's result changes from outside to inside or back, the crossing is a
 surface of the result (two that cancel at one t, a graze or two operands
@@ -29,22 +27,21 @@ ray's [tmin, tmax]). A surface of a subtracted operand has its normal
 reversed (`hit_i[3]`), so shading and refraction see the cut surface from
 the right side.
 
+Counted (COUNTERS): csg.crossings (operand surfaces collected), csg.resolves
+(nodes evaluated, once per ray that enters one) and csg.surfaces (result
+surfaces found, offered as hits or to an enclosing node).
+
 Flat layout (the Geometry fields it owns)
 -----------------------------------------
 K CSG nodes:
   csg_op      (K,)   int64    DIFFERENCE, INTERSECTION or UNION                       8 B a node
   csg_base    (K,)   int64    difference: operands in the base (the rest subtract)     8 B
   csg_first   (K,)   int64    first operand reference in Geometry.refs                8 B
-  csg_count   (K,)   int64    operands (at most MAX_OPERANDS)                          8 B
+  csg_count   (K,)   int64    operands (at most MAX_OPERANDS: one bit of an int64 each)  8 B
   csg_bounds  (K, 6) float64  box of all operands, widened: where crossings are collected from  48 B
 The aggregate's agg_start is its node; its agg_bounds the box the result can
 lie in (the base's for a difference, the overlap of the operands' for an
 intersection), which is what the parent culls with.
-
-The crossing buffer (workspace rows): csg_t (t), csg_i (operand, kind,
-index, instance, flip, root), csg_m (the world-to-local map of the
-crossing's frame), csg_n[0] the rows in use. Nested CSG nodes share it as a
-stack: each node's rows start where its START found the buffer.
 """
 
 from __future__ import annotations
@@ -54,36 +51,35 @@ import math
 import numpy as np
 
 from ..errors import SceneError
-from ..geometry import counters as C
 from ..geometry.boxes import INF, box_entry, cull_margin
 from ..geometry.config import njit
+from ..geometry.counters import walk_own
 from ..scene.accel import Kind, Param
-from ..scene.model import MAX_OPERANDS
-from .walk import F_MAP, F_ORIGIN, F_STATE, FI_OPERAND, FI_SINK, Field
+from .collect import CAPACITY, COLUMNS, begin
+from .walk import Field
 
 CODE = 5
 DIFFERENCE, INTERSECTION, UNION = 0, 1, 2
 OPERATORS = ("difference", "intersection", "union")
-CAPACITY = 512               # crossings one ray may hold in the buffer at once (all nested nodes together)
-CSG_I = 6                    # csg_i columns: operand, kind, index, instance, flip, root
-
-# the frame's state slots while a CSG node collects
-S_REGION = F_STATE           # first buffer row of this node
-S_SHIFT = F_STATE + 1        # t of the new origin on the frame's original ray
-S_BEST = F_STATE + 2         # the enclosing frame's closest-hit bound, restored at the end
-S_SINK = F_STATE + 3         # the enclosing frame's sink and operand: where the result goes
-S_OPERAND = F_STATE + 4
-S_FIRST = F_STATE + 5        # the node's first operand reference: operand = position - S_FIRST
+MAX_OPERANDS = 63            # one bit of an int64 per operand (resolve's inside mask)
 
 FIELDS = (Field("csg_op", np.int64), Field("csg_base", np.int64), Field("csg_first", np.int64),
           Field("csg_count", np.int64), Field("csg_bounds", np.float64, (6,)))
 
+# its own counters (the first, crossings, is counted by the driver: collect.py)
+COUNTERS = (("csg.crossings", "csg.crossing"), ("csg.resolves", "csg.resolve"), ("csg.surfaces", None))
+RESOLVES, SURFACES = walk_own(CODE, 1), walk_own(CODE, 2)
 
-@njit(inline="always")
-def buffers():
-    """The crossing buffer of one workspace (see the module docstring)."""
-    return (np.empty(CAPACITY), np.empty((CAPACITY, CSG_I), np.int64), np.empty((CAPACITY, 12)),
-            np.zeros(1, np.int64))
+
+def stats_rows(stats) -> list:
+    """Its rows of the statistics table (rendering/stats.py)."""
+    n = stats.get("csg.resolves", 0)
+    if not n:
+        return []
+    return [("csg", "nodes entered", f"{n:,}", "rays evaluated by a boolean operator"),
+            ("csg", "crossings", f"{stats['csg.crossings']:,}",
+             f"{stats['csg.crossings'] / n:.2f} operand surfaces per node"),
+            ("csg", "surfaces", f"{stats['csg.surfaces']:,}", f"{stats['csg.surfaces'] / n:.2f} per node")]
 
 
 # ---------------------------------------------------------------- building
@@ -130,10 +126,12 @@ def _flatten(op):
 _BASE = Param("base", 1, "operands that form the base; the rest are subtracted", int, 0, MAX_OPERANDS)
 KINDS = (
     Kind("difference", "CSG: the first `base` operands less the rest", (_BASE,), flatten=_flatten(DIFFERENCE),
-         operands=True),
-    Kind("intersection", "CSG: where every operand is", flatten=_flatten(INTERSECTION), operands=True),
+         operands=True, operand_lists=("base", "subtract"), max_operands=MAX_OPERANDS,
+         operand_spec=lambda counts: f"difference(base={counts['base']})"),
+    Kind("intersection", "CSG: where every operand is", flatten=_flatten(INTERSECTION), operands=True,
+         max_operands=MAX_OPERANDS),
     Kind("union", "CSG: where any operand is (one solid: inner surfaces removed)", flatten=_flatten(UNION),
-         operands=True),
+         operands=True, max_operands=MAX_OPERANDS),
 )
 
 
@@ -141,9 +139,9 @@ KINDS = (
 
 @njit(private=True)
 def start(csg_bounds, csg_first, csg_count, node, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, frame_i, f,
-          csg_n):
-    """Enter CSG node `node` in frame f: move the origin back to the operands' box and make
-    the frame a sink. Returns the new origin, the closest-hit bound on the moved ray and the
+          buf_n):
+    """Enter CSG node `node` in frame f: a sink (collect.begin) whose ray starts before the
+    operands' box. Returns the new origin, the closest-hit bound on the moved ray and the
     operand references to test, refs[s:e]."""
     te = box_entry(csg_bounds, node, ox, oy, oz, ix, iy, iz, -INF, INF)
     if te == INF:
@@ -154,30 +152,7 @@ def start(csg_bounds, csg_first, csg_count, node, ox, oy, oz, dx, dy, dz, ix, iy
         b = csg_bounds
         size = max(max(b[node, 3] - b[node, 0], b[node, 4] - b[node, 1]), b[node, 5] - b[node, 2])
         te -= size / math.sqrt(dx * dx + dy * dy + dz * dz)
-    frame_f[f, S_REGION] = csg_n[0]
-    frame_f[f, S_SHIFT] = te
-    frame_f[f, S_BEST] = best_t
-    frame_f[f, S_SINK] = frame_i[f, FI_SINK]
-    frame_f[f, S_OPERAND] = frame_i[f, FI_OPERAND]
-    frame_f[f, S_FIRST] = csg_first[node]
-    frame_i[f, FI_SINK] = f
-    ox, oy, oz = ox + te * dx, oy + te * dy, oz + te * dz
-    frame_f[f, F_ORIGIN], frame_f[f, F_ORIGIN + 1], frame_f[f, F_ORIGIN + 2] = ox, oy, oz
-    return ox, oy, oz, best_t - te, csg_first[node], csg_first[node] + csg_count[node]
-
-
-@njit(private=True)
-def record(csg_t, csg_i, csg_m, csg_n, t, operand, kind, idx, inst, root, frame_f, f, cnt):
-    """Add one crossing, with the map of frame f, to the buffer."""
-    n = csg_n[0]
-    if n >= CAPACITY:
-        raise ValueError("a ray crossed more CSG operand surfaces than the crossing buffer holds (csg.CAPACITY)")
-    csg_t[n] = t
-    csg_i[n, 0], csg_i[n, 1], csg_i[n, 2], csg_i[n, 3], csg_i[n, 4], csg_i[n, 5] = operand, kind, idx, inst, 0, root
-    for k in range(12):
-        csg_m[n, k] = frame_f[f, F_MAP + k]
-    csg_n[0] = n + 1
-    cnt[C.CSG_CROSSINGS] += 1
+    return begin(frame_f, frame_i, f, te, csg_first[node], csg_count[node], best_t, buf_n, ox, oy, oz, dx, dy, dz)
 
 
 @njit(inline="always")
@@ -203,7 +178,7 @@ def _inside(op, mask, base_bits, all_bits):
 @njit(private=True)
 def _move(csg_t, csg_i, csg_m, src, dst):
     csg_t[dst] = csg_t[src]
-    for k in range(CSG_I):
+    for k in range(COLUMNS):
         csg_i[dst, k] = csg_i[src, k]
     for k in range(12):
         csg_m[dst, k] = csg_m[src, k]
@@ -217,7 +192,7 @@ def resolve(op, base, count, csg_t, csg_i, csg_m, csg_n, region, shift, operand,
     n = csg_n[0]
     # insertion sort by the full key; the spare row at n holds the row being placed
     if n >= CAPACITY:
-        raise ValueError("a ray crossed more CSG operand surfaces than the crossing buffer holds (csg.CAPACITY)")
+        raise ValueError("a ray crossed more operand surfaces than the crossing buffer holds (collect.CAPACITY)")
     for i in range(region + 1, n):
         if not _before(csg_t, csg_i, i, i - 1):
             continue
@@ -253,6 +228,6 @@ def resolve(op, base, count, csg_t, csg_i, csg_m, csg_n, region, shift, operand,
     for i in range(region, out):
         csg_t[i] += shift
         csg_i[i, 0] = operand
-    cnt[C.CSG_RESOLVES] += 1
-    cnt[C.CSG_SURFACES] += out - region
+    cnt[RESOLVES] += 1
+    cnt[SURFACES] += out - region
     return out - region

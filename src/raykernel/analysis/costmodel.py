@@ -15,7 +15,9 @@ Trace time is modelled as  sum(count * cost)  over these features:
                  octree's entry point, a ray classification's face and key)
   step.W         traversal steps (cells.visited, N_TS) of walk W
   bound.W        ray/bounding-volume tests charged to walk W
-  transform      rays mapped into an instance; csg.crossing and csg.resolve: boolean operators
+  transform      rays mapped into an instance
+  (a walk's own) what a walk's module prices apart (its COUNTERS with a feature name: the boolean
+                 operators' csg.crossing and csg.resolve)
   refine.*       lazy structures' refinement between passes (passes, subdivisions, references)
 
 W is one of the kernel's walks (aggregates.WALK_NAMES: list, bvh, grid, octree, rc,
@@ -49,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..aggregates import WALK_NAMES
+from ..aggregates import WALK_COUNTERS, WALK_NAMES
 from ..errors import OptionError
 
 VERSION = 2                 # calibration files of another version priced other features
@@ -86,8 +88,9 @@ def features(stats) -> dict:
         f[f"bound.{walk}"] = float(stats.get(f"walk.{walk}.bounds", 0))
     f["transform"] = float(sum(stats.get(f"transforms.{k}", 0) for k in ("identity", "translation", "scale",
                                                                           "affine")))
-    f["csg.crossing"] = float(stats.get("csg.crossings", 0))
-    f["csg.resolve"] = float(stats.get("csg.resolves", 0))
+    for counter, feature in WALK_COUNTERS:
+        if feature:
+            f[feature] = float(stats.get(counter, 0))
     # lazy structures refine between passes of rays, inside the trace time
     lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
     if lazy:

@@ -43,8 +43,8 @@ ANY_OPAQUE = np.int64(4)
 HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that was hit (then, in a workspace's,
                              # room for CLOSEST_EAGER's normal)
 HIT_I = 4                    # hit_i: kind, index, innermost instance (-1: none), flags:
-FLIP, CSG_SURFACE = 1, 2     # hit_i[3] bits: reverse the normal; a surface of a CSG result (not its primitive's
-                             # own surface everywhere, so a test of the primitive alone may disagree with it)
+FLIP, OPERATOR_SURFACE = 1, 2  # hit_i[3] bits: reverse the normal; a surface of an operator's result (not its
+                               # primitive's own surface everywhere, so a test of the primitive alone may disagree)
 
 
 @njit(inline="always")

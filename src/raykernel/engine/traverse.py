@@ -23,7 +23,7 @@ so: widewalk.wide_only).
 import numpy as np
 from numba.extending import overload
 
-from ..aggregates import bvh, csg, grid, octree, rc
+from ..aggregates import bvh, collect, csg, grid, octree, rc
 from ..aggregates.walk import (
     F_DIR,
     F_KEY_D,
@@ -73,10 +73,10 @@ from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, fo
     ANY_OPAQUE,
     CLOSEST,
     CLOSEST_EAGER,
-    CSG_SURFACE,
     FLIP,
     HIT_F,
     HIT_I,
+    OPERATOR_SURFACE,
     clear_material,
     eager_normal,
     take,
@@ -88,18 +88,19 @@ from .widewalk import intersect_wide
 
 # stack entry: go on with the frame's keyed list at stack_a (py_func: calling the kernel would load it at import)
 KEYED = entry_tag.py_func(LIST, 1)
-DONE = np.int64(-2)          # _resolve's sink when an ANY_HIT query is answered
+DONE = np.int64(-2)          # _finish's sink when an ANY_HIT query is answered
 
 
 @njit
 def workspace():
     """Scratch arrays for one thread, allocated once per tile or chunk:
-    (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, then csg.py's crossing buffer:
-    csg_t, csg_i, csg_m, csg_n, then the 4-wide walk's entry distances t4)."""
-    csg_t, csg_i, csg_m, csg_n = csg.buffers()
+    (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, then the operators' crossing
+    buffer buf_t, buf_i, buf_m, buf_n (aggregates/collect.py), then the 4-wide walk's entry
+    distances t4)."""
+    buf_t, buf_i, buf_m, buf_n = collect.buffers()
     return (np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
             np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, FRAME_I), np.int64),
-            np.zeros(HIT_F + 3), np.zeros(HIT_I, np.int64), csg_t, csg_i, csg_m, csg_n, np.empty(4))
+            np.zeros(HIT_F + 3), np.zeros(HIT_I, np.int64), buf_t, buf_i, buf_m, buf_n, np.empty(4))
 
 
 @njit(inline="always")
@@ -118,53 +119,62 @@ def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz
     return push(stack_a, stack_b, stack_t, sp, agg_start[a], entry_tag(kind, START), te)
 
 
+@njit(inline="always")
+def _resolve(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, cnt):
+    """How many surfaces of its own the operator of sink frame f found among the frame's
+    crossings: its resolve rewrites them from the frame's region on (collect.py). An
+    operator kind adds its call here."""
+    kind, node = geo.agg_kind[frame_i[f, FI_AGG]], geo.agg_start[frame_i[f, FI_AGG]]
+    region = np.int64(frame_f[f, collect.SLOT_REGION])
+    shift, operand = frame_f[f, collect.SLOT_SHIFT], np.int64(frame_f[f, collect.SLOT_OPERAND])
+    if kind == csg.CODE:
+        return csg.resolve(geo.csg_op[node], geo.csg_base[node], geo.csg_count[node], buf_t, buf_i, buf_m, buf_n,
+                           region, shift, operand, cnt)
+    return np.int64(0)
+
+
 @njit(private=True)
-def _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m, csg_n, tmin, mode, hit_f, hit_i, found, best_ref,
-             best_inst, cnt):
-    """End CSG frame f (csg.resolve): its result surfaces go to the enclosing sink, or, from the
-    outermost node, to the hit rule. Returns (found, best_t, best_ref, best_inst, enclosing
+def _finish(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, tmin, mode, hit_f, hit_i, found, best_ref,
+            best_inst, cnt):
+    """End sink frame f: its operator's surfaces go to the enclosing sink, or, from the
+    outermost, to the hit rule. Returns (found, best_t, best_ref, best_inst, enclosing
     sink), the sink DONE when an ANY_HIT query has its hit."""
-    node = geo.agg_start[frame_i[f, FI_AGG]]
-    region = np.int64(frame_f[f, csg.S_REGION])
-    best_t = frame_f[f, csg.S_BEST]
-    sink = np.int64(frame_f[f, csg.S_SINK])
-    n = csg.resolve(geo.csg_op[node], geo.csg_base[node], geo.csg_count[node], csg_t, csg_i, csg_m, csg_n, region,
-                    frame_f[f, csg.S_SHIFT], np.int64(frame_f[f, csg.S_OPERAND]), cnt)
+    n = _resolve(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, cnt)
+    region = np.int64(frame_f[f, collect.SLOT_REGION])
+    best_t = frame_f[f, collect.SLOT_BEST]
+    sink = np.int64(frame_f[f, collect.SLOT_SINK])
     frame_i[f, FI_SINK] = sink      # done: the frame may be reused
     if sink >= 0:
-        csg_n[0] = region + n       # crossings of the enclosing node's operand
+        buf_n[0] = region + n       # crossings of the enclosing sink's operand
         return found, best_t, best_ref, best_inst, sink
-    csg_n[0] = region
+    buf_n[0] = region
     for k in range(region, region + n):
-        t = csg_t[k]
-        if tmin <= t <= best_t and not (mode == ANY_OPAQUE and clear_material(geo, csg_i[k, 1], csg_i[k, 2])):
-            found, best_t, best_ref, best_inst = take(mode, t, csg_i[k, 1], csg_i[k, 2], csg_i[k, 3],
-                                                      csg_i[k, 4] | CSG_SURFACE, csg_m, k, 0, hit_f, hit_i, found,
-                                                      best_t, best_ref, best_inst)
+        t = buf_t[k]
+        if tmin <= t <= best_t and not (mode == ANY_OPAQUE and clear_material(geo, buf_i[k, 1], buf_i[k, 2])):
+            found, best_t, best_ref, best_inst = take(mode, t, buf_i[k, 1], buf_i[k, 2], buf_i[k, 3],
+                                                      buf_i[k, 4] | OPERATOR_SURFACE, buf_m, k, 0, hit_f, hit_i,
+                                                      found, best_t, best_ref, best_inst)
             if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                 return found, best_t, best_ref, best_inst, DONE
     return found, best_t, best_ref, best_inst, sink
 
 
 @njit(private=True)
-def _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, operand, inst, frame_f, f, csg_t, csg_i, csg_m, csg_n,
-                   cnt):
-    """Below a CSG node a sphere counts both of the line's crossings (up to best_t)."""
+def _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, operand, inst, frame_f, f, buf_t, buf_i, buf_m, buf_n,
+                   cnt, counter):
+    """Below a sink a sphere records both of the line's crossings (up to best_t)."""
     t0, t1 = sphere_roots(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
                           geo.sph_radius[idx], ox, oy, oz, dx, dy, dz)
     if t0 <= best_t and t0 != INF:
-        csg.record(csg_t, csg_i, csg_m, csg_n, t0, operand, SPHERE, idx, inst, 0, frame_f, f, cnt)
+        collect.record(buf_t, buf_i, buf_m, buf_n, t0, operand, SPHERE, idx, inst, 0, frame_f, f, cnt, counter)
     if t1 <= best_t and t1 != INF:
-        csg.record(csg_t, csg_i, csg_m, csg_n, t1, operand, SPHERE, idx, inst, 1, frame_f, f, cnt)
+        collect.record(buf_t, buf_i, buf_m, buf_n, t1, operand, SPHERE, idx, inst, 1, frame_f, f, cnt, counter)
 
 
 @njit(inline="always")
-def _operand(frame_f, frame_i, f, sink, position):
-    """Which operand of the sink the reference at `position` of frame f belongs to: in the
-    CSG frame itself its place among the operands, below it the frame's own."""
-    if sink == f:
-        return position - np.int64(frame_f[f, csg.S_FIRST])
-    return frame_i[f, FI_OPERAND]
+def _crossings_counter(geo, frame_i, sink):
+    """The sink's walk's first own counter: the crossings recorded for it."""
+    return C.WALK_OWN + C.OWN_PER_WALK * geo.agg_kind[frame_i[sink, FI_AGG]]
 
 
 @njit(inline="always")
@@ -202,11 +212,11 @@ def _driver_for_type(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
 
 @njit(private=True)
 def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
-    """intersect through the general driver: any nesting of any kinds, instances, CSG.
-    Below a CSG node the frames collect crossings instead (aggregates/csg.py): `sink` is
-    the frame that gathers them, -1 above every CSG node, and `lo` the lower end of the
+    """intersect through the general driver: any nesting of any kinds, instances, operators.
+    Below an operator the frames collect crossings instead (aggregates/collect.py): `sink` is
+    the frame that gathers them, -1 above every operator, and `lo` the lower end of the
     tested interval, -inf there, since a solid's inside depends on crossings behind tmin."""
-    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, csg_t, csg_i, csg_m, csg_n, _ = ws
+    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, buf_t, buf_i, buf_m, buf_n, _ = ws
     best_t = tmax
     found = False
     best_ref = np.int64(-1)
@@ -221,7 +231,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     frame_i[0, FI_AGG], frame_i[0, FI_BASE], frame_i[0, FI_INST] = geo.root, 0, -1
     frame_i[0, FI_SINK], frame_i[0, FI_OPERAND] = -1, 0
     frame_f[0, F_MBOX_ON] = 0.0
-    csg_n[0] = 0
+    buf_n[0] = 0
     sink = np.int64(-1)
     lo = tmin
     base = 0
@@ -229,11 +239,11 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 best_t, stack_a, stack_b, stack_t, base, cnt)
     while True:
         if sp == base:
-            if geo.agg_kind[frame_i[f, FI_AGG]] == csg.CODE and frame_i[f, FI_SINK] == f:
-                # a CSG node's crossings are all in: its result surfaces, on the enclosing ray
-                found, best_t, best_ref, best_inst, sink = _resolve(geo, f, frame_f, frame_i, csg_t, csg_i, csg_m,
-                                                                    csg_n, tmin, mode, hit_f, hit_i, found, best_ref,
-                                                                    best_inst, cnt)
+            if frame_i[f, FI_SINK] == f:
+                # an operator's crossings are all in: its own surfaces, on the enclosing ray
+                found, best_t, best_ref, best_inst, sink = _finish(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n,
+                                                                   tmin, mode, hit_f, hit_i, found, best_ref,
+                                                                   best_inst, cnt)
                 if sink == DONE:
                     return True
             if f == 0:
@@ -282,7 +292,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 keyed = True
             elif kind == csg.CODE:
                 ox, oy, oz, best_t, s, e = csg.start(geo.csg_bounds, geo.csg_first, geo.csg_count, a, ox, oy, oz, dx,
-                                                     dy, dz, ix, iy, iz, best_t, frame_f, frame_i, f, csg_n)
+                                                     dy, dz, ix, iy, iz, best_t, frame_f, frame_i, f, buf_n)
                 sink, lo = f, -INF
             else:
                 s = e = 0
@@ -313,8 +323,9 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
             if kind == SPHERE:
                 cnt[C.TESTS + SPHERE] += 1
                 if sink >= 0:
-                    _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, _operand(frame_f, frame_i, f, sink, i - 1),
-                                   frame_i[f, FI_INST], frame_f, f, csg_t, csg_i, csg_m, csg_n, cnt)
+                    _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t,
+                                   collect.operand(frame_f, frame_i, f, sink, i - 1), frame_i[f, FI_INST], frame_f, f,
+                                   buf_t, buf_i, buf_m, buf_n, cnt, _crossings_counter(geo, frame_i, sink))
                     continue
                 t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
                                geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, lo, best_t)
@@ -357,9 +368,9 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 frame_f[g, F_DIR], frame_f[g, F_DIR + 1], frame_f[g, F_DIR + 2] = ndx, ndy, ndz
                 compose_map(geo.inst_to_local, geo.inst_class, kind == INSTANCE, idx, frame_f, f, g, cnt)
                 frame_i[g, FI_AGG], frame_i[g, FI_BASE], frame_i[g, FI_INST] = child, sp, inst
-                # below a CSG node the child's crossings go to the same sink, as the same operand
+                # below an operator the child's crossings go to the same sink, as the same operand
                 frame_i[g, FI_SINK] = sink
-                frame_i[g, FI_OPERAND] = _operand(frame_f, frame_i, f, sink, i - 1)
+                frame_i[g, FI_OPERAND] = collect.operand(frame_f, frame_i, f, sink, i - 1)
                 frame_f[g, F_MBOX_ON] = 0.0
                 f = g
                 base = sp
@@ -369,9 +380,9 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 break
             if t != INF:
                 if sink >= 0:
-                    operand = _operand(frame_f, frame_i, f, sink, i - 1)
-                    csg.record(csg_t, csg_i, csg_m, csg_n, t, operand, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
-                               cnt)
+                    collect.record(buf_t, buf_i, buf_m, buf_n, t, collect.operand(frame_f, frame_i, f, sink, i - 1),
+                                   kind, idx, frame_i[f, FI_INST], 0, frame_f, f, cnt,
+                                   _crossings_counter(geo, frame_i, sink))
                     continue
                 found, best_t, best_ref, best_inst = take(mode, t, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
                                                           F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)

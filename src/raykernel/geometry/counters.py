@@ -21,28 +21,35 @@ SHADOW_CACHE_HITS = 18
 RAYS_CAST = 19            # rays given to the ray-casting API
 TRANSFORMS = 20           # + class (identity, translation, scale, affine): rays mapped into an instance
 TRANSFORM_MULTIPLIES = 24  # multiplies those mappings did
-CSG_CROSSINGS = 25        # operand surface crossings collected by CSG nodes
-CSG_RESOLVES = 26         # CSG nodes evaluated (once per ray that enters one)
-CSG_SURFACES = 27         # result surfaces they found (offered as hits or to an enclosing node)
-RAYS_CUT_OFF = 28         # reflection and refraction rays not cast: their weight fell below the cut-off
-RAYS_TIR = 29             # total internal reflections: refraction rays that Snell's law forbids
-EYE_LIGHT_SKIPPED = 30    # shadow rays toward the light at the eye not cast for eye rays' hits
-RAYTREE_TRIES = 31        # Haines's tricks (rendering/tricks.py): rays whose search began with the object the
-RAYTREE_HITS = 32         # same node of the previous ray tree hit; of those, the searches it bounded
-SHADOW_CACHE_TRIES = 33   # shadow rays that first tested the last blocker of their light and node
-NORMALS_COMPUTED = 34     # surface normals computed (once per hit, or at every closer hit without trick 5)
-FULL_WALKS = 35           # closest-hit searches that visited every candidate (trick 1 off)
-START_LISTS = 36          # secondary rays that began with their object's start list (trick 6)
-SHADOW_STEPS = 37         # closest-hit queries of filtered shadow rays walking through transparent surfaces
-START_LISTS_HITS = 38     # searches a start list bounded, shadow rays it settled
-START_LISTS_BUILT = 39    # start lists built (rendering/startlists.py)
+RAYS_CUT_OFF = 25         # reflection and refraction rays not cast: their weight fell below the cut-off
+RAYS_TIR = 26             # total internal reflections: refraction rays that Snell's law forbids
+EYE_LIGHT_SKIPPED = 27    # shadow rays toward the light at the eye not cast for eye rays' hits
+RAYTREE_TRIES = 28        # Haines's tricks (rendering/tricks.py): rays whose search began with the object the
+RAYTREE_HITS = 29         # same node of the previous ray tree hit; of those, the searches it bounded
+SHADOW_CACHE_TRIES = 30   # shadow rays that first tested the last blocker of their light and node
+NORMALS_COMPUTED = 31     # surface normals computed (once per hit, or at every closer hit without trick 5)
+FULL_WALKS = 32           # closest-hit searches that visited every candidate (trick 1 off)
+START_LISTS = 33          # secondary rays that began with their object's start list (trick 6)
+SHADOW_STEPS = 34         # closest-hit queries of filtered shadow rays walking through transparent surfaces
+START_LISTS_HITS = 35     # searches a start list bounded, shadow rays it settled
+START_LISTS_BUILT = 36    # start lists built (rendering/startlists.py)
 # each walk's share of the traversal (engine/traverse.py), by the walk's CODE; the registry
 # (aggregates/__init__.py) names them walk.<walk>.entries, .bounds and .steps
 MAX_WALKS = 8
-WALK_ENTRIES = 40         # + walk: rays that entered an aggregate of that walk (its box was hit)
-WALK_BOUNDS = 48          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
-WALK_STEPS = 56           # + walk: its traversal steps (its part of cells.visited)
-N_COUNTERS = 64
+WALK_ENTRIES = 37         # + walk: rays that entered an aggregate of that walk (its box was hit)
+WALK_BOUNDS = 45          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
+WALK_STEPS = 53           # + walk: its traversal steps (its part of cells.visited)
+# + OWN_PER_WALK * walk + j: the walk's own counters, which its module declares and names
+# (COUNTERS) and the registry checks; indices by walk_own(code, j)
+OWN_PER_WALK = 3
+WALK_OWN = 61
+N_COUNTERS = WALK_OWN + OWN_PER_WALK * MAX_WALKS
+
+
+def walk_own(code: int, j: int) -> int:
+    """The column of walk `code`'s own counter j."""
+    return WALK_OWN + OWN_PER_WALK * code + j
+
 
 NAMES = {
     RAYS_EYE: "rays.eye", RAYS_EYE_HIT: "rays.eye_hit",
@@ -57,7 +64,6 @@ NAMES = {
     TRANSFORMS + 0: "transforms.identity", TRANSFORMS + 1: "transforms.translation",
     TRANSFORMS + 2: "transforms.scale", TRANSFORMS + 3: "transforms.affine",
     TRANSFORM_MULTIPLIES: "transforms.multiplies",
-    CSG_CROSSINGS: "csg.crossings", CSG_RESOLVES: "csg.resolves", CSG_SURFACES: "csg.surfaces",
     RAYTREE_TRIES: "raytree.tries", RAYTREE_HITS: "raytree.hits", SHADOW_CACHE_TRIES: "shadow_cache.tries",
     NORMALS_COMPUTED: "normals.computed", FULL_WALKS: "tricks.full_walks", START_LISTS: "start_lists.used",
     SHADOW_STEPS: "shadow.steps", START_LISTS_HITS: "start_lists.hits", START_LISTS_BUILT: "start_lists.built",

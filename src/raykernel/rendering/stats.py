@@ -14,6 +14,7 @@ import json
 
 import numpy as np
 
+from ..aggregates import WALKS
 from ..engine.transforms import AFFINE, TRANSFORM_MULTIPLIES
 from ..geometry import counters as C
 
@@ -98,12 +99,9 @@ class Stats(dict):
                     f"{self['cells.empty_per_ray']:.2f} per ray (N_EETS)"))
         if self.get("mailbox.saved"):
             out.append(("traversal", "mailbox saved", f"{self['mailbox.saved']:,}", ""))
-        if self.get("csg.resolves"):
-            n = self["csg.resolves"]
-            out.append(("csg", "nodes entered", f"{n:,}", "rays evaluated by a boolean operator"))
-            out.append(("csg", "crossings", f"{self['csg.crossings']:,}",
-                        f"{self['csg.crossings'] / n:.2f} operand surfaces per node"))
-            out.append(("csg", "surfaces", f"{self['csg.surfaces']:,}", f"{self['csg.surfaces'] / n:.2f} per node"))
+        for walk in WALKS:
+            if hasattr(walk, "stats_rows"):
+                out.extend(walk.stats_rows(self))       # the rows of its own counters
         out.append(("build", "nodes", f"{self.get('build.nodes', 0):,}",
                     f"{self.get('build.aggregates', 0)} aggregate(s)"))
         out.append(("build", "refs", f"{self.get('build.refs', 0):,}", ""))

@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..engine.hitrule import hit_primitive
-from ..engine.traverse import ALL_HITS, ANY_OPAQUE, CLOSEST, CLOSEST_EAGER, CSG_SURFACE, clear_material, intersect
+from ..engine.traverse import ALL_HITS, ANY_OPAQUE, CLOSEST, CLOSEST_EAGER, OPERATOR_SURFACE, clear_material, intersect
 from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.boxes import INF
@@ -103,7 +103,7 @@ def shadow_slot(node, n_lights, light):
 
 @njit(inline="always")
 def _remember(table, row, hit_f, hit_i):
-    if hit_i[3] & CSG_SURFACE:
+    if hit_i[3] & OPERATOR_SURFACE:
         table[row, 0] = -1.0
         return
     table[row, 0], table[row, 1] = hit_i[0], hit_i[1]

@@ -69,7 +69,14 @@ class Kind:
     help: str
     params: tuple = ()
     flatten: object = field(default=None, compare=False)   # (builder, params, refs, bounds, name, box) -> (agg, stats)
-    operands: bool = False      # its items are the group's children, one reference each, never merged (CSG)
+    # an operator (aggregates/collect.py): its items are the group's children, one reference
+    # each, never merged; in a JSON scene an item {name: {list: [items], ...}} for each of
+    # operand_lists, its operands their items in order, its group's spec operand_spec(the lists'
+    # lengths) (None: the kind's name), at most max_operands of them (0: no limit)
+    operands: bool = False
+    operand_lists: tuple = ("items",)
+    operand_spec: object = field(default=None, compare=False)
+    max_operands: int = 0
 
     def defaults(self) -> dict:
         return {p.name: p.default for p in self.params}

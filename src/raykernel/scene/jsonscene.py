@@ -88,18 +88,19 @@ Each item is an object with exactly one of these keys:
         an inline child group.
     {"instance": "name"}
         the named group from "groups", always placed as an `Instance`.
-    {"difference": {"base": [items], "subtract": [items], "material": ...}}
-    {"intersection": {"items": [items], "material": ...}}
-    {"union": {"items": [items], "material": ...}}
-        constructive solid geometry (aggregates/csg.py): what lies inside
-        any item of "base" and inside no item of "subtract"; inside every
-        item; inside any item. Each item is one operand and must be a
+    {"OPERATOR": {"LIST": [items], ..., "material": ...}}
+        an operator kind of the registry (`Kind.operands`; the boolean
+        operators of aggregates/csg.py: {"difference": {"base": [items],
+        "subtract": [items]}}, {"intersection": {"items": [items]}},
+        {"union": {"items": [items]}}), with its kind's lists of items
+        (`Kind.operand_lists`). Each item is one operand and must be a
         closed solid: spheres, closed meshes, closed polygon sets, or
-        groups, instances and CSG items of them (cones are open surfaces
-        and are refused). An operand is built with the render's default
-        structure; give it another as a "group" item with an "accel".
-        Stored as a group with the spec "difference(base=N)",
-        "intersection" or "union" whose children are the operands.
+        groups, instances and operator items of them (cones are open
+        surfaces and are refused). An operand is built with the render's
+        default structure; give it another as a "group" item with an
+        "accel". Stored as a group with the kind's spec (for a
+        difference "difference(base=N)", N the items in "base") whose
+        children are the operands, the lists' items in order.
 
 and optionally:
 
@@ -200,15 +201,26 @@ import numpy as np
 from ..atomicfile import write_text
 from ..errors import SceneError
 from .animation import CAMERA_FIELDS, Animation, CameraPath, Keyframe, Motion, axis_angle_quaternion, default_span
-from .model import MAX_NESTING, MAX_OPERANDS, Camera, Group, Instance, Light, Material, Scene, TriangleMesh
+from .accel import KINDS
+from .model import MAX_NESTING, Camera, Group, Instance, Light, Material, Scene, TriangleMesh
 
 __all__ = ["MAX_NESTING", "read_json", "parse_json", "scene_from_json", "scene_to_json",
            "write_json", "transform_matrix"]
 
 
 PRIMITIVE_KINDS = ("sphere", "cone", "polygon", "patch")
-OPERATOR_KINDS = ("difference", "intersection", "union")
-ITEM_KINDS = PRIMITIVE_KINDS + ("mesh", "include", "group", "instance") + OPERATOR_KINDS
+
+
+
+def _operators() -> dict:
+    """The operator kinds of the registry, by name: each is an item kind of its own."""
+    return {name: kind for name, kind in KINDS.items() if kind.operands}
+
+
+def _item_kinds() -> tuple:
+    return PRIMITIVE_KINDS + ("mesh", "include", "group", "instance") + tuple(_operators())
+
+
 TRANSFORM_OPS = ("translate", "rotate", "scale", "matrix")
 TOP_KEYS = ("camera", "background", "lights", "materials", "groups", "scene", "animation")
 MATERIAL_KEYS = ("color", "kd", "ks", "shine", "t", "ior", "kl")
@@ -635,21 +647,22 @@ class _Reader:
         return h
 
     def item(self, item, ptr: str, group: Group, depth: int, material):
+        item_kinds = _item_kinds()
         if not isinstance(item, dict):
-            self.fail(ptr, f"expected an item object with one of {_names(ITEM_KINDS)}, got {_describe(item)}")
-        kinds = [k for k in item if k in ITEM_KINDS]
+            self.fail(ptr, f"expected an item object with one of {_names(item_kinds)}, got {_describe(item)}")
+        kinds = [k for k in item if k in item_kinds]
         if len(kinds) != 1:
             for key in item:
-                if key not in ITEM_KINDS and key not in ("transform", "motion", "material", _COMMENT):
-                    self.unknown_key(ptr, key, ITEM_KINDS + ("transform", "motion", "material"))
+                if key not in item_kinds and key not in ("transform", "motion", "material", _COMMENT):
+                    self.unknown_key(ptr, key, item_kinds + ("transform", "motion", "material"))
             got = " and ".join(repr(k) for k in kinds) if kinds else "none"
-            self.fail(ptr, f"an item needs exactly one of {_names(ITEM_KINDS)}; got {got}")
+            self.fail(ptr, f"an item needs exactly one of {_names(item_kinds)}; got {got}")
         kind = kinds[0]
         takes_material = kind in PRIMITIVE_KINDS or kind == "mesh"
         allowed = (kind, "transform", "motion") + (("material",) if takes_material else ())
         if "material" in item and not takes_material:
             hint = ("give the group body a \"material\"" if kind == "group" else
-                    f"give the {kind} object a \"material\"" if kind in OPERATOR_KINDS else
+                    f"give the {kind} object a \"material\"" if kind in _operators() else
                     "materials come from the NFF file" if kind == "include" else
                     "give the named group a \"material\"")
             self.fail(_key(ptr, "material"), f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} item takes no \"material\" ({hint}); "
@@ -680,8 +693,8 @@ class _Reader:
                 self.too_deep(kptr, depth + 1, "this group")
             child = Group()
             self.body(value, kptr, child, depth + 1, material)
-        elif kind in OPERATOR_KINDS:
-            child = self.operator(kind, value, kptr, depth + 1, material)
+        elif kind in _operators():
+            child = self.operator(_operators()[kind], value, kptr, depth + 1, material)
         elif kind == "instance":
             name = self.string(value, kptr, "a group name")
             child = self.named(name, kptr)
@@ -693,15 +706,17 @@ class _Reader:
             self.place(depth, child, kptr, "this include")
         group.children.append(child if matrix is None else self.instance(child, matrix, ptr, motion))
 
-    def operator(self, kind: str, value, ptr: str, depth: int, material) -> Group:
-        """A CSG item: a group with the operator's spec and one child per operand."""
-        lists = ("base", "subtract") if kind == "difference" else ("items",)
+    def operator(self, op, value, ptr: str, depth: int, material) -> Group:
+        """An operator item (op: its registered Kind): a group with the kind's spec and one child
+        per operand, the items of its lists in order."""
+        kind, lists = op.name, tuple(op.operand_lists)
         b = self.obj(value, ptr, lists + ("material",), required=lists, what=f"a {kind} object")
         if depth + 1 > MAX_NESTING:
             self.too_deep(ptr, depth + 1, f"this {kind}'s operands")
         if "material" in b:
             material = self.material(b["material"], f"{ptr}/material")
         group = Group(name=kind)
+        counts = {}
         for key in lists:
             items = b[key]
             if not isinstance(items, list):
@@ -715,10 +730,12 @@ class _Reader:
                 if _has_cones(operand):
                     self.fail(iptr, f"a cone is an open surface, not a closed solid: it cannot be a {kind} operand")
                 group.children.append(operand)
+            counts[key] = len(items)
         n = len(group.children)
-        if n > MAX_OPERANDS:
-            self.fail(ptr, f"a {kind} takes at most {MAX_OPERANDS} operands, got {n}: gather some in a union")
-        group.accel = f"difference(base={len(b['base'])})" if kind == "difference" else kind
+        if op.max_operands and n > op.max_operands:
+            self.fail(ptr, f"a {kind} takes at most {op.max_operands} operands, got {n}: "
+                           "gather some in an operator item of their own")
+        group.accel = op.operand_spec(counts) if op.operand_spec else kind
         return group
 
     def instance(self, group: Group, matrix: np.ndarray, ptr: str, motion: Motion | None = None) -> Instance:

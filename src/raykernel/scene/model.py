@@ -22,7 +22,6 @@ import numpy as np
 from ..errors import SceneError
 
 MAX_NESTING = 16
-MAX_OPERANDS = 63           # operands of one CSG node (aggregates/csg.py keeps one bit of an int64 for each)
 """Most aggregates along any path from the root, the root included: the deepest level a
 group may sit at (the root is level 1, each group within a group or an instance one more).
 The kernel keeps one frame for each."""
