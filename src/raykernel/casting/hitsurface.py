@@ -17,23 +17,7 @@ import numpy as np
 
 from ..geometry.config import njit
 from ..geometry.primitives import CONE, SPHERE, TRIANGLE, normalize
-from ..geometry.surface import surface, triangle_surface
-
-
-@njit(inline="always")
-def triangle_uv(geo, idx, px, py, pz):
-    """(u, v) of local point p on triangle idx: barycentric, of its second and third corners."""
-    f = geo.tri_faces
-    v = geo.tri_verts
-    a, b, c = f[idx, 0], f[idx, 1], f[idx, 2]
-    e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-    e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-    gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    area = gx * gx + gy * gy + gz * gz
-    wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
-    cx, cy, cz = wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x
-    dx, dy, dz = e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx
-    return (cx * gx + cy * gy + cz * gz) / area, (dx * gx + dy * gy + dz * gz) / area
+from ..geometry.surface import surface, triangle_surface, triangle_uv
 
 
 @njit(inline="always")

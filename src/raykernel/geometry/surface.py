@@ -14,6 +14,40 @@ def _dot(ax, ay, az, bx, by, bz):
 
 
 @njit(inline="always")
+def barycentric(v, a, b, c, gx, gy, gz, px, py, pz):
+    """(beta, gamma, area): the weights of corners b and c (rows of v) at point p in triangle
+    (a, b, c), from signed areas along the normal g (the triangle's own or its plane's);
+    all 0 where the triangle has no area along g."""
+    e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+    e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+    area = _dot(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x, gx, gy, gz)
+    if area == 0.0:
+        return 0.0, 0.0, 0.0
+    wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
+    beta = _dot(wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x, gx, gy, gz) / area
+    gamma = _dot(e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx, gx, gy, gz) / area
+    return beta, gamma, area
+
+
+@njit(inline="always")
+def triangle_normal(geo, idx):
+    """Corners (vertex rows) and geometric normal (unnormalised, by the winding) of triangle idx."""
+    v = geo.tri_verts
+    a, b, c = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
+    e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+    e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+    return a, b, c, e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+
+
+@njit(inline="always")
+def triangle_uv(geo, idx, px, py, pz):
+    """(u, v) of local point p on triangle idx: barycentric, of its second and third corners."""
+    a, b, c, gx, gy, gz = triangle_normal(geo, idx)
+    beta, gamma, _ = barycentric(geo.tri_verts, a, b, c, gx, gy, gz, px, py, pz)
+    return beta, gamma
+
+
+@njit(inline="always")
 def _patch_normal(geo, idx, px, py, pz):
     """Interpolated vertex normal of patch idx at local point p: barycentric
     in the fan triangle (v0, vk, vk+1) that contains p."""
@@ -26,15 +60,9 @@ def _patch_normal(geo, idx, px, py, pz):
     best_score = -1e300
     for k in range(1, n - 1):
         a, b, c = s, s + k, s + k + 1
-        # barycentric coordinates from signed areas along the plane normal
-        e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-        e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-        wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
-        area = _dot(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x, gx, gy, gz)
+        beta, gamma, area = barycentric(v, a, b, c, gx, gy, gz, px, py, pz)
         if area == 0.0:
             continue
-        beta = _dot(wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x, gx, gy, gz) / area
-        gamma = _dot(e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx, gx, gy, gz) / area
         alpha = 1.0 - beta - gamma
         score = min(alpha, min(beta, gamma))
         if score > best_score:
@@ -76,18 +104,10 @@ def surface(geo, kind, idx, px, py, pz):
 @njit(inline="always")
 def triangle_surface(geo, idx, px, py, pz):
     """surface of triangle idx: its code alone, for kernels that meet only triangles."""
-    f = geo.tri_faces
-    v = geo.tri_verts
-    a, b, c = f[idx, 0], f[idx, 1], f[idx, 2]
-    e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-    e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-    gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    a, b, c, gx, gy, gz = triangle_normal(geo, idx)
     if not geo.tri_smooth[idx]:
         return gx, gy, gz, gx, gy, gz, geo.tri_mat[idx]
-    area = _dot(gx, gy, gz, gx, gy, gz)
-    wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
-    beta = _dot(wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x, gx, gy, gz) / area
-    gamma = _dot(e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx, gx, gy, gz) / area
+    beta, gamma, _ = barycentric(geo.tri_verts, a, b, c, gx, gy, gz, px, py, pz)
     alpha = 1.0 - beta - gamma
     vn = geo.tri_vnormals
     sx = alpha * vn[a, 0] + beta * vn[b, 0] + gamma * vn[c, 0]
