@@ -25,6 +25,28 @@ def test_hash_changes_with_a_kernel_source(tmp_path):
     assert config.kernel_source_hash(pkg) != before
 
 
+@pytest.mark.parametrize("feeder", ["geometry/counters.py", "scene/model.py", "engine/flatten.py"])
+def test_hash_changes_with_a_module_whose_constants_kernels_use(tmp_path, feeder):
+    # no kernel of their own, but counter columns, MAX_NESTING and the stack size are frozen into kernels
+    pkg = _copy_package(tmp_path)
+    before = config.kernel_source_hash(pkg)
+    path = pkg / feeder
+    assert b"njit" not in path.read_bytes()
+    path.write_text(path.read_text() + "\n# changed\n")
+    assert config.kernel_source_hash(pkg) != before
+
+
+def test_imports_are_found_in_every_form(tmp_path):
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    for name in ("a.py", "b.py", "c.py", "sub/__init__.py", "sub/d.py", "sub/e.py", "sub/f.py"):
+        (pkg / name).write_text("")
+    (pkg / "sub" / "k.py").write_text("from ..a import x  # a comment, d\nfrom . import d, e as g\n"
+                                      "from .f import (\n    y,  # z\n    w,\n)\nfrom .. import b\nimport c\n")
+    found = {p.relative_to(pkg).as_posix() for p in config._imported(pkg / "sub" / "k.py", pkg)}
+    assert found == {"a.py", "sub/d.py", "sub/e.py", "sub/f.py", "sub/__init__.py", "b.py"}
+
+
 def test_hash_ignores_files_without_kernels(tmp_path):
     pkg = _copy_package(tmp_path)
     before = config.kernel_source_hash(pkg)

@@ -16,6 +16,7 @@ read-only package caches too.
 import contextlib
 import hashlib
 import os
+import re
 import shutil
 import sys
 import threading
@@ -28,13 +29,39 @@ KERNEL_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy
 PACKAGE = Path(__file__).resolve().parents[1]   # raykernel/
 
 
+# `from .a.b import c, d` and `from . import c`: the modules a kernel file takes names from
+_RELATIVE_IMPORT = re.compile(rb"^from (\.+)([\w.]*) import (?:\(([^)]*)\)|([^\n#]*))", re.M)
+
+
+def _imported(path: Path, package: Path) -> set:
+    """The package's files that `path` imports from (relative imports), modules named in the
+    import list included."""
+    found = set()
+    for dots, name, listed, names in _RELATIVE_IMPORT.findall(path.read_bytes()):
+        names = re.sub(rb"#[^\n]*", b"", listed or names)
+        base = path.parent
+        for _ in range(len(dots) - 1):
+            base = base.parent
+        target = base.joinpath(*name.decode().split(".")) if name else base
+        candidates = [target.with_suffix(".py"), target / "__init__.py"]
+        candidates += [target / f"{n.split()[0]}.py" for n in names.decode().split(",") if n.strip()]
+        found.update(c for c in candidates if c.is_file() and package in c.parents)
+    return found
+
+
 def kernel_source_hash(package: Path = PACKAGE) -> str:
-    """Hash of the package's source files that define or feed compiled kernels."""
+    """Hash of the package's source files that define compiled kernels or feed them: every
+    file with `njit`, and every file those import from, directly or not (constants such as
+    the counter columns are frozen into a kernel when it compiles)."""
+    files = {p for p in package.rglob("*.py") if b"njit" in p.read_bytes()}
+    todo = list(files)
+    while todo:
+        for dep in _imported(todo.pop(), package) - files:
+            files.add(dep)
+            todo.append(dep)
     digest = hashlib.sha256()
-    for path in sorted(package.rglob("*.py")):
-        text = path.read_bytes()
-        if b"njit" in text:
-            digest.update(str(path.relative_to(package)).encode() + b"\0" + text)
+    for path in sorted(files):
+        digest.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes())
     return digest.hexdigest()[:16]
 
 
