@@ -99,6 +99,7 @@ def test_the_command_line_writes_the_programs_picture(tmp_path):
     assert expected.max() > 100
 
 
+@pytest.mark.slow      # Heckbert's kernel with the general driver: compiled for this test alone
 @pytest.mark.parametrize("accel", ["list", "grid", "octree"])
 def test_the_model_does_not_depend_on_the_structure(accel):
     scene = load("example:heckbert")

@@ -57,6 +57,7 @@ def test_nesting_instances_and_csg_render_the_same_with_every_trick(path, option
         same_work_counts(base, render(scene, resolution=40, tricks=tricks, **options))
 
 
+@pytest.mark.slow      # the filtered-shadow kernels with the tricks' memory: compiled for this test alone
 @pytest.mark.parametrize("name", ["gears", "mount"])
 def test_filtered_shadows_render_the_same_with_every_trick(name):
     scene = small(name)
