@@ -5,9 +5,11 @@ the same everywhere. fastmath stays off: the tests compare structures to
 1e-9 relative, and the counts must not depend on reassociation.
 
 The on-disk cache lives in a directory named after a hash of every kernel
-source file of the package. numba checks only the file of the function it
-compiles, so without this a kernel would keep running an old copy of a
-helper it inlines from another module (primitives into the traversal).
+source file of the package and of every module they import from (whose
+constants, such as the counter columns, a kernel freezes when it compiles).
+numba checks only the file of the function it compiles, so without this a
+kernel would keep running an old copy of a helper it inlines from another
+module (primitives into the traversal).
 The directory is `$NUMBA_CACHE_DIR/raykernel-<hash>` when that variable is
 set, else `<user cache>/raykernel/numba-<hash>`, so an installed,
 read-only package caches too.
