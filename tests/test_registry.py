@@ -71,18 +71,26 @@ def test_format_spec_round_trips():
 
 
 def test_walks_own_counters_have_columns_and_names_of_their_own():
-    from raykernel.aggregates import WALK_COUNTERS
+    from raykernel.aggregates import WALK_COUNTERS, csg
     from raykernel.geometry import counters as C
     named = list(C.NAMES.values())
     assert len(named) == len(set(named))
-    columns = [C.walk_own(w.CODE, j) for w in WALKS for j in range(len(getattr(w, "COUNTERS", ())))]
-    assert len(columns) == len(WALK_COUNTERS) and len(set(columns)) == len(columns)
-    assert all(C.WALK_OWN <= c < C.N_COUNTERS for c in columns)
-    shared = [k for k in C.NAMES if k < C.WALK_OWN]
-    assert max(shared) < C.WALK_OWN
-    for w in WALKS:
-        for j, (name, _) in enumerate(getattr(w, "COUNTERS", ())):
-            assert C.NAMES[C.walk_own(w.CODE, j)] == name
+    assert max(k for k in C.NAMES if k < C.WALK_OWN) < C.WALK_OWN
+    own = {C.NAMES[k] for k in C.NAMES if k >= C.WALK_OWN}
+    assert own == {name for name, _ in WALK_COUNTERS}
+    assert [C.NAMES[k] for k in (csg.CROSSINGS, csg.RESOLVES, csg.SURFACES)] == [n for n, _ in csg.COUNTERS]
+    assert all(C.WALK_OWN <= k < C.N_COUNTERS for k in (csg.CROSSINGS, csg.RESOLVES, csg.SURFACES))
+
+
+def test_claiming_more_counters_than_there_are_columns_is_an_error(monkeypatch):
+    from raykernel.geometry import counters as C
+    monkeypatch.setattr(C, "_next_own", [C.N_COUNTERS - 1])
+    monkeypatch.setattr(C, "NAMES", dict(C.NAMES))
+    with pytest.raises(ImportError, match="named twice"):
+        C.claim(["rays.eye"])
+    with pytest.raises(ImportError, match="no room"):
+        C.claim(["toy.a", "toy.b"])
+    assert C.claim(["toy.a"]) == (C.N_COUNTERS - 1,) and C.NAMES[C.N_COUNTERS - 1] == "toy.a"
 
 
 def test_a_walks_own_counters_reach_the_stats_table_and_the_cost_model():
@@ -92,7 +100,7 @@ def test_a_walks_own_counters_reach_the_stats_table_and_the_cost_model():
     from raykernel.rendering.stats import Stats
     totals = np.zeros(C.N_COUNTERS, np.int64)
     totals[C.RAYS_EYE] = 10
-    totals[C.walk_own(csg.CODE, 0)], totals[csg.RESOLVES], totals[csg.SURFACES] = 12, 4, 6
+    totals[csg.CROSSINGS], totals[csg.RESOLVES], totals[csg.SURFACES] = 12, 4, 6
     s = Stats.from_counters(totals, {}, 0.0, 1.0, {})
     assert (s["csg.crossings"], s["csg.resolves"], s["csg.surfaces"]) == (12, 4, 6)
     rows = [r for r in s.rows() if r[0] == "csg"]

@@ -10,9 +10,8 @@ and returns (aggregate index, build statistics). WALKS lists the modules
 that own a walk, each with its CODE (agg_kind and stack-entry kind), the
 Geometry FIELDS it stores and its compiled `step`, which the driver
 (traverse.py) calls, and, if it counts work of its own, COUNTERS ((name,
-cost-model feature or None), at most OWN_PER_WALK, in columns
-counters.walk_own(CODE, j)) and `stats_rows(stats)`, its rows of the
-statistics table; kinds without a walk of their own store themselves
+cost-model feature or None), in columns it claims with counters.claim) and
+`stats_rows(stats)`, its rows of the statistics table; kinds without a walk of their own store themselves
 with another's (hgrid as grids, hybrid and lazyoctree as octrees).
 docs/adding-a-kind.md is the checklist for a new one.
 """
@@ -40,10 +39,5 @@ for _code, _walk in enumerate(WALK_NAMES):
     C.NAMES[C.WALK_STEPS + _code] = f"walk.{_walk}.steps"
 # the walks' own counters, and the cost-model features they are priced as (analysis/costmodel.py)
 WALK_COUNTERS = tuple(c for w in WALKS for c in getattr(w, "COUNTERS", ()))
-for _w in WALKS:
-    if len(getattr(_w, "COUNTERS", ())) > C.OWN_PER_WALK:
-        raise ImportError(f"aggregates: {_w.__name__} has more own counters than counters.OWN_PER_WALK")
-    for _j, (_name, _feature) in enumerate(getattr(_w, "COUNTERS", ())):
-        if _name in C.NAMES.values():
-            raise ImportError(f"aggregates: counter {_name!r} of {_w.__name__} is named twice")
-        C.NAMES[C.walk_own(_w.CODE, _j)] = _name
+if {name for name, _ in WALK_COUNTERS} - set(C.NAMES.values()):
+    raise ImportError("aggregates: a walk's COUNTERS must be claimed (counters.claim) when its module loads")

@@ -19,8 +19,8 @@ kind, index, instance, flip, root), buf_m (the world-to-local map of the
 crossing's frame), buf_n[0] the rows in use. Nested sinks share it as a
 stack: each sink's rows start where its `begin` found the buffer.
 
-A collecting walk's first own counter (geometry/counters.py, walk_own; the
-module's COUNTERS) counts the crossings recorded for it.
+The driver counts each crossing in the counter column it passes
+(traverse.CROSSINGS, the CSG kinds' first own counter).
 """
 
 import numpy as np

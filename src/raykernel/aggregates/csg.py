@@ -53,7 +53,7 @@ import numpy as np
 from ..errors import SceneError
 from ..geometry.boxes import INF, box_entry, cull_margin
 from ..geometry.config import njit
-from ..geometry.counters import walk_own
+from ..geometry.counters import claim
 from ..scene.accel import Kind, Param
 from .collect import CAPACITY, COLUMNS, begin
 from .walk import Field
@@ -68,7 +68,7 @@ FIELDS = (Field("csg_op", np.int64), Field("csg_base", np.int64), Field("csg_fir
 
 # its own counters (the first, crossings, is counted by the driver: collect.py)
 COUNTERS = (("csg.crossings", "csg.crossing"), ("csg.resolves", "csg.resolve"), ("csg.surfaces", None))
-RESOLVES, SURFACES = walk_own(CODE, 1), walk_own(CODE, 2)
+CROSSINGS, RESOLVES, SURFACES = claim([name for name, _ in COUNTERS])
 
 
 def stats_rows(stats) -> list:

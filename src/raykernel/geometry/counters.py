@@ -39,16 +39,9 @@ MAX_WALKS = 8
 WALK_ENTRIES = 37         # + walk: rays that entered an aggregate of that walk (its box was hit)
 WALK_BOUNDS = 45          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
 WALK_STEPS = 53           # + walk: its traversal steps (its part of cells.visited)
-# + OWN_PER_WALK * walk + j: the walk's own counters, which its module declares and names
-# (COUNTERS) and the registry checks; indices by walk_own(code, j)
-OWN_PER_WALK = 3
+# the columns left for counters of a walk's own (its module's COUNTERS), claimed at import
 WALK_OWN = 61
-N_COUNTERS = WALK_OWN + OWN_PER_WALK * MAX_WALKS
-
-
-def walk_own(code: int, j: int) -> int:
-    """The column of walk `code`'s own counter j."""
-    return WALK_OWN + OWN_PER_WALK * code + j
+N_COUNTERS = 64
 
 
 NAMES = {
@@ -70,3 +63,17 @@ NAMES = {
     RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
 }
 
+_next_own = [WALK_OWN]
+
+
+def claim(names) -> tuple:
+    """Columns for a walk's own counters, named `names`: the next free ones (in import order)."""
+    first = _next_own[0]
+    if first + len(names) > N_COUNTERS:
+        raise ImportError(f"counters: no room for {list(names)}; N_COUNTERS leaves {N_COUNTERS - first} columns")
+    for k, name in enumerate(names):
+        if name in NAMES.values():
+            raise ImportError(f"counters: {name!r} is named twice")
+        NAMES[first + k] = name
+    _next_own[0] = first + len(names)
+    return tuple(range(first, first + len(names)))
