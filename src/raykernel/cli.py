@@ -106,7 +106,8 @@ def cmd_render(args, console) -> int:
     if compiling:
         tell_once("render", None)       # the line below says it, and the spinner covers the wait
         console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
-                      "on 2 cores (a minute for nested structures); later runs start from the cache.", markup=False,
+                      "on 2 cores (a minute for nested structures, a few minutes for Heckbert's or Hall's shading, "
+                      "antialiasing or filtered shadows); later runs start from the cache.", markup=False,
                       highlight=False)
     progress = _Progress(console, f"rendering {args.scene}", compiling)
     try:
@@ -154,7 +155,8 @@ def cmd_animate(args, console) -> int:
     if first_run() and not args.dask:
         tell_once("render", None)
         console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
-                      "on 2 cores (a minute for nested structures); later runs start from the cache.", markup=False,
+                      "on 2 cores (a minute for nested structures, a few minutes for Heckbert's or Hall's shading, "
+                      "antialiasing or filtered shadows); later runs start from the cache.", markup=False,
                       highlight=False)
     progress = _Progress(console, f"animating {args.scene} (frames)")
     log = lambda line: console.print(line, markup=False, highlight=False)     # noqa: E731

@@ -517,7 +517,8 @@ def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:
 # CompileClock's notice for a render's kernels, whichever specialisation compiles
 tell_compiling = compile_notice(
     "render", f"raykernel: compiling the renderer's kernels for this kind of render (once after install: about "
-              f"{FIRST_RUN_SECONDS} s, a minute for nested structures; cached for later processes)")
+              f"{FIRST_RUN_SECONDS} s, a minute for nested structures, a few minutes for Heckbert's or Hall's "
+              "shading, antialiasing or filtered shadows; cached for later processes)")
 
 
 def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd: bool = False,
