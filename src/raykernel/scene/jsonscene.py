@@ -211,14 +211,9 @@ __all__ = ["MAX_NESTING", "read_json", "parse_json", "scene_from_json", "scene_t
 PRIMITIVE_KINDS = ("sphere", "cone", "polygon", "patch")
 
 
-
 def _operators() -> dict:
     """The operator kinds of the registry, by name: each is an item kind of its own."""
     return {name: kind for name, kind in KINDS.items() if kind.operands}
-
-
-def _item_kinds() -> tuple:
-    return PRIMITIVE_KINDS + ("mesh", "include", "group", "instance") + tuple(_operators())
 
 
 TRANSFORM_OPS = ("translate", "rotate", "scale", "matrix")
@@ -647,7 +642,8 @@ class _Reader:
         return h
 
     def item(self, item, ptr: str, group: Group, depth: int, material):
-        item_kinds = _item_kinds()
+        operators = _operators()
+        item_kinds = PRIMITIVE_KINDS + ("mesh", "include", "group", "instance") + tuple(operators)
         if not isinstance(item, dict):
             self.fail(ptr, f"expected an item object with one of {_names(item_kinds)}, got {_describe(item)}")
         kinds = [k for k in item if k in item_kinds]
@@ -662,7 +658,7 @@ class _Reader:
         allowed = (kind, "transform", "motion") + (("material",) if takes_material else ())
         if "material" in item and not takes_material:
             hint = ("give the group body a \"material\"" if kind == "group" else
-                    f"give the {kind} object a \"material\"" if kind in _operators() else
+                    f"give the {kind} object a \"material\"" if kind in operators else
                     "materials come from the NFF file" if kind == "include" else
                     "give the named group a \"material\"")
             self.fail(_key(ptr, "material"), f"{'an' if kind[0] in 'aeiou' else 'a'} {kind} item takes no \"material\" ({hint}); "
@@ -693,8 +689,8 @@ class _Reader:
                 self.too_deep(kptr, depth + 1, "this group")
             child = Group()
             self.body(value, kptr, child, depth + 1, material)
-        elif kind in _operators():
-            child = self.operator(_operators()[kind], value, kptr, depth + 1, material)
+        elif kind in operators:
+            child = self.operator(operators[kind], value, kptr, depth + 1, material)
         elif kind == "instance":
             name = self.string(value, kptr, "a group name")
             child = self.named(name, kptr)
