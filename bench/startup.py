@@ -32,6 +32,8 @@ ENTRY_POINTS = {
                     "render(load('spd:balls'), resolution=32)",
     "render-heckbert": "from raykernel.scene.loading import load; from raykernel.rendering.render import render\n"
                        "render(load('example:heckbert'), resolution=32)",
+    "render-heckbert-shading": "from raykernel.scene.loading import load; from raykernel.rendering.render import render\n"
+                               "render(load('example:heckbert'), resolution=32, shading='heckbert')",
     "rayscene-mesh": "import numpy as np, raykernel\n"
                      "v = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = np.array([[0, 1, 2]])\n"
                      "s = raykernel.RayScene.from_mesh(v, f)\n"

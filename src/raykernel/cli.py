@@ -75,7 +75,7 @@ class _Progress:
 
 def cmd_render(args, console) -> int:
     from .atomicfile import check_output_directory
-    from .engine.compiletime import FIRST_RUN_SECONDS, first_run
+    from .engine.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, first_run
     from .geometry.config import tell_once
     from .rendering.imageio import image_format
     from .rendering.render import render
@@ -106,8 +106,7 @@ def cmd_render(args, console) -> int:
     if compiling:
         tell_once("render", None)       # the line below says it, and the spinner covers the wait
         console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
-                      "on 2 cores (a minute for nested structures, a few minutes for Heckbert's or Hall's shading, "
-                      "antialiasing or filtered shadows); later runs start from the cache.", markup=False,
+                      f"on 2 cores ({OTHER_RENDERS}); later runs start from the cache.", markup=False,
                       highlight=False)
     progress = _Progress(console, f"rendering {args.scene}", compiling)
     try:
@@ -146,7 +145,7 @@ def _cluster(args, console):
 
 
 def cmd_animate(args, console) -> int:
-    from .engine.compiletime import FIRST_RUN_SECONDS, first_run
+    from .engine.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, first_run
     from .geometry.config import tell_once
     from .rendering.animate import animate
     from .scene.accel import parse_spec
@@ -155,8 +154,7 @@ def cmd_animate(args, console) -> int:
     if first_run() and not args.dask:
         tell_once("render", None)
         console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
-                      "on 2 cores (a minute for nested structures, a few minutes for Heckbert's or Hall's shading, "
-                      "antialiasing or filtered shadows); later runs start from the cache.", markup=False,
+                      f"on 2 cores ({OTHER_RENDERS}); later runs start from the cache.", markup=False,
                       highlight=False)
     progress = _Progress(console, f"animating {args.scene} (frames)")
     log = lambda line: console.print(line, markup=False, highlight=False)     # noqa: E731

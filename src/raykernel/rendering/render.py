@@ -37,7 +37,7 @@ import numba
 import numpy as np
 
 from ..aggregates.lazyoctree import pass_ranges
-from ..engine.compiletime import FIRST_RUN_SECONDS, CompileClock, compile_notice, typing_setup
+from ..engine.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, CompileClock, compile_notice, typing_setup
 from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
@@ -48,7 +48,7 @@ from ..geometry.config import compiled, njit
 from ..geometry.primitives import normalize
 from ..scene.model import Scene
 from . import heckbert
-from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, _render_pixels
+from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, _render_pixels, model_arguments
 from .startlists import prepare as prepare_starts
 from .stats import Stats
 from .tricks import DEFAULT as TRICKS_DEFAULT
@@ -393,11 +393,13 @@ class RenderJob:
                               None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
                               self.pass_counts[p], step, coarse)
         else:
+            whitted_on, heckbert_on, medium = model_arguments(o["shading"], self.medium)
+
             def run(counter, limit):
                 _render_pixels(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
                                self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
                                self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
-                               SHADINGS[o["shading"]], self.filtered, self.trick_bits, self.starts, self.medium,
+                               whitted_on, heckbert_on, self.filtered, self.trick_bits, self.starts, medium,
                                SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"])
         start = first + lo
         samples = self.work[p] * (hi - lo) // max(1, last - first)
@@ -517,8 +519,7 @@ def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:
 # CompileClock's notice for a render's kernels, whichever specialisation compiles
 tell_compiling = compile_notice(
     "render", f"raykernel: compiling the renderer's kernels for this kind of render (once after install: about "
-              f"{FIRST_RUN_SECONDS} s, a minute for nested structures, a few minutes for Heckbert's or Hall's "
-              "shading, antialiasing or filtered shadows; cached for later processes)")
+              f"{FIRST_RUN_SECONDS} s, {OTHER_RENDERS}; cached for later processes)")
 
 
 def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd: bool = False,

@@ -32,10 +32,18 @@ from .tricks import memo as tricks_memo
 
 SINGLE, JITTER, ADAPTIVE = np.int64(0), np.int64(1), np.int64(2)
 SAMPLERS = {"none": SINGLE, "jitter": JITTER, "adaptive": ADAPTIVE}
-WHITTED, HECKBERT, HALL = np.int64(0), np.int64(1), np.int64(2)
-SHADINGS = {"whitted": WHITTED, "heckbert": HECKBERT, "hall": HALL}
+SHADINGS = ("whitted", "heckbert", "hall")
 MAX_AA_DEPTH = 4                 # 17 x 17 points per pixel at most
 _SQUARES = 3 * MAX_AA_DEPTH + 1  # adaptive: squares waiting at most (each cut pops one, pushes four)
+
+
+def model_arguments(shading: str, medium):
+    """The shading model as the kernel's (whitted, heckbert, medium) arguments: each None unless
+    its model is chosen (whitted, heckbert: True; medium: the camera's medium, -1 for air), so
+    that numba prunes the other models' branches (it prunes a branch on `argument is not None`
+    only where the argument is None) and a render compiles only its own model's trace."""
+    return (True if shading == "whitted" else None), (True if shading == "heckbert" else None), \
+        (medium if shading == "hall" else None)
 
 
 @njit(inline="always")
@@ -50,32 +58,37 @@ def _uniform(seed, pixel, k):
 
 
 @njit(inline="always")
-def _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff, filtered, tricks, medium, state,
-            rays, eye, color, ws, cnt):
-    """Colour seen through point (u, v) of the image plane, in pixels from pixel (0, 0).
+def _sample(geo, mats, lights, background, cam, u, v, whitted_on, heckbert_on, max_depth, cutoff, filtered, tricks,
+            medium, state, rays, eye, color, ws, cnt):
+    """Colour seen through point (u, v) of the image plane, in pixels from pixel (0, 0), under
+    the model whose argument is not None (model_arguments).
     eye, color: (1, 3) scratch for whitted.trace, which traces batches of eye rays."""
     dx = cam[3] + u * cam[6] + v * cam[9]
     dy = cam[4] + u * cam[7] + v * cam[10]
     dz = cam[5] + u * cam[8] + v * cam[11]
     dx, dy, dz = normalize(dx, dy, dz)
-    if shading == HECKBERT:
-        return heckbert.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz, max_depth,
-                              rays, ws, cnt)
-    if shading == HALL:
-        return hall.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz, max_depth, cutoff,
-                          medium, filtered, tricks, state, rays, ws, cnt)
-    eye[0, 0], eye[0, 1], eye[0, 2] = dx, dy, dz
-    whitted.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], eye, 1, color, max_depth, cutoff, filtered,
-                  tricks, state, rays, ws, cnt)
-    return color[0, 0], color[0, 1], color[0, 2]
+    r = g = b = 0.0
+    if heckbert_on is not None:
+        r, g, b = heckbert.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz, max_depth,
+                                 rays, ws, cnt)
+    if medium is not None:
+        r, g, b = hall.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], dx, dy, dz, max_depth, cutoff,
+                             medium, filtered, tricks, state, rays, ws, cnt)
+    if whitted_on is not None:
+        eye[0, 0], eye[0, 1], eye[0, 2] = dx, dy, dz
+        whitted.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], eye, 1, color, max_depth, cutoff,
+                      filtered, tricks, state, rays, ws, cnt)
+        r, g, b = color[0, 0], color[0, 1], color[0, 2]
+    return r, g, b
 
 
 @njit
-def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, counter, last, row0,
-                   max_depth, cutoff, out, counters, passes, step, coarse,
-                   tile_size, shading, filtered, tricks, starts, medium, sampler, samples, seed, threshold, aa_depth):
+def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, counter, last, row0, max_depth,
+                   cutoff, out, counters, passes, step, coarse, tile_size, whitted_on, heckbert_on, filtered, tricks,
+                   starts, medium, sampler, samples, seed, threshold, aa_depth):
     """render._render_tiles over pixels (tiles of tile_size), each from `sampler`'s samples
-    under `shading`; filtered shadows or not, the camera's medium (-1: air) for Hall's."""
+    under the model whose argument (whitted_on, heckbert_on or medium) is not None
+    (model_arguments); filtered shadows or not."""
     cells = tile_size << aa_depth if sampler == ADAPTIVE else 0
     eye = np.zeros((1, 3))      # whitted.trace's batch of one ray
     color = np.zeros((1, 3))
@@ -91,8 +104,8 @@ def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, ti
         known = np.zeros((cells + 1, cells + 1), np.bool_)
         squares = np.zeros((_SQUARES, 4), np.int64)
         _render_tile(geo, mats, lights, background, cam, width, height, tile_x[tile], tile_y[tile], tile_size,
-                     max_depth, cutoff, out, step, coarse, shading, filtered, tricks, medium, sampler, samples, seed,
-                     threshold, aa_depth, state, rays, eye, color, ws, cnt, lattice, known, squares)
+                     max_depth, cutoff, out, step, coarse, whitted_on, heckbert_on, filtered, tricks, medium, sampler,
+                     samples, seed, threshold, aa_depth, state, rays, eye, color, ws, cnt, lattice, known, squares)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
@@ -102,8 +115,8 @@ def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, ti
 
 @njit(private=True)     # one call per tile: the samples' calls count no references
 def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile_size, max_depth, cutoff, out,
-                 step, coarse, shading, filtered, tricks, medium, sampler, samples, seed, threshold, aa_depth, state,
-                 rays, eye, color, ws, cnt, lattice, known, squares):
+                 step, coarse, whitted_on, heckbert_on, filtered, tricks, medium, sampler, samples, seed, threshold,
+                 aa_depth, state, rays, eye, color, ws, cnt, lattice, known, squares):
     """The pixels of the tile at (x0, y0) for _render_pixels. lattice, known: the adaptive
     sampler's points of the tile, 2^aa_depth per pixel side, traced on first use; squares: its
     stack of squares, rows of (column, row, size) on that lattice and the cuts made."""
@@ -116,43 +129,43 @@ def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile
                 continue
             r, g, b = 0.0, 0.0, 0.0
             if sampler == SINGLE:
-                r, g, b = _sample(geo, mats, lights, background, cam, float(i), float(j), shading, max_depth,
-                                  cutoff, filtered, tricks, medium, state, rays, eye, color, ws, cnt)
+                r, g, b = _sample(geo, mats, lights, background, cam, float(i), float(j), whitted_on, heckbert_on,
+                                  max_depth, cutoff, filtered, tricks, medium, state, rays, eye, color, ws, cnt)
             elif sampler == JITTER:
                 pixel = j * width + i
                 for s in range(k * k):
                     u = i - 0.5 + (s % k + _uniform(seed, pixel, 2 * s)) / k
                     v = j - 0.5 + (s // k + _uniform(seed, pixel, 2 * s + 1)) / k
-                    sr, sg, sb = _sample(geo, mats, lights, background, cam, u, v, shading, max_depth, cutoff,
-                                         filtered, tricks, medium, state, rays, eye, color, ws, cnt)
+                    sr, sg, sb = _sample(geo, mats, lights, background, cam, u, v, whitted_on, heckbert_on, max_depth,
+                                         cutoff, filtered, tricks, medium, state, rays, eye, color, ws, cnt)
                     r += sr
                     g += sg
                     b += sb
                 r, g, b = r / (k * k), g / (k * k), b / (k * k)
             else:
-                r, g, b = _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks,
-                                    medium, threshold, aa_depth, x0, y0, i, j, lattice, known, squares, state, rays,
-                                    eye, color, ws, cnt)
+                r, g, b = _adaptive(geo, mats, lights, background, cam, whitted_on, heckbert_on, max_depth, cutoff,
+                                    filtered, tricks, medium, threshold, aa_depth, x0, y0, i, j, lattice, known,
+                                    squares, state, rays, eye, color, ws, cnt)
             out[j, i, 0] = r
             out[j, i, 1] = g
             out[j, i, 2] = b
 
 
 @njit(inline="always")
-def _point(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, aa_depth, x0,
-           y0, a, e, lattice, known, state, rays, eye, color, ws, cnt):
+def _point(geo, mats, lights, background, cam, whitted_on, heckbert_on, max_depth, cutoff, filtered, tricks, medium,
+           aa_depth, x0, y0, a, e, lattice, known, state, rays, eye, color, ws, cnt):
     """Trace lattice point (a, e) of the tile at (x0, y0) unless it is known."""
     if not known[e, a]:
         scale = 1.0 / (1 << aa_depth)
-        r, g, b = _sample(geo, mats, lights, background, cam, x0 - 0.5 + a * scale, y0 - 0.5 + e * scale,
-                          shading, max_depth, cutoff, filtered, tricks, medium, state, rays, eye, color, ws, cnt)
+        r, g, b = _sample(geo, mats, lights, background, cam, x0 - 0.5 + a * scale, y0 - 0.5 + e * scale, whitted_on,
+                          heckbert_on, max_depth, cutoff, filtered, tricks, medium, state, rays, eye, color, ws, cnt)
         lattice[e, a, 0], lattice[e, a, 1], lattice[e, a, 2] = r, g, b
         known[e, a] = True
 
 
 @njit(inline="always")
-def _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, threshold,
-              aa_depth, x0, y0, i, j, lattice, known, squares, state, rays, eye, color, ws, cnt):
+def _adaptive(geo, mats, lights, background, cam, whitted_on, heckbert_on, max_depth, cutoff, filtered, tricks, medium,
+              threshold, aa_depth, x0, y0, i, j, lattice, known, squares, state, rays, eye, color, ws, cnt):
     """Whitted's subdivision of pixel (i, j): the area-weighted mean of its squares' corner means."""
     full = 1 << aa_depth
     r, g, b = 0.0, 0.0, 0.0
@@ -162,9 +175,9 @@ def _adaptive(geo, mats, lights, background, cam, shading, max_depth, cutoff, fi
         top -= 1
         a, e, size, cut = squares[top, 0], squares[top, 1], squares[top, 2], squares[top, 3]
         for corner in range(4):
-            _point(geo, mats, lights, background, cam, shading, max_depth, cutoff, filtered, tricks, medium, aa_depth,
-                   x0, y0, a + size * (corner % 2), e + size * (corner // 2), lattice, known, state, rays, eye, color,
-                   ws, cnt)
+            _point(geo, mats, lights, background, cam, whitted_on, heckbert_on, max_depth, cutoff, filtered, tricks,
+                   medium, aa_depth, x0, y0, a + size * (corner % 2), e + size * (corner // 2), lattice, known, state,
+                   rays, eye, color, ws, cnt)
         spread = 0.0
         for q in range(3):
             c0, c1 = lattice[e, a, q], lattice[e, a + size, q]
