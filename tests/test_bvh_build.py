@@ -208,12 +208,25 @@ extent = st.one_of(st.just(0.0), st.floats(0.0, 1e4, allow_nan=False, allow_infi
     rows=st.lists(st.tuples(finite, finite, finite, extent, extent, extent), min_size=0, max_size=50),
     leaf_size=st.integers(1, 5),
     traversal_cost=st.sampled_from([0.0, 0.125, 1.0, 10.0]),
+    block=st.sampled_from([1, 4]),
 )
-def test_float_boxes_property(rows, leaf_size, traversal_cost):
+def test_float_boxes_property(rows, leaf_size, traversal_cost, block):
     arr = np.array(rows, dtype=np.float64).reshape(-1, 6)
     items = np.hstack([arr[:, :3], arr[:, :3] + arr[:, 3:]])
-    bvh, stats = build_bvh(items, leaf_size=leaf_size, traversal_cost=traversal_cost)
+    bvh, stats = build_bvh(items, leaf_size=leaf_size, traversal_cost=traversal_cost, block=block)
     check_tree(bvh, stats, items, leaf_size)
+
+
+def test_leaves_priced_in_blocks_fill_them():
+    """block=4 counts items in blocks of four: leaves of 1-3 items cost as much as leaves of
+    four, so the tree keeps fuller leaves and fewer nodes, within the same leaf size."""
+    rng = np.random.default_rng(5)
+    items = random_boxes(rng, 4000)
+    one, _ = build_bvh(items, leaf_size=4)
+    four, stats = build_bvh(items, leaf_size=4, block=4)
+    check_tree(four, stats, items, 4)
+    mean = [b.count[b.count > 0].mean() for b in (one, four)]
+    assert mean[1] > mean[0] + 0.5 and len(four.count) < len(one.count)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -399,6 +412,8 @@ def test_rejects_bad_bounds(bad):
         dict(intersection_cost=0.0),
         dict(intersection_cost=float("nan")),
         dict(traversal_cost="x"),
+        dict(block=0),
+        dict(block=2.0),
     ],
 )
 def test_rejects_bad_options(options):

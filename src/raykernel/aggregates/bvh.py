@@ -41,14 +41,17 @@ extent is non-zero, and every boundary between bins is scored with
 
     cost = traversal_cost + (M_left * N_left + M_right * N_right) / M_parent * intersection_cost
 
-where M is the surface area of a box. When the parent box has zero area (all
+where M is the surface area of a box and N the items on each side, counted
+in blocks of ``block`` items (rounded up: 1 by default; 4 prices a leaf as a
+4-lane test takes its triangles, as Embree does).
+When the parent box has zero area (all
 items lie on one line or are one point) M is the half-perimeter instead,
 which still favours splits into short, balanced pieces. Measures are taken on
 boxes scaled by the parent's largest extent, so neither 1e-200 nor 1e200
 coordinates underflow or overflow the areas.
 
 A node becomes a leaf when it has at most ``leaf_size`` items and its leaf
-cost ``count * intersection_cost`` is not worse than the best split;
+cost ``blocks(count) * intersection_cost`` is not worse than the best split;
 otherwise it is split at the best boundary. So no leaf ever holds more than
 ``leaf_size`` items: ``leaf_size`` is also the maximum leaf size. When all
 centroids of a node coincide there is no boundary to score: the node is a
@@ -113,7 +116,7 @@ def _range_bounds(data, start, end, box, cbox):
 
 
 @njit
-def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost):
+def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, block):
     """Build the tree; returns (bounds, first, count, order, node count, max depth)."""
     n = items.shape[0]
     cap = 2 * n - 1 if n > 0 else 1
@@ -260,10 +263,11 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost):
                     ex = (lbox[3] - lbox[0]) * inv
                     ey = (lbox[4] - lbox[1]) * inv
                     ez = (lbox[5] - lbox[2]) * inv
+                    lcost = (lc + block - 1) // block        # items priced in blocks
                     if use_area:
-                        left_measure[j] = 2.0 * (ex * ey + ey * ez + ez * ex) * lc
+                        left_measure[j] = 2.0 * (ex * ey + ey * ez + ez * ex) * lcost
                     else:
-                        left_measure[j] = (ex + ey + ez) * lc
+                        left_measure[j] = (ex + ey + ez) * lcost
                 for k in range(3):
                     rbox[k] = np.inf
                     rbox[k + 3] = -np.inf
@@ -279,10 +283,11 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost):
                     ex = (rbox[3] - rbox[0]) * inv
                     ey = (rbox[4] - rbox[1]) * inv
                     ez = (rbox[5] - rbox[2]) * inv
+                    rcost = (rc + block - 1) // block
                     if use_area:
-                        c = left_measure[j - 1] + 2.0 * (ex * ey + ey * ez + ez * ex) * rc
+                        c = left_measure[j - 1] + 2.0 * (ex * ey + ey * ez + ez * ex) * rcost
                     else:
-                        c = left_measure[j - 1] + (ex + ey + ez) * rc
+                        c = left_measure[j - 1] + (ex + ey + ez) * rcost
                     if c < best:
                         best = c
                         split_axis = a
@@ -290,7 +295,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost):
 
             if split_axis >= 0:
                 split_cost = traversal_cost + best / parent_measure * intersection_cost
-                leaf_cost = cnt * intersection_cost
+                leaf_cost = (cnt + block - 1) // block * intersection_cost
                 if cnt <= leaf_size and leaf_cost <= split_cost:
                     split_axis = -1
             elif cnt > leaf_size:
@@ -480,14 +485,15 @@ def _cost_option(value, name: str, positive: bool) -> float:
     return v
 
 
-def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0):
+def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0, block=1):
     """Build a binned-SAH BVH over item boxes.
 
     bounds: (n, 6) array of item boxes (xmin, ymin, zmin, xmax, ymax, zmax),
     any real dtype (converted to float64), finite, with min <= max; zero
     thickness and n = 0 are allowed. leaf_size: most items in a leaf (>= 1).
     bins: centroid bins per axis (2..1024). traversal_cost (>= 0) and
-    intersection_cost (> 0) weigh the SAH.
+    intersection_cost (> 0) weigh the SAH. block: items that cost one intersection_cost
+    together (4: a leaf is priced in blocks of four, as a 4-lane test takes them).
 
     Returns (BVHArrays, stats) with stats = {"nodes", "inner", "leaves",
     "empty_leaves", "refs", "bytes", "seconds", "max_depth"}; "refs" is the
@@ -505,7 +511,8 @@ def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_
 
     if not compiled(_build_kernel) and not cached("aggregates", "bvh._build_kernel"):
         tell_once("bvh", "raykernel: compiling the BVH builder (first use after install, a few seconds)")
-    nb, first, count, order, n_nodes, max_depth = _build_kernel(items, leaf_size, bins, tc, ic)
+    block = _int_option(block, "block", 1, 64)
+    nb, first, count, order, n_nodes, max_depth = _build_kernel(items, leaf_size, bins, tc, ic, np.int64(block))
     if n_nodes < count.shape[0]:  # give back the unused part of the 2n - 1 node allocation
         nb, first, count = nb[:n_nodes].copy(), first[:n_nodes].copy(), count[:n_nodes].copy()
     bvh = BVHArrays(nb, first, count, order)
@@ -595,7 +602,7 @@ def flatten(builder, params, refs, bounds, name, box):
         from .gsbvh import build_gs
         tree, stats = build_gs(bounds, order=params["order"], seed=params["seed"])
     else:
-        tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"])
+        tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"], block=params["block"])
     if params.get("optimize", "none") != "none":
         from .bvhopt import optimize
         tree, info = optimize(tree, params["optimize"])
@@ -610,6 +617,8 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
               "Goldsmith-Salmon insertion (build=gs)", (
     Param("leaf", 4, "maximum items in a leaf the SAH may keep (sah only; gs leaves hold one item)", int, 1, 64),
     Param("bins", 16, "SAH bins per axis (sah only)", int, 2, 256),
+    Param("block", 1, "items the SAH prices as one intersection (sah only): 4 prices leaves in blocks of four, "
+          "as RayScene's mesh kernel tests triangles four at a time (casting/triangles4.py)", int, 1, 16),
     Param("build", "sah", "sah: top-down binned SAH; gs: Goldsmith-Salmon 1987 incremental insertion",
           str, choices=("sah", "gs")),
     Param("order", "file", "gs insertion order: file (as given), shuffle (seeded permutation) or curve "

@@ -20,10 +20,17 @@ that make it fast:
   per ray instead of once per triangle (the same arithmetic, bit for bit),
   and the test is inlined into the leaf loop;
 * the triangles' corners are in leaf order, so a leaf's triangles are read
-  from one contiguous block: the fast walk's 80-byte records (engine/
-  widewalk.py, corners in their first nine columns) on the 4-wide tree, nine
-  numbers per reference copied here for the binary one;
+  from one contiguous block: on the 4-wide tree blocks of four triangles as
+  structure of arrays (triangles4.py), tested four at a time by one vector
+  watertight test (the same t bit for bit; edge and vertex ties go to the
+  scalar test), and the fast walk's 80-byte records (engine/widewalk.py,
+  corners in their first nine columns) for those ties; nine numbers per
+  reference copied here for the binary one;
 * the loop knows only BVH nodes and triangles.
+
+Meshes (RayScene.from_mesh, from_trimesh) are built with MESH_ACCEL, a BVH
+whose SAH prices leaves in blocks of four triangles (bvh(block=4), as
+Embree prices its leaves), so that leaves fill their blocks.
 
 Tracing large incoherent batches in Morton order of origin and direction
 octant was tried and dropped: the scattered reads and writes cost more than
@@ -37,7 +44,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates.widebvh import WideBVH, leaf_range, near_planes, visit
+from ..aggregates.widebvh import CHILD, COUNT, WideBVH, leaf_range, near_planes, visit
 from ..engine.flatten import BVH, Geometry
 from ..engine.traverse import ALL_HITS
 from ..geometry import counters as C
@@ -45,8 +52,10 @@ from ..geometry.boxes import CONSERVATIVE, STILL, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
 from .hitsurface import store_miss, store_triangle_surface
+from .triangles4 import BLOCK, hit4, leaf_blocks
 
 INF = np.inf
+MESH_ACCEL = "bvh(block=4)"  # RayScene's meshes: the SAH counts triangles in blocks of four (triangles4.py)
 STACK = 192                  # a BVH is at most 96 nodes deep (flatten.MAX_TREE_DEPTH): 2 entries per level
 STACK4 = 384                 # the 4-wide tree is no deeper: 4 entries per level
 _IDENTITY = np.array([1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0])
@@ -59,6 +68,8 @@ class MeshKernel(NamedTuple):
     local: np.ndarray        # (R,) int64 face index within that mesh
     root: int                # root node of the BVH
     wide: WideBVH            # the BVH collapsed 4-wide (widebvh.py); empty arrays for width 2
+    blocks: np.ndarray       # (B, 36) float64 the 4-wide tree's leaves in blocks of 4 triangles (triangles4.py)
+    first_block: np.ndarray  # (R,) int64 a leaf's first block, at its first reference
 
     @classmethod
     def of(cls, geo: Geometry, geometries: np.ndarray) -> "MeshKernel | None":
@@ -76,7 +87,11 @@ class MeshKernel(NamedTuple):
         local = prim - geometries[geom, 1]
         root = int(geo.agg_start[geo.root])
         wide = WideBVH(geo.wide_nodes, geo.wide_boxes, geo.wide_center)
-        return cls(np.ascontiguousarray(corners), prim, geom.astype(np.int64), local.astype(np.int64), root, wide)
+        corners = np.ascontiguousarray(corners)
+        count = wide.nodes[:, COUNT:COUNT + 4]
+        leaves = count > 0
+        blocks, first_block = leaf_blocks(corners, wide.nodes[:, CHILD:CHILD + 4][leaves], count[leaves])
+        return cls(corners, prim, geom.astype(np.int64), local.astype(np.int64), root, wide, blocks, first_block)
 
     @property
     def kernel(self):
@@ -97,8 +112,9 @@ def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax, edges):
 
 
 @njit
-def query(geo, corners, prim, geom, local, root, wide, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out,
-          geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c0, c1):
+def query(geo, corners, prim, geom, local, root, wide, blocks, first_block, origins, directions, tmin, tmax, mode,
+          chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
+          all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
     outputs of rayscene._query, identities as the user sees them: geometry and
     index within it (-1 on a miss). All hits: with len(offsets) == 0 counts them
@@ -111,15 +127,15 @@ def query(geo, corners, prim, geom, local, root, wide, origins, directions, tmin
         stack_t = np.empty(STACK4)
         o = np.empty(3)
         t4 = np.empty(4)
-        _chunk4(geo, corners, prim, geom, local, wide, origins, directions, tmin, tmax, mode, t_out, kind_out,
-                geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c,
-                c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o, t4)
+        _chunk4(geo, corners, prim, geom, local, wide, blocks, first_block, origins, directions, tmin, tmax, mode,
+                t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
+                all_i, counters, c, c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o, t4)
 
 
 @njit
-def query_binary(geo, corners, prim, geom, local, root, wide, origins, directions, tmin, tmax, mode, chunk, t_out,
-                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
-                 counters, c0, c1):
+def query_binary(geo, corners, prim, geom, local, root, wide, blocks, first_block, origins, directions, tmin, tmax,
+                 mode, chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface,
+                 offsets, all_t, all_i, counters, c0, c1):
     """query on the binary tree as built (bvh(width=2)), node for node the general kernel's walk."""
     n = origins.shape[0]
     for c in range(c0, c1):
@@ -203,9 +219,9 @@ def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tma
 
 
 @njit(private=True)
-def _chunk4(geo, corners, prim, geom, local, wide, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
-            idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c, r0, r1,
-            stack, stack_t, o, t4):
+def _chunk4(geo, corners, prim, geom, local, wide, blocks, first_block, origins, directions, tmin, tmax, mode, t_out,
+            kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
+            counters, c, r0, r1, stack, stack_t, o, t4):
     """_chunk on the 4-wide tree. Stack entries: v >= 0 a wide node to visit, v < 0 the leaf in
     child slot -v - 1 (node * 4 + slot); a node's children the ray enters go on the stack
     nearest on top."""
@@ -249,15 +265,52 @@ def _chunk4(geo, corners, prim, geom, local, wide, origins, directions, tmin, tm
                 continue
             n_leaves += 1
             s0, e0 = leaf_range(nodes, v)
-            best, best_j, n_all, tested, done = _leaf(corners, prim, s0, e0, o, kx, ky, kz, sx, sy, sz, lo, best,
-                                                      best_j, edges, mode, store, offsets, r, base, n_all, all_t,
-                                                      all_i)
+            best, best_j, n_all, tested, done = _leaf4(blocks, first_block[s0], corners, prim, s0, e0, o, kx, ky, kz,
+                                                       sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r,
+                                                       base, n_all, all_t, all_i, t4)
             n_tests += tested
             if done:
                 sp = 0
         _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
                 geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
     _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
+
+
+@njit(inline="always")
+def _leaf4(blocks, b, corners, prim, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r,
+           base, n_all, all_t, all_i, t4):
+    """_leaf on the leaf's blocks of four triangles from block b (triangles4.hit4): each block in
+    one vector test, its lanes then taken in reference order as _leaf takes them (a lane's t
+    is checked against the closest hit of the lanes before it; lanes with a zero edge function
+    go through the scalar test and its tie rule)."""
+    okx, oky, okz = o[kx], o[ky], o[kz]
+    for j0 in range(s, e, BLOCK):
+        m = hit4(blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, lo, best, t4)
+        b += 1
+        for lane in range(min(BLOCK, e - j0)):
+            j = j0 + lane
+            if m >> (BLOCK + lane) & 1:
+                t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
+                if t == INF:
+                    continue
+            elif m >> lane & 1 and t4[lane] <= best:
+                t = t4[lane]
+            else:
+                continue
+            if mode == ALL_HITS:
+                if store and n_all < offsets[r + 1] - base:
+                    all_t[base + n_all] = t
+                    all_i[base + n_all, 0] = TRIANGLE
+                    all_i[base + n_all, 1] = prim[j]
+                    all_i[base + n_all, 2] = -1
+                n_all += 1
+                continue
+            if best_j < 0 or t < best or prim[j] < prim[best_j]:
+                best = t
+                best_j = j
+                if mode != 0:
+                    return best, best_j, n_all, min(e - s, j0 - s + BLOCK), True
+    return best, best_j, n_all, e - s, False
 
 
 @njit(inline="always")

@@ -53,7 +53,7 @@ from ..geometry.config import njit
 from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
 from ..scene.model import Scene, TriangleMesh
 from .hitsurface import store_miss, store_surface
-from .meshcast import MeshKernel
+from .meshcast import MESH_ACCEL, MeshKernel
 from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, point_index, surface_normals
 
 CHUNK = 1024
@@ -367,14 +367,15 @@ class RayScene:
         return geom, local
 
     @classmethod
-    def from_trimesh(cls, mesh, accel: str = "bvh", edges: str = "watertight") -> "RayScene":
+    def from_trimesh(cls, mesh, accel: str = MESH_ACCEL, edges: str = "watertight") -> "RayScene":
         """A trimesh.Trimesh, or any object with `.vertices` (V, 3) and `.faces` (F, 3)."""
         if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
             raise RayInputError(f"expected a mesh with .vertices and .faces, got {type(mesh).__name__}")
         return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel, edges=edges)
 
     @classmethod
-    def from_mesh(cls, vertices, faces=None, normals=None, accel: str = "bvh", edges: str = "watertight") -> "RayScene":
+    def from_mesh(cls, vertices, faces=None, normals=None, accel: str = MESH_ACCEL,
+                  edges: str = "watertight") -> "RayScene":
         """A triangle mesh: vertices (V, 3) float32/float64, faces (F, 3) integer vertex
         indices, optional per-vertex normals (V, 3) for shading_normal. A mesh object
         (trimesh.Trimesh, anything with .vertices and .faces) may stand for both."""

@@ -28,13 +28,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import RayKernelError
+from .meshcast import MESH_ACCEL
 from .rayscene import RayScene
 
 
 class RayMeshIntersector:
     """Ray queries on a trimesh.Trimesh, answered by raykernel (see the module docstring)."""
 
-    def __init__(self, geometry, accel: str = "bvh", edges: str = "inclusive"):
+    def __init__(self, geometry, accel: str = MESH_ACCEL, edges: str = "inclusive"):
         try:
             from trimesh import caching
         except ImportError:

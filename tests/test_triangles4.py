@@ -1,0 +1,109 @@
+"""Blocks of four triangles (casting/triangles4.py) against the scalar watertight test.
+
+hit4 must give, lane for lane, the scalar hit_sheared's answer bit for bit
+wherever no edge function is zero, and flag the lanes where one is (the
+caller gives those to the scalar test and its tie rule)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numba import njit
+
+from raykernel.casting.triangles4 import BLOCK, hit4, leaf_blocks
+from raykernel.geometry.primitives import INCLUSIVE, WATERTIGHT, hit_sheared, ray_shear
+
+
+@njit
+def _block_test(blocks, b, o, d, tmin, tmax, t4):
+    kx, ky, kz, sx, sy, sz = ray_shear(d[0], d[1], d[2])
+    return hit4(blocks, b, kx, ky, kz, o[kx], o[ky], o[kz], sx, sy, sz, tmin, tmax, t4)
+
+
+@njit
+def _scalar(c, o, d, tmin, tmax, edges):
+    kx, ky, kz, sx, sy, sz = ray_shear(d[0], d[1], d[2])
+    return hit_sheared(c[kx] - o[kx], c[ky] - o[ky], c[kz] - o[kz], c[3 + kx] - o[kx], c[3 + ky] - o[ky],
+                       c[3 + kz] - o[kz], c[6 + kx] - o[kx], c[6 + ky] - o[ky], c[6 + kz] - o[kz], sx, sy, sz,
+                       tmin, tmax, edges)
+
+
+def assert_lanes_agree(corners, origins, directions, tmin=0.0, tmax=np.inf):
+    """Every ray against every block of `corners` (rows of v0, v1, v2, four per block): hit
+    lanes and their t as the scalar test's under both edge rules, ties flagged. Returns how
+    many lanes hit and how many were ties."""
+    n = len(corners)
+    blocks, first = leaf_blocks(corners, np.arange(0, n, BLOCK), np.minimum(BLOCK, n - np.arange(0, n, BLOCK)))
+    t4 = np.empty(BLOCK)
+    hits = ties = 0
+    for o, d in zip(origins, directions):
+        for b in range(len(blocks)):
+            mask = _block_test(blocks, b, o, d, tmin, tmax, t4)
+            for lane in range(min(BLOCK, n - BLOCK * b)):
+                c = corners[BLOCK * b + lane]
+                want = [_scalar(c, o, d, tmin, tmax, edges) for edges in (WATERTIGHT, INCLUSIVE)]
+                if mask >> (BLOCK + lane) & 1:
+                    ties += 1
+                    continue
+                if mask >> lane & 1:
+                    hits += 1
+                    assert want[0] == want[1] == t4[lane], (b, lane)
+                else:
+                    assert want[0] == want[1] == np.inf, (b, lane)
+    return hits, ties
+
+
+def test_random_triangles_and_rays():
+    rng = np.random.default_rng(3)
+    corners = rng.uniform(-1, 1, (23, 9))               # 23: the last block has three lanes
+    o = rng.uniform(-3, 3, (150, 3))
+    d = rng.uniform(-1, 1, (150, 3)) - 0.3 * o
+    hits, ties = assert_lanes_agree(corners, o, d, 0.0, 5.0)
+    assert hits > 30 and ties == 0
+
+
+def test_rays_through_shared_edges_and_vertices_are_ties():
+    """A grid of triangles with rays straight down through its vertices, edges and faces:
+    the edge functions there are exactly zero, so those lanes go to the scalar test."""
+    xs = np.arange(4.0)
+    tris = []
+    for i in range(3):
+        for j in range(3):
+            a, b, c, e = (xs[i], xs[j]), (xs[i + 1], xs[j]), (xs[i], xs[j + 1]), (xs[i + 1], xs[j + 1])
+            tris += [[*a, 0, *b, 0, *e, 0], [*a, 0, *e, 0, *c, 0]]
+    corners = np.array(tris, float)
+    pts = np.array([(x, y) for x in np.arange(0, 3.25, 0.25) for y in np.arange(0, 3.25, 0.25)])
+    o = np.c_[pts, np.full(len(pts), 2.0)]
+    d = np.tile([0.0, 0.0, -1.0], (len(pts), 1))
+    hits, ties = assert_lanes_agree(corners, o, d)
+    assert ties > 0 and hits > 0
+
+
+@pytest.mark.parametrize("scale, shift", [(1e-6, 0.0), (1e7, 0.0), (1.0, 1e7)])
+def test_huge_and_tiny_scales(scale, shift):
+    rng = np.random.default_rng(4)
+    corners = rng.uniform(-1, 1, (16, 9)) * scale + shift
+    o = rng.uniform(-3, 3, (100, 3)) * scale + shift
+    d = (rng.uniform(-1, 1, (100, 3)) * 0.5 * scale + shift) - o
+    hits, _ = assert_lanes_agree(corners, o, d)
+    assert hits > 20
+
+
+def test_grazing_rays_in_the_plane_of_a_face():
+    corners = np.array([[0, 0, 0, 1, 0, 0, 0, 1, 0]] * 4, float) + np.arange(4)[:, None] * np.tile([1, 0, 0], 3)
+    o = np.array([[-1.0, 0.25, 0.0], [-1.0, 0.0, 0.0], [0.25, -1.0, 1e-300]])
+    d = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    assert_lanes_agree(corners, o, d)
+
+
+def test_leaf_blocks_layout():
+    rng = np.random.default_rng(6)
+    corners = rng.normal(size=(11, 9))
+    first, count = np.array([0, 5, 6]), np.array([5, 1, 4])       # leaves of 5, 1 and 4 references
+    blocks, first_block = leaf_blocks(corners, first, count)
+    assert blocks.shape == (4, 36) and first_block[[0, 5, 6]].tolist() == [0, 2, 3]
+    assert (first_block[[1, 2, 3, 4, 7, 8, 9, 10]] == -1).all()
+    for ref, (block, lane) in {0: (0, 0), 3: (0, 3), 4: (1, 0), 5: (2, 0), 9: (3, 3)}.items():
+        for column in range(9):
+            assert blocks[block, column * BLOCK + lane] == corners[ref, column]
+    assert (blocks[1, [c * BLOCK + lane for c in range(9) for lane in (1, 2, 3)]] == 0).all()
