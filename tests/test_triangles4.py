@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from raykernel.casting.triangles4 import BLOCK, hit4, leaf_blocks
+from raykernel.casting.triangles4 import BLOCK, corner, hit4, leaf_blocks
 from raykernel.geometry.primitives import INCLUSIVE, WATERTIGHT, hit_sheared, ray_shear
 
 
@@ -107,3 +107,12 @@ def test_leaf_blocks_layout():
         for column in range(9):
             assert blocks[block, column * BLOCK + lane] == corners[ref, column]
     assert (blocks[1, [c * BLOCK + lane for c in range(9) for lane in (1, 2, 3)]] == 0).all()
+    # corner() reads a triangle's coordinates from either form: block * 4 + lane, or its row
+    for ref, slot in {0: 0, 3: 3, 4: 4, 5: 8, 9: 15}.items():
+        assert [_corner(blocks, slot, i) for i in range(9)] == corners[ref, :9].tolist()
+        assert [_corner(corners, ref, i) for i in range(9)] == corners[ref, :9].tolist()
+
+
+@njit
+def _corner(src, row, i):
+    return corner(src, row, i)

@@ -17,7 +17,10 @@ import numpy as np
 
 from ..geometry.config import njit
 from ..geometry.primitives import CONE, SPHERE, TRIANGLE, normalize
-from ..geometry.surface import surface, triangle_surface, triangle_uv
+from ..geometry.surface import corner_normal, corner_weights, surface, triangle_surface, triangle_uv
+from .triangles4 import corner
+
+IDENTITY = np.array([1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0])     # the map of a hit outside any instance
 
 
 @njit(inline="always")
@@ -70,6 +73,22 @@ def store_triangle_surface(geo, r, idx, px, py, pz, m, uv_out, gn_out, sn_out):
     _store_normals(r, m, gx, gy, gz, sx, sy, sz, 0, gn_out, sn_out)
     if uv_out.shape[0]:
         uv_out[r, 0], uv_out[r, 1] = triangle_uv(geo, idx, lx, ly, lz)
+
+
+@njit(inline="always")
+def store_corner_surface(src, row, r, px, py, pz, uv_out, gn_out, sn_out):
+    """store_triangle_surface of a flat triangle (no vertex normals) from its corners, row `row`
+    of src (triangles4.corner): the numbers the walk has just read, where the mesh's own arrays
+    would be read from memory again; the same arithmetic on the same values."""
+    ax, ay, az = corner(src, row, 0), corner(src, row, 1), corner(src, row, 2)
+    bx, by, bz = corner(src, row, 3), corner(src, row, 4), corner(src, row, 5)
+    cx, cy, cz = corner(src, row, 6), corner(src, row, 7), corner(src, row, 8)
+    lx, ly, lz = to_local(IDENTITY, px, py, pz)
+    gx, gy, gz = corner_normal(ax, ay, az, bx, by, bz, cx, cy, cz)
+    _store_normals(r, IDENTITY, gx, gy, gz, gx, gy, gz, 0, gn_out, sn_out)
+    if uv_out.shape[0]:
+        beta, gamma, _ = corner_weights(ax, ay, az, bx, by, bz, cx, cy, cz, gx, gy, gz, lx, ly, lz)
+        uv_out[r, 0], uv_out[r, 1] = beta, gamma
 
 
 @njit(inline="always")

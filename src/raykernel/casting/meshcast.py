@@ -51,21 +51,19 @@ from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, STILL, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
-from .hitsurface import store_miss, store_triangle_surface
+from .hitsurface import IDENTITY, store_corner_surface, store_miss, store_triangle_surface
 from .triangles4 import BLOCK, hit4, leaf_blocks
 
 INF = np.inf
 MESH_ACCEL = "bvh(block=4)"  # RayScene's meshes: the SAH counts triangles in blocks of four (triangles4.py)
 STACK = 192                  # a BVH is at most 96 nodes deep (flatten.MAX_TREE_DEPTH): 2 entries per level
 STACK4 = 384                 # the 4-wide tree is no deeper: 4 entries per level
-_IDENTITY = np.array([1.0, 0, 0, 0, 0, 1.0, 0, 0, 0, 0, 1.0, 0])
 
 
 class MeshKernel(NamedTuple):
     corners: np.ndarray      # (R, 9 or more) float64: v0, v1, v2 of the triangle of each leaf reference
-    prim: np.ndarray         # (R,) int64 global triangle index of each leaf reference
-    geom: np.ndarray         # (R,) int64 geometry (mesh) of each leaf reference
-    local: np.ndarray        # (R,) int64 face index within that mesh
+    ids: np.ndarray          # (R, 4) int64 of each leaf reference: global triangle index, geometry (mesh), face
+                             # index within it, 1 where the triangle has vertex normals (one record: one miss a hit)
     root: int                # root node of the BVH
     wide: WideBVH            # the BVH collapsed 4-wide (widebvh.py); empty arrays for width 2
     blocks: np.ndarray       # (B, 36) float64 the 4-wide tree's leaves in blocks of 4 triangles (triangles4.py)
@@ -91,7 +89,8 @@ class MeshKernel(NamedTuple):
         count = wide.nodes[:, COUNT:COUNT + 4]
         leaves = count > 0
         blocks, first_block = leaf_blocks(corners, wide.nodes[:, CHILD:CHILD + 4][leaves], count[leaves])
-        return cls(corners, prim, geom.astype(np.int64), local.astype(np.int64), root, wide, blocks, first_block)
+        ids = np.ascontiguousarray(np.c_[prim, geom, local, geo.tri_smooth[prim]].astype(np.int64))
+        return cls(corners, ids, root, wide, blocks, first_block)
 
     @property
     def kernel(self):
@@ -112,7 +111,7 @@ def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax, edges):
 
 
 @njit
-def query(geo, corners, prim, geom, local, root, wide, blocks, first_block, origins, directions, tmin, tmax, mode,
+def query(geo, corners, ids, root, wide, blocks, first_block, origins, directions, tmin, tmax, mode,
           chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
           all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
@@ -127,13 +126,13 @@ def query(geo, corners, prim, geom, local, root, wide, blocks, first_block, orig
         stack_t = np.empty(STACK4)
         o = np.empty(3)
         t4 = np.empty(4)
-        _chunk4(geo, corners, prim, geom, local, wide, blocks, first_block, origins, directions, tmin, tmax, mode,
+        _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, tmin, tmax, mode,
                 t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
                 all_i, counters, c, c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o, t4)
 
 
 @njit
-def query_binary(geo, corners, prim, geom, local, root, wide, blocks, first_block, origins, directions, tmin, tmax,
+def query_binary(geo, corners, ids, root, wide, blocks, first_block, origins, directions, tmin, tmax,
                  mode, chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface,
                  offsets, all_t, all_i, counters, c0, c1):
     """query on the binary tree as built (bvh(width=2)), node for node the general kernel's walk."""
@@ -142,13 +141,13 @@ def query_binary(geo, corners, prim, geom, local, root, wide, blocks, first_bloc
         stack = np.empty(STACK, np.int64)
         stack_t = np.empty(STACK)
         o = np.empty(3)
-        _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
+        _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
                idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c,
                c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o)
 
 
 @njit(private=True)     # one call per chunk; without reference counting: the surfaces read geo's arrays per hit
-def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
+def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
            idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c, r0, r1,
            stack, stack_t, o):
     """Rays r0..r1-1 of query, counting into counters[c], with the chunk's stack and origin scratch."""
@@ -207,19 +206,19 @@ def _chunk(geo, corners, prim, geom, local, root, origins, directions, tmin, tma
                 continue
             n_leaves += 1
             s = first[node]
-            best, best_j, n_all, tested, done = _leaf(corners, prim, s, s + k, o, kx, ky, kz, sx, sy, sz, lo, best,
+            best, best_j, n_all, tested, done = _leaf(corners, ids, s, s + k, o, kx, ky, kz, sx, sy, sz, lo, best,
                                                       best_j, edges, mode, store, offsets, r, base, n_all, all_t,
                                                       all_i)
             n_tests += tested
             if done:
                 sp = 0
-        _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
-                geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
+        _finish(geo, corners, best_j, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
+                kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
     _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
 
 
 @njit(private=True)
-def _chunk4(geo, corners, prim, geom, local, wide, blocks, first_block, origins, directions, tmin, tmax, mode, t_out,
+def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, tmin, tmax, mode, t_out,
             kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
             counters, c, r0, r1, stack, stack_t, o, t4):
     """_chunk on the 4-wide tree. Stack entries: v >= 0 a wide node to visit, v < 0 the leaf in
@@ -242,6 +241,7 @@ def _chunk4(geo, corners, prim, geom, local, wide, blocks, first_block, origins,
         lo = tmin[r if per_lo else 0]
         best = tmax[r if per_hi else 0]
         best_j = np.int64(-1)
+        best_slot = np.int64(-1)
         n_all = np.int64(0)
         base = offsets[r] if store else 0
         sp = 0
@@ -265,24 +265,25 @@ def _chunk4(geo, corners, prim, geom, local, wide, blocks, first_block, origins,
                 continue
             n_leaves += 1
             s0, e0 = leaf_range(nodes, v)
-            best, best_j, n_all, tested, done = _leaf4(blocks, first_block[s0], corners, prim, s0, e0, o, kx, ky, kz,
-                                                       sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r,
-                                                       base, n_all, all_t, all_i, t4)
+            best, best_j, best_slot, n_all, tested, done = _leaf4(blocks, first_block[s0], corners, ids, s0, e0, o, kx,
+                                                                  ky, kz, sx, sy, sz, lo, best, best_j, best_slot,
+                                                                  edges, mode, store, offsets, r, base, n_all, all_t,
+                                                                  all_i, t4)
             n_tests += tested
             if done:
                 sp = 0
-        _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
-                geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
+        _finish(geo, blocks, best_slot, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
+                kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
     _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
 
 
 @njit(inline="always")
-def _leaf4(blocks, b, corners, prim, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r,
-           base, n_all, all_t, all_i, t4):
+def _leaf4(blocks, b, corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, best_slot, edges, mode, store,
+           offsets, r, base, n_all, all_t, all_i, t4):
     """_leaf on the leaf's blocks of four triangles from block b (triangles4.hit4): each block in
     one vector test, its lanes then taken in reference order as _leaf takes them (a lane's t
     is checked against the closest hit of the lanes before it; lanes with a zero edge function
-    go through the scalar test and its tie rule)."""
+    go through the scalar test and its tie rule). best_slot: the closest hit's block * 4 + lane."""
     okx, oky, okz = o[kx], o[ky], o[kz]
     for j0 in range(s, e, BLOCK):
         m = hit4(blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, lo, best, t4)
@@ -301,20 +302,21 @@ def _leaf4(blocks, b, corners, prim, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, 
                 if store and n_all < offsets[r + 1] - base:
                     all_t[base + n_all] = t
                     all_i[base + n_all, 0] = TRIANGLE
-                    all_i[base + n_all, 1] = prim[j]
+                    all_i[base + n_all, 1] = ids[j, 0]
                     all_i[base + n_all, 2] = -1
                 n_all += 1
                 continue
-            if best_j < 0 or t < best or prim[j] < prim[best_j]:
+            if best_j < 0 or t < best or ids[j, 0] < ids[best_j, 0]:
                 best = t
                 best_j = j
+                best_slot = (b - 1) * BLOCK + lane
                 if mode != 0:
-                    return best, best_j, n_all, min(e - s, j0 - s + BLOCK), True
-    return best, best_j, n_all, e - s, False
+                    return best, best_j, best_slot, n_all, min(e - s, j0 - s + BLOCK), True
+    return best, best_j, best_slot, n_all, e - s, False
 
 
 @njit(inline="always")
-def _leaf(corners, prim, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r, base,
+def _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r, base,
           n_all, all_t, all_i):
     """Test the leaf's references s..e-1 against ray r, both walks' leaf loop: returns the closest
     hit so far (best, best_j), the hits counted or stored (all hits), the tests made, and
@@ -327,12 +329,12 @@ def _leaf(corners, prim, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edge
             if store and n_all < offsets[r + 1] - base:
                 all_t[base + n_all] = t
                 all_i[base + n_all, 0] = TRIANGLE
-                all_i[base + n_all, 1] = prim[j]
+                all_i[base + n_all, 1] = ids[j, 0]
                 all_i[base + n_all, 2] = -1
             n_all += 1
             continue
         # ties at equal t go to the smaller triangle index, as in the generic kernel
-        if best_j < 0 or t < best or prim[j] < prim[best_j]:
+        if best_j < 0 or t < best or ids[j, 0] < ids[best_j, 0]:
             best = t
             best_j = j
             if mode != 0:
@@ -341,9 +343,10 @@ def _leaf(corners, prim, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edge
 
 
 @njit(inline="always")
-def _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out, kind_out,
-            geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface):
-    """Ray r's outputs: its hit count (all hits), its miss, or its closest hit's identity and surface."""
+def _finish(geo, src, row, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
+            kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface):
+    """Ray r's outputs: its hit count (all hits), its miss, or its closest hit's identity and surface;
+    the hit triangle's corners are row `row` of src (corners, or blocks: triangles4.corner)."""
     if mode == ALL_HITS:
         if not store:
             idx_out[r] = n_all
@@ -361,14 +364,17 @@ def _finish(geo, prim, geom, local, mode, r, best, best_j, n_all, store, ox, oy,
     if kind_out.shape[0]:           # (outputs not asked for have no rows)
         kind_out[r] = TRIANGLE
     if geom_out.shape[0]:
-        geom_out[r] = geom[best_j]
+        geom_out[r] = ids[best_j, 1]
     if idx_out.shape[0]:
-        idx_out[r] = local[best_j]
+        idx_out[r] = ids[best_j, 2]
     if inst_out.shape[0]:
         inst_out[r] = -1
     if with_surface:
-        store_triangle_surface(geo, r, prim[best_j], ox + best * dx, oy + best * dy, oz + best * dz, _IDENTITY,
-                               uv_out, gn_out, sn_out)
+        px, py, pz = ox + best * dx, oy + best * dy, oz + best * dz
+        if ids[best_j, 3]:
+            store_triangle_surface(geo, r, ids[best_j, 0], px, py, pz, IDENTITY, uv_out, gn_out, sn_out)
+        else:       # from the corners the walk read: the mesh's arrays would be read from memory again
+            store_corner_surface(src, row, r, px, py, pz, uv_out, gn_out, sn_out)
 
 
 @njit(inline="always")

@@ -2,6 +2,7 @@
 
     blocks, first_block = leaf_blocks(corners, leaf_first, leaf_count)   # per leaf of the 4-wide tree
     mask = hit4(blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, tmin, tmax, t4)
+    x = corner(blocks, b * 4 + lane, i)     # coordinate i (v0x, v0y, ... v2z) of a block's triangle
 
 Layout: `blocks` is (B, 36) float64, one row a block of up to four triangles
 as structure of arrays: column (3 * corner + axis) * 4 + lane holds that
@@ -26,6 +27,8 @@ import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
+
+from ..geometry.config import njit
 
 BLOCK = 4           # triangles in a block
 COLUMNS = 36        # 3 corners x 3 axes x 4 lanes
@@ -52,6 +55,15 @@ def leaf_blocks(corners: np.ndarray, first: np.ndarray, count: np.ndarray) -> tu
     for corner_axis in range(9):
         blocks[block, corner_axis * BLOCK + lane] = corners[ref, corner_axis]
     return blocks, first_block
+
+
+@njit(inline="always")
+def corner(src, row, i):
+    """Coordinate i (v0x, v0y, v0z, v1x, ... v2z) of a triangle: row `row` of a corners array
+    ((R, 9 or more): v0, v1, v2), or lane row % 4 of block row // 4 of a blocks array (B, 36)."""
+    if src.shape[1] == COLUMNS:
+        return src[row >> 2, i * BLOCK + (row & 3)]
+    return src[row, i]
 
 
 @intrinsic

@@ -18,12 +18,19 @@ def barycentric(v, a, b, c, gx, gy, gz, px, py, pz):
     """(beta, gamma, area): the weights of corners b and c (rows of v) at point p in triangle
     (a, b, c), from signed areas along the normal g (the triangle's own or its plane's);
     all 0 where the triangle has no area along g."""
-    e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-    e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+    return corner_weights(v[a, 0], v[a, 1], v[a, 2], v[b, 0], v[b, 1], v[b, 2], v[c, 0], v[c, 1], v[c, 2],
+                          gx, gy, gz, px, py, pz)
+
+
+@njit(inline="always")
+def corner_weights(ax, ay, az, bx, by, bz, cx, cy, cz, gx, gy, gz, px, py, pz):
+    """barycentric of the triangle with corners a, b, c given as numbers."""
+    e1x, e1y, e1z = bx - ax, by - ay, bz - az
+    e2x, e2y, e2z = cx - ax, cy - ay, cz - az
     area = _dot(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x, gx, gy, gz)
     if area == 0.0:
         return 0.0, 0.0, 0.0
-    wx, wy, wz = px - v[a, 0], py - v[a, 1], pz - v[a, 2]
+    wx, wy, wz = px - ax, py - ay, pz - az
     beta = _dot(wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x, gx, gy, gz) / area
     gamma = _dot(e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx, gx, gy, gz) / area
     return beta, gamma, area
@@ -34,9 +41,16 @@ def triangle_normal(geo, idx):
     """Corners (vertex rows) and geometric normal (unnormalised, by the winding) of triangle idx."""
     v = geo.tri_verts
     a, b, c = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
-    e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
-    e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
-    return a, b, c, e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    gx, gy, gz = corner_normal(v[a, 0], v[a, 1], v[a, 2], v[b, 0], v[b, 1], v[b, 2], v[c, 0], v[c, 1], v[c, 2])
+    return a, b, c, gx, gy, gz
+
+
+@njit(inline="always")
+def corner_normal(ax, ay, az, bx, by, bz, cx, cy, cz):
+    """The geometric normal (unnormalised, by the winding) of the triangle with corners a, b, c."""
+    e1x, e1y, e1z = bx - ax, by - ay, bz - az
+    e2x, e2y, e2z = cx - ax, cy - ay, cz - az
+    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
 
 
 @njit(inline="always")
