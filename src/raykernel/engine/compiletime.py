@@ -32,7 +32,7 @@ from .parallel import WORKER_PREFIX
 # about how long a first compile takes on a 2-core machine (bench/startup.py), for the notices
 FIRST_RUN_SECONDS = 35      # a first render of a scene that is one BVH (every SPD scene); nested ones about a minute
 FIRST_QUERY_SECONDS = 35    # a first RayScene query on a scene that is one BVH; nested ones about a minute
-FIRST_MESH_SECONDS = 20     # and on a mesh (the mesh kernel)
+FIRST_MESH_SECONDS = 25     # and on a mesh (the mesh kernel)
 # how long the other kinds of render take, after FIRST_RUN_SECONDS in every notice
 OTHER_RENDERS = ("a minute for nested structures, one or two for Heckbert's or Hall's shading, antialiasing or "
                  "filtered shadows")
