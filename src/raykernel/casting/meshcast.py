@@ -298,17 +298,9 @@ def _leaf4(blocks, b, corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, b
                 t = t4[lane]
             else:
                 continue
-            if mode == ALL_HITS:
-                if store and n_all < offsets[r + 1] - base:
-                    all_t[base + n_all] = t
-                    all_i[base + n_all, 0] = TRIANGLE
-                    all_i[base + n_all, 1] = ids[j, 0]
-                    all_i[base + n_all, 2] = -1
-                n_all += 1
-                continue
-            if best_j < 0 or t < best or ids[j, 0] < ids[best_j, 0]:
-                best = t
-                best_j = j
+            best, best_j, n_all, closer = _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t,
+                                                all_i)
+            if closer:
                 best_slot = (b - 1) * BLOCK + lane
                 if mode != 0:
                     return best, best_j, best_slot, n_all, min(e - s, j0 - s + BLOCK), True
@@ -318,28 +310,36 @@ def _leaf4(blocks, b, corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, b
 @njit(inline="always")
 def _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r, base,
           n_all, all_t, all_i):
-    """Test the leaf's references s..e-1 against ray r, both walks' leaf loop: returns the closest
+    """Test the leaf's references s..e-1 against ray r, the binary walk's leaf loop: returns the closest
     hit so far (best, best_j), the hits counted or stored (all hits), the tests made, and
     whether the ray is done (any hit found)."""
     for j in range(s, e):
         t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
         if t == INF:
             continue
-        if mode == ALL_HITS:
-            if store and n_all < offsets[r + 1] - base:
-                all_t[base + n_all] = t
-                all_i[base + n_all, 0] = TRIANGLE
-                all_i[base + n_all, 1] = ids[j, 0]
-                all_i[base + n_all, 2] = -1
-            n_all += 1
-            continue
-        # ties at equal t go to the smaller triangle index, as in the generic kernel
-        if best_j < 0 or t < best or ids[j, 0] < ids[best_j, 0]:
-            best = t
-            best_j = j
-            if mode != 0:
-                return best, best_j, n_all, j - s + 1, True
+        best, best_j, n_all, closer = _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t,
+                                            all_i)
+        if closer and mode != 0:
+            return best, best_j, n_all, j - s + 1, True
     return best, best_j, n_all, e - s, False
+
+
+@njit(inline="always")
+def _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t, all_i):
+    """Reference j's hit at t, for both leaf loops: all hits counts it (and stores it where
+    offsets say); else it becomes the closest hit if it is closer, ties at equal t going to the
+    smaller triangle index as in the generic kernel. Returns best, best_j, n_all and whether j
+    became the closest."""
+    if mode == ALL_HITS:
+        if store and n_all < offsets[r + 1] - base:
+            all_t[base + n_all] = t
+            all_i[base + n_all, 0] = TRIANGLE
+            all_i[base + n_all, 1] = ids[j, 0]
+            all_i[base + n_all, 2] = -1
+        return best, best_j, n_all + 1, False
+    if best_j < 0 or t < best or ids[j, 0] < ids[best_j, 0]:
+        return t, j, n_all, True
+    return best, best_j, n_all, False
 
 
 @njit(inline="always")
