@@ -1,7 +1,10 @@
 # make demo      set up .venv, render SPD balls at 512x512 to balls.png, print the statistics
 # make test      set up .venv, run the test suite (slow tests excluded)
 # make test-all  the whole suite, slow tests included
+# The suite's time is mostly numba compiling kernel variants, one core each: TEST_WORKERS
+# processes (pytest-xdist, one test file each at a time) compile different variants side by side.
 PYTHON ?= python3
+TEST_WORKERS ?= 2
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
@@ -19,10 +22,10 @@ demo: $(STAMP)
 	$(VENV)/bin/raykernel render spd:balls -o balls.png --resolution 512
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-all: $(STAMP)
-	$(PY) -m pytest -q -m ''
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m ''
 
 clean:
 	rm -rf $(VENV) build src/*.egg-info

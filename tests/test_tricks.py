@@ -49,7 +49,10 @@ def test_each_trick_alone_renders_the_same(name, trick, kind):
 
 
 @pytest.mark.parametrize("path", ["nested.json", "csg.json"])
-@pytest.mark.parametrize("options", [dict(), dict(shading="hall", shadows="filtered"), dict(aa="adaptive")])
+# Hall's shading with filtered shadows over nested structures compiles a variant of its own (minutes)
+@pytest.mark.parametrize("options", [dict(),
+                                     pytest.param(dict(shading="hall", shadows="filtered"), marks=pytest.mark.slow),
+                                     dict(aa="adaptive")])
 def test_nesting_instances_and_csg_render_the_same_with_every_trick(path, options):
     scene = load(str(EXAMPLES / path))
     base = render(scene, resolution=40, tricks="none", **options)
@@ -125,6 +128,7 @@ def test_lazy_normals_compute_one_normal_per_hit():
     assert off.stats["normals.computed"] > hits
 
 
+@pytest.mark.slow      # filtered shadows with transparentlast: a kernel variant compiled for this test alone
 def test_transparent_last_skips_the_walk_when_an_opaque_blocker_is_behind_glass():
     scene = blocker_scene()
     glass = scene.add_material(Material(color=(1, 1, 1), kd=0.0, t=0.6, ior=1.0))
