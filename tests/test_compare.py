@@ -142,6 +142,32 @@ def test_fit_recovers_known_costs():
         assert got.get(name, 0.0) == pytest.approx(cost, rel=1e-3, abs=1e-12), name
 
 
+def test_split_fit_prices_refinement_from_its_own_time():
+    # references refined move with the steps here, so one fit cannot tell their costs apart; with
+    # the refinement's share of the time known both come out exact, and renders whose refinement
+    # outlasted their trace (a compile inside) are left out
+    rng = np.random.default_rng(7)
+    true = {"render": 1e-3, "ray.shaded": 2e-7, "step.octree": 2e-8, "test.sphere": 1e-8,
+            "refine.pass": 5e-5, "refine.octree.subdivision": 8e-6, "refine.octree.ref": 1e-7}
+    rows, times, refine = [], [], []
+    for _ in range(40):
+        steps = rng.uniform(1e5, 1e7)
+        r = {"render": 1.0, "ray.shaded": rng.uniform(1e4, 1e6), "step.octree": steps,
+             "test.sphere": rng.uniform(1e5, 1e7), "refine.pass": rng.uniform(50, 300),
+             "refine.octree.subdivision": rng.uniform(1e2, 1e4), "refine.octree.ref": 0.1 * steps}
+        rows.append(r)
+        refine.append(sum(v * true[k] for k, v in r.items() if k.startswith("refine.")))
+        times.append(sum(v * true[k] for k, v in r.items()))
+    rows.append(dict(rows[0]))                   # a compile inside its refinement: left out
+    times.append(times[0])
+    refine.append(times[0] + 5.0)
+    got = costmodel.fit_split(rows, times, refine, ridge=1e-12)
+    for name, cost in true.items():
+        assert got.get(name, 0.0) == pytest.approx(cost, rel=1e-3), name
+    assert costmodel.unscaled("refine.rc.ref") and costmodel.unscaled("render")
+    assert not costmodel.unscaled("step.rc")
+
+
 def test_fit_keeps_costs_non_negative():
     rows = [{"a": 1.0, "b": 1.0}, {"a": 2.0, "b": 1.0}, {"a": 3.0, "b": 1.0}]
     got = costmodel.fit(rows, [1.0, 1.9, 2.8])

@@ -18,7 +18,10 @@ Trace time is modelled as  sum(count * cost)  over these features:
   transform      rays mapped into an instance
   (a walk's own) what a walk's module prices apart (its COUNTERS with a feature name: the boolean
                  operators' csg.crossing and csg.resolve)
-  refine.*       lazy structures' refinement between passes (passes, subdivisions, references)
+  refine.pass    lazy structures' refinement between passes of rays: one per pass
+  refine.W.*     and per lazy walk W (rc; octree for lazyoctree): each subdivision, each
+                 candidate reference, and each reference weighted by log2(1 + MiB of its
+                 structure) (a reference costs more to filter and copy in a larger structure)
 
 W is one of the kernel's walks (aggregates.WALK_NAMES: list, bvh, grid, octree, rc,
 csg); every structure kind runs one of them (hgrid runs grids, hybrid and lazyoctree
@@ -36,12 +39,15 @@ and its shortest trace time kept, since other work on the machine only ever adds
 The fit is least squares on relative error (each render weighs the same, whatever its
 length), with costs held non-negative and a small ridge term so that features that always
 move together (a grid's one root bound test per ray and the ray count) split their cost
-evenly instead of wildly.
+evenly instead of wildly. Refinement is timed apart (build.refine_seconds), so its features
+are fitted to that time and the others to the rest of the trace time: two smaller fits whose
+costs cannot trade against each other.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import socket
@@ -54,7 +60,7 @@ import numpy as np
 from ..aggregates import WALK_COUNTERS, WALK_NAMES
 from ..errors import OptionError
 
-VERSION = 2                 # calibration files of another version priced other features
+VERSION = 3                 # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
@@ -95,17 +101,51 @@ def features(stats) -> dict:
     lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
     if lazy:
         f["refine.pass"] = float(stats.get("build.refine_passes", 0))
-        f["refine.subdivision"] = float(stats.get("build.subdivisions", 0))
-        f["refine.ref"] = float(sum(a.get("refs", 0) for a in lazy))
+        for a in lazy:
+            walk = LAZY_WALKS.get(a.get("kind", "").split("(")[0], "octree")
+            refs = float(a.get("refs", 0))
+            for name, count in (("subdivision", float(a.get("subdivisions", 0))), ("ref", refs),
+                                ("ref_mb", refs * math.log2(1.0 + a.get("bytes", 0) / 2 ** 20))):
+                f[f"refine.{walk}.{name}"] = f.get(f"refine.{walk}.{name}", 0.0) + count
     return f
 
 
-UNSCALED = ("render", "refine.pass", "refine.subdivision", "refine.ref")   # not proportional to the rays
+LAZY_WALKS = {"rc": "rc", "lazyoctree": "octree"}     # a lazy kind -> the walk whose refinement prices it
+
+
+def refining(name: str) -> bool:
+    """Whether a feature prices refinement (fitted to the refinement time)."""
+    return name.startswith("refine.")
+
+
+def unscaled(name: str) -> bool:
+    """Whether a feature is not proportional to the rays: the render's own, refinement."""
+    return name == "render" or refining(name)
 
 
 def walks_used(stats) -> set:
     """The walks that did work in a render."""
     return {w for w in WALK_NAMES if stats.get(f"walk.{w}.entries", 0) or stats.get(f"walk.{w}.steps", 0)}
+
+
+def fit_split(rows: list[dict], times, refine_times, ridge: float = RIDGE) -> dict:
+    """fit() twice: the refinement features to `refine_times` (the renders that refined), the
+    others to `times` less `refine_times`. A render whose refinement took longer than its
+    trace is left out (a refinement kernel compiled inside it)."""
+    refine_rows, refine_y, rest_rows, rest_y = [], [], [], []
+    for row, t, r in zip(rows, times, refine_times):
+        if r >= t:
+            continue
+        refine = {k: v for k, v in row.items() if refining(k)}
+        if r > 0 and any(refine.values()):
+            refine_rows.append(refine)
+            refine_y.append(r)
+        rest_rows.append({k: v for k, v in row.items() if not refining(k)})
+        rest_y.append(t - r)
+    costs = fit(rest_rows, rest_y, ridge)
+    if refine_rows:
+        costs.update(fit(refine_rows, refine_y, ridge))
+    return costs
 
 
 def fit(rows: list[dict], times, ridge: float = RIDGE) -> dict:
@@ -161,7 +201,7 @@ class CostModel:
         the render's own (a sample of rays standing for `scale` times as many)."""
         if not partial and not self.covers(stats):
             return None
-        return sum(count * (1.0 if name in UNSCALED else scale) * self.costs.get(name, 0.0)
+        return sum(count * (1.0 if unscaled(name) else scale) * self.costs.get(name, 0.0)
                    for name, count in features(stats).items())
 
     def breakdown(self, stats) -> dict:
@@ -247,7 +287,7 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
     from ..scene.loading import load
     kinds = list(kinds or (name for name, kind in KINDS.items() if not kind.operands))
     loaded = [(name, load(name)) for name in scenes]
-    rows, times, runs = [], [], []
+    rows, times, refine_times, runs = [], [], [], []
     for kind in kinds:
         # compile (or load from the cache) before anything is timed
         render(loaded[0][1], accel=kind, resolution=4, spd=True, threads=threads)
@@ -265,8 +305,9 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
                     continue
                 rows.append(features(stats))
                 times.append(stats["time.trace"])
+                refine_times.append(stats.get("build.refine_seconds", 0.0))
                 runs.append({"scene": name, "accel": kind, "resolution": res, "trace": stats["time.trace"]})
-    costs = fit(rows, times)
+    costs = fit_split(rows, times, refine_times)
     model = CostModel(costs=costs, threads=numba.get_num_threads(), machine=machine_info(), calibration=runs)
     for run, row in zip(runs, rows):
         run["predicted"] = sum(c * costs.get(n, 0.0) for n, c in row.items())
