@@ -3,22 +3,24 @@ and its two optimisers, the best hand-nested specs, and `auto`; the cost model's
 every run; re-annealing between the frames of an animation.
 
     .venv/bin/python bench/anneal.py [--resolution 256] [--seconds 30] [--scenes spd:balls,scene:park]
-                                     [--frames 6] [--repeat 2]
+                                     [--frames 6] [--repeat 3] [--min-seconds 1]
 
 Scenes: the 13 SPD default scenes, the 5 pathological scenes and scene:park, each rendered
 in SPD mode at --resolution with every structure: a single kind puts the whole scene under
 that kind (anneal.without_specs: no group keeps a spec of its own), the hand-nested runs
 keep their groups' specs. Trace time: the best of --repeat rounds over all of a scene's
-structures, auto's included, so that none is timed first or right after the annealing. `auto` is annealed for that render (auto(seconds=...), seed 0);
-its annealing seconds are reported apart, never inside the trace time. Every structure of
-a scene must give the same ray counts (a difference aborts the run). Where every
-counter of auto's render equals the best single kind's (it kept that structure), the
+structures (more for short traces: --min-seconds), auto's included, so that none is timed
+first or right after the annealing. `auto` is annealed for that render (auto(seconds=...),
+seed 0); its annealing seconds are reported apart, never inside the trace time. Every
+structure of a scene must give the same ray counts (a difference aborts the run). Where
+every counter of auto's render equals the best single kind's (it kept that structure), the
 verdict says so: their time ratio is then the machine's noise, and the count of scenes
 where auto is at least 10% faster leaves them out. Ranking: of the pairs of single kinds on
-one scene whose measured times differ by more than 10%, how many the model orders the same way. The brute-force list
-is left out: on these scenes it takes hours. Predicted: the cost model's trace seconds
-from each render's own counts (costmodel.current(): this machine's calibration, else the
-reference costs shipped with raykernel), against the measured trace seconds.
+one scene whose measured times differ by more than 10%, how many the model orders the same
+way. The brute-force list is left out: on these scenes it takes hours. Predicted: the cost
+model's trace seconds from each render's own counts (costmodel.current(): this machine's
+calibration, else the reference costs shipped with raykernel), against the measured trace
+seconds.
 
 Hand-nested: the stadium's teapot in a BVH of its own (teapot_bvh=1) under a grid and
 under an octree (Haines's fix), the better kept; the park's own hierarchy (Arvo's: a coarse
@@ -47,6 +49,7 @@ from raykernel.scene import pathological, spd
 KINDS = ("bvh", "grid", "hgrid", "octree", "hybrid", "rc", "lazyoctree")
 OPTIMISED = ("bvh(optimize=rotations)", "bvh(optimize=reinsertion)")
 RAYS = ("rays.eye", "rays.reflect", "rays.refract", "rays.shadow")
+MAX_ROUNDS = 25
 
 
 def work(stats):
@@ -81,14 +84,22 @@ def scene_rows(name, args, model, errors):
     seconds = time.perf_counter() - t0
     single = anneal.without_specs(scene)        # every group under the one kind
     runs = [(accel, single, accel) for accel in KINDS + OPTIMISED] + hand_variants(name) + [("auto", found.scene, None)]
-    # rounds over every structure, the best of `repeat` kept: no structure is timed first or
-    # just after the annealing (a first render after other work runs slow)
-    best = {}
+    # rounds over every structure, the best kept: no structure is timed first or just after
+    # the annealing (a first render after other work runs slow); a structure is rendered again
+    # until it has had `repeat` rounds and `min_seconds` of trace time in all (short traces
+    # are the noisiest), or MAX_ROUNDS rounds
+    best, rounds, traced = {}, {}, {}
     raykernel.render(scene, resolution=8, spd=True)
-    for _ in range(args.repeat):
-        for label, s, accel in runs:
+    for _ in range(MAX_ROUNDS):
+        due = [run for run in runs if rounds.get(run[0], 0) < args.repeat or
+               traced.get(run[0], 0.0) < args.min_seconds]
+        if not due:
+            break
+        for label, s, accel in due:
             stats = raykernel.render(s, **options).stats if accel is None else \
                 raykernel.render(s, accel=accel, **options).stats
+            rounds[label] = rounds.get(label, 0) + 1
+            traced[label] = traced.get(label, 0.0) + stats["time.trace"]
             if label not in best or stats["time.trace"] < best[label]["time.trace"]:
                 best[label] = stats
     ref = best["bvh"]
@@ -154,6 +165,9 @@ def main():
     parser.add_argument("--frames", type=int, default=6)
     parser.add_argument("--frame-evaluations", type=int, default=200)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--min-seconds", type=float, default=0.0,
+                        help="render each structure again until its trace times add up to this (at most "
+                             f"{MAX_ROUNDS} rounds)")
     args = parser.parse_args()
     model = costmodel.current()
     names = args.scenes.split(",") if args.scenes else None
@@ -226,12 +240,13 @@ def main():
         "## Annealed hierarchies (`auto`) against the anchors",
         "",
         f"Command: `.venv/bin/python bench/anneal.py --resolution {args.resolution} --seconds {args.seconds:g} "
-        f"--frames {args.frames} --repeat {args.repeat}`. Machine: {machine()}. "
+        f"--frames {args.frames} --repeat {args.repeat} --min-seconds {args.min_seconds:g}`. Machine: {machine()}. "
         f"Cost model: {'this machine' if costmodel.load_default() else 'the reference costs'} "
         f"({len(model.calibration)} calibration renders).",
         "",
         f"SPD mode, {args.resolution}x{args.resolution}, every structure of a scene casts the same rays "
-        "(checked). Trace seconds: the best of the repeats; anneal seconds apart (seed 0).",
+        f"(checked). Trace seconds: the best of at least {args.repeat} rounds, more (up to {MAX_ROUNDS}) until a "
+        f"structure's traces add up to {args.min_seconds:g} s; anneal seconds apart (seed 0).",
         "",
         "Verdicts (measured trace time):",
         "",

@@ -75,6 +75,7 @@ CALIBRATION_RESOLUTIONS = (64, 128)
 LIST_MAX_PRIMS = 1500
 REPEATS = 3
 RIDGE = 1e-4
+LAZY_WALKS = {"rc": "rc", "lazyoctree": "octree"}     # a lazy kind -> the walk whose refinement prices it
 
 
 def features(stats) -> dict:
@@ -108,9 +109,6 @@ def features(stats) -> dict:
                                 ("ref_mb", refs * math.log2(1.0 + a.get("bytes", 0) / 2 ** 20))):
                 f[f"refine.{walk}.{name}"] = f.get(f"refine.{walk}.{name}", 0.0) + count
     return f
-
-
-LAZY_WALKS = {"rc": "rc", "lazyoctree": "octree"}     # a lazy kind -> the walk whose refinement prices it
 
 
 def refining(name: str) -> bool:
