@@ -216,11 +216,11 @@ def main():
         es = np.array(es)
         model_lines.append(f"| {kind} | {len(es)} | {100 * np.abs(es).mean():.0f}% "
                            f"| {100 * es[np.argmax(np.abs(es))]:+.0f}% |")
-    verdict_lines = ["| scene | best single kind | best single / auto | auto's work | best hand / auto |",
-                     "|---|---|---:|---|---:|"]
+    verdict_lines = ["| scene | rays (each structure) | best single kind | best single / auto | auto's work "
+                     "| best hand / auto |", "|---|---:|---|---:|---|---:|"]
     for name, single, auto, hand in verdicts:
         own = f"the same as {single}" if auto["same_work"] else "its own"
-        verdict_lines.append(f"| {name} | {single} | {auto['vs_best']:.2f}x | {own} "
+        verdict_lines.append(f"| {name} | {auto['rays']:,} | {single} | {auto['vs_best']:.2f}x | {own} "
                              f"| {fmt(None if hand is None else hand / auto['measured'], '.2f')}"
                              f"{'' if hand is None else 'x'} |")
     faster = [n for n, _, a, _ in verdicts if a["vs_best"] >= 1.1 and not a["same_work"]]

@@ -75,7 +75,6 @@ CALIBRATION_RESOLUTIONS = (64, 128)
 LIST_MAX_PRIMS = 1500
 REPEATS = 3
 RIDGE = 1e-4
-LAZY_WALKS = {"rc": "rc", "lazyoctree": "octree"}     # a lazy kind -> the walk whose refinement prices it
 
 
 def features(stats) -> dict:
@@ -103,7 +102,8 @@ def features(stats) -> dict:
     if lazy:
         f["refine.pass"] = float(stats.get("build.refine_passes", 0))
         for a in lazy:
-            walk = LAZY_WALKS.get(a.get("kind", "").split("(")[0], "octree")
+            # rc refines its own walk's hypercubes; every other lazy kind (lazyoctree) an octree
+            walk = "rc" if a.get("kind", "").split("(")[0] == "rc" else "octree"
             refs = float(a.get("refs", 0))
             for name, count in (("subdivision", float(a.get("subdivisions", 0))), ("ref", refs),
                                 ("ref_mb", refs * math.log2(1.0 + a.get("bytes", 0) / 2 ** 20))):
