@@ -175,6 +175,35 @@ def test_the_result_is_the_scene_regrouped():
     assert summary["evaluations"] == 30 and summary["best_single"] in anneal.START_SPECS
 
 
+def test_a_single_kind_found_keeps_the_scene_s_own_layout():
+    # the order of a primitive set is its memory layout: a result that is one kind over the whole
+    # scene renders with the scene's own sets, counter for counter as that kind does
+    scene = raykernel.load("spd:balls:2")
+    found = anneal.anneal(scene, seed=0, evaluations=len(anneal.START_SPECS), options=SMALL)
+    assert not found.state.children
+    single = anneal.without_specs(scene)
+    ref = raykernel.render(single, accel=found.state.spec, **SMALL)
+    got = raykernel.render(found.scene, **SMALL)
+    assert {k: v for k, v in got.stats.items() if not k.startswith(("time.", "build.seconds"))} == \
+        {k: v for k, v in ref.stats.items() if not k.startswith(("time.", "build.seconds"))}
+    for ours, theirs in zip(found.scene.root.primitive_sets(), single.root.primitive_sets()):
+        assert type(ours) is type(theirs) and len(ours) == len(theirs)
+        if len(theirs):
+            np.testing.assert_array_equal(ours.material, theirs.material)
+    # split into groups, each group's primitives keep the scene's order among themselves
+    split = anneal.anneal(scene, seed=3, evaluations=60, options=SMALL)
+    centres = {tuple(c): k for k, c in enumerate(scene.root.spheres.center)}
+
+    def check(g):
+        order = [centres[tuple(c)] for c in g.spheres.center]
+        assert order == sorted(order)
+        for c in g.children:
+            check(c)
+
+    check(split.scene.root)
+    assert _fingerprint(split.scene) == _fingerprint(scene)
+
+
 def test_bad_options_are_clear_errors():
     scene = _stadium()
     with pytest.raises(OptionError, match="seconds"):

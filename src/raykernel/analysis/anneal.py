@@ -169,6 +169,7 @@ class Atoms:
     counts: np.ndarray      # primitives per atom
     members: list           # per atom: [(source ordinal, indices)] as they were cut, to rebind
     shape: tuple = ()       # (kind, size) of each source: what another frame must match
+    sources: list = field(default_factory=list)     # the primitive sets and opaque children, by ordinal
 
     @property
     def centres(self) -> np.ndarray:
@@ -414,14 +415,29 @@ def _node_group(node: Node, atoms: Atoms, name: str) -> Group:
 
 
 def _merged_group(node: Node, atoms: Atoms, name: str) -> Group:
-    """The same group with its atoms' primitives merged into one set per kind: what is written out."""
-    sets, children = [], []
+    """The same group with its atoms' primitives merged into one set per source, in the
+    source's own order: what is written out and rendered. A group that holds all of a
+    source's primitives holds that set itself, so a single kind found over the whole scene
+    is exactly that kind's render (the same layout, every counter equal)."""
+    taken: dict[int, list] = {}
     for a in node.atoms:
-        sets += list(atoms.groups[a].primitive_sets())
-        children += atoms.groups[a].children
+        for ordinal, idx in atoms.members[a]:
+            taken.setdefault(ordinal, []).append(idx)
+    sets, children = [], []
+    for ordinal in sorted(taken):
+        src, parts = atoms.sources[ordinal], taken[ordinal]
+        if parts[0] is None:
+            children.append(src)
+            continue
+        idx = np.sort(np.concatenate(parts))
+        sets.append(src if len(idx) == _set_size(src) else _subset(src, idx))
     g = _group_of(name, node.spec, sets, children)
     g.children += [_merged_group(c, atoms, f"{name}.{k}") for k, c in enumerate(node.children)]
     return g
+
+
+def _set_size(s) -> int:
+    return len(s.faces) if isinstance(s, TriangleMesh) else len(s)
 
 
 def _merge_polygons(sets, patches: bool) -> Polygons:
@@ -589,7 +605,7 @@ def atoms_of(scene: Scene, target: Group | None = None, max_atoms: int = MAX_ATO
     listed = _sources(region)
     tree = _make_atoms(region, {id(src): k for k, src in enumerate(listed)}, raw, leaf)
     atoms = Atoms([r[0] for r in raw], np.array([r[1] for r in raw]).reshape(-1, 6),
-                  np.array([r[2] for r in raw], np.int64), [r[3] for r in raw], _shape(listed))
+                  np.array([r[2] for r in raw], np.int64), [r[3] for r in raw], _shape(listed), listed)
     return atoms, tree
 
 
@@ -722,7 +738,7 @@ def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, a
 def _shape(sources) -> tuple:
     return tuple((type(src).__name__, src.count_primitives() if isinstance(src, Group) else
                   src.group.count_primitives() if isinstance(src, Instance) else
-                  len(src.faces) if isinstance(src, TriangleMesh) else len(src)) for src in sources)
+                  _set_size(src)) for src in sources)
 
 
 def rebind(state: Node, previous: Atoms, scene: Scene, target: Group | None = None) -> tuple[Node, Atoms]:
@@ -739,7 +755,8 @@ def rebind(state: Node, previous: Atoms, scene: Scene, target: Group | None = No
         g = _group_of("", None, sets, opaque)
         groups.append(g)
         boxes.append(_box(g))
-    atoms = Atoms(groups, np.array(boxes).reshape(-1, 6), previous.counts.copy(), previous.members, previous.shape)
+    atoms = Atoms(groups, np.array(boxes).reshape(-1, 6), previous.counts.copy(), previous.members, previous.shape,
+                  sources)
     return state.copy(), atoms
 
 
