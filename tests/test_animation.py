@@ -195,7 +195,7 @@ def test_moving_instance_refits_parents_and_reuses_its_group():
             assert a.stats["build.rebuilt_aggregates"] == 0
 
 
-@pytest.mark.parametrize("accel", ["grid", "octree", "list", "hgrid"])
+@pytest.mark.parametrize("accel", ["grid", "octree", "list", "hgrid", "bvh(split=8)"])
 def test_parents_that_cannot_refit_are_rebuilt(accel):
     scene = ball_scene(parent_accel=accel)
     hierarchy = Hierarchy()

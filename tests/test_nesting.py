@@ -50,7 +50,7 @@ from raykernel.geometry import counters as C
 from raykernel.geometry.primitives import PATCH
 from raykernel.scene import Group, Instance, Polygons, Scene, TriangleMesh, accel, pathological, spd
 
-VARIANTS = ("bvh(build=gs)", "octree(walk=point)", "octree(walk=parametric)", "octree(mailbox=off)",
+VARIANTS = ("bvh(build=gs)", "bvh(split=16)", "bvh(split=4, width=2)", "octree(walk=point)", "octree(walk=parametric)", "octree(mailbox=off)",
             "grid(mailbox=off)", "hgrid(threshold=2)")
 KIND_NAMES = tuple(name for name, kind in accel.KINDS.items() if not kind.operands)    # structures
 OPERATORS = tuple(name for name, kind in accel.KINDS.items() if kind.operands)         # difference, ...

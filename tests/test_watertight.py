@@ -103,7 +103,7 @@ def rays_through(points, inside, scale=2.0):
 MESHES = {"cube": cube(), "icosphere": icosphere(3), "lumpy-0": lumpy_sphere(0), "lumpy-1": lumpy_sphere(1)}
 
 
-@pytest.mark.parametrize("accel", ["bvh", "list", "grid"])
+@pytest.mark.parametrize("accel", ["bvh", "list", "grid", "bvh(split=8)"])
 @pytest.mark.parametrize("name", list(MESHES))
 def test_rays_through_shared_vertices_and_edges(name, accel):
     v, f = MESHES[name]
@@ -184,7 +184,7 @@ def test_random_rays_agree_with_the_reference():
 
 # ---------------------------------------------------------------- inclusive edges: grazing rays hit, once
 
-@pytest.mark.parametrize("accel", ["bvh", "grid", "octree"])
+@pytest.mark.parametrize("accel", ["bvh", "grid", "octree", "bvh(split=8)"])
 def test_inclusive_edges_report_grazing_rays_once(accel):
     import trimesh
 

@@ -598,11 +598,19 @@ def step(node_bounds, node_first, node_count, node, ox, oy, oz, ix, iy, iz, tmin
 
 
 def flatten(builder, params, refs, bounds, name, box):
+    split = params.get("split", 1)
+    if split > 1:       # the tree is built over pieces of the flat primitives (presplit.py)
+        from .presplit import split_boxes
+        piece_item, bounds = split_boxes(*builder.outlines(refs), bounds, split)
     if params.get("build", "sah") == "gs":
         from .gsbvh import build_gs
         tree, stats = build_gs(bounds, order=params["order"], seed=params["seed"])
     else:
         tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"], block=params["block"])
+    if split > 1:
+        from .presplit import leaves_of_items
+        tree = leaves_of_items(tree, piece_item)
+        stats.update(pieces=len(piece_item), refs=len(tree.order), bytes=int(sum(a.nbytes for a in tree)))
     if params.get("optimize", "none") != "none":
         from .bvhopt import optimize
         tree, info = optimize(tree, params["optimize"])
@@ -627,6 +635,11 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
     Param("optimize", "none", "after the build, lower the SAH cost keeping the leaves (bvhopt.py): rotations "
           "(Kensler 2008) or reinsertion (Bittner, Hapala and Havran 2013)", str,
           choices=("none", "rotations", "reinsertion")),
+    Param("split", 1, "early split clipping (Ernst and Greiner 2007): each polygon or triangle is cut across "
+          "its box's longest axis, again and again while that shrinks its boxes' surface by a quarter, into at "
+          "most this many pieces, and the tree is built over the pieces' tighter boxes; a leaf refers to a "
+          "primitive once, but a primitive may sit in several leaves (aggregates/presplit.py); 1: off",
+          int, 1, 64),
     Param("width", 4, "children per node where the ray is cast: 4 collapses the binary tree into 4-wide "
           "nodes tested with one vector slab test (widebvh.py), 2 walks the binary tree; RayScene's mesh "
           "kernel and the fast walk of a scene that is one BVH over primitives (engine/widewalk.py) use it, "

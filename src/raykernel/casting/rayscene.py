@@ -319,9 +319,10 @@ class RayScene:
         family = np.where(table[:, 0] == PATCH, POLYGON, table[:, 0]) if len(table) else table[:, 0]
         self._geom_of = {int(k): (np.flatnonzero(family == k), table[family == k, 1]) for k in np.unique(family)}
         # a primitive can be met twice along a ray through a group nested twice, or in several cells
-        # of any structure but a list or a BVH (a grid or an octree holds an item in every cell it overlaps)
+        # of any structure but a list or a BVH (a grid or an octree holds an item in every cell it overlaps),
+        # or in several leaves of a BVH built over pieces (bvh(split=...))
         self._may_repeat = bool(np.any((self.geo.agg_kind != LIST) & (self.geo.agg_kind != BVH))) or \
-            len(self.geo.agg_kind) > 1
+            len(self.geo.agg_kind) > 1 or any("pieces" in s for s in self.build_stats.get("aggregates", ()))
         # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
         self._lazy = self.build_stats.get("lazy")
         self._may_repeat = self._may_repeat or self._lazy is not None or edges == "inclusive"

@@ -406,6 +406,35 @@ class Builder:
         w[kinds == TRIANGLE] = 3
         return w
 
+    def outlines(self, refs):
+        """(verts, start, count): the corners of each reference's polygon, patch or triangle
+        (count 0 for any other kind), for early split clipping (aggregates/presplit.py)."""
+        refs = np.asarray(refs, np.int64)
+        kinds, idx = refs >> KIND_SHIFT, refs & INDEX_MASK
+        count = np.zeros(len(refs), np.int64)
+        parts = [np.zeros((0, 3))]
+        poly = (kinds == POLYGON) | (kinds == PATCH)
+        if poly.any():
+            sets = self.flat.poly
+            offsets = np.cumsum([0] + [len(p.vertices) for p in sets[:-1]])
+            p_start = np.concatenate([p.start + o for p, o in zip(sets, offsets)])
+            p_count = np.concatenate([p.count for p in sets])
+            p_verts = np.vstack([p.vertices for p in sets])
+            count[poly] = p_count[idx[poly]]
+            take = np.repeat(p_start[idx[poly]] - np.cumsum(count[poly]) + count[poly], count[poly]) + \
+                np.arange(int(count[poly].sum()))
+            parts.append(p_verts[take])
+        tri = kinds == TRIANGLE
+        if tri.any():
+            corners = np.vstack([m.vertices[m.faces] for m, _ in self.flat.mesh])
+            count[tri] = 3
+            parts.append(corners[idx[tri]].reshape(-1, 3))
+        # the corners are stored polygons first, then triangles: each reference's start
+        start = np.zeros(len(refs), np.int64)
+        order = np.concatenate([np.flatnonzero(poly), np.flatnonzero(tri)])
+        start[order] = np.concatenate([[0], np.cumsum(count[order])[:-1]]) if len(order) else order
+        return np.vstack(parts), start, count
+
     def build(self, spec, refs, bounds, name) -> int:
         """Build one aggregate of spec (kind, params) over refs with item boxes `bounds`;
         returns its index and records its statistics in agg_stats."""

@@ -135,7 +135,8 @@ class _ReplayBuilder(Builder):
             return rec.agg
         box = _box_of(bounds)
         kind = self.flat.parts["agg_kind"][0][rec.agg]
-        if len(refs) and kind == BVH and self._refit(rec, bounds, box):
+        # a BVH over pieces (bvh(split=...)) holds an item in several leaves: rebuilt, not refit
+        if len(refs) and kind == BVH and spec[1].get("split", 1) <= 1 and self._refit(rec, bounds, box):
             self.work["refit"] += 1
         elif kind == LIST:
             self._set_box(rec.agg, box)      # a list has no boxes of its own
