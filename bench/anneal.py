@@ -1,26 +1,28 @@
 """Annealed hierarchies against the anchors: every single kind at its defaults, the SAH BVH
-and its two optimisers, the best hand-nested specs, and `auto`; the cost model's error on
-every run; re-annealing between the frames of an animation.
+with its two optimisers and over split pieces (bvh(split=16)), the best hand-nested specs,
+and `auto`; the cost model's error on every run; re-annealing between the frames of an
+animation.
 
     .venv/bin/python bench/anneal.py [--resolution 256] [--seconds 30] [--scenes spd:balls,scene:park]
-                                     [--frames 6] [--repeat 3] [--min-seconds 1]
+                                     [--frames 6] [--repeat 3] [--min-seconds 1] [--head-to-head 10]
 
 Scenes: the 13 SPD default scenes, the 5 pathological scenes and scene:park, each rendered
 in SPD mode at --resolution with every structure: a single kind puts the whole scene under
 that kind (anneal.without_specs: no group keeps a spec of its own), the hand-nested runs
 keep their groups' specs. Trace time: the best of --repeat rounds over all of a scene's
 structures (more for short traces: --min-seconds), auto's included, so that none is timed
-first or right after the annealing. `auto` is annealed for that render (auto(seconds=...),
-seed 0); its annealing seconds are reported apart, never inside the trace time. Every
-structure of a scene must give the same ray counts (a difference aborts the run). Where
-every counter of auto's render equals the best single kind's (it kept that structure), the
-verdict says so: their time ratio is then the machine's noise, and the count of scenes
-where auto is at least 10% faster leaves them out. Ranking: of the pairs of single kinds on
-one scene whose measured times differ by more than 10%, how many the model orders the same
-way. The brute-force list is left out: on these scenes it takes hours. Predicted: the cost
-model's trace seconds from each render's own counts (costmodel.current(): this machine's
-calibration, else the reference costs shipped with raykernel), against the measured trace
-seconds.
+first or right after the annealing; then the best single kind and auto alternately,
+--head-to-head rounds more each, since their ratio is the verdict. `auto` is annealed for
+that render (auto(seconds=...), seed 0); its annealing seconds are reported apart, never
+inside the trace time. Every structure of a scene must give the same ray counts (a
+difference aborts the run). Where every counter of auto's render equals the best single
+kind's (it kept that structure), the verdict says so: their time ratio is then the machine's
+noise, and the count of scenes where auto is at least 10% faster leaves them out. Ranking:
+of the pairs of single kinds on one scene whose measured times differ by more than 10%, how
+many the model orders the same way. The brute-force list is left out: on these scenes it
+takes hours. Predicted: the cost model's trace seconds from each render's own counts
+(costmodel.current(): this machine's calibration, else the reference costs shipped with
+raykernel), against the measured trace seconds.
 
 Hand-nested: the stadium's teapot in a BVH of its own (teapot_bvh=1) under a grid and
 under an octree (Haines's fix), the better kept; the park's own hierarchy (Arvo's: a coarse
@@ -47,7 +49,7 @@ from raykernel.analysis import anneal, costmodel
 from raykernel.scene import pathological, spd
 
 KINDS = ("bvh", "grid", "hgrid", "octree", "hybrid", "rc", "lazyoctree")
-OPTIMISED = ("bvh(optimize=rotations)", "bvh(optimize=reinsertion)")
+OPTIMISED = ("bvh(optimize=rotations)", "bvh(optimize=reinsertion)", "bvh(split=16)")   # the SAH BVH's variants
 RAYS = ("rays.eye", "rays.reflect", "rays.refract", "rays.shadow")
 MAX_ROUNDS = 25
 
@@ -102,6 +104,17 @@ def scene_rows(name, args, model, errors):
             traced[label] = traced.get(label, 0.0) + stats["time.trace"]
             if label not in best or stats["time.trace"] < best[label]["time.trace"]:
                 best[label] = stats
+    # head to head: the best single kind and auto alternately, `head_to_head` more rounds each,
+    # since their ratio is the verdict and both traces can be short
+    singles = {label: best[label]["time.trace"] for label in KINDS}
+    best_single = min(singles, key=singles.get)
+    pair = [run for run in runs if run[0] in (best_single, "auto")]
+    for _ in range(args.head_to_head):
+        for label, s, accel in pair:
+            stats = raykernel.render(s, **options).stats if accel is None else \
+                raykernel.render(s, accel=accel, **options).stats
+            if stats["time.trace"] < best[label]["time.trace"]:
+                best[label] = stats
     ref = best["bvh"]
     for label, stats in best.items():
         if any(stats[k] != ref[k] for k in RAYS):
@@ -109,7 +122,6 @@ def scene_rows(name, args, model, errors):
                      f"{[stats[k] for k in RAYS]} against {[ref[k] for k in RAYS]}")
     out = []
     singles = {label: best[label]["time.trace"] for label in KINDS}
-    best_single = min(singles, key=singles.get)
     for label, _, _ in runs:
         stats = best[label]
         predicted = model.predict(stats)
@@ -165,6 +177,8 @@ def main():
     parser.add_argument("--frames", type=int, default=6)
     parser.add_argument("--frame-evaluations", type=int, default=200)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--head-to-head", type=int, default=10,
+                        help="then render the best single kind and auto alternately this many rounds more")
     parser.add_argument("--min-seconds", type=float, default=0.0,
                         help="render each structure again until its trace times add up to this (at most "
                              f"{MAX_ROUNDS} rounds)")
@@ -240,13 +254,15 @@ def main():
         "## Annealed hierarchies (`auto`) against the anchors",
         "",
         f"Command: `.venv/bin/python bench/anneal.py --resolution {args.resolution} --seconds {args.seconds:g} "
-        f"--frames {args.frames} --repeat {args.repeat} --min-seconds {args.min_seconds:g}`. Machine: {machine()}. "
+        f"--frames {args.frames} --repeat {args.repeat} --min-seconds {args.min_seconds:g} "
+        f"--head-to-head {args.head_to_head}`. Machine: {machine()}. "
         f"Cost model: {'this machine' if costmodel.load_default() else 'the reference costs'} "
         f"({len(model.calibration)} calibration renders).",
         "",
         f"SPD mode, {args.resolution}x{args.resolution}, every structure of a scene casts the same rays "
         f"(checked). Trace seconds: the best of at least {args.repeat} rounds, more (up to {MAX_ROUNDS}) until a "
-        f"structure's traces add up to {args.min_seconds:g} s; anneal seconds apart (seed 0).",
+        f"structure's traces add up to {args.min_seconds:g} s, then {args.head_to_head} rounds more of the best "
+        "single kind and auto, alternately; anneal seconds apart (seed 0).",
         "",
         "Verdicts (measured trace time):",
         "",
