@@ -146,7 +146,7 @@ def test_every_move_keeps_the_primitives_and_the_hits(make):
 
 def test_annealing_is_deterministic_for_a_seed_and_never_worse_than_its_start():
     scene = _stadium()
-    runs = [anneal.anneal(scene, seed=7, evaluations=40, options=SMALL) for _ in range(2)]
+    runs = [anneal.anneal(scene, seed=7, evaluations=40, margin=0.0, options=SMALL) for _ in range(2)]
     assert runs[0].state.key() == runs[1].state.key()
     assert runs[0].energy == runs[1].energy and runs[0].history == runs[1].history
     assert runs[0].evaluations == 40 and runs[0].stopped == "evaluations"
@@ -192,7 +192,11 @@ def test_a_single_kind_found_keeps_the_scene_s_own_layout():
         if len(theirs):
             np.testing.assert_array_equal(ours.material, theirs.material)
     # split into groups, each group's primitives keep the scene's order among themselves
-    split = anneal.anneal(scene, seed=3, evaluations=60, options=SMALL)
+    atoms, _ = anneal.atoms_of(scene)
+    ids = list(range(len(atoms.groups)))[::-1]          # atoms in reverse, in two groups
+    state = anneal.Node("bvh", ids[::2], [anneal.Node("grid", ids[1::2])])
+    split = anneal._with_group(scene, scene.root, anneal._merged_group(state, atoms, "root"))
+    assert len(split.root.children) == 1 and len(split.root.spheres) and len(split.root.children[0].spheres)
     centres = {tuple(c): k for k, c in enumerate(scene.root.spheres.center)}
 
     def check(g):
@@ -201,8 +205,24 @@ def test_a_single_kind_found_keeps_the_scene_s_own_layout():
         for c in g.children:
             check(c)
 
-    check(split.scene.root)
-    assert _fingerprint(split.scene) == _fingerprint(scene)
+    check(split.root)
+    assert _fingerprint(split) == _fingerprint(scene)
+
+
+def test_a_hierarchy_predicted_only_a_little_faster_gives_way_to_the_best_kind():
+    scene = raykernel.load("scene:diamond:facets=100")
+    free = anneal.anneal(scene, seed=7, evaluations=12, margin=0.0, options=SMALL)
+    assert free.kept is None and free.energy == free.searched <= min(free.starts.values())
+    best_kind = min(anneal.START_SPECS, key=free.starts.get)
+    assert free.energy < free.starts[best_kind]            # the search found something better ...
+    held = anneal.anneal(scene, seed=7, evaluations=12, margin=0.9, options=SMALL)
+    assert held.searched == free.searched                  # ... the same search ...
+    assert held.kept == best_kind and held.energy == free.starts[best_kind]     # ... not 90% better: the kind kept
+    assert held.state.spec == best_kind and not held.state.children
+    assert held.summary()["kept"] == best_kind
+    got = raykernel.render(held.scene, **SMALL).stats
+    ref = raykernel.render(anneal.without_specs(scene), accel=best_kind, **SMALL).stats
+    assert got["tests.total"] == ref["tests.total"] and got["bounds.tests"] == ref["bounds.tests"]
 
 
 def test_bad_options_are_clear_errors():
@@ -211,6 +231,10 @@ def test_bad_options_are_clear_errors():
         anneal.anneal(scene, seconds=-1)
     with pytest.raises(OptionError, match="cooling"):
         anneal.anneal(scene, cooling=2.0)
+    with pytest.raises(OptionError, match="margin"):
+        anneal.anneal(scene, margin=1.5)
+    with pytest.raises(OptionError, match="margin must be"):
+        raykernel.render(scene, accel="auto(margin=-0.1)", resolution=4)
     with pytest.raises(OptionError, match="seconds must be"):
         raykernel.render(scene, accel="auto(seconds=-1)", resolution=4)
     with pytest.raises(OptionError, match="no parameter 'speed'"):

@@ -308,7 +308,8 @@ def cmd_anneal(args, console) -> int:
         console.print(line, markup=False, highlight=False, soft_wrap=True)
 
     found = anneal.anneal(scene, seconds=args.seconds, seed=args.seed, memory=args.memory,
-                          evaluations=args.evaluations, sample=args.sample, options=options, log=say)
+                          evaluations=args.evaluations, sample=args.sample, margin=args.margin, options=options,
+                          log=say)
     write_json(found.scene, args.output)
     single, single_e = found.best_single
     say("hierarchy before (the best start):")
@@ -319,6 +320,9 @@ def cmd_anneal(args, console) -> int:
         f"{found.start_energy:.4f} s at the start")
     say(f"annealing: {found.seconds:.1f} s, {found.evaluations} candidates priced, stopped by {found.stopped}; "
         f"saves a predicted {max(0.0, single_e - found.energy):.4f} s per render")
+    if found.kept:
+        say(f"kept {found.kept}: the best hierarchy searched ({found.searched:.4f} s predicted) was not "
+            f"{args.margin:.0%} faster (--margin)")
     if args.plot:
         anneal.plot(found, args.plot)
         say(f"energy and temperature over the run -> {args.plot}")
@@ -469,6 +473,8 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--evaluations", type=int, default=0, help="most candidates priced (default 0: no limit)")
     an.add_argument("--sample", type=_positive_int, default=24, help="candidates are traced at SAMPLE pixels along "
                     "the image's longer side (default 24)")
+    an.add_argument("--margin", type=float, default=0.05, help="keep the hierarchy found only where it is predicted "
+                    "at least this fraction faster than the best single kind (default 0.05)")
     an.add_argument("--resolution", type=_positive_int, help="the render it tunes for (default: the scene's)")
     an.add_argument("--spd", action="store_true", help="tune for an SPD render")
     an.add_argument("--max-depth", type=_positive_int, default=5, help="ray depth of that render (default 5)")

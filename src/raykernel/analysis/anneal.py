@@ -569,6 +569,8 @@ class Annealed:
     evaluations: int
     seed: int
     stopped: str                  # why it stopped
+    searched: float = math.inf    # energy of the best state the search found
+    kept: str | None = None       # the kind kept instead, where that state was under `margin` better
 
     @property
     def before(self) -> str:
@@ -590,6 +592,7 @@ class Annealed:
         return {"energy": self.energy, "start_energy": self.start_energy, "best_single": name,
                 "best_single_energy": e, "starts": dict(self.starts), "seconds": self.seconds,
                 "evaluations": self.evaluations, "seed": self.seed, "stopped": self.stopped,
+                "searched_energy": self.searched, "kept": self.kept,
                 "groups": sum(1 for _ in self.state.nodes()), "levels": self.state.levels(),
                 "state": self.state.to_dict()}
 
@@ -620,22 +623,24 @@ def _own_state(tree, spec, default: str) -> Node:
 
 def anneal(scene: Scene, target: Group | None = None, seconds: float = 30.0, seed: int = 0, memory: float = 0.0,
            evaluations: int = 0, moves: int = 0, cooling: float = 0.8, accept0: float = 0.8, patience: int = 3,
-           sample: int = 24, start: Node | None = None, short: bool = False, model=None, default: str = "bvh",
-           log=None, options: dict | None = None, atoms: Atoms | None = None) -> Annealed:
+           sample: int = 24, margin: float = 0.05, start: Node | None = None, short: bool = False, model=None,
+           default: str = "bvh", log=None, options: dict | None = None, atoms: Atoms | None = None) -> Annealed:
     """Anneal the hierarchy of `target` (a group of `scene`, default its root) for a render with
     `options` (a dict of render()'s keywords: resolution, spd, max_depth, shading, ...). seconds: the time budget;
     evaluations: the most candidates priced (0: no limit); moves: per temperature (0: 4 per
-    atom, 16 to 48); start: a state of an earlier anneal of the same scene's structure (another
+    atom, 16 to 48); margin: the best state is kept only where its energy is at least this
+    fraction below the best kind of START_SPECS over the whole target, which is kept otherwise;
+    start: a state of an earlier anneal of the same scene's structure (another
     frame; rebind gives it and its `atoms`), with short=True for a short schedule from it.
     log: callable(str) for progress."""
     from ..engine.compiletime import CompileClock
     with CompileClock() as clock:       # compiling (a first run) is not searching: not in the budget
         return _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, accept0, patience, sample,
-                       start, short, model, default, log, options, atoms, clock)
+                       margin, start, short, model, default, log, options, atoms, clock)
 
 
-def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, accept0, patience, sample, start,
-            short, model, default, log, options, atoms, clock) -> Annealed:
+def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, accept0, patience, sample, margin,
+            start, short, model, default, log, options, atoms, clock) -> Annealed:
     from . import costmodel
     seconds = _check("seconds", seconds, 0.0, 1e7)
     seed = _check("seed", seed, 0, 2 ** 63 - 1, integer=True)
@@ -646,6 +651,7 @@ def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, a
     accept0 = _check("accept0", accept0, 0.01, 0.99)
     patience = _check("patience", patience, 1, 1000, integer=True)
     sample = _check("sample", sample, 2, 4096, integer=True)
+    margin = _check("margin", margin, 0.0, 0.9)
     t0 = time.perf_counter()
     target = scene.root if target is None else target
     if atoms is None:
@@ -734,9 +740,15 @@ def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, a
         temperature *= cooling
         if temperature < t_start * 1e-3:
             break
+    searched, kept = e_best, None
+    plain = {k: e for k, e in starts.items() if k in START_SPECS}
+    if plain:
+        kind = min(plain, key=plain.get)
+        if e_best > (1.0 - margin) * plain[kind]:
+            best, e_best, kept = candidates[kind], plain[kind], kind
     tuned = _with_group(scene, target, _merged_group(best, atoms, target.name or "auto"))
     return Annealed(tuned, best, candidates[first], atoms, e_best, starts[first], starts, history,
-                    elapsed(), energy.evaluations, seed, stopped)
+                    elapsed(), energy.evaluations, seed, stopped, searched, kept)
 
 
 def _shape(sources) -> tuple:

@@ -95,6 +95,9 @@ AUTO = Kind("auto", "the hierarchy of structures found by simulated annealing (A
                       "the search deterministic)", int, 0, 10 ** 9),
                 Param("sample", 24, "candidates are traced at this many pixels along the longer side, the counts "
                       "scaled up", int, 2, 4096),
+                Param("margin", 0.05, "the hierarchy found is kept only where it is predicted at least this "
+                      "fraction faster than the best kind at its defaults, which is kept otherwise (smaller "
+                      "gains are within the cost model's error)", float, 0.0, 0.9),
             ))
 
 
