@@ -494,6 +494,18 @@ def without_specs(scene: Scene) -> Scene:
     return dataclasses.replace(scene, root=visit(scene.root))
 
 
+def _under_one(group: Group, spec: str) -> Group:
+    """`group` under one structure: `spec` on it and no spec on the groups it merges (instances
+    and operators kept whole, as atoms keep them). The scene's own groups and sets are kept, so
+    a single kind found over everything renders exactly as that kind does (the same layout: a
+    regrouped copy of the park, as fast by its counters, traced 10% slower)."""
+    def visit(g: Group) -> Group:
+        kids = [c if isinstance(c, Instance) or _is_operator(c) else visit(c) for c in g.children]
+        return dataclasses.replace(g, children=kids, accel=None)
+
+    return dataclasses.replace(visit(group), accel=spec)
+
+
 def _with_group(scene: Scene, target: Group, new: Group) -> Scene:
     return dataclasses.replace(scene, root=_replace(scene.root, target, new))
 
@@ -746,7 +758,9 @@ def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, a
         kind = min(plain, key=plain.get)
         if e_best > (1.0 - margin) * plain[kind]:
             best, e_best, kept = candidates[kind], plain[kind], kind
-    tuned = _with_group(scene, target, _merged_group(best, atoms, target.name or "auto"))
+    whole = not best.children and len(best.atoms) == len(atoms.groups)
+    tuned = _with_group(scene, target, _under_one(target, best.spec) if whole else
+                        _merged_group(best, atoms, target.name or "auto"))
     return Annealed(tuned, best, candidates[first], atoms, e_best, starts[first], starts, history,
                     elapsed(), energy.evaluations, seed, stopped, searched, kept)
 
