@@ -1,13 +1,14 @@
-"""Early split clipping (`bvh(split=N)`) against the plain SAH BVH: renders and mesh casting.
+"""The SAH BVH's variants against the plain tree: early split clipping (`bvh(split=N)`) and
+reinsertion (`bvh(optimize=reinsertion)`), on renders and on mesh casting.
 
-    .venv/bin/python bench/presplit.py [--resolution 256] [--rays 500000] [--rounds 5]
+    .venv/bin/python bench/bvh_variants.py [--resolution 256] [--rays 500000] [--rounds 5]
 
 Renders: SPD mode at --resolution on 2 threads, the scenes below under one BVH each
-(anneal.without_specs), plain and split into up to 4 and 16 pieces; the same image bytes and
-ray counts are checked; trace seconds the best of --rounds rounds, the structures alternating.
-Mesh casting: RayScene.from_mesh (the mesh kernel, bvh(block=4)) plain and split on the meshes
-of bench/raycast.py, the same coherent and incoherent rays; the same hits are checked (t and
-prim_id). Writes the `presplit` section of BENCHMARKS.md.
+(anneal.without_specs), plain, split into up to 4 and 16 pieces, and reinserted; the same
+image bytes and ray counts are checked; trace seconds the best of --rounds rounds, the
+structures alternating. Mesh casting: RayScene.from_mesh (the mesh kernel, bvh(block=4)) with
+the same variants on the meshes of bench/raycast.py, the same coherent and incoherent rays;
+the same hits are checked (t and prim_id). Writes the `bvh_variants` section of BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -29,14 +30,14 @@ from raykernel.casting.meshcast import MESH_ACCEL  # noqa: E402
 
 SCENES = ("scene:diamond", "scene:stadium", "scene:teapot-room", "scene:park", "spd:teapot", "spd:gears",
           "spd:mount", "spd:tetra", "spd:sombrero")
-SPLITS = (1, 4, 16)
+VARIANTS = ("", "split=4", "split=16", "optimize=reinsertion")     # "": the plain tree
 
 
-def spec(base: str, split: int) -> str:
-    if split == 1:
+def spec(base: str, variant: str) -> str:
+    if not variant:
         return base
     inner = base[base.index("(") + 1:-1] + ", " if "(" in base else ""
-    return f"bvh({inner}split={split})"
+    return f"bvh({inner}{variant})"
 
 
 def render_rows(args):
@@ -46,21 +47,21 @@ def render_rows(args):
         options = dict(resolution=args.resolution, spd=True, threads=2)
         first, best = {}, {}
         for _ in range(args.rounds):
-            for split in SPLITS:
-                result = raykernel.render(scene, accel=spec("bvh", split), **options)
-                first.setdefault(split, result)
-                if split not in best or result.stats["time.trace"] < best[split]["time.trace"]:
-                    best[split] = result.stats
-        plain = first[1]
-        for split in SPLITS:
-            same = first[split].image.tobytes() == plain.image.tobytes() and all(
-                first[split].stats[k] == plain.stats[k] for k in plain.stats if k.startswith("rays."))
+            for variant in VARIANTS:
+                result = raykernel.render(scene, accel=spec("bvh", variant), **options)
+                first.setdefault(variant, result)
+                if variant not in best or result.stats["time.trace"] < best[variant]["time.trace"]:
+                    best[variant] = result.stats
+        plain, plain_t = first[""], best[""]["time.trace"]
+        for variant in VARIANTS:
+            same = first[variant].image.tobytes() == plain.image.tobytes() and all(
+                first[variant].stats[k] == plain.stats[k] for k in plain.stats if k.startswith("rays."))
             if not same:
-                sys.exit(f"{name}: bvh(split={split}) renders another image or other rays than bvh")
-            s = best[split]
-            rows.append(f"| {name} | {spec('bvh', split)} | {s['rays.total']:,} | {s['build.refs']:,} "
+                sys.exit(f"{name}: {spec('bvh', variant)} renders another image or other rays than bvh")
+            s = best[variant]
+            rows.append(f"| {name} | {spec('bvh', variant)} | {s['rays.total']:,} | {s['build.refs']:,} "
                         f"| {s['tests.per_ray']:.2f} | {s['bounds.per_ray']:.2f} | {s['time.preprocess']:.3f} "
-                        f"| {s['time.trace']:.4f} | {best[1]['time.trace'] / s['time.trace']:.2f}x |")
+                        f"| {s['time.trace']:.4f} | {plain_t / s['time.trace']:.2f}x |")
         print(rows[-1], flush=True)
     return rows
 
@@ -74,30 +75,31 @@ def cast_rows(args):
         v, f = make()
         rays = {"coherent": camera_rays(v, args.rays), "incoherent": random_rays(v, args.rays, rng)}
         built, build_s = {}, {}
-        for split in SPLITS:
+        for variant in VARIANTS:
             t0 = time.perf_counter()
-            built[split] = raykernel.RayScene.from_mesh(v, f, accel=spec(MESH_ACCEL, split))
-            build_s[split] = time.perf_counter() - t0
+            built[variant] = raykernel.RayScene.from_mesh(v, f, accel=spec(MESH_ACCEL, variant))
+            build_s[variant] = time.perf_counter() - t0
         for kind, (o, d) in rays.items():
             best, hits, stats = {}, {}, {}
-            for split in SPLITS:
-                built[split].intersect(o[:1000], d[:1000])
+            for variant in VARIANTS:
+                built[variant].intersect(o[:1000], d[:1000])
             for _ in range(args.rounds):
-                for split in SPLITS:
+                for variant in VARIANTS:
                     t0 = time.perf_counter()
-                    h = built[split].intersect(o, d, fields=("t", "prim_id"))
+                    h = built[variant].intersect(o, d, fields=("t", "prim_id"))
                     sec = time.perf_counter() - t0
-                    if sec < best.get(split, np.inf):
-                        best[split], hits[split], stats[split] = sec, h, built[split].last_stats
-            for split in SPLITS:
-                if not (np.array_equal(hits[split].t, hits[1].t) and
-                        np.array_equal(hits[split].prim_id, hits[1].prim_id)):
-                    sys.exit(f"{name} {kind}: split={split} gives other hits than the plain BVH")
-                s = stats[split]
-                rows.append(f"| {name} | {len(f):,} | {kind} | {spec(MESH_ACCEL, split)} | {len(o):,} "
-                            f"| {build_s[split]:.2f} | {s.get('tests.triangle', 0) / len(o):.2f} "
-                            f"| {s.get('bounds.tests', 0) / len(o):.2f} | {len(o) / best[split] / 1e6:.2f} "
-                            f"| {best[1] / best[split]:.2f}x |")
+                    if sec < best.get(variant, np.inf):
+                        best[variant], hits[variant], stats[variant] = sec, h, built[variant].last_stats
+            plain = best[""]
+            for variant in VARIANTS:
+                if not (np.array_equal(hits[variant].t, hits[""].t) and
+                        np.array_equal(hits[variant].prim_id, hits[""].prim_id)):
+                    sys.exit(f"{name} {kind}: {variant} gives other hits than the plain BVH")
+                s = stats[variant]
+                rows.append(f"| {name} | {len(f):,} | {kind} | {spec(MESH_ACCEL, variant)} | {len(o):,} "
+                            f"| {build_s[variant]:.2f} | {s.get('tests.triangle', 0) / len(o):.2f} "
+                            f"| {s.get('bounds.tests', 0) / len(o):.2f} | {len(o) / best[variant] / 1e6:.2f} "
+                            f"| {plain / best[variant]:.2f}x |")
             print(rows[-1], flush=True)
     return rows
 
@@ -111,9 +113,9 @@ def main():
     renders = render_rows(args)
     casts = cast_rows(args)
     text = "\n".join([
-        "## Early split clipping (`bvh(split=N)`) against the plain BVH",
+        "## The BVH's variants against the plain tree: split clipping and reinsertion",
         "",
-        f"Command: `.venv/bin/python bench/presplit.py --resolution {args.resolution} --rays {args.rays} "
+        f"Command: `.venv/bin/python bench/bvh_variants.py --resolution {args.resolution} --rays {args.rays} "
         f"--rounds {args.rounds}`. Machine: {machine()}.",
         "",
         f"Renders: SPD mode, {args.resolution}x{args.resolution}, 2 threads, each scene under one BVH; every "
@@ -134,7 +136,7 @@ def main():
         "|---|---:|---|---|---:|---:|---:|---:|---:|---:|",
         *casts,
     ])
-    replace_section("presplit", text)
+    replace_section("bvh_variants", text)
     print(text)
 
 
