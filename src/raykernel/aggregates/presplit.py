@@ -104,7 +104,7 @@ def _split_kernel(verts, start, count, boxes, pieces):
     most = 0
     for r in range(n):
         most = max(most, count[r])
-    width = 2 * most + 4          # corners a clipped piece can have (each cut adds at most one per edge)
+    width = 2 * most + 4          # corners a piece may have: a cut of k corners leaves at most 2k
     depth_max = 0
     while (1 << depth_max) < pieces:
         depth_max += 1
@@ -120,11 +120,7 @@ def _split_kernel(verts, start, count, boxes, pieces):
     lb, rb = np.empty(6), np.empty(6)
     for r in range(n):
         k = count[r]
-        if k < 3 or pieces <= 1:
-            emit = 1
-        else:
-            emit = 0
-        if emit:
+        if k < 3 or pieces <= 1:        # no outline (a sphere, a cone, a child aggregate): whole
             if m == cap:
                 cap *= 2
                 item, out = _grow(item, out, cap)
@@ -132,7 +128,6 @@ def _split_kernel(verts, start, count, boxes, pieces):
             out[m] = boxes[r]
             m += 1
             continue
-        top = 0
         for i in range(k):
             sx[0, i], sy[0, i], sz[0, i] = verts[start[r] + i, 0], verts[start[r] + i, 1], verts[start[r] + i, 2]
         sk[0] = k
@@ -145,7 +140,8 @@ def _split_kernel(verts, start, count, boxes, pieces):
             b = sb[top].copy()
             d = sd[top]
             cut = False
-            if d < depth_max and _area2(sx[top], sy[top], sz[top], k) > 0.0:
+            # a piece whose halves might outgrow the buffers (a concave one cut many times) stays whole
+            if d < depth_max and 2 * k <= width and _area2(sx[top], sy[top], sz[top], k) > 0.0:
                 axis = 0
                 for a in range(1, 3):
                     if b[a + 3] - b[a] > b[axis + 3] - b[axis]:

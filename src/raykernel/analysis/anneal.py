@@ -34,7 +34,10 @@ Each temperature tries `moves` moves (default 4 per atom, 16 to 48), accepting a
 dE with probability exp(-dE / T) (Metropolis); then T *= `cooling` (0.8). It stops when frozen
 (`patience` temperatures in a row, 3, accepting changes in under 2 % of their moves), at T
 below T0 / 1000, after `evaluations` candidates, or at the time budget (compiling, on a
-first run, is not counted). The best state seen is the result.
+first run, is not counted). The best state seen is the result, unless its energy is less
+than `margin` (5%) below the best kind of START_SPECS over the whole target: that kind is
+kept then, over the scene's own groups and sets (_under_one), since smaller gains are within
+the cost model's error.
 
 Between frames: `state, atoms = rebind(previous.state, previous.atoms, next_frame)` moves
 the atoms with their primitives, and anneal(next_frame, start=state, atoms=atoms,
@@ -420,9 +423,8 @@ def _node_group(node: Node, atoms: Atoms, name: str) -> Group:
 
 def _merged_group(node: Node, atoms: Atoms, name: str) -> Group:
     """The same group with its atoms' primitives merged into one set per source, in the
-    source's own order: what is written out and rendered. A group that holds all of a
-    source's primitives holds that set itself, so a single kind found over the whole scene
-    is exactly that kind's render (the same layout, every counter equal)."""
+    source's own order (a group holding all of a source holds that set itself): what is
+    written out and rendered, laid out as the scene was as far as the grouping allows."""
     taken: dict[int, list] = {}
     for a in node.atoms:
         for ordinal, idx in atoms.members[a]:
