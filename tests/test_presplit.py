@@ -16,8 +16,8 @@ from raykernel.errors import OptionError
 
 
 def _points_on(poly: np.ndarray, rng, n: int) -> np.ndarray:
-    """Points of a planar polygon (concave ones too): fan triangles sampled, kept when the
-    crossing test puts them inside, plus its corners and edge midpoints."""
+    """Points of a planar polygon (concave ones too): points of its bounding rectangle in its
+    plane, kept where a crossing test puts them inside, plus its corners and edge midpoints."""
     origin, u = poly[0], poly[1] - poly[0]
     normal = np.cross(poly[1] - poly[0], poly[2] - poly[0])
     for k in range(3, len(poly)):
@@ -81,13 +81,14 @@ def test_pieces_cover_their_polygons_and_stay_in_their_boxes(scale, pieces):
 
 
 def test_a_leaf_holds_each_item_once():
-    # 6 pieces of 3 items, two of them in one leaf twice
+    # 6 pieces of 3 items, all in one leaf: each item once there
     piece_item = np.array([0, 0, 1, 1, 2, 2])
-    bounds = np.array([[0, 0, 0, 1, 1, 1]] * 6, float) + np.array([0, 0, 0, 0, 0, 0])[:, None]
+    bounds = np.array([[0, 0, 0, 1, 1, 1]] * 6, float)
     tree, _ = build_bvh(bounds, leaf_size=8)
     assert tree.count[0] == 6
     out = leaves_of_items(tree, piece_item)
     assert isinstance(out, BVHArrays) and out.count[0] == 3 and sorted(out.order.tolist()) == [0, 1, 2]
+    # one piece a leaf: every piece's item kept, each in its own leaf
     tree, _ = build_bvh(np.array([[i, 0, 0, i + 1, 1, 1] for i in range(6)], float), leaf_size=1)
     out = leaves_of_items(tree, piece_item)
     leaves = out.count > 0
