@@ -78,6 +78,12 @@ def hand_variants(name):
     return []
 
 
+def trace(scene, accel, options):
+    """The statistics of one render (accel None: the scene's own specs)."""
+    return raykernel.render(scene, **options).stats if accel is None else \
+        raykernel.render(scene, accel=accel, **options).stats
+
+
 def scene_rows(name, args, model, errors):
     scene = raykernel.load(name)
     options = dict(resolution=args.resolution, spd=True)
@@ -98,8 +104,7 @@ def scene_rows(name, args, model, errors):
         if not due:
             break
         for label, s, accel in due:
-            stats = raykernel.render(s, **options).stats if accel is None else \
-                raykernel.render(s, accel=accel, **options).stats
+            stats = trace(s, accel, options)
             rounds[label] = rounds.get(label, 0) + 1
             traced[label] = traced.get(label, 0.0) + stats["time.trace"]
             if label not in best or stats["time.trace"] < best[label]["time.trace"]:
@@ -111,8 +116,7 @@ def scene_rows(name, args, model, errors):
     pair = [run for run in runs if run[0] in (best_single, "auto")]
     for _ in range(args.head_to_head):
         for label, s, accel in pair:
-            stats = raykernel.render(s, **options).stats if accel is None else \
-                raykernel.render(s, accel=accel, **options).stats
+            stats = trace(s, accel, options)
             if stats["time.trace"] < best[label]["time.trace"]:
                 best[label] = stats
     ref = best["bvh"]

@@ -436,14 +436,10 @@ def _merged_group(node: Node, atoms: Atoms, name: str) -> Group:
             children.append(src)
             continue
         idx = np.sort(np.concatenate(parts))
-        sets.append(src if len(idx) == _set_size(src) else _subset(src, idx))
+        sets.append(src if len(idx) == len(src) else _subset(src, idx))
     g = _group_of(name, node.spec, sets, children)
     g.children += [_merged_group(c, atoms, f"{name}.{k}") for k, c in enumerate(node.children)]
     return g
-
-
-def _set_size(s) -> int:
-    return len(s.faces) if isinstance(s, TriangleMesh) else len(s)
 
 
 def _merge_polygons(sets, patches: bool) -> Polygons:
@@ -770,7 +766,7 @@ def _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, a
 def _shape(sources) -> tuple:
     return tuple((type(src).__name__, src.count_primitives() if isinstance(src, Group) else
                   src.group.count_primitives() if isinstance(src, Instance) else
-                  _set_size(src)) for src in sources)
+                  len(src)) for src in sources)
 
 
 def rebind(state: Node, previous: Atoms, scene: Scene, target: Group | None = None) -> tuple[Node, Atoms]:
