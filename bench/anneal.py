@@ -5,6 +5,7 @@ animation.
 
     .venv/bin/python bench/anneal.py [--resolution 256] [--seconds 30] [--scenes spd:balls,scene:park]
                                      [--frames 6] [--repeat 3] [--min-seconds 1] [--head-to-head 10]
+                                     [--calibrate]
 
 Scenes: the 13 SPD default scenes, the 5 pathological scenes and scene:park, each rendered
 in SPD mode at --resolution with every structure: a single kind puts the whole scene under
@@ -22,7 +23,8 @@ of the pairs of single kinds on one scene whose measured times differ by more th
 many the model orders the same way. The brute-force list is left out: on these scenes it
 takes hours. Predicted: the cost model's trace seconds from each render's own counts
 (costmodel.current(): this machine's calibration, else the reference costs shipped with
-raykernel), against the measured trace seconds.
+raykernel; with --calibrate, a model fitted at the start of the run, which auto uses too),
+against the measured trace seconds.
 
 Hand-nested: the stadium's teapot in a BVH of its own (teapot_bvh=1) under a grid and
 under an octree (Haines's fix), the better kept; the park's own hierarchy (Arvo's: a coarse
@@ -88,7 +90,7 @@ def scene_rows(name, args, model, errors):
     scene = raykernel.load(name)
     options = dict(resolution=args.resolution, spd=True)
     t0 = time.perf_counter()
-    found = anneal.anneal(scene, seconds=args.seconds, seed=0, options=options)
+    found = anneal.anneal(scene, seconds=args.seconds, seed=0, options=options, model=model)
     seconds = time.perf_counter() - t0
     single = anneal.without_specs(scene)        # every group under the one kind
     runs = [(accel, single, accel) for accel in KINDS + OPTIMISED] + hand_variants(name) + [("auto", found.scene, None)]
@@ -148,7 +150,7 @@ def fmt(x, spec):
     return "-" if x is None else format(x, spec)
 
 
-def frame_rows(frames, resolution, evaluations):
+def frame_rows(frames, resolution, evaluations, model):
     """Satellite frames: anneal from scratch each frame against re-annealing from the last."""
     options = dict(resolution=resolution, spd=True)
     lines = []
@@ -157,7 +159,7 @@ def frame_rows(frames, resolution, evaluations):
     for k, t in enumerate(times):
         scene = raykernel.load(f"scene:satellite:time={t:g}")
         t0 = time.perf_counter()
-        scratch = anneal.anneal(scene, seed=0, evaluations=evaluations, seconds=1e6, options=options)
+        scratch = anneal.anneal(scene, seed=0, evaluations=evaluations, seconds=1e6, options=options, model=model)
         s_sec = time.perf_counter() - t0
         if previous is None:
             again, a_sec = scratch, s_sec
@@ -165,7 +167,7 @@ def frame_rows(frames, resolution, evaluations):
             start, atoms = anneal.rebind(previous.state, previous.atoms, scene)
             t0 = time.perf_counter()
             again = anneal.anneal(scene, seed=0, evaluations=max(8, evaluations // 4), seconds=1e6, start=start,
-                                  atoms=atoms, short=True, options=options)
+                                  atoms=atoms, short=True, options=options, model=model)
             a_sec = time.perf_counter() - t0
         previous = again
         lines.append(f"| {k} | {t:g} | {scratch.evaluations} | {s_sec:.1f} | {scratch.energy * 1e3:.2f} "
@@ -186,8 +188,17 @@ def main():
     parser.add_argument("--min-seconds", type=float, default=0.0,
                         help="render each structure again until its trace times add up to this (at most "
                              f"{MAX_ROUNDS} rounds)")
+    parser.add_argument("--calibrate", action="store_true",
+                        help="fit the cost model on this machine first (raykernel calibrate, a few minutes) and "
+                             "price every run and auto with it: the machine's speed drifts between runs")
     args = parser.parse_args()
-    model = costmodel.current()
+    if args.calibrate:
+        t0 = time.perf_counter()
+        model = costmodel.calibrate()
+        calibrated = f"fitted at the start of this run ({time.perf_counter() - t0:.0f} s)"
+    else:
+        model = costmodel.current()
+        calibrated = "this machine's" if costmodel.load_default() else "the reference costs"
     names = args.scenes.split(",") if args.scenes else None
     table, errors, verdicts = [], [], []
     stadium = {}
@@ -253,15 +264,15 @@ def main():
         stadium_lines.append(f"| {name} | {hand['structure']} | {hand['tests_per_ray']:.2f} "
                              f"| {hand['bounds_per_ray']:.2f} | {auto['tests_per_ray']:.2f} "
                              f"| {auto['bounds_per_ray']:.2f} | {auto['tests_per_ray'] / hand['tests_per_ray']:.2f}x |")
-    frames = frame_rows(args.frames, max(64, args.resolution // 4), args.frame_evaluations) if args.frames else []
+    frames = frame_rows(args.frames, max(64, args.resolution // 4), args.frame_evaluations, model) \
+        if args.frames else []
     text = "\n".join([
         "## Annealed hierarchies (`auto`) against the anchors",
         "",
         f"Command: `.venv/bin/python bench/anneal.py --resolution {args.resolution} --seconds {args.seconds:g} "
         f"--frames {args.frames} --repeat {args.repeat} --min-seconds {args.min_seconds:g} "
-        f"--head-to-head {args.head_to_head}`. Machine: {machine()}. "
-        f"Cost model: {'this machine' if costmodel.load_default() else 'the reference costs'} "
-        f"({len(model.calibration)} calibration renders).",
+        f"--head-to-head {args.head_to_head}{' --calibrate' if args.calibrate else ''}`. Machine: {machine()}. "
+        f"Cost model: {calibrated} ({len(model.calibration)} calibration renders).",
         "",
         f"SPD mode, {args.resolution}x{args.resolution}, every structure of a scene casts the same rays "
         f"(checked). Trace seconds: the best of at least {args.repeat} rounds, more (up to {MAX_ROUNDS}) until a "
@@ -278,7 +289,8 @@ def main():
         *stadium_lines,
         "",
         f"The cost model on every single-kind run above ({len(errs)} runs): mean absolute error "
-        f"{100 * np.abs(errs).mean():.0f}%, worst {100 * errs[np.argmax(np.abs(errs))]:+.0f}%.",
+        f"{100 * np.abs(errs).mean():.0f}%, worst {100 * errs[np.argmax(np.abs(errs))]:+.0f}%; within 25%: "
+        f"{int(np.sum(np.abs(errs) <= 0.25))} of {len(errs)}.",
         "",
         *model_lines,
         "",

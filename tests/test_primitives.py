@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from raykernel import Scene, TriangleMesh
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
+from raykernel.geometry import counters as C
 from raykernel.geometry.primitives import (
     CONE,
     PATCH,
@@ -519,7 +520,7 @@ def test_cast_rays_matches_the_primitive_functions():
                 want[r] = min(want[r], t)
             for i in range(len(geo.poly_count)):
                 t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                                geo.poly_verts, i, *ray_o, *ray_d, 0.0, want[r])
+                                geo.poly_verts, i, *ray_o, *ray_d, 0.0, want[r], np.zeros(C.N_COUNTERS, np.int64))
                 want[r] = min(want[r], t)
             for f in geo.tri_faces:
                 v = geo.tri_verts[f]
@@ -542,7 +543,7 @@ def count_polygon_hits(polygons, points, direction):
         for i in range(len(polygons)):
             t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
                             geo.poly_verts, i, o[0], o[1], o[2], direction[0], direction[1], direction[2],
-                            0.0, np.inf)
+                            0.0, np.inf, np.zeros(C.N_COUNTERS, np.int64))
             n += t != np.inf
         counts.append(n)
     return np.array(counts)

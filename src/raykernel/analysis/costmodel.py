@@ -10,7 +10,15 @@ Trace time is modelled as  sum(count * cost)  over these features:
   render         one per render: fixed overhead (tile dispatch, allocation)
   ray.shaded     eye + reflection + refraction rays (camera, shading, spawning)
   ray.shadow     shadow rays (no shading)
+  ray.lazy       rays of a render with lazy structures, traced coarse to fine: the sparse
+                 early passes find little in the caches
   test.KIND      ray/primitive tests, one cost per primitive kind
+  hit.KIND       and those that found the primitive in range (a hit computes its root and
+                 takes the closest hit: dearer than a miss)
+  polygon.corner corners walked by polygon and patch tests (a gear's 144-corner face costs
+                 some 40 times a triangle's test)
+  mailbox        references passed over because their mailbox had the ray already
+  leaf           non-empty leaves and cells visited (each starts a loop over references)
   entry.W        rays entering an aggregate of walk W (its set-up: a grid's first cell, an
                  octree's entry point, a ray classification's face and key)
   step.W         traversal steps (cells.visited, N_TS) of walk W
@@ -32,9 +40,10 @@ machine; REFERENCE_PATH holds one fitted on a 2-core machine, used where this ma
 none (analysis.anneal ranks candidates with it: rankings move less between machines than
 seconds do).
 
-Calibration set (CALIBRATION_SCENES): small SPD scenes, a triangle scene and nested scenes,
-rendered in SPD mode at two resolutions with every structure kind (the brute-force list
-only on scenes of at most LIST_MAX_PRIMS primitives); each render is repeated REPEATS times
+Calibration set (CALIBRATION_SCENES): small SPD scenes, a triangle scene and nested scenes
+(a small park among them), rendered in SPD mode at two resolutions with every structure
+kind, the nested ones both with their own structures inside and wholly under the kind (the
+brute-force list only on scenes of at most LIST_MAX_PRIMS primitives); each render is repeated REPEATS times
 and its shortest trace time kept, since other work on the machine only ever adds time.
 The fit is least squares on relative error (each render weighs the same, whatever its
 length), with costs held non-negative and a small ridge term so that features that always
@@ -60,7 +69,7 @@ import numpy as np
 from ..aggregates import WALK_COUNTERS, WALK_NAMES
 from ..errors import OptionError
 
-VERSION = 3                 # calibration files of another version priced other features
+VERSION = 4                 # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
@@ -69,10 +78,11 @@ CALIBRATION_SCENES = (
     "spd:tree:4", "spd:tree:6", "spd:teapot:2", "spd:teapot:3", "spd:mount:2", "spd:mount:3",
     "spd:rings:1", "spd:rings:2", "spd:shells:2", "spd:lattice:2", "spd:jacks:1",
     "scene:diamond:facets=300", "scene:stadium:stadium_prims=800,teapot_prims=400,teapot_bvh=1",
-    "scene:satellite:prims=600",
+    "scene:satellite:prims=600", "scene:park:rides=2,horses=6,trees=60,mountain_level=3",
 )
 CALIBRATION_RESOLUTIONS = (64, 128)
 LIST_MAX_PRIMS = 1500
+GROUPS = {"ray": "rays", "render": "rays", "test": "tests", "hit": "tests", "polygon": "tests"}   # breakdown()
 REPEATS = 3
 RIDGE = 1e-4
 
@@ -88,6 +98,10 @@ def features(stats) -> dict:
     }
     for k in PRIMITIVE_KINDS:
         f[f"test.{k}"] = float(stats.get(f"tests.{k}", 0))
+        f[f"hit.{k}"] = float(stats.get(f"hits.{k}", 0))
+    f["polygon.corner"] = float(stats.get("polygon.corners", 0))
+    f["mailbox"] = float(stats.get("mailbox.saved", 0))
+    f["leaf"] = float(stats.get("cells.leaves", 0))
     for walk in WALK_NAMES:
         f[f"entry.{walk}"] = float(stats.get(f"walk.{walk}.entries", 0))
         f[f"step.{walk}"] = float(stats.get(f"walk.{walk}.steps", 0))
@@ -100,6 +114,7 @@ def features(stats) -> dict:
     # lazy structures refine between passes of rays, inside the trace time
     lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
     if lazy:
+        f["ray.lazy"] = f["ray.shaded"] + f["ray.shadow"]
         f["refine.pass"] = float(stats.get("build.refine_passes", 0))
         for a in lazy:
             # rc refines its own walk's hypercubes; every other lazy kind (lazyoctree) an octree
@@ -206,7 +221,7 @@ class CostModel:
         """Predicted seconds per feature group (rays, tests, traversal)."""
         out = {"rays": 0.0, "tests": 0.0, "traversal": 0.0}
         for name, count in features(stats).items():
-            group = {"ray": "rays", "render": "rays", "test": "tests"}.get(name.split(".")[0], "traversal")
+            group = GROUPS.get(name.split(".")[0], "traversal")
             out[group] += count * self.costs.get(name, 0.0)
         return out
 
@@ -275,6 +290,15 @@ def machine_info() -> dict:
             "raykernel": raykernel.__version__}
 
 
+def _names_structures(group, seen=None) -> bool:
+    """Whether `group` or a group below it names a structure of its own."""
+    seen = set() if seen is None else seen
+    if id(group) in seen:
+        return False
+    seen.add(id(group))
+    return group.accel is not None or any(_names_structures(getattr(c, "group", c), seen) for c in group.children)
+
+
 def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RESOLUTIONS,
               threads: int | None = None, log=None, repeats: int = REPEATS) -> CostModel:
     """Render the calibration set with every structure kind and fit the costs."""
@@ -283,8 +307,16 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
     from ..rendering.render import render
     from ..scene.accel import KINDS
     from ..scene.loading import load
+    from .anneal import without_specs
     kinds = list(kinds or (name for name, kind in KINDS.items() if not kind.operands))
-    loaded = [(name, load(name)) for name in scenes]
+    loaded = []
+    for name in scenes:
+        scene = load(name)
+        loaded.append((name, scene))
+        # a scene whose groups name structures of their own is rendered nested and, to price
+        # each kind over instances and many small objects, wholly under the kind as well
+        if _names_structures(scene.root):
+            loaded.append((f"{name} (one kind)", without_specs(scene)))
     rows, times, refine_times, runs = [], [], [], []
     for kind in kinds:
         # compile (or load from the cache) before anything is timed

@@ -158,7 +158,7 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
     # counters in locals (registers), written once per chunk
-    n_bounds = n_nodes = n_leaves = n_tests = n_entries = np.int64(0)
+    n_bounds = n_nodes = n_leaves = n_tests = n_hits = n_entries = np.int64(0)
     for r in range(r0, r1):
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
@@ -206,15 +206,16 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
                 continue
             n_leaves += 1
             s = first[node]
-            best, best_j, n_all, tested, done = _leaf(corners, ids, s, s + k, o, kx, ky, kz, sx, sy, sz, lo, best,
-                                                      best_j, edges, mode, store, offsets, r, base, n_all, all_t,
-                                                      all_i)
+            best, best_j, n_all, tested, hits, done = _leaf(corners, ids, s, s + k, o, kx, ky, kz, sx, sy, sz, lo,
+                                                            best, best_j, edges, mode, store, offsets, r, base, n_all,
+                                                            all_t, all_i)
             n_tests += tested
+            n_hits += hits
             if done:
                 sp = 0
         _finish(geo, corners, best_j, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
-    _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
+    _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
 
 
 @njit(private=True)
@@ -228,7 +229,7 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
     nodes, boxes, center = wide
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1
-    n_bounds = n_nodes = n_leaves = n_tests = n_entries = np.int64(0)
+    n_bounds = n_nodes = n_leaves = n_tests = n_hits = n_entries = np.int64(0)
     for r in range(r0, r1):
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
@@ -265,16 +266,17 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
                 continue
             n_leaves += 1
             s0, e0 = leaf_range(nodes, v)
-            best, best_j, best_slot, n_all, tested, done = _leaf4(blocks, first_block[s0], corners, ids, s0, e0, o, kx,
-                                                                  ky, kz, sx, sy, sz, lo, best, best_j, best_slot,
-                                                                  edges, mode, store, offsets, r, base, n_all, all_t,
-                                                                  all_i, t4)
+            best, best_j, best_slot, n_all, tested, hits, done = _leaf4(blocks, first_block[s0], corners, ids, s0,
+                                                                        e0, o, kx, ky, kz, sx, sy, sz, lo, best,
+                                                                        best_j, best_slot, edges, mode, store,
+                                                                        offsets, r, base, n_all, all_t, all_i, t4)
             n_tests += tested
+            n_hits += hits
             if done:
                 sp = 0
         _finish(geo, blocks, best_slot, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
-    _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests)
+    _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
 
 
 @njit(inline="always")
@@ -285,6 +287,7 @@ def _leaf4(blocks, b, corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, b
     is checked against the closest hit of the lanes before it; lanes with a zero edge function
     go through the scalar test and its tie rule). best_slot: the closest hit's block * 4 + lane."""
     okx, oky, okz = o[kx], o[ky], o[kz]
+    hits = 0
     for j0 in range(s, e, BLOCK):
         m = hit4(blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, lo, best, t4)
         b += 1
@@ -298,30 +301,33 @@ def _leaf4(blocks, b, corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, b
                 t = t4[lane]
             else:
                 continue
+            hits += 1
             best, best_j, n_all, closer = _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t,
                                                 all_i)
             if closer:
                 best_slot = (b - 1) * BLOCK + lane
                 if mode != 0:
-                    return best, best_j, best_slot, n_all, min(e - s, j0 - s + BLOCK), True
-    return best, best_j, best_slot, n_all, e - s, False
+                    return best, best_j, best_slot, n_all, min(e - s, j0 - s + BLOCK), hits, True
+    return best, best_j, best_slot, n_all, e - s, hits, False
 
 
 @njit(inline="always")
 def _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r, base,
           n_all, all_t, all_i):
     """Test the leaf's references s..e-1 against ray r, the binary walk's leaf loop: returns the closest
-    hit so far (best, best_j), the hits counted or stored (all hits), the tests made, and
-    whether the ray is done (any hit found)."""
+    hit so far (best, best_j), the hits counted or stored (all hits), the tests made, those that
+    found their triangle in range, and whether the ray is done (any hit found)."""
+    hits = 0
     for j in range(s, e):
         t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
         if t == INF:
             continue
+        hits += 1
         best, best_j, n_all, closer = _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t,
                                             all_i)
         if closer and mode != 0:
-            return best, best_j, n_all, j - s + 1, True
-    return best, best_j, n_all, e - s, False
+            return best, best_j, n_all, j - s + 1, hits, True
+    return best, best_j, n_all, e - s, hits, False
 
 
 @njit(inline="always")
@@ -378,7 +384,7 @@ def _finish(geo, src, row, ids, mode, r, best, best_j, n_all, store, ox, oy, oz,
 
 
 @njit(inline="always")
-def _count(counters, c, rays, n_bounds, n_nodes, n_entries, n_leaves, n_tests):
+def _count(counters, c, rays, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits):
     counters[c, C.RAYS_CAST] = rays
     counters[c, C.BOUNDS_TESTS] = n_bounds
     counters[c, C.CELLS_VISITED] = n_nodes
@@ -387,3 +393,4 @@ def _count(counters, c, rays, n_bounds, n_nodes, n_entries, n_leaves, n_tests):
     counters[c, C.WALK_STEPS + BVH] = n_nodes
     counters[c, C.CELLS_LEAVES] = n_leaves
     counters[c, C.TESTS + TRIANGLE] = n_tests
+    counters[c, C.HITS + TRIANGLE] = n_hits

@@ -1,7 +1,7 @@
 """What every walk of the scene shares once it meets a primitive: the query modes, the
 primitive tests and the hit rule.
 
-    t = hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, tmin, tmax)     # inf on a miss
+    t = hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)     # inf on a miss
     found, best_t, best_ref, best_inst = take(mode, t, kind, idx, inst, 0, maps, row, col, hit_f, hit_i,
                                               found, best_t, best_ref, best_inst)
 
@@ -48,14 +48,14 @@ FLIP, OPERATOR_SURFACE = 1, 2  # hit_i[3] bits: reverse the normal; a surface of
 
 
 @njit(inline="always")
-def hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, tmin, tmax):
+def hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
     """t of the ray's nearest hit on primitive (kind, idx) in [tmin, tmax], inf for a miss."""
     if kind == SPHERE:
         return hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
                           geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, tmin, tmax)
     if kind == POLYGON or kind == PATCH:
         return hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                           geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, tmin, tmax)
+                           geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
     if kind == TRIANGLE:
         fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
         v = geo.tri_verts

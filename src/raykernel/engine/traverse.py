@@ -166,6 +166,7 @@ def _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, operand, inst, fram
     t0, t1 = sphere_roots(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
                           geo.sph_radius[idx], ox, oy, oz, dx, dy, dz)
     if t0 <= best_t and t0 != INF:
+        cnt[C.HITS + SPHERE] += 1
         collect.record(buf_t, buf_i, buf_m, buf_n, t0, operand, SPHERE, idx, inst, 0, frame_f, f, cnt, counter)
     if t1 <= best_t and t1 != INF:
         collect.record(buf_t, buf_i, buf_m, buf_n, t1, operand, SPHERE, idx, inst, 1, frame_f, f, cnt, counter)
@@ -331,7 +332,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
             elif kind == POLYGON or kind == PATCH:
                 cnt[C.TESTS + kind] += 1
                 t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, lo, best_t)
+                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, lo, best_t, cnt)
             elif kind == TRIANGLE:
                 cnt[C.TESTS + TRIANGLE] += 1
                 fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
@@ -378,6 +379,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 ix, iy, iz = nix, niy, niz
                 break
             if t != INF:
+                cnt[C.HITS + kind] += 1
                 if sink >= 0:
                     collect.record(buf_t, buf_i, buf_m, buf_n, t, collect.operand(frame_f, frame_i, f, sink, i - 1),
                                    kind, idx, frame_i[f, FI_INST], 0, frame_f, f, cnt, CROSSINGS)

@@ -118,13 +118,13 @@ def _records(geo) -> np.ndarray:
 
 
 @njit(inline="always")
-def _hit(kind, p, i, verts, edges, ox, oy, oz, dx, dy, dz, tmin, tmax):
+def _hit(kind, p, i, verts, edges, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
     """hitrule.hit_primitive for the record p[i]: the same tests on the same numbers."""
     if kind == SPHERE:
         return hit_sphere(p[i, 0], p[i, 1], p[i, 2], p[i, 3], ox, oy, oz, dx, dy, dz, tmin, tmax)
     if kind == POLYGON or kind == PATCH:
         return hit_plane_polygon(p[i, 0], p[i, 1], p[i, 2], np.int64(p[i, 3]), np.int64(p[i, 4]),
-                                 np.int64(p[i, 5]), verts, ox, oy, oz, dx, dy, dz, tmin, tmax)
+                                 np.int64(p[i, 5]), verts, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
     if kind == TRIANGLE:
         return hit_triangle(p[i, 0], p[i, 1], p[i, 2], p[i, 3], p[i, 4], p[i, 5], p[i, 6], p[i, 7], p[i, 8],
                             ox, oy, oz, dx, dy, dz, tmin, tmax, edges)
@@ -187,9 +187,10 @@ def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, t
             ref = refs[i]
             kind = ref >> KIND_SHIFT
             cnt[C.TESTS + kind] += 1
-            t = _hit(kind, prims, i, verts, edges, ox, oy, oz, dx, dy, dz, tmin, best_t)
+            t = _hit(kind, prims, i, verts, edges, ox, oy, oz, dx, dy, dz, tmin, best_t, cnt)
             if t == INF:
                 continue
+            cnt[C.HITS + kind] += 1
             found, best_t, best_ref, best_inst = take(mode, t, kind, ref & INDEX_MASK, np.int64(-1), 0, frame_f, 0,
                                                       F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
             if found and (mode == ANY_HIT or mode == ANY_OPAQUE):

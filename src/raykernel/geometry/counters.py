@@ -33,15 +33,17 @@ START_LISTS = 33          # secondary rays that began with their object's start 
 SHADOW_STEPS = 34         # closest-hit queries of filtered shadow rays walking through transparent surfaces
 START_LISTS_HITS = 35     # searches a start list bounded, shadow rays it settled
 START_LISTS_BUILT = 36    # start lists built (rendering/startlists.py)
+POLYGON_CORNERS = 37      # corners walked by polygon and patch tests: those whose plane the ray met in range
+HITS = 38                 # + primitive kind: tests that found the primitive within the ray's range
 # each walk's share of the traversal (engine/traverse.py), by the walk's CODE; the registry
 # (aggregates/__init__.py) names them walk.<walk>.entries, .bounds and .steps
 MAX_WALKS = 8
-WALK_ENTRIES = 37         # + walk: rays that entered an aggregate of that walk (its box was hit)
-WALK_BOUNDS = 45          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
-WALK_STEPS = 53           # + walk: its traversal steps (its part of cells.visited)
+WALK_ENTRIES = 43         # + walk: rays that entered an aggregate of that walk (its box was hit)
+WALK_BOUNDS = 51          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
+WALK_STEPS = 59           # + walk: its traversal steps (its part of cells.visited)
 # the columns left for counters of a walk's own (its module's COUNTERS), claimed at import
-WALK_OWN = 61
-N_COUNTERS = 64
+WALK_OWN = 67
+N_COUNTERS = 72
 
 
 NAMES = {
@@ -51,6 +53,8 @@ NAMES = {
     RAYS_SHADOW: "rays.shadow", RAYS_SHADOW_BLOCKED: "rays.shadow_blocked",
     TESTS + 0: "tests.sphere", TESTS + 1: "tests.polygon", TESTS + 2: "tests.patch",
     TESTS + 3: "tests.cone", TESTS + 4: "tests.triangle",
+    HITS + 0: "hits.sphere", HITS + 1: "hits.polygon", HITS + 2: "hits.patch", HITS + 3: "hits.cone",
+    HITS + 4: "hits.triangle",
     BOUNDS_TESTS: "bounds.tests", CELLS_VISITED: "cells.visited", CELLS_LEAVES: "cells.leaves",
     CELLS_EMPTY: "cells.empty", MAILBOX_SAVED: "mailbox.saved", SHADOW_CACHE_HITS: "shadow_cache.hits",
     RAYS_CAST: "rays.cast",
@@ -60,7 +64,7 @@ NAMES = {
     RAYTREE_TRIES: "raytree.tries", RAYTREE_HITS: "raytree.hits", SHADOW_CACHE_TRIES: "shadow_cache.tries",
     NORMALS_COMPUTED: "normals.computed", FULL_WALKS: "tricks.full_walks", START_LISTS: "start_lists.used",
     SHADOW_STEPS: "shadow.steps", START_LISTS_HITS: "start_lists.hits", START_LISTS_BUILT: "start_lists.built",
-    RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
+    POLYGON_CORNERS: "polygon.corners", RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
 }
 
 _next_own = [WALK_OWN]

@@ -16,6 +16,7 @@ import math
 import numpy as np
 
 from .config import njit
+from .counters import POLYGON_CORNERS
 
 SPHERE, POLYGON, PATCH, CONE, TRIANGLE, AGGREGATE, INSTANCE = 0, 1, 2, 3, 4, 5, 6
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
@@ -137,14 +138,15 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
 
 
 @njit(borrows=True)   # called per candidate: no reference counting
-def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, dy, dz, tmin, tmax):
+def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
     return hit_plane_polygon(normals[i, 0], normals[i, 1], normals[i, 2], starts[i], counts[i], axes[i], verts,
-                             ox, oy, oz, dx, dy, dz, tmin, tmax)
+                             ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
 
 
 @njit(inline="always")     # in hit_polygon's body as it was: a call per candidate costs grids and octrees
-def hit_plane_polygon(nx, ny, nz, v0, count, axis, verts, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """hit_polygon of the polygon with unit normal n and corners verts[v0:v0 + count]."""
+def hit_plane_polygon(nx, ny, nz, v0, count, axis, verts, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    """hit_polygon of the polygon with unit normal n and corners verts[v0:v0 + count]; counts
+    the corners the inside test walks (cnt[POLYGON_CORNERS]: its cost grows with them)."""
     # t from the first vertex, not the stored plane offset: (v0 - o) keeps its
     # digits when the polygon is far from the world origin but near the ray
     den = nx * dx + ny * dy + nz * dz
@@ -154,6 +156,7 @@ def hit_plane_polygon(nx, ny, nz, v0, count, axis, verts, ox, oy, oz, dx, dy, dz
     t = -(nx * wx + ny * wy + nz * wz) / den
     if not (tmin <= t <= tmax):
         return INF
+    cnt[POLYGON_CORNERS] += count
     if point_in_polygon(verts, v0, count, axis, ox + t * dx, oy + t * dy, oz + t * dz):
         return t
     return INF

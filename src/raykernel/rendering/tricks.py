@@ -140,7 +140,10 @@ def test_ref(geo, kind, idx, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax
     ey = m[4] * dx + m[5] * dy + m[6] * dz
     ez = m[8] * dx + m[9] * dy + m[10] * dz
     cnt[C.TESTS + kind] += 1
-    return hit_primitive(geo, kind, idx, lx, ly, lz, ex, ey, ez, tmin, tmax)
+    t = hit_primitive(geo, kind, idx, lx, ly, lz, ex, ey, ez, tmin, tmax, cnt)
+    if t != INF:
+        cnt[C.HITS + kind] += 1
+    return t
 
 
 @njit(inline="always")
