@@ -89,6 +89,9 @@ def test_the_cost_model_prices_corners_hits_mailboxes_leaves_and_lazy_rays():
     assert f["hit.polygon"] == eager["hits.polygon"] > 0
     assert f["mailbox"] == eager["mailbox.saved"] and f["leaf"] == eager["cells.leaves"] > 0
     assert "ray.lazy" not in f
+    rows = {(r[0], r[1]): r for r in eager.rows()}
+    assert rows[("tests", "polygon")][3] == f"{eager['hits.polygon']:,} hit"
+    assert rows[("tests", "polygon corners")][2] == f"{eager['polygon.corners']:,}"
     lazy = raykernel.render(scene, accel="lazyoctree", resolution=24, spd=True).stats
     g = costmodel.features(lazy)
     assert g["ray.lazy"] == g["ray.shaded"] + g["ray.shadow"] > 0

@@ -43,8 +43,9 @@ seconds do).
 Calibration set (CALIBRATION_SCENES): small SPD scenes, a triangle scene and nested scenes
 (a small park among them), rendered in SPD mode at two resolutions with every structure
 kind, the nested ones both with their own structures inside and wholly under the kind (the
-brute-force list only on scenes of at most LIST_MAX_PRIMS primitives); each render is repeated REPEATS times
-and its shortest trace time kept, since other work on the machine only ever adds time.
+brute-force list only on scenes of at most LIST_MAX_PRIMS primitives); each render is
+repeated REPEATS times and its shortest trace time kept, since other work on the machine
+only ever adds time.
 The fit is least squares on relative error (each render weighs the same, whatever its
 length), with costs held non-negative and a small ridge term so that features that always
 move together (a grid's one root bound test per ray and the ray count) split their cost
@@ -82,9 +83,9 @@ CALIBRATION_SCENES = (
 )
 CALIBRATION_RESOLUTIONS = (64, 128)
 LIST_MAX_PRIMS = 1500
-GROUPS = {"ray": "rays", "render": "rays", "test": "tests", "hit": "tests", "polygon": "tests"}   # breakdown()
 REPEATS = 3
 RIDGE = 1e-4
+GROUPS = {"ray": "rays", "render": "rays", "test": "tests", "hit": "tests", "polygon": "tests"}   # breakdown()
 
 
 def features(stats) -> dict:

@@ -64,7 +64,8 @@ NAMES = {
     RAYTREE_TRIES: "raytree.tries", RAYTREE_HITS: "raytree.hits", SHADOW_CACHE_TRIES: "shadow_cache.tries",
     NORMALS_COMPUTED: "normals.computed", FULL_WALKS: "tricks.full_walks", START_LISTS: "start_lists.used",
     SHADOW_STEPS: "shadow.steps", START_LISTS_HITS: "start_lists.hits", START_LISTS_BUILT: "start_lists.built",
-    POLYGON_CORNERS: "polygon.corners", RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
+    RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
+    POLYGON_CORNERS: "polygon.corners",
 }
 
 _next_own = [WALK_OWN]

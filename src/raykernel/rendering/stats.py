@@ -88,7 +88,9 @@ class Stats(dict):
             out.append(("rays", "cast", f"{self['rays.cast']:,}", ""))
         for k in ("sphere", "polygon", "patch", "cone", "triangle"):
             if self[f"tests.{k}"]:
-                out.append(("tests", k, f"{self[f'tests.{k}']:,}", ""))
+                out.append(("tests", k, f"{self[f'tests.{k}']:,}", f"{self[f'hits.{k}']:,} hit"))
+        if self.get("polygon.corners"):
+            out.append(("tests", "polygon corners", f"{self['polygon.corners']:,}", "walked by inside tests"))
         out.append(("tests", "total", f"{self['tests.total']:,}", f"{self['tests.per_ray']:.2f} per ray (N_IT)"))
         out.append(("traversal", "bound tests", f"{self['bounds.tests']:,}", f"{self['bounds.per_ray']:.2f} per ray"))
         out.append(("traversal", "cells visited", f"{self['cells.visited']:,}",
