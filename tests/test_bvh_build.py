@@ -229,6 +229,33 @@ def test_leaves_priced_in_blocks_fill_them():
     assert mean[1] > mean[0] + 0.5 and len(four.count) < len(one.count)
 
 
+@pytest.mark.parametrize("block", [1, 4])
+def test_unit_weights_give_the_unweighted_tree_bit_for_bit(block):
+    items = random_boxes(np.random.default_rng(8), 3000)
+    plain, _ = build_bvh(items, leaf_size=4, block=block)
+    weighed, _ = build_bvh(items, leaf_size=4, block=block, weights=np.ones(len(items)))
+    assert all(np.array_equal(a, b) for a, b in zip(plain, weighed))
+
+
+def test_a_heavy_item_gets_a_leaf_of_its_own():
+    """Items in a row, four to a leaf unweighted; weighed 40 times the others, one of them is
+    split off into a leaf alone (testing it costs as much as testing 40 neighbours)."""
+    x = np.arange(64, dtype=np.float64)
+    items = np.column_stack([x, np.zeros(64), np.zeros(64), x + 0.9, np.ones(64), np.ones(64)])
+    heavy = 21
+    weights = np.ones(64)
+    weights[heavy] = 40.0
+
+    def leaf_of(tree):
+        leaves = np.flatnonzero(leaf_mask(tree) & (tree.count > 0))
+        return next(tree.count[i] for i in leaves if heavy in tree.order[tree.first[i]:tree.first[i] + tree.count[i]])
+
+    plain, _ = build_bvh(items, leaf_size=4, traversal_cost=2.0)
+    weighed, stats = build_bvh(items, leaf_size=4, traversal_cost=2.0, weights=weights)
+    check_tree(weighed, stats, items, 4)
+    assert leaf_of(plain) == 4 and leaf_of(weighed) == 1
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("kind", ["uniform", "clustered", "slivers", "mixed_sizes"])
 def test_random_scenes_fixed_seeds(seed, kind):
@@ -414,6 +441,11 @@ def test_rejects_bad_bounds(bad):
         dict(traversal_cost="x"),
         dict(block=0),
         dict(block=2.0),
+        dict(weights=[1.0]),
+        dict(weights=[1.0, 0.0]),
+        dict(weights=[1.0, -2.0]),
+        dict(weights=[1.0, float("nan")]),
+        dict(weights=[1.0, float("inf")]),
     ],
 )
 def test_rejects_bad_options(options):
@@ -482,6 +514,35 @@ def test_traversal_finds_exactly_the_boxes_a_ray_hits():
         assert walk(bvh, items, o, d) == brute
         total += len(brute)
     assert total > 400
+
+
+def test_many_cornered_polygons_weighed_keep_the_hits_and_walk_fewer_corners():
+    """Stars of 40 corners among quads: weighed by their corners (the default), the BVH finds
+    the same hits as the brute-force list and as the unweighed tree, and its tests walk fewer
+    corners."""
+    from raykernel import RayScene, Scene
+    rng = np.random.default_rng(4)
+    scene = Scene()
+    for k in range(300):
+        c = rng.uniform(-2, 2, 3)
+        if k % 10 == 0:
+            a = np.linspace(0, 2 * math.pi, 40, endpoint=False)
+            r = np.where(np.arange(40) % 2 == 0, 1.0, 0.5)
+            scene.root.polygons.add(c + np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros(40)]))
+        else:
+            scene.root.polygons.add(c + 0.3 * np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0.2], [0, 1, 0.2]]))
+    origins = np.column_stack([rng.uniform(-6, 6, 4000), rng.uniform(-6, 6, 4000), np.full(4000, 9.0)])
+    directions = np.column_stack([rng.uniform(-3, 3, 4000), rng.uniform(-3, 3, 4000), np.full(4000, -9.0)]) - \
+        origins * np.array([1, 1, 0])
+    runs = {}
+    for spec in ("list", "bvh", "bvh(corners=0)", "bvh(width=2)"):
+        rs = RayScene(scene, spec)
+        hits = rs.intersect(origins, directions)
+        runs[spec] = (hits.t, hits.prim_id, rs.last_stats["polygon.corners"])
+    assert np.isfinite(runs["list"][0]).sum() > 300
+    for spec in ("bvh", "bvh(corners=0)", "bvh(width=2)"):
+        assert np.array_equal(runs[spec][0], runs["list"][0]) and np.array_equal(runs[spec][1], runs["list"][1])
+    assert runs["bvh"][2] < runs["bvh(corners=0)"][2]
 
 
 @pytest.mark.slow

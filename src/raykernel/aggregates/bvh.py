@@ -41,9 +41,10 @@ extent is non-zero, and every boundary between bins is scored with
 
     cost = traversal_cost + (M_left * N_left + M_right * N_right) / M_parent * intersection_cost
 
-where M is the surface area of a box and N the items on each side, counted
-in blocks of ``block`` items (rounded up: 1 by default; 4 prices a leaf as a
-4-lane test takes its triangles, as Embree does).
+where M is the surface area of a box and N the items on each side, each
+counted by its weight (1 unless given: a polygon of many corners costs the
+corners its test walks, test_weights), in blocks of ``block`` (rounded up: 1
+by default; 4 prices a leaf as a 4-lane test takes its triangles, as Embree does).
 When the parent box has zero area (all
 items lie on one line or are one point) M is the half-perimeter instead,
 which still favours splits into short, balanced pieces. Measures are taken on
@@ -51,7 +52,7 @@ boxes scaled by the parent's largest extent, so neither 1e-200 nor 1e200
 coordinates underflow or overflow the areas.
 
 A node becomes a leaf when it has at most ``leaf_size`` items and its leaf
-cost ``blocks(count) * intersection_cost`` is not worse than the best split;
+cost ``blocks(weight) * intersection_cost`` is not worse than the best split;
 otherwise it is split at the best boundary. So no leaf ever holds more than
 ``leaf_size`` items: ``leaf_size`` is also the maximum leaf size. When all
 centroids of a node coincide there is no boundary to score: the node is a
@@ -64,6 +65,7 @@ The build is deterministic: the same input gives bit-identical arrays.
 
 from __future__ import annotations
 
+import math
 import time
 from typing import NamedTuple
 
@@ -79,6 +81,9 @@ from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf"]
 
 _MAX_BINS = 1024
+# corners a polygon's inside test walks in the time of one whole primitive test (reference
+# costs: about 1 ns per corner walked against 5-15 ns per test)
+CORNERS_PER_TEST = 8
 
 
 class BVHArrays(NamedTuple):
@@ -115,8 +120,14 @@ def _range_bounds(data, start, end, box, cbox):
             cbox[k + 3] = max(cbox[k + 3], c)
 
 
+@njit(inline="always")
+def _priced(weight, block):
+    """Items of total `weight` priced in blocks of `block` (rounded up); weight itself for 1."""
+    return weight if block == 1 else float(math.ceil(weight / block))
+
+
 @njit
-def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, block):
+def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_cost, block):
     """Build the tree; returns (bounds, first, count, order, node count, max depth)."""
     n = items.shape[0]
     cap = 2 * n - 1 if n > 0 else 1
@@ -134,12 +145,13 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
 
     # per position in order: item box and centroid, permuted along with order so
     # that every pass over a node's range reads memory sequentially
-    data = np.empty((n, 9), dtype=np.float64)
+    data = np.empty((n, 10), dtype=np.float64)
     for i in range(n):
         for k in range(3):
             data[i, k] = items[i, k]
             data[i, k + 3] = items[i, k + 3]
             data[i, k + 6] = 0.5 * items[i, k] + 0.5 * items[i, k + 3]
+        data[i, 9] = weights[i]
 
     # work items: node, start, end, depth and the centroid box of the range
     st_node = np.empty(n + 1, dtype=np.int64)
@@ -149,6 +161,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
     st_cb = np.empty((n + 1, 6), dtype=np.float64)
 
     bin_count = np.zeros((3, bins), dtype=np.int64)
+    bin_weight = np.zeros((3, bins), dtype=np.float64)
     bin_box = np.empty((3, bins, 6), dtype=np.float64)
     for a in range(3):
         for b in range(bins):
@@ -210,7 +223,9 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
             if cnt > leaf_size:
                 split_axis = 3
         else:
+            weight = 0.0
             for p in range(s, e):
+                weight += data[p, 9]
                 for a in range(3):
                     if scale[a] == 0.0:
                         continue
@@ -219,6 +234,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
                     if f < bins - 1:
                         b = int(f)
                     bin_count[a, b] += 1
+                    bin_weight[a, b] += data[p, 9]
                     for k in range(3):
                         bin_box[a, b, k] = min(bin_box[a, b, k], data[p, k])
                         bin_box[a, b, k + 3] = max(bin_box[a, b, k + 3], data[p, k + 3])
@@ -251,10 +267,10 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
                 for k in range(3):
                     lbox[k] = np.inf
                     lbox[k + 3] = -np.inf
-                lc = 0
+                lc = 0.0
                 for j in range(nn - 1):
                     b = nonempty[j]
-                    lc += bin_count[a, b]
+                    lc += bin_weight[a, b]
                     for k in range(3):
                         if bin_box[a, b, k] < lbox[k]:
                             lbox[k] = bin_box[a, b, k]
@@ -263,7 +279,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
                     ex = (lbox[3] - lbox[0]) * inv
                     ey = (lbox[4] - lbox[1]) * inv
                     ez = (lbox[5] - lbox[2]) * inv
-                    lcost = (lc + block - 1) // block        # items priced in blocks
+                    lcost = _priced(lc, block)
                     if use_area:
                         left_measure[j] = 2.0 * (ex * ey + ey * ez + ez * ex) * lcost
                     else:
@@ -271,10 +287,10 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
                 for k in range(3):
                     rbox[k] = np.inf
                     rbox[k + 3] = -np.inf
-                rc = 0
+                rc = 0.0
                 for j in range(nn - 1, 0, -1):
                     b = nonempty[j]
-                    rc += bin_count[a, b]
+                    rc += bin_weight[a, b]
                     for k in range(3):
                         if bin_box[a, b, k] < rbox[k]:
                             rbox[k] = bin_box[a, b, k]
@@ -283,7 +299,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
                     ex = (rbox[3] - rbox[0]) * inv
                     ey = (rbox[4] - rbox[1]) * inv
                     ez = (rbox[5] - rbox[2]) * inv
-                    rcost = (rc + block - 1) // block
+                    rcost = _priced(rc, block)
                     if use_area:
                         c = left_measure[j - 1] + 2.0 * (ex * ey + ey * ez + ez * ex) * rcost
                     else:
@@ -295,7 +311,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
 
             if split_axis >= 0:
                 split_cost = traversal_cost + best / parent_measure * intersection_cost
-                leaf_cost = (cnt + block - 1) // block * intersection_cost
+                leaf_cost = _priced(weight, block) * intersection_cost
                 if cnt <= leaf_size and leaf_cost <= split_cost:
                     split_axis = -1
             elif cnt > leaf_size:
@@ -326,6 +342,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
                 for b in range(bins):
                     if bin_count[a, b] > 0:
                         bin_count[a, b] = 0
+                        bin_weight[a, b] = 0.0
                         for k in range(3):
                             bin_box[a, b, k] = np.inf
                             bin_box[a, b, k + 3] = -np.inf
@@ -366,7 +383,7 @@ def _build_kernel(items, leaf_size, bins, traversal_cost, intersection_cost, blo
                     it = order[i]
                     order[i] = order[j]
                     order[j] = it
-                    for k in range(9):
+                    for k in range(10):
                         x = data[i, k]
                         data[i, k] = data[j, k]
                         data[j, k] = x
@@ -485,7 +502,7 @@ def _cost_option(value, name: str, positive: bool) -> float:
     return v
 
 
-def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0, block=1):
+def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0, block=1, weights=None):
     """Build a binned-SAH BVH over item boxes.
 
     bounds: (n, 6) array of item boxes (xmin, ymin, zmin, xmax, ymax, zmax),
@@ -494,6 +511,9 @@ def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_
     bins: centroid bins per axis (2..1024). traversal_cost (>= 0) and
     intersection_cost (> 0) weigh the SAH. block: items that cost one intersection_cost
     together (4: a leaf is priced in blocks of four, as a 4-lane test takes them).
+    weights: (n,) positive test costs of the items in units of intersection_cost (None: 1
+    each); the SAH counts a side's items by their weights (test_weights gives a polygon of
+    many corners the weight of the corners its test walks).
 
     Returns (BVHArrays, stats) with stats = {"nodes", "inner", "leaves",
     "empty_leaves", "refs", "bytes", "seconds", "max_depth"}; "refs" is the
@@ -512,7 +532,13 @@ def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_
     if not compiled(_build_kernel) and not cached("aggregates", "bvh._build_kernel"):
         tell_once("bvh", "raykernel: compiling the BVH builder (first use after install, a few seconds)")
     block = _int_option(block, "block", 1, 64)
-    nb, first, count, order, n_nodes, max_depth = _build_kernel(items, leaf_size, bins, tc, ic, np.int64(block))
+    if weights is None:
+        weights = np.ones(len(items))
+    weights = np.ascontiguousarray(weights, np.float64)
+    if weights.shape != (len(items),) or not np.all(np.isfinite(weights) & (weights > 0)):
+        raise OptionError(f"weights must be {len(items)} finite positive numbers, one per item box")
+    nb, first, count, order, n_nodes, max_depth = _build_kernel(items, weights, leaf_size, bins, tc, ic,
+                                                                np.int64(block))
     if n_nodes < count.shape[0]:  # give back the unused part of the 2n - 1 node allocation
         nb, first, count = nb[:n_nodes].copy(), first[:n_nodes].copy(), count[:n_nodes].copy()
     bvh = BVHArrays(nb, first, count, order)
@@ -597,16 +623,26 @@ def step(node_bounds, node_first, node_count, node, ox, oy, oz, ix, iy, iz, tmin
             node = right
 
 
+def test_weights(corners) -> np.ndarray | None:
+    """SAH weights of items whose tests walk `corners` corners each (1 for items of at most
+    CORNERS_PER_TEST, corners / CORNERS_PER_TEST above); None when every item weighs 1."""
+    corners = np.asarray(corners, np.float64)
+    return np.maximum(1.0, corners / CORNERS_PER_TEST) if np.any(corners > CORNERS_PER_TEST) else None
+
+
 def flatten(builder, params, refs, bounds, name, box):
     split = params.get("split", 1)
+    weights = test_weights(builder.vertex_weights(np.asarray(refs, np.int64))) if params.get("corners", 1) else None
     if split > 1:       # the tree is built over pieces of the flat primitives (presplit.py)
         from .presplit import split_boxes
         piece_item, bounds = split_boxes(*builder.outlines(refs), bounds, split)
+        weights = None if weights is None else weights[piece_item]
     if params.get("build", "sah") == "gs":
         from .gsbvh import build_gs
         tree, stats = build_gs(bounds, order=params["order"], seed=params["seed"])
     else:
-        tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"], block=params["block"])
+        tree, stats = build_bvh(bounds, leaf_size=params["leaf"], bins=params["bins"], block=params["block"],
+                                weights=weights)
     if split > 1:
         from .presplit import leaves_of_items
         tree = leaves_of_items(tree, piece_item)
@@ -635,6 +671,9 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
     Param("optimize", "none", "after the build, lower the SAH cost keeping the leaves (bvhopt.py): rotations "
           "(Kensler 2008) or reinsertion (Bittner, Hapala and Havran 2013)", str,
           choices=("none", "rotations", "reinsertion")),
+    Param("corners", 1, "1: the SAH weighs a polygon of more than 8 corners as corners / 8 items, since its "
+          "test walks them all (about a nanosecond each against some 8 for a whole test; sah only); 0: every "
+          "item weighs one", int, 0, 1),
     Param("split", 1, "early split clipping (Ernst and Greiner 2007): each polygon or triangle is cut across "
           "its box's longest axis, again and again while that shrinks its boxes' surface by a quarter, into at "
           "most this many pieces, and the tree is built over the pieces' tighter boxes; a leaf refers to a "

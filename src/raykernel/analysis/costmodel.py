@@ -15,8 +15,8 @@ Trace time is modelled as  sum(count * cost)  over these features:
   test.KIND      ray/primitive tests, one cost per primitive kind
   hit.KIND       and those that found the primitive in range (a hit computes its root and
                  takes the closest hit: dearer than a miss)
-  polygon.corner corners walked by polygon and patch tests (a gear's 144-corner face costs
-                 some 40 times a triangle's test)
+  polygon.corner corners walked by polygon and patch tests (testing a 144-corner gear face
+                 costs some ten triangle tests)
   mailbox        references passed over because their mailbox had the ray already
   leaf           non-empty leaves and cells visited (each starts a loop over references)
   entry.W        rays entering an aggregate of walk W (its set-up: a grid's first cell, an
