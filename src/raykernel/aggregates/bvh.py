@@ -43,7 +43,7 @@ extent is non-zero, and every boundary between bins is scored with
 
 where M is the surface area of a box and N the items on each side, each
 counted by its weight (1 unless given: a polygon of many corners costs the
-corners its test walks, test_weights), in blocks of ``block`` (rounded up: 1
+corners its test walks, sah_weights), in blocks of ``block`` (rounded up: 1
 by default; 4 prices a leaf as a 4-lane test takes its triangles, as Embree does).
 When the parent box has zero area (all
 items lie on one line or are one point) M is the half-perimeter instead,
@@ -512,7 +512,7 @@ def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_
     intersection_cost (> 0) weigh the SAH. block: items that cost one intersection_cost
     together (4: a leaf is priced in blocks of four, as a 4-lane test takes them).
     weights: (n,) positive test costs of the items in units of intersection_cost (None: 1
-    each); the SAH counts a side's items by their weights (test_weights gives a polygon of
+    each); the SAH counts a side's items by their weights (sah_weights gives a polygon of
     many corners the weight of the corners its test walks).
 
     Returns (BVHArrays, stats) with stats = {"nodes", "inner", "leaves",
@@ -623,7 +623,7 @@ def step(node_bounds, node_first, node_count, node, ox, oy, oz, ix, iy, iz, tmin
             node = right
 
 
-def test_weights(corners) -> np.ndarray | None:
+def sah_weights(corners) -> np.ndarray | None:
     """SAH weights of items whose tests walk `corners` corners each (1 for items of at most
     CORNERS_PER_TEST, corners / CORNERS_PER_TEST above); None when every item weighs 1."""
     corners = np.asarray(corners, np.float64)
@@ -632,7 +632,7 @@ def test_weights(corners) -> np.ndarray | None:
 
 def flatten(builder, params, refs, bounds, name, box):
     split = params.get("split", 1)
-    weights = test_weights(builder.vertex_weights(np.asarray(refs, np.int64))) if params.get("corners", 1) else None
+    weights = sah_weights(builder.vertex_weights(np.asarray(refs, np.int64))) if params.get("corners", 1) else None
     if split > 1:       # the tree is built over pieces of the flat primitives (presplit.py)
         from .presplit import split_boxes
         piece_item, bounds = split_boxes(*builder.outlines(refs), bounds, split)
