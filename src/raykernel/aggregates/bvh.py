@@ -632,12 +632,15 @@ def sah_weights(corners) -> np.ndarray | None:
 
 def flatten(builder, params, refs, bounds, name, box):
     split = params.get("split", 1)
-    weights = sah_weights(builder.vertex_weights(np.asarray(refs, np.int64))) if params.get("corners", 1) else None
+    sah = params.get("build", "sah") == "sah"
+    weights = None
+    if sah and params.get("corners", 1):
+        weights = sah_weights(builder.vertex_weights(np.asarray(refs, np.int64)))
     if split > 1:       # the tree is built over pieces of the flat primitives (presplit.py)
         from .presplit import split_boxes
         piece_item, bounds = split_boxes(*builder.outlines(refs), bounds, split)
         weights = None if weights is None else weights[piece_item]
-    if params.get("build", "sah") == "gs":
+    if not sah:
         from .gsbvh import build_gs
         tree, stats = build_gs(bounds, order=params["order"], seed=params["seed"])
     else:

@@ -399,10 +399,10 @@ class Builder:
         """Glassner's vertex count per reference: polygon and patch vertices, 3 per triangle, else 1."""
         kinds = refs >> KIND_SHIFT
         idx = refs & INDEX_MASK
-        counts = np.concatenate([p.count for p in self.flat.poly]) if self.flat.poly else np.zeros(0, np.int64)
         w = np.ones(len(refs), np.int64)
         poly = (kinds == POLYGON) | (kinds == PATCH)
-        w[poly] = counts[idx[poly]]
+        if poly.any():      # (every aggregate asks: gather the polygons' counts only where it holds some)
+            w[poly] = np.concatenate([p.count for p in self.flat.poly])[idx[poly]]
         w[kinds == TRIANGLE] = 3
         return w
 
