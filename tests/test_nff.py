@@ -818,6 +818,41 @@ def test_what_the_fast_reading_leaves_to_the_careful_one():
         assert str(fast_error.value).startswith(f"bad.nff:{line}:"), (body, str(fast_error.value))
 
 
+def test_fills_read_fast_register_materials_as_the_careful_reader_does():
+    """Fills before the view, repeated, unused and interleaved with every kind: the fast reading
+    (which takes fills in bulk) registers the same materials in the same order of first use."""
+    from raykernel.scene.nff import _Reader
+    red, blue, unused = "f 1 0 0 1 0 0 0 1\n", "f 0 0 1 0.5 0.5 3 0 1\n", "f 0 1 0 1 0 0 0 1\n"
+    text = (blue + "b 0.1 0.2 0.3\n" + VIEW + "s 0 0 0 1\n" + red + "p 3\n0 0 0\n1 0 0\n0 1 0\n" + unused
+            + blue + "c 0 0 0 1 0 0 1 0.5\n" + red + "pp 3\n0 0 0 0 0 1\n1 0 0 0 0 1\n0 1 0 0 0 1\n"
+            + "l 1 2 3\nl 4 5 6 0.5 0.5 0.5\n" + red + "s 1 1 1 2\n")
+    fast = _Reader(text, "x.nff", fast=True).parse()        # no fallback
+    slow = _slow(text, "x.nff")
+    _same_scene(fast, slow)
+    assert len(fast.materials) == 2 and fast.root.spheres.material.tolist() == [0, 1]
+
+
+@pytest.mark.parametrize("body", ["p 3.0\n0 0 0\n1 0 0\n0 1 0\n", "p 3\n0 0 0\n1 0 0\n0 1 0\n7\n",
+                                  "f 1 0 0 1 0 0 0\ns 0 0 0 1\n", "s 0 0 0 1\nfrom 0 0 0\n", "s 0 0 0 1\nx 1\n",
+                                  "s 0 0 0 1\np\n", "s 0 0 0 inf\n", "l 1 2 3 4\n"])
+def test_what_the_fast_reading_cannot_take_reads_as_the_careful_reader_reads_it(body):
+    """A non-integer vertex count, numbers left over, a short fill, a view keyword outside the view,
+    an unknown keyword, a keyword cut short, a non-finite number, a light with 4 numbers: not
+    plain, so parse_nff gives the token-by-token reader's scene or error."""
+    from raykernel.scene.nff import _NotPlain, _Reader
+    text = VIEW + body
+    with pytest.raises((_NotPlain, SceneError)):
+        _Reader(text, "x.nff", fast=True).parse()
+    try:
+        expected = _slow(text, "x.nff")
+    except SceneError as err:
+        with pytest.raises(SceneError) as got:
+            parse_nff(text, "x.nff")
+        assert str(got.value) == str(err)
+    else:
+        _same_scene(parse_nff(text, "x.nff"), expected)
+
+
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.data())
 def test_fuzzed_plain_files_read_as_the_careful_reader_reads_them(data):

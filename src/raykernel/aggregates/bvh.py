@@ -74,13 +74,15 @@ import numpy as np
 from ..errors import OptionError, SceneError
 from ..geometry import counters as C
 from ..geometry.boxes import INF, box_entry, cull_margin
-from ..geometry.config import cached, compiled, njit, tell_once
+from ..engine.compiletime import CompileClock, compile_notice
+from ..geometry.config import njit
 from ..scene.accel import Kind, Param
 from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push
 
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf"]
 
 _MAX_BINS = 1024
+_COMPILING = "raykernel: compiling the BVH builder (first use after install, a few seconds)"
 # corners a polygon's inside test walks in the time of one whole primitive test (reference
 # costs: about 1 ns per corner walked against 5-15 ns per test)
 CORNERS_PER_TEST = 8
@@ -529,16 +531,16 @@ def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_
     tc = _cost_option(traversal_cost, "traversal_cost", positive=False)
     ic = _cost_option(intersection_cost, "intersection_cost", positive=True)
 
-    if not compiled(_build_kernel) and not cached("aggregates", "bvh._build_kernel"):
-        tell_once("bvh", "raykernel: compiling the BVH builder (first use after install, a few seconds)")
     block = _int_option(block, "block", 1, 64)
     if weights is None:
         weights = np.ones(len(items))
     weights = np.ascontiguousarray(weights, np.float64)
     if weights.shape != (len(items),) or not np.all(np.isfinite(weights) & (weights > 0)):
         raise OptionError(f"weights must be {len(items)} finite positive numbers, one per item box")
-    nb, first, count, order, n_nodes, max_depth = _build_kernel(items, weights, leaf_size, bins, tc, ic,
-                                                                np.int64(block))
+    # said when it compiles (first use after install), not when it loads from the cache
+    with CompileClock(notice=compile_notice("bvh", _COMPILING), after=0.0):
+        nb, first, count, order, n_nodes, max_depth = _build_kernel(items, weights, leaf_size, bins, tc, ic,
+                                                                    np.int64(block))
     if n_nodes < count.shape[0]:  # give back the unused part of the 2n - 1 node allocation
         nb, first, count = nb[:n_nodes].copy(), first[:n_nodes].copy(), count[:n_nodes].copy()
     bvh = BVHArrays(nb, first, count, order)

@@ -14,8 +14,14 @@ deep inside a builder.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
+
+try:
+    import resource
+except ImportError:     # not on Windows
+    resource = None
 
 from ..errors import OptionError, RayKernelError
 
@@ -26,18 +32,20 @@ class MemoryBudgetError(RayKernelError):
     """A build or refinement would need more memory than the budget allows."""
 
 
+@functools.cache
 def physical_memory() -> int:
+    """This machine's memory in bytes, or the address-space limit if lower."""
     try:
         total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         total = 8 << 30
-    try:
-        import resource
-        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-        if soft != resource.RLIM_INFINITY and soft > 0:
-            total = min(total, soft)
-    except (ImportError, ValueError, OSError):
-        pass
+    if resource is not None:
+        try:
+            soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+            if soft != resource.RLIM_INFINITY and soft > 0:
+                total = min(total, soft)
+        except (ValueError, OSError):
+            pass
     return int(total)
 
 

@@ -24,7 +24,7 @@ import time
 
 import numba
 import numpy as np
-from numba.core import event
+from numba.core import entrypoints, event
 
 from ..geometry.config import cached, tell_once
 from .parallel import WORKER_PREFIX
@@ -136,11 +136,13 @@ _typing_ready = threading.Event()
 def typing_setup() -> float:
     """Seconds numba took to set up its typing of arguments, when this is the first call in
     the process (0 afterwards): the first typeof of an array loads that machinery, about
-    20 ms, which would otherwise fall into whatever kernel's call came first (a render's
-    BVH build). Start-up, reported with time.load."""
+    20 ms, and the first dispatch scans the installed packages for numba extensions, about
+    3 ms; both would otherwise fall into whatever kernel's call came first (a render's BVH
+    build). Start-up, reported with time.load."""
     if _typing_ready.is_set():
         return 0.0
     start = time.perf_counter()
+    entrypoints.init_all()
     numba.typeof(np.zeros((1, 3)))
     _typing_ready.set()
     return time.perf_counter() - start

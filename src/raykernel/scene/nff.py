@@ -10,8 +10,8 @@ Every token keeps its line number, so each error is one `SceneError` that
 names the file, the line and what was expected there.
 
 A plain file (ASCII, no comments, as the SPD programs write) is read fast:
-split in one call, and the numbers of its spheres, cones, polygons and
-patches converted and checked in bulk at the end. Anything that reading does
+split in one call, its keywords found and its numbers converted at once, and
+its spheres, cones, polygons and patches cut out and checked in bulk. Anything that reading does
 not accept at once (a comment, a bad token, a failed check) sends the file
 to the token-by-token reading, which gives the same scene or names the error.
 
@@ -200,7 +200,6 @@ class _Reader:
         # float() also reads "1_0" and non-ASCII digits; such files get checked token by token.
         self.strict = not (joined.isascii() and "_" not in joined)
         self.pos = 0
-        self.deferred: dict[str, list] = {"s": [], "c": [], "p": [], "pp": []}     # fast: (position, count, material)
 
         self.background = np.zeros(3)
         self.lights: list[Light] = []
@@ -278,10 +277,10 @@ class _Reader:
     def parse(self) -> Scene:
         if self.n == 0:
             raise self.error("empty file: no view and no geometry", line=self.eof_line)
+        if self.fast:
+            return self.parse_fast()
         handlers = {"v": self.view, "b": self.background_color, "l": self.light, "f": self.fill,
                     "c": self.cone, "s": self.sphere, "p": self.polygon, "pp": self.patch}
-        if self.fast:
-            handlers.update(c=self.defer_cone, s=self.defer_sphere, p=self.defer_polygon, pp=self.defer_patch)
         toks = self.toks
         while self.pos < self.n:
             start = self.pos
@@ -293,7 +292,7 @@ class _Reader:
         if self.camera is None:
             raise self.error("no view block: NFF needs 'v' with from, at, up, angle, hither and resolution",
                              self.n)
-        return self.build_fast() if self.fast else self.build()
+        return self.build()
 
     def unexpected(self, index: int):
         token = self.toks[index]
@@ -458,59 +457,107 @@ class _Reader:
                 raise self.error(f"the patch normal at vertex {k + 1} has {problem}", first + 6 * k + 3)
         self.patches.append((values, count, self.current_material()))
 
-    # -- the fast reading: numbers noted now, converted and checked together in build_fast ---------
+    # -- the fast reading: the file's structure found in bulk -----------------------------------
 
-    def defer(self, kind: str, per_vertex: int, count: int = 1):
-        if self.pos + per_vertex * count > self.n:
+    def parse_fast(self) -> Scene:
+        """parse()'s scene, reading the entities that make up a plain file's bulk (spheres,
+        cones, polygons, patches and fills) with array operations: keywords are the tokens
+        that start with a letter, every other token must be a finite number, and each entity's
+        numbers must run exactly to the next keyword. The few others (the view, lights and
+        background) take their handlers in file order. Anything else: _NotPlain."""
+        toks, n = self.toks, self.n
+        letters = np.frombuffer(self._text.encode("ascii"), np.uint8)
+        space = _SPACE[letters]
+        starts = np.flatnonzero(~space & np.concatenate(([True], space[:-1])))
+        if len(starts) != n:
             raise _NotPlain
-        self.deferred[kind].append((self.pos, count, self.current_material()))
-        self.pos += per_vertex * count
-
-    def defer_sphere(self, start: int):
-        self.require_view(start, "a sphere")
-        self.defer("s", 4)
-
-    def defer_cone(self, start: int):
-        self.require_view(start, "a cone")
-        self.defer("c", 8)
-
-    def defer_polygon(self, start: int):
-        self.require_view(start, "a polygon")
-        self.defer("p", 3, self.vertex_count(start, "polygon", 3))
-
-    def defer_patch(self, start: int):
-        self.require_view(start, "a patch")
-        self.defer("pp", 6, self.vertex_count(start, "patch", 6))
-
-    def deferred_numbers(self, kind: str, per_vertex: int):
-        """(the numbers of every deferred entity of `kind`, one row per vertex; vertices per
-        entity; materials), or _NotPlain unless every token is a finite number."""
-        runs = self.deferred[kind]
-        if not runs:
-            return np.zeros((0, per_vertex)), np.zeros(0, np.int64), np.zeros(0, np.int32)
-        position, count, material = (np.array(column) for column in zip(*runs))
-        sizes = per_vertex * count
-        first = np.cumsum(sizes) - sizes
-        index = (np.repeat(position - first, sizes) + np.arange(int(sizes.sum()))).tolist()
+        is_keyword = _LETTER[letters[starts]]
+        at = np.flatnonzero(is_keyword)             # keywords' token positions
+        if len(at) == 0 or at[0] != 0:
+            raise _NotPlain
+        numbers = list(toks)
+        keywords = at.tolist()
         try:
-            values = np.fromiter(map(float, operator.itemgetter(*index)(self.toks)), np.float64, len(index))
-        except ValueError:
+            code = np.fromiter(map(_CODES.__getitem__, [toks[i] for i in keywords]), np.int64, len(at))
+            for i in keywords:
+                numbers[i] = "0"
+            values = np.fromiter(map(float, numbers), np.float64, n)[~is_keyword]
+        except (KeyError, ValueError):
             raise _NotPlain from None
         if not np.isfinite(values).all():
             raise _NotPlain
-        return values.reshape(-1, per_vertex), count.astype(np.int64), material.astype(np.int32)
+        run = np.diff(at, append=n) - 1                 # numbers after each keyword
+        number = at - np.arange(len(at))                # index in `values` of each keyword's first number
+
+        # the view, lights and background, in file order (a view consumes its keywords)
+        for j in np.flatnonzero(code >= _CODES["v"]).tolist():
+            start, c = int(at[j]), int(code[j])
+            if start < self.pos:
+                continue                                # a view keyword its block has read
+            if c in _VIEW_CODES:
+                raise _NotPlain
+            self.pos = start + 1
+            _HANDLERS[c](self, start)
+            if self.pos < n and not is_keyword[self.pos]:
+                raise _NotPlain                         # numbers left over
+        bulk = np.flatnonzero(code < _CODES["f"])
+        if len(bulk) and (self.camera is None or at[bulk[0]] < self.view_start):
+            raise _NotPlain
+
+        # materials: each fill's numbers made a Material once, each entity given its last fill's,
+        # registered in order of first use
+        f = np.flatnonzero(code == _CODES["f"])
+        if np.any(run[f] != 8):
+            raise _NotPlain
+        rows, fill_row = np.unique(values[number[f, None] + np.arange(8)], axis=0, return_inverse=True)
+        fills = [Material()] + [Material(color=(r[0], r[1], r[2]), kd=r[3], ks=r[4], shine=r[5], t=r[6], ior=r[7])
+                                for r in rows.tolist()]
+        # each entity's fill: 0 for none before it, else 1 + its row
+        which = np.concatenate(([0], 1 + fill_row.reshape(-1)))[np.searchsorted(f, bulk)]
+        used, first_use = np.unique(which, return_index=True)
+        ids = np.zeros(len(fills), np.int32)
+        for k in used[np.argsort(first_use)].tolist():
+            self.material, self.material_index = fills[k], None
+            ids[k] = self.current_material()
+        material_of = np.zeros(len(at), np.int32)
+        material_of[bulk] = ids[which]
+
+        self.bulk = {}
+        for kind, per_vertex, counted in (("s", 4, False), ("c", 8, False), ("p", 3, True), ("pp", 6, True)):
+            j = np.flatnonzero(code == _CODES[kind])
+            first = number[j]
+            if counted:
+                if np.any(run[j] < 1):
+                    raise _NotPlain
+                count_tokens = set(_pick(toks, at[j] + 1))
+                if not all(_INTEGER.match(t) for t in count_tokens):
+                    raise _NotPlain
+                count = values[first] if len(j) else np.zeros(0)
+                if np.any(count < 3) or np.any(run[j] != 1 + per_vertex * count):
+                    raise _NotPlain
+                count = count.astype(np.int64)
+                first = first + 1
+            else:
+                count = np.ones(len(j), np.int64)
+                if np.any(run[j] != per_vertex):
+                    raise _NotPlain
+            sizes = per_vertex * count
+            offset = np.cumsum(sizes) - sizes
+            index = np.repeat(first - offset, sizes) + np.arange(int(sizes.sum()))
+            self.bulk[kind] = (values[index].reshape(-1, per_vertex), count, material_of[j])
+        return self.build_fast()
 
     def build_fast(self) -> Scene:
-        """build()'s scene from the deferred numbers, after the checks the entities' own
+        """build()'s scene from the bulk entities' numbers, after the checks the entities' own
         readers make (any that fails: _NotPlain, and the token-by-token reading names it)."""
         scene = Scene(camera=self.camera, background=self.background, lights=self.lights,
                       materials=self.materials, source=self.path)
         root = scene.root
-        v, _, material = self.deferred_numbers("s", 4)
+        v, _, material = self.bulk["s"]
         if np.any(v[:, 3] == 0.0):
             raise _NotPlain
         root.spheres.center, root.spheres.radius, root.spheres.material = v[:, :3].copy(), v[:, 3].copy(), material
-        v, _, material = self.deferred_numbers("c", 8)
+        v, _, material = self.bulk["c"]
         if np.any(np.all(v[:, 0:3] == v[:, 4:7], axis=1) | ((v[:, 3] == 0.0) & (v[:, 7] == 0.0))):
             raise _NotPlain
         cones = root.cones
@@ -519,7 +566,7 @@ class _Reader:
         cones.material = material
         for kind, target in (("p", root.polygons), ("pp", root.patches)):
             per_vertex = 3 if kind == "p" else 6
-            v, count, material = self.deferred_numbers(kind, per_vertex)
+            v, count, material = self.bulk[kind]
             start = np.cumsum(count) - count
             vertices = np.ascontiguousarray(v[:, :3])
             if len(count):
@@ -564,6 +611,25 @@ class _Reader:
         for s in (root.spheres, root.cones, root.polygons, root.patches):
             s.freeze()
         return scene
+
+
+# the fast reading's tables: str.split()'s ASCII whitespace, letters (a keyword's first
+# character), the keywords' codes (the entities read in bulk below "v") and the others' handlers
+_SPACE = np.zeros(256, bool)
+_SPACE[[9, 10, 11, 12, 13, 28, 29, 30, 31, 32]] = True
+_LETTER = np.zeros(256, bool)
+_LETTER[ord("a"):ord("z") + 1] = _LETTER[ord("A"):ord("Z") + 1] = True
+_CODES = {k: i for i, k in enumerate(("s", "c", "p", "pp", "f", "v", "b", "l") + VIEW_KEYWORDS)}
+_VIEW_CODES = frozenset(_CODES[k] for k in VIEW_KEYWORDS)
+_HANDLERS = {_CODES["v"]: _Reader.view, _CODES["b"]: _Reader.background_color, _CODES["l"]: _Reader.light}
+
+
+def _pick(items: list, index: np.ndarray) -> list:
+    """items[i] for each i of index, as a list."""
+    if len(index) == 0:
+        return []
+    picked = operator.itemgetter(*index.tolist())(items)
+    return list(picked) if len(index) > 1 else [picked]
 
 
 def parse_nff(text: str | bytes, path: str = "<string>") -> Scene:
