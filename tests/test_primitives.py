@@ -519,8 +519,9 @@ def test_cast_rays_matches_the_primitive_functions():
                              geo.cone_r1[i], *ray_o, *ray_d, 0.0, want[r])
                 want[r] = min(want[r], t)
             for i in range(len(geo.poly_count)):
-                t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                                geo.poly_verts, i, *ray_o, *ray_d, 0.0, want[r], np.zeros(C.N_COUNTERS, np.int64))
+                t = hit_polygon(geo.poly_normal, geo.poly_start, geo.poly_count, geo.poly_axis, geo.poly_band,
+                                geo.poly_verts, geo.poly_band_f, geo.poly_band_i, i, *ray_o, *ray_d, 0.0, want[r],
+                                np.zeros(C.N_COUNTERS, np.int64))
                 want[r] = min(want[r], t)
             for f in geo.tri_faces:
                 v = geo.tri_verts[f]
@@ -541,9 +542,9 @@ def count_polygon_hits(polygons, points, direction):
         o = p - 4.0 * direction
         n = 0
         for i in range(len(polygons)):
-            t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                            geo.poly_verts, i, o[0], o[1], o[2], direction[0], direction[1], direction[2],
-                            0.0, np.inf, np.zeros(C.N_COUNTERS, np.int64))
+            t = hit_polygon(geo.poly_normal, geo.poly_start, geo.poly_count, geo.poly_axis, geo.poly_band,
+                            geo.poly_verts, geo.poly_band_f, geo.poly_band_i, i, o[0], o[1], o[2], direction[0],
+                            direction[1], direction[2], 0.0, np.inf, np.zeros(C.N_COUNTERS, np.int64))
             n += t != np.inf
         counts.append(n)
     return np.array(counts)

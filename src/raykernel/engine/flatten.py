@@ -46,6 +46,7 @@ from ..aggregates.rc import CODE as RC
 from ..aggregates.walk import MAX_NESTING, MAX_TREE_DEPTH, STACK_SIZE, Field
 from ..errors import OptionError, SceneError
 from ..geometry.boxes import cull_margin
+from ..geometry import polybands
 from ..geometry.primitives import (
     AGGREGATE,
     CONE,
@@ -81,9 +82,12 @@ PRIMITIVE_FIELDS = (
     "poly_start",      # (P,) first vertex in poly_verts
     "poly_count",      # (P,) vertex count
     "poly_axis",       # (P,) axis dropped for the 2D inside test
+    "poly_band",       # (P,) its bins' table in poly_band_f, -1 for none (geometry/polybands.py)
     "poly_mat",        # (P,)
     "poly_verts",      # (V, 3) vertices of polygons and patches
     "poly_vnormals",   # (V, 3) unit vertex normals (patches; zero for polygons)
+    "poly_band_f",     # bins of the polygons with many corners: bounds (polybands.py)
+    "poly_band_i",     # and their edge lists
     "tri_verts",       # (TV, 3) mesh vertices
     "tri_vnormals",    # (TV, 3) mesh vertex normals (zero where absent)
     "tri_faces",       # (T, 3) int64 vertex indices
@@ -522,6 +526,7 @@ def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None, builder=N
         normal, dist, paxis = _polygon_planes(poly_verts, poly_start, poly_count)
     else:
         normal, dist, paxis = np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64)
+    band, band_f, band_i = polybands.build(poly_verts, poly_start, poly_count, paxis)
 
     tri_faces = _concat([m.faces + off for m, off in arr.mesh], (0, 3), np.int64)
     tri_verts = _concat([m.vertices for m, _ in arr.mesh], (0, 3), np.float64)
@@ -538,8 +543,8 @@ def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None, builder=N
         cone_r1=_concat([c.apex_radius for c in cone], (0,), np.float64),
         cone_mat=_concat([c.material for c in cone], (0,), np.int32),
         poly_normal=np.ascontiguousarray(normal), poly_d=dist, poly_start=poly_start, poly_count=poly_count,
-        poly_axis=paxis, poly_mat=_concat(mat_parts, (0,), np.int32), poly_verts=poly_verts,
-        poly_vnormals=_concat(vn_parts, (0, 3), np.float64),
+        poly_axis=paxis, poly_band=band, poly_mat=_concat(mat_parts, (0,), np.int32), poly_verts=poly_verts,
+        poly_vnormals=_concat(vn_parts, (0, 3), np.float64), poly_band_f=band_f, poly_band_i=band_i,
         tri_verts=tri_verts, tri_vnormals=tri_vn, tri_faces=tri_faces, tri_smooth=tri_smooth,
         tri_mat=_concat([m.material for m, _ in arr.mesh], (0,), np.int32),
         tri_edges=np.zeros(1, np.int64),

@@ -54,8 +54,9 @@ def hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
         return hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
                           geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, tmin, tmax)
     if kind == POLYGON or kind == PATCH:
-        return hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                           geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
+        return hit_polygon(geo.poly_normal, geo.poly_start, geo.poly_count, geo.poly_axis, geo.poly_band,
+                           geo.poly_verts, geo.poly_band_f, geo.poly_band_i, idx, ox, oy, oz, dx, dy, dz, tmin, tmax,
+                           cnt)
     if kind == TRIANGLE:
         fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
         v = geo.tri_verts

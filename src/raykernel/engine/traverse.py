@@ -187,7 +187,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     takes only the arrays it reads; every other to the general one, `walk`."""
     if geo.wide_nodes.shape[0] and mode != CLOSEST_EAGER:
         return intersect_wide(geo.wide_nodes, geo.wide_boxes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
-                              geo.wide_prims, geo.poly_verts, geo.tri_edges, ox, oy, oz, dx, dy, dz, tmin, tmax, mode,
+                              geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges, ox, oy, oz,
+                              dx, dy, dz, tmin, tmax, mode,
                               ws[0], ws[2], ws[3], ws[5], ws[6], ws[11], cnt)
     return _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
 
@@ -331,8 +332,9 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                                geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, lo, best_t)
             elif kind == POLYGON or kind == PATCH:
                 cnt[C.TESTS + kind] += 1
-                t = hit_polygon(geo.poly_normal, geo.poly_d, geo.poly_start, geo.poly_count, geo.poly_axis,
-                                geo.poly_verts, idx, ox, oy, oz, dx, dy, dz, lo, best_t, cnt)
+                t = hit_polygon(geo.poly_normal, geo.poly_start, geo.poly_count, geo.poly_axis, geo.poly_band,
+                                geo.poly_verts, geo.poly_band_f, geo.poly_band_i, idx, ox, oy, oz, dx, dy, dz, lo, best_t,
+                                cnt)
             elif kind == TRIANGLE:
                 cnt[C.TESTS + TRIANGLE] += 1
                 fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]

@@ -3,8 +3,9 @@
     geo = prepare(Geometry(..., **NO_WALK), agg_stats)   # flatten: collapse the root BVH 4-wide, lay out its primitives
     if geo.wide_nodes.shape[0]:          # traverse.intersect then hands each query here
         found = intersect_wide(geo.wide_nodes, geo.wide_boxes, geo.wide_center, geo.agg_bounds, geo.root,
-                               geo.refs, geo.wide_prims, geo.poly_verts, geo.tri_edges, ox, oy, oz, dx, dy, dz,
-                               tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt)
+                               geo.refs, geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i,
+                               geo.tri_edges, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f,
+                               hit_i, t4, cnt)
 
 Why a walk of its own: the general driver carries frames, instances, mailboxes and CSG, and
 every call that takes the scene's Geometry (about 75 arrays, which numba passes as some 650
@@ -19,8 +20,8 @@ gets the same hit as the general walk, tie for tie.
 wide_prims, one row of 10 float64 per reference of geo.refs (R, 10):
     sphere     centre (3), signed radius
     triangle   corners v0, v1, v2 (9): also the mesh kernel's corners (casting/meshcast.py)
-    polygon    unit normal (3), first corner in poly_verts, corner count, dropped axis
-    and patch
+    polygon    unit normal (3), first corner in poly_verts, corner count, dropped axis, its bins'
+    and patch  table in poly_band_f (-1: none; geometry/polybands.py)
     cone       base (3), unit axis (3), length, base radius, apex radius
     column 9   1.0 when the material transmits (ANY_OPAQUE passes it over), else 0.0
 
@@ -103,6 +104,7 @@ def _records(geo) -> np.ndarray:
     rec[k, 3] = geo.poly_start[idx[k]]
     rec[k, 4] = geo.poly_count[idx[k]]
     rec[k, 5] = geo.poly_axis[idx[k]]
+    rec[k, 6] = geo.poly_band[idx[k]]
     rec[k, CLEAR] = clear[geo.poly_mat[idx[k]]]
     k = kind == TRIANGLE
     rec[k, :9] = geo.tri_verts[geo.tri_faces[idx[k]]].reshape(-1, 9)
@@ -118,13 +120,14 @@ def _records(geo) -> np.ndarray:
 
 
 @njit(inline="always")
-def _hit(kind, p, i, verts, edges, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+def _hit(kind, p, i, verts, band_f, band_i, edges, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
     """hitrule.hit_primitive for the record p[i]: the same tests on the same numbers."""
     if kind == SPHERE:
         return hit_sphere(p[i, 0], p[i, 1], p[i, 2], p[i, 3], ox, oy, oz, dx, dy, dz, tmin, tmax)
     if kind == POLYGON or kind == PATCH:
         return hit_plane_polygon(p[i, 0], p[i, 1], p[i, 2], np.int64(p[i, 3]), np.int64(p[i, 4]),
-                                 np.int64(p[i, 5]), verts, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
+                                 np.int64(p[i, 5]), np.int64(p[i, 6]), verts, band_f, band_i, ox, oy, oz, dx, dy, dz,
+                                 tmin, tmax, cnt)
     if kind == TRIANGLE:
         return hit_triangle(p[i, 0], p[i, 1], p[i, 2], p[i, 3], p[i, 4], p[i, 5], p[i, 6], p[i, 7], p[i, 8],
                             ox, oy, oz, dx, dy, dz, tmin, tmax, edges)
@@ -142,8 +145,8 @@ def _flush(cnt, n_bounds, n_nodes, n_leaves):
 
 
 @njit(private=True)
-def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, tri_edges, ox, oy, oz, dx, dy, dz, tmin,
-                   tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
+def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz,
+                   dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
     """traverse.intersect (modes CLOSEST, ANY_HIT, ALL_HITS, ANY_OPAQUE) on the arrays prepare()
     made, with the workspace's stack, frames, hit record and t4. Stack entries as widebvh.visit
     pushes them: v >= 0 a wide node to visit, v < 0 a leaf."""
@@ -187,7 +190,7 @@ def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, t
             ref = refs[i]
             kind = ref >> KIND_SHIFT
             cnt[C.TESTS + kind] += 1
-            t = _hit(kind, prims, i, verts, edges, ox, oy, oz, dx, dy, dz, tmin, best_t, cnt)
+            t = _hit(kind, prims, i, verts, band_f, band_i, edges, ox, oy, oz, dx, dy, dz, tmin, best_t, cnt)
             if t == INF:
                 continue
             cnt[C.HITS + kind] += 1

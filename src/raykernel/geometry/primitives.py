@@ -17,6 +17,7 @@ import numpy as np
 
 from .config import njit
 from .counters import POLYGON_CORNERS
+from .polybands import plane_axes, point_in_bands
 
 SPHERE, POLYGON, PATCH, CONE, TRIANGLE, AGGREGATE, INSTANCE = 0, 1, 2, 3, 4, 5, 6
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
@@ -111,15 +112,9 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
     edge rules so that a point on an edge shared by two coplanar polygons
     lies in exactly one of them. Concave polygons work. Coordinates stay
     world coordinates, so both polygons of a shared edge round it alike."""
-    if axis == 0:
-        u0, v0 = py, pz
-        iu, iv = 1, 2
-    elif axis == 1:
-        u0, v0 = pz, px
-        iu, iv = 2, 0
-    else:
-        u0, v0 = px, py
-        iu, iv = 0, 1
+    iu, iv = plane_axes(axis)
+    u0 = px if iu == 0 else (py if iu == 1 else pz)
+    v0 = px if iv == 0 else (py if iv == 1 else pz)
     inside = False
     j = start + count - 1
     for i in range(start, start + count):
@@ -138,15 +133,18 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
 
 
 @njit(borrows=True)   # called per candidate: no reference counting
-def hit_polygon(normals, dists, starts, counts, axes, verts, i, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
-    return hit_plane_polygon(normals[i, 0], normals[i, 1], normals[i, 2], starts[i], counts[i], axes[i], verts,
-                             ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
+def hit_polygon(normals, starts, counts, axes, bands, verts, band_f, band_i, i, ox, oy, oz, dx, dy, dz, tmin,
+                tmax, cnt):
+    return hit_plane_polygon(normals[i, 0], normals[i, 1], normals[i, 2], starts[i], counts[i], axes[i], bands[i],
+                             verts, band_f, band_i, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
 
 
 @njit(inline="always")     # in hit_polygon's body as it was: a call per candidate costs grids and octrees
-def hit_plane_polygon(nx, ny, nz, v0, count, axis, verts, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
-    """hit_polygon of the polygon with unit normal n and corners verts[v0:v0 + count]; counts
-    the corners the inside test walks (cnt[POLYGON_CORNERS]: its cost grows with them)."""
+def hit_plane_polygon(nx, ny, nz, v0, count, axis, band, verts, band_f, band_i, ox, oy, oz, dx, dy, dz, tmin, tmax,
+                      cnt):
+    """hit_polygon of the polygon with unit normal n and corners verts[v0:v0 + count], whose
+    bins (polybands.py) are at band_f[band] (-1: none, walk every corner); counts the corners
+    the inside test walks (cnt[POLYGON_CORNERS]: its cost grows with them)."""
     # t from the first vertex, not the stored plane offset: (v0 - o) keeps its
     # digits when the polygon is far from the world origin but near the ray
     den = nx * dx + ny * dy + nz * dz
@@ -156,8 +154,16 @@ def hit_plane_polygon(nx, ny, nz, v0, count, axis, verts, ox, oy, oz, dx, dy, dz
     t = -(nx * wx + ny * wy + nz * wz) / den
     if not (tmin <= t <= tmax):
         return INF
-    cnt[POLYGON_CORNERS] += count
-    if point_in_polygon(verts, v0, count, axis, ox + t * dx, oy + t * dy, oz + t * dz):
+    px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+    if band < 0:
+        cnt[POLYGON_CORNERS] += count
+        inside = point_in_polygon(verts, v0, count, axis, px, py, pz)
+    else:
+        iu, iv = plane_axes(axis)
+        inside, walked = point_in_bands(verts, v0, count, iu, iv, px if iu == 0 else (py if iu == 1 else pz),
+                                        px if iv == 0 else (py if iv == 1 else pz), band_f, band_i, band)
+        cnt[POLYGON_CORNERS] += walked
+    if inside:
         return t
     return INF
 
