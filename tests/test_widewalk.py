@@ -99,7 +99,7 @@ def test_kernels_given_a_wide_geometry_compile_no_general_driver():
     ws, cnt = workspace(), np.zeros(C.N_COUNTERS, np.int64)
     first_hit(wide, CLOSEST, ws, cnt)
     code = first_hit.inspect_llvm(first_hit.signatures[0])
-    assert "intersect_wide" in code and "traverse4walk" not in code
+    assert "_walk_wide" in code and "traverse4walk" not in code
     with pytest.raises(ValueError, match="with_driver"):
         first_hit(wide, CLOSEST_EAGER, ws, cnt)     # eager normals need the driver: given with_driver(geo)
     assert first_hit(driven, CLOSEST_EAGER, ws, cnt) == first_hit(driven, CLOSEST, ws, cnt)

@@ -144,12 +144,27 @@ def _flush(cnt, n_bounds, n_nodes, n_leaves):
     cnt[C.CELLS_LEAVES] += n_leaves
 
 
-@njit(private=True)
+@njit(inline="always")
 def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz,
                    dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
     """traverse.intersect (modes CLOSEST, ANY_HIT, ALL_HITS, ANY_OPAQUE) on the arrays prepare()
-    made, with the workspace's stack, frames, hit record and t4. Stack entries as widebvh.visit
-    pushes them: v >= 0 a wide node to visit, v < 0 a leaf."""
+    made, with the workspace's stack, frames, hit record and t4. The scene's box is tested
+    here, in the caller's body: a ray that misses the whole scene (most eye rays of a small
+    one) pays no call of the walk, which passes some 150 numbers."""
+    ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
+    te = box_entry(agg_bounds, root, ox, oy, oz, ix, iy, iz, tmin, tmax)
+    if te == INF:
+        _flush(cnt, np.int64(1), np.int64(0), np.int64(0))
+        return False
+    return _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz,
+                      ix, iy, iz, te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt)
+
+
+@njit(private=True)
+def _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz, ix, iy, iz,
+               te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
+    """intersect_wide below the scene's box, which the ray enters at te. Stack entries as
+    widebvh.visit pushes them: v >= 0 a wide node to visit, v < 0 a leaf."""
     for k in range(12):     # the hit's frame is the world: an identity map for take
         frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
     found = False
@@ -157,12 +172,7 @@ def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, b
     best_ref = np.int64(-1)
     best_inst = np.int64(-1)
     edges = tri_edges[0]
-    ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
     n_bounds, n_nodes, n_leaves = np.int64(1), np.int64(0), np.int64(0)
-    te = box_entry(agg_bounds, root, ox, oy, oz, ix, iy, iz, tmin, best_t)
-    if te == INF:
-        _flush(cnt, n_bounds, n_nodes, n_leaves)
-        return False
     cnt[C.WALK_ENTRIES + BVH] += 1
     still = ix == STILL or iy == STILL or iz == STILL
     near = near_planes(ix, iy, iz)
