@@ -56,7 +56,7 @@ def _table(poly, axis):
 
 
 def _points(poly, axis, rng):
-    iu, iv = polybands.plane_axes(axis)
+    iu, iv, _, _ = polybands.plane_coordinates(axis, 0.0, 0.0, 0.0)
     u, v = poly[:, iu], poly[:, iv]
     lo, hi = v.min(), v.max()
     span = max(hi - lo, u.max() - u.min())
@@ -128,7 +128,7 @@ def test_a_polygon_test_counts_the_edges_its_band_walks(scale):
     aims = np.column_stack([rng.uniform(-1.2, 1.2, 300), rng.uniform(-1.2, 1.2, 300), np.zeros(300)]) * scale
     directions = aims - origins
     want = ref.hit_polygon(poly, origins, directions)
-    iu, iv = polybands.plane_axes(int(geo.poly_axis[0]))
+    iu, iv, _, _ = polybands.plane_coordinates(int(geo.poly_axis[0]), 0.0, 0.0, 0.0)
     walked = 0
     for r in range(len(origins)):
         cnt = np.zeros(C.N_COUNTERS, np.int64)

@@ -34,13 +34,14 @@ _HEAD = 3               # B, scale, q before the boundaries
 
 
 @njit(inline="always")
-def plane_axes(axis):
-    """(iu, iv): the coordinates of the plane that drops `axis`, in the crossings test's order."""
+def plane_coordinates(axis, px, py, pz):
+    """(iu, iv, u, v): the coordinates of the plane that drops `axis`, in the crossings test's
+    order, and the point's in it."""
     if axis == 0:
-        return 1, 2
+        return 1, 2, py, pz
     if axis == 1:
-        return 2, 0
-    return 0, 1
+        return 2, 0, pz, px
+    return 0, 1, px, py
 
 
 @njit(inline="always")
@@ -58,7 +59,7 @@ def _build(verts, start, count, axis):
         c = count[p]
         if c < MIN_CORNERS:
             continue
-        iu, iv = plane_axes(axis[p])
+        iu, iv, _, _ = plane_coordinates(axis[p], 0.0, 0.0, 0.0)
         lo, hi = verts[start[p], iv], verts[start[p], iv]
         for k in range(start[p], start[p] + c):
             lo, hi = min(lo, verts[k, iv]), max(hi, verts[k, iv])
@@ -77,7 +78,7 @@ def _build(verts, start, count, axis):
             continue
         c = count[p]
         s = start[p]
-        iu, iv = plane_axes(axis[p])
+        iu, iv, _, _ = plane_coordinates(axis[p], 0.0, 0.0, 0.0)
         lo, hi = verts[s, iv], verts[s, iv]
         for k in range(s, s + c):
             lo, hi = min(lo, verts[k, iv]), max(hi, verts[k, iv])

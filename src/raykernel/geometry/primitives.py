@@ -17,7 +17,7 @@ import numpy as np
 
 from .config import njit
 from .counters import POLYGON_CORNERS
-from .polybands import plane_axes, point_in_bands
+from .polybands import plane_coordinates, point_in_bands
 
 SPHERE, POLYGON, PATCH, CONE, TRIANGLE, AGGREGATE, INSTANCE = 0, 1, 2, 3, 4, 5, 6
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
@@ -112,9 +112,7 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
     edge rules so that a point on an edge shared by two coplanar polygons
     lies in exactly one of them. Concave polygons work. Coordinates stay
     world coordinates, so both polygons of a shared edge round it alike."""
-    iu, iv = plane_axes(axis)
-    u0 = px if iu == 0 else (py if iu == 1 else pz)
-    v0 = px if iv == 0 else (py if iv == 1 else pz)
+    iu, iv, u0, v0 = plane_coordinates(axis, px, py, pz)
     inside = False
     j = start + count - 1
     for i in range(start, start + count):
@@ -159,9 +157,8 @@ def hit_plane_polygon(nx, ny, nz, v0, count, axis, band, verts, band_f, band_i, 
         cnt[POLYGON_CORNERS] += count
         inside = point_in_polygon(verts, v0, count, axis, px, py, pz)
     else:
-        iu, iv = plane_axes(axis)
-        inside, walked = point_in_bands(verts, v0, count, iu, iv, px if iu == 0 else (py if iu == 1 else pz),
-                                        px if iv == 0 else (py if iv == 1 else pz), band_f, band_i, band)
+        iu, iv, u, v = plane_coordinates(axis, px, py, pz)
+        inside, walked = point_in_bands(verts, v0, count, iu, iv, u, v, band_f, band_i, band)
         cnt[POLYGON_CORNERS] += walked
     if inside:
         return t

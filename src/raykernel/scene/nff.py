@@ -11,9 +11,10 @@ names the file, the line and what was expected there.
 
 A plain file (ASCII, no comments, as the SPD programs write) is read fast:
 split in one call, its keywords found and its numbers converted at once, and
-its spheres, cones, polygons and patches cut out and checked in bulk. Anything that reading does
-not accept at once (a comment, a bad token, a failed check) sends the file
-to the token-by-token reading, which gives the same scene or names the error.
+its spheres, cones, polygons, patches and fills cut out and checked in bulk.
+Anything that reading does not accept at once (a comment, a bad token, a
+failed check) sends the file to the token-by-token reading, which gives the
+same scene or names the error.
 
 How strict the reader is:
 
@@ -466,12 +467,12 @@ class _Reader:
         numbers must run exactly to the next keyword. The few others (the view, lights and
         background) take their handlers in file order. Anything else: _NotPlain."""
         toks, n = self.toks, self.n
-        letters = np.frombuffer(self._text.encode("ascii"), np.uint8)
-        space = _SPACE[letters]
+        chars = np.frombuffer(self._text.encode("ascii"), np.uint8)
+        space = _SPACE[chars]
         starts = np.flatnonzero(~space & np.concatenate(([True], space[:-1])))
         if len(starts) != n:
             raise _NotPlain
-        is_keyword = _LETTER[letters[starts]]
+        is_keyword = _LETTER[chars[starts]]
         at = np.flatnonzero(is_keyword)             # keywords' token positions
         if len(at) == 0 or at[0] != 0:
             raise _NotPlain
