@@ -37,6 +37,7 @@ def _shapes():
     yield "star", _star(40)
     yield "star-tiny", _star(64, 1e-6, (3e-6, -2e-6))
     yield "star-huge", _star(24, 1e7, (4e7, 1e7))
+    yield "star-many", _star(3000)                      # more corners than MAX_BANDS bands can split
     yield "comb", _comb(12)
     yield "self-crossing", np.column_stack([rng.uniform(-1, 1, 30), rng.uniform(-1, 1, 30), np.zeros(30)])
     repeated = np.repeat(_star(18), 2, axis=0)        # every corner twice: zero-length edges

@@ -18,7 +18,9 @@ for the others, which walk every corner):
     band_i[q:]   B + 1 offsets (absolute, into band_i) of the bands' edge lists, then the lists:
                  edge e runs from corner e - 1 (the last corner for e = 0) to corner e
 A point's band is found by arithmetic and then checked against the stored boundaries, so
-rounding in the arithmetic cannot put it in the wrong one.
+rounding in the arithmetic cannot put it in the wrong one. The build finds each edge's first
+and last band the same way, so it takes time and memory in proportion to the corners and
+the lists, not to corners times bands.
 """
 
 from __future__ import annotations
@@ -49,63 +51,104 @@ def _bands(count):
     return min(MAX_BANDS, max(2, count // CORNERS_PER_BAND))
 
 
+@njit(inline="always")
+def _band_of(band_f, o, v):
+    """The band k of the table at band_f[o] with b_k <= v < b_(k+1), for vmin <= v < vmax: by
+    arithmetic, then moved to agree with the stored boundaries."""
+    b = np.int64(band_f[o])
+    first = o + _HEAD
+    k = min(max(np.int64((v - band_f[first]) * band_f[o + 1]), np.int64(0)), b - 1)
+    while v < band_f[first + k]:
+        k -= 1
+    while v >= band_f[first + k + 1]:
+        k += 1
+    return k
+
+
+@njit(inline="always")
+def _edge_bands(band_f, o, e_lo, e_hi):
+    """The bands first .. last that the edge's heights [e_lo, e_hi) reach into (e_lo < e_hi):
+    every band where a point can lie with e_lo <= v < e_hi."""
+    b = np.int64(band_f[o])
+    first = _band_of(band_f, o, e_lo)
+    last = b - 1 if e_hi >= band_f[o + _HEAD + b] else _band_of(band_f, o, e_hi)
+    while last > first and band_f[o + _HEAD + last] >= e_hi:
+        last -= 1           # a band that starts at e_hi holds no point below it
+    return first, last
+
+
 @njit
 def _build(verts, start, count, axis):
     n = start.shape[0]
     band = np.full(n, -1, np.int64)
-    # first pass: which polygons get a table, and how big the tables are
-    size_f, size_i = 0, 0
-    for p in range(n):
+    height = np.zeros((n, 2))
+    size_f = 0
+    for p in range(n):          # which polygons get a table: enough corners, and height
         c = count[p]
         if c < MIN_CORNERS:
             continue
-        iu, iv, _, _ = plane_coordinates(axis[p], 0.0, 0.0, 0.0)
+        _, iv, _, _ = plane_coordinates(axis[p], 0.0, 0.0, 0.0)
         lo, hi = verts[start[p], iv], verts[start[p], iv]
         for k in range(start[p], start[p] + c):
             lo, hi = min(lo, verts[k, iv]), max(hi, verts[k, iv])
-        if not hi > lo or not np.isfinite(hi - lo):
-            continue
-        b = _bands(c)
-        band[p] = size_f
-        size_f += _HEAD + b + 1
-        size_i += b + 1 + c * b     # at most every edge in every band; trimmed below
+        if hi > lo and np.isfinite(hi - lo):
+            band[p] = size_f
+            height[p, 0], height[p, 1] = lo, hi
+            size_f += _HEAD + _bands(c) + 1
     band_f = np.zeros(size_f)
-    band_i = np.zeros(size_i, np.int64)
-    used = 0
-    for p in range(n):
+    sizes = np.zeros(size_f, np.int64)      # edges per band, at each table's boundary slots
+    size_i = 0
+    for p in range(n):          # the boundaries, and how many edges each band lists
         o = band[p]
         if o < 0:
             continue
-        c = count[p]
-        s = start[p]
-        iu, iv, _, _ = plane_coordinates(axis[p], 0.0, 0.0, 0.0)
-        lo, hi = verts[s, iv], verts[s, iv]
-        for k in range(s, s + c):
-            lo, hi = min(lo, verts[k, iv]), max(hi, verts[k, iv])
+        c, s = count[p], start[p]
+        _, iv, _, _ = plane_coordinates(axis[p], 0.0, 0.0, 0.0)
+        lo, hi = height[p, 0], height[p, 1]
         b = _bands(c)
-        band_f[o] = b
-        band_f[o + 1] = b / (hi - lo)
-        band_f[o + 2] = used
+        band_f[o], band_f[o + 1] = b, b / (hi - lo)
         band_f[o + _HEAD] = lo
         for k in range(1, b):
             band_f[o + _HEAD + k] = min(hi, max(band_f[o + _HEAD + k - 1], lo + (hi - lo) * k / b))
         band_f[o + _HEAD + b] = hi
-        q = used
-        at = q + b + 1
+        for e in range(c):
+            i = s + e
+            j = s + c - 1 if e == 0 else i - 1
+            e_lo, e_hi = min(verts[i, iv], verts[j, iv]), max(verts[i, iv], verts[j, iv])
+            if e_lo < e_hi:     # an edge can count for a point v only where e_lo <= v < e_hi
+                first, last = _edge_bands(band_f, o, e_lo, e_hi)
+                for k in range(first, last + 1):
+                    sizes[o + k] += 1
+        size_i += b + 1
         for k in range(b):
-            band_i[q + k] = at
-            b_lo, b_hi = band_f[o + _HEAD + k], band_f[o + _HEAD + k + 1]
-            for e in range(c):
-                i = s + e
-                j = s + c - 1 if e == 0 else i - 1
-                e_lo, e_hi = min(verts[i, iv], verts[j, iv]), max(verts[i, iv], verts[j, iv])
-                # the edge can count for a point v only where e_lo <= v < e_hi
-                if e_lo < e_hi and e_lo < b_hi and e_hi > b_lo:
-                    band_i[at] = e
-                    at += 1
-        band_i[q + b] = at
+            size_i += sizes[o + k]
+    band_i = np.zeros(size_i, np.int64)
+    used = 0
+    for p in range(n):          # the lists
+        o = band[p]
+        if o < 0:
+            continue
+        c, s = count[p], start[p]
+        _, iv, _, _ = plane_coordinates(axis[p], 0.0, 0.0, 0.0)
+        b = np.int64(band_f[o])
+        band_f[o + 2] = used
+        at = used + b + 1
+        for k in range(b):
+            band_i[used + k] = at
+            at += sizes[o + k]
+        band_i[used + b] = at
+        fill = band_i[used:used + b].copy()
+        for e in range(c):
+            i = s + e
+            j = s + c - 1 if e == 0 else i - 1
+            e_lo, e_hi = min(verts[i, iv], verts[j, iv]), max(verts[i, iv], verts[j, iv])
+            if e_lo < e_hi:
+                first, last = _edge_bands(band_f, o, e_lo, e_hi)
+                for k in range(first, last + 1):
+                    band_i[fill[k]] = e
+                    fill[k] += 1
         used = at
-    return band, band_f, band_i[:used].copy()
+    return band, band_f, band_i
 
 
 def build(verts, start, count, axis):
@@ -123,14 +166,9 @@ def point_in_bands(verts, start, count, iu, iv, u0, v0, band_f, band_i, o):
     """(point_in_polygon's answer for the point (u0, v0) of the plane (iu, iv), the edges walked),
     walking only the edges of the point's band of the table at band_f[o]."""
     b = np.int64(band_f[o])
-    first = o + _HEAD
-    if not (band_f[first] <= v0 < band_f[first + b]):
+    if not (band_f[o + _HEAD] <= v0 < band_f[o + _HEAD + b]):
         return False, np.int64(0)      # below or above every corner: no edge can cross
-    k = min(max(np.int64((v0 - band_f[first]) * band_f[o + 1]), np.int64(0)), b - 1)
-    while v0 < band_f[first + k]:
-        k -= 1
-    while v0 >= band_f[first + k + 1]:
-        k += 1
+    k = _band_of(band_f, o, v0)
     q = np.int64(band_f[o + 2])
     lo, hi = band_i[q + k], band_i[q + k + 1]
     inside = False
