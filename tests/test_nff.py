@@ -775,6 +775,18 @@ def _slow(text: str, path: str = "<string>") -> Scene:
     return _Reader(text, path).parse()
 
 
+def _reads_as_the_careful_reader(text: str, path: str) -> None:
+    """parse_nff gives the token-by-token reader's scene, or its error word for word."""
+    try:
+        expected = _slow(text, path)
+    except SceneError as err:
+        with pytest.raises(SceneError) as got:
+            parse_nff(text, path)
+        assert str(got.value) == str(err)
+    else:
+        _same_scene(parse_nff(text, path), expected)
+
+
 @pytest.mark.parametrize("name", ["balls", "gears", "mount", "rings", "teapot", "tetra", "tree", "jacks", "lattice",
                                   "shells", "sombrero", "sample", "nurbtst"])
 def test_plain_files_read_fast_to_the_same_scene(name):
@@ -843,14 +855,7 @@ def test_what_the_fast_reading_cannot_take_reads_as_the_careful_reader_reads_it(
     text = VIEW + body
     with pytest.raises((_NotPlain, SceneError)):
         _Reader(text, "x.nff", fast=True).parse()
-    try:
-        expected = _slow(text, "x.nff")
-    except SceneError as err:
-        with pytest.raises(SceneError) as got:
-            parse_nff(text, "x.nff")
-        assert str(got.value) == str(err)
-    else:
-        _same_scene(parse_nff(text, "x.nff"), expected)
+    _reads_as_the_careful_reader(text, "x.nff")
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -864,11 +869,4 @@ def test_fuzzed_plain_files_read_as_the_careful_reader_reads_them(data):
         k = data.draw(st.integers(0, len(tokens) - 1))
         tokens[k] = data.draw(st.sampled_from(["0", "1", "-2.5", "p", "s", "3", "nan", "1e400", "x", ""]))
     text = " ".join(t for t in tokens if t)
-    try:
-        expected = _slow(text, "f.nff")
-    except SceneError as err:
-        with pytest.raises(SceneError) as got:
-            parse_nff(text, "f.nff")
-        assert str(got.value) == str(err)
-    else:
-        _same_scene(parse_nff(text, "f.nff"), expected)
+    _reads_as_the_careful_reader(text, "f.nff")

@@ -7,7 +7,7 @@ listing the edges that reach into it, so that a point's test walks its band's ed
 
 The result is the crossings test's, bit for bit: an edge can change the parity only where
 the point's v lies in [min, max) of the edge's two v's, so an edge outside the point's band
-cannot; the edges of the band are tested by the same arithmetic (primitives.point_in_polygon)
+cannot; the edges of the band are tested by the same step (`crosses`, as primitives.point_in_polygon)
 and parity does not depend on their order. Horizontal edges never count and are listed in
 no band. A point outside [vmin, vmax) of the polygon is outside it with no edge walked.
 
@@ -44,6 +44,20 @@ def plane_coordinates(axis, px, py, pz):
     if axis == 1:
         return 2, 0, pz, px
     return 0, 1, px, py
+
+
+@njit(inline="always")
+def crosses(verts, i, j, iu, iv, u0, v0):
+    """Whether the edge from corner j to corner i crosses the line v = v0 strictly right of
+    the point (u0, v0): the crossings test's step, with half-open rules. num is negated
+    exactly when the edge is walked the other way, so two polygons sharing an edge agree:
+    a point on it lies in exactly one of them."""
+    ui, vi = verts[i, iu] - u0, verts[i, iv] - v0
+    uj, vj = verts[j, iu] - u0, verts[j, iv] - v0
+    if (vi > 0.0) == (vj > 0.0):
+        return False
+    num = ui * vj - uj * vi
+    return num != 0.0 and (vj > vi) == (num > 0.0)
 
 
 @njit(inline="always")
@@ -176,10 +190,6 @@ def point_in_bands(verts, start, count, iu, iv, u0, v0, band_f, band_i, o):
         e = band_i[m]
         i = start + e
         j = start + count - 1 if e == 0 else i - 1
-        ui, vi = verts[i, iu] - u0, verts[i, iv] - v0
-        uj, vj = verts[j, iu] - u0, verts[j, iv] - v0
-        if (vi > 0.0) != (vj > 0.0):
-            num = ui * vj - uj * vi
-            if num != 0.0 and (vj > vi) == (num > 0.0):
-                inside = not inside
+        if crosses(verts, i, j, iu, iv, u0, v0):
+            inside = not inside
     return inside, hi - lo

@@ -17,7 +17,7 @@ import numpy as np
 
 from .config import njit
 from .counters import POLYGON_CORNERS
-from .polybands import plane_coordinates, point_in_bands
+from .polybands import crosses, plane_coordinates, point_in_bands
 
 SPHERE, POLYGON, PATCH, CONE, TRIANGLE, AGGREGATE, INSTANCE = 0, 1, 2, 3, 4, 5, 6
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
@@ -116,16 +116,8 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
     inside = False
     j = start + count - 1
     for i in range(start, start + count):
-        ui, vi = verts[i, iu] - u0, verts[i, iv] - v0
-        uj, vj = verts[j, iu] - u0, verts[j, iv] - v0
-        if (vi > 0.0) != (vj > 0.0):
-            # the edge crosses the line v = 0 at u = num / (vj - vi); count it
-            # when that is strictly right of the point. num is negated exactly
-            # when the edge is walked the other way, so two polygons sharing an
-            # edge agree: a point on it lies in exactly one of them.
-            num = ui * vj - uj * vi
-            if num != 0.0 and (vj > vi) == (num > 0.0):
-                inside = not inside
+        if crosses(verts, i, j, iu, iv, u0, v0):
+            inside = not inside
         j = i
     return inside
 
