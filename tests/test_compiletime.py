@@ -105,10 +105,12 @@ def test_numbas_typing_set_up_is_timed_once_per_process():
 
 def test_render_reports_parse_and_load_apart_from_the_work():
     """time.parse is the loading of the scene; a scene built in Python has none. Loading kernels
-    from the cache is start-up (time.load), in neither time.preprocess nor time.trace."""
+    from the cache is start-up (time.load), in neither time.parse, time.preprocess nor time.trace:
+    the reader's own kernel is loaded when a process reads its first NFF text."""
     import subprocess
     import sys
     code = ("import raykernel; s = raykernel.load('spd:balls:1'); assert s.parse_seconds > 0\n"
+            "assert s.load_seconds > 0 and s.compile_seconds == 0 and raykernel.load('spd:balls:1').load_seconds == 0\n"
             "r = raykernel.render(s, resolution=8)\n"
             "print(r.stats['time.parse'], r.stats['time.load'], r.stats['time.compile'], r.stats['time.trace'])")
     raykernel.render(raykernel.load("spd:balls:1"), resolution=8)       # compiled and cached, if it was not

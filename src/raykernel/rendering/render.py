@@ -469,8 +469,8 @@ class RenderJob:
         width, height, aa = self.width, self.height, o["aa"]
         stats = Stats.from_counters(
             self.counts.sum(axis=0), build, preprocess=self.preprocess if preprocess is None else preprocess,
-            trace=trace, compile=self.build_compile + compile, load=self.build_load + load,
-            parse=self.scene.parse_seconds,
+            trace=trace, compile=self.scene.compile_seconds + self.build_compile + compile,
+            load=self.scene.load_seconds + self.build_load + load, parse=self.scene.parse_seconds,
             anneal=self.annealed["seconds"] if self.annealed else 0.0,
             info={"scene": self.scene.source, "accel": o["accel"], "resolution": [width, height],
                   "spd": o["spd"], "max_depth": o["max_depth"], "shading": o["shading"],

@@ -15,10 +15,16 @@ from .model import Scene
 
 def load(source) -> Scene:
     """A Scene from a .nff or .json path, `spd:NAME[:SIZE]`, `scene:NAME` or `example:NAME`;
-    its parse_seconds say how long that took (a render reports them as time.parse)."""
+    its parse_seconds say how long that took (a render reports them as time.parse), less the
+    kernels' compiling and loading on a first call (its compile_seconds and load_seconds)."""
+    from ..engine.compiletime import CompileClock, compile_notice, typing_setup
+    setup = typing_setup()      # numba's, on a process's first kernel call
     t0 = time.perf_counter()
-    scene = _load(source)
-    scene.parse_seconds = time.perf_counter() - t0
+    notice = compile_notice("reader", "compiling the scene reader's kernel (once per install)")
+    with CompileClock(notice=notice) as clock:
+        scene = _load(source)
+    scene.parse_seconds = time.perf_counter() - t0 - clock.seconds - clock.loading
+    scene.compile_seconds, scene.load_seconds = clock.seconds, setup + clock.loading
     return scene
 
 

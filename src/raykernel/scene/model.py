@@ -346,6 +346,8 @@ class Scene:
     root: Group = field(default_factory=lambda: Group(name="root"))
     source: str = ""
     parse_seconds: float = 0.0  # reading it from its file or generator (loading.load); 0 when built in Python
+    compile_seconds: float = 0.0    # of that reading, compiling its kernels (left out of parse_seconds)
+    load_seconds: float = 0.0   # and loading them from the cache (start-up, left out of parse_seconds)
     animation: object = None    # an animation.Animation: what moves over time (JSON "animation" and "motion")
 
     def __post_init__(self):

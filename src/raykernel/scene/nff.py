@@ -71,6 +71,7 @@ import numpy as np
 from ..atomicfile import write_text
 from ..errors import SceneError
 from .model import Camera, Group, Instance, Light, Material, Scene, TriangleMesh
+from . import tokens
 from .nffwriter import NffWriter
 
 __all__ = ["read_nff", "parse_nff", "write_nff", "scene_to_nff", "CORNER_TOLERANCE", "MAX_RESOLUTION"]
@@ -467,24 +468,20 @@ class _Reader:
         numbers must run exactly to the next keyword. The few others (the view, lights and
         background) take their handlers in file order. Anything else: _NotPlain."""
         toks, n = self.toks, self.n
-        chars = np.frombuffer(self._text.encode("ascii"), np.uint8)
-        space = _SPACE[chars]
-        starts = np.flatnonzero(~space & np.concatenate(([True], space[:-1])))
-        if len(starts) != n:
+        _, values, kinds = tokens.scan(self._text.encode("ascii"))
+        if len(kinds) != n:
             raise _NotPlain
-        is_keyword = _LETTER[chars[starts]]
+        is_keyword = kinds == tokens.WORD
         at = np.flatnonzero(is_keyword)             # keywords' token positions
         if len(at) == 0 or at[0] != 0:
             raise _NotPlain
-        numbers = list(toks)
-        keywords = at.tolist()
         try:
-            code = np.fromiter(map(_CODES.__getitem__, [toks[i] for i in keywords]), np.int64, len(at))
-            for i in keywords:
-                numbers[i] = "0"
-            values = np.fromiter(map(float, numbers), np.float64, n)[~is_keyword]
+            code = np.fromiter(map(_CODES.__getitem__, [toks[i] for i in at.tolist()]), np.int64, len(at))
+            for i in np.flatnonzero(kinds == tokens.OTHER).tolist():
+                values[i] = float(toks[i])          # the few numbers the scan leaves to Python
         except (KeyError, ValueError):
             raise _NotPlain from None
+        values = values[~is_keyword]
         if not np.isfinite(values).all():
             raise _NotPlain
         run = np.diff(at, append=n) - 1                 # numbers after each keyword
@@ -616,10 +613,6 @@ class _Reader:
 
 # the fast reading's tables: str.split()'s ASCII whitespace, letters (a keyword's first
 # character), the keywords' codes (the entities read in bulk below "v") and the others' handlers
-_SPACE = np.zeros(256, bool)
-_SPACE[[9, 10, 11, 12, 13, 28, 29, 30, 31, 32]] = True
-_LETTER = np.zeros(256, bool)
-_LETTER[ord("a"):ord("z") + 1] = _LETTER[ord("A"):ord("Z") + 1] = True
 _CODES = {k: i for i, k in enumerate(("s", "c", "p", "pp", "f", "v", "b", "l") + VIEW_KEYWORDS)}
 _VIEW_CODES = frozenset(_CODES[k] for k in VIEW_KEYWORDS)
 _HANDLERS = {_CODES["v"]: _Reader.view, _CODES["b"]: _Reader.background_color, _CODES["l"]: _Reader.light}
