@@ -188,6 +188,20 @@ def test_predictions_positive_and_round_trip(tmp_path):
     assert again.predict(result.stats) == pytest.approx(model.predict(result.stats))
 
 
+def test_an_older_machine_calibration_falls_back_to_the_reference(tmp_path, monkeypatch):
+    """A calibration file of another version prices other features: current() warns and uses the
+    reference costs; loading it by name is a clear error."""
+    old = tmp_path / "raykernel" / "calibration-old.json"
+    old.parent.mkdir()
+    old.write_text(json.dumps({"version": costmodel.VERSION - 1, "costs": {"render": 1.0}, "threads": 2}))
+    monkeypatch.setattr(costmodel, "default_path", lambda: old)
+    with pytest.warns(RuntimeWarning, match="older raykernel"):
+        model = costmodel.current()
+    assert model.costs == costmodel.CostModel.load(costmodel.REFERENCE_PATH).costs
+    with pytest.raises(raykernel.errors.OptionError, match="run `raykernel calibrate` again"):
+        costmodel.CostModel.load(old)
+
+
 def test_calibrate_small(tmp_path):
     model = costmodel.calibrate(kinds=["bvh"], scenes=("spd:balls:1", "spd:tetra:1"), resolutions=(8, 12),
                                 threads=1, repeats=1)
@@ -201,8 +215,8 @@ def test_calibrate_small(tmp_path):
 
 def test_compare_shows_predictions_with_a_calibration(tmp_path):
     model = costmodel.CostModel(costs={"render": 1e-4, "ray.shaded": 1e-7, "ray.shadow": 5e-8,
-                                       "test.sphere": 1e-8, "test.polygon": 1e-8, "step.bvh": 1e-8,
-                                       "bound.bvh": 1e-8}, threads=1)
+                                       "test.sphere.wide": 1e-8, "test.polygon.wide": 1e-8, "step.wide": 1e-8,
+                                       "bound.wide": 1e-8}, threads=1)
     model.save(tmp_path / "cal.json")
     cmp = cm.compare(["spd:balls:1"], ["bvh", "list"], resolution=6, threads=1, model=str(tmp_path / "cal.json"),
                      warm_up=False)

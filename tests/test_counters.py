@@ -95,12 +95,26 @@ def test_the_cost_model_prices_corners_hits_mailboxes_leaves_and_lazy_rays():
     assert f["polygon.corner"] == eager["polygon.corners"] > 2 * eager["tests.polygon"]   # many-cornered faces
     assert f["hit.polygon"] == eager["hits.polygon"] > 0
     assert f["mailbox"] == eager["mailbox.saved"] and f["leaf"] == eager["cells.leaves"] > 0
-    assert "ray.lazy" not in f
+    assert not any(name.startswith(("ray.lazy", "pass.lazy")) for name in f)
+    assert not costmodel.walked_wide(eager) and "test.polygon.wide" not in f
     rows = {(r[0], r[1]): r for r in eager.rows()}
     assert rows[("tests", "polygon")][3] == f"{eager['hits.polygon']:,} hit"
     assert rows[("tests", "polygon corners")][2] == f"{eager['polygon.corners']:,}"
     lazy = raykernel.render(scene, accel="lazyoctree", resolution=24, spd=True).stats
     g = costmodel.features(lazy)
-    assert g["ray.lazy"] == g["ray.shaded"] + g["ray.shadow"] > 0
+    assert g["ray.lazy.octree"] == g["ray.shaded"] + g["ray.shadow"] > 0
+    assert g["pass.lazy"] == g["refine.pass"] == lazy["build.refine_passes"] > 1 and "ray.lazy.rc" not in g
+    rc = costmodel.features(raykernel.render(scene, accel="rc", resolution=24, spd=True).stats)
+    assert rc["ray.lazy.rc"] == rc["ray.shaded"] + rc["ray.shadow"] and rc["ray.lazy.rc_mb"] > 0
+    # a scene that is one BVH takes the 4-wide walk, priced apart; with eager normals it does not
+    wide = raykernel.render(scene, accel="bvh", resolution=24, spd=True).stats
+    w = costmodel.features(wide)
+    assert costmodel.walked_wide(wide) and costmodel.walks_used(wide) == {"wide"}
+    assert w["test.polygon.wide"] == wide["tests.polygon"] > 0 and "test.polygon" not in w
+    assert w["step.wide"] == wide["walk.bvh.steps"] > 0 and "step.bvh" not in w
+    eager_bvh = raykernel.render(scene, accel="bvh", resolution=24, spd=True, tricks="closest").stats
+    assert not costmodel.walked_wide(eager_bvh) and costmodel.features(eager_bvh)["step.bvh"] > 0
+    binary = raykernel.render(scene, accel="bvh(width=2)", resolution=24, spd=True).stats
+    assert not costmodel.walked_wide(binary) and costmodel.walks_used(binary) == {"bvh"}
     model = costmodel.CostModel.load(costmodel.REFERENCE_PATH)
     assert model.costs["polygon.corner"] > 0 and model.predict(eager) > 0

@@ -10,8 +10,11 @@ Trace time is modelled as  sum(count * cost)  over these features:
   render         one per render: fixed overhead (tile dispatch, allocation)
   ray.shaded     eye + reflection + refraction rays (camera, shading, spawning)
   ray.shadow     shadow rays (no shading)
-  ray.lazy       rays of a render with lazy structures, traced coarse to fine: the sparse
-                 early passes find little in the caches
+  ray.lazy.W     rays of a render with lazy structures of walk W (rc; octree for lazyoctree),
+                 traced coarse to fine: the sparse early passes find little in the caches
+  ray.lazy.rc_mb and for ray classification weighted by log2(1 + MiB of its structure): a ray's
+                 hypercube and candidates are found in memory that grows with the refinement
+  pass.lazy      passes of such a render: each hands its tiles to the threads again
   test.KIND      ray/primitive tests, one cost per primitive kind
   hit.KIND       and those that found the primitive in range (a hit computes its root and
                  takes the closest hit: dearer than a miss)
@@ -34,7 +37,11 @@ Trace time is modelled as  sum(count * cost)  over these features:
 W is one of the kernel's walks (aggregates.WALK_NAMES: list, bvh, grid, octree, rc,
 csg); every structure kind runs one of them (hgrid runs grids, hybrid and lazyoctree
 octrees with BVHs inside), and the kernel counts each walk's share apart (walk.W.*), so one
-model prices any nesting of any kinds. Costs are wall-clock seconds at the thread count of
+model prices any nesting of any kinds. A scene that is one BVH over primitives is walked by
+the 4-wide walk of engine/widewalk.py instead, with the primitives' numbers laid out in leaf
+order: its node visits and its tests cost what the general walk's do not (a polygon test
+about half as much), so its walk is W = wide and its tests, hits and corners are priced as
+test.KIND.wide, hit.KIND.wide and polygon.corner.wide. Costs are wall-clock seconds at the thread count of
 the calibration, so a model only predicts renders made with that many threads on that
 machine; REFERENCE_PATH holds one fitted on a 2-core machine, used where this machine has
 none (analysis.anneal ranks candidates with it: rankings move less between machines than
@@ -70,7 +77,7 @@ import numpy as np
 from ..aggregates import WALK_COUNTERS, WALK_NAMES
 from ..errors import OptionError
 
-VERSION = 4                 # calibration files of another version priced other features
+VERSION = 6                 # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
@@ -97,16 +104,19 @@ def features(stats) -> dict:
                             + stats.get("rays.cast", 0)),
         "ray.shadow": float(stats["rays.shadow"]),
     }
+    wide = walked_wide(stats)
+    tail = ".wide" if wide else ""
     for k in PRIMITIVE_KINDS:
-        f[f"test.{k}"] = float(stats.get(f"tests.{k}", 0))
-        f[f"hit.{k}"] = float(stats.get(f"hits.{k}", 0))
-    f["polygon.corner"] = float(stats.get("polygon.corners", 0))
+        f[f"test.{k}{tail}"] = float(stats.get(f"tests.{k}", 0))
+        f[f"hit.{k}{tail}"] = float(stats.get(f"hits.{k}", 0))
+    f[f"polygon.corner{tail}"] = float(stats.get("polygon.corners", 0))
     f["mailbox"] = float(stats.get("mailbox.saved", 0))
     f["leaf"] = float(stats.get("cells.leaves", 0))
     for walk in WALK_NAMES:
-        f[f"entry.{walk}"] = float(stats.get(f"walk.{walk}.entries", 0))
-        f[f"step.{walk}"] = float(stats.get(f"walk.{walk}.steps", 0))
-        f[f"bound.{walk}"] = float(stats.get(f"walk.{walk}.bounds", 0))
+        name = "wide" if wide and walk == "bvh" else walk
+        f[f"entry.{name}"] = float(stats.get(f"walk.{walk}.entries", 0))
+        f[f"step.{name}"] = float(stats.get(f"walk.{walk}.steps", 0))
+        f[f"bound.{name}"] = float(stats.get(f"walk.{walk}.bounds", 0))
     f["transform"] = float(sum(stats.get(f"transforms.{k}", 0) for k in ("identity", "translation", "scale",
                                                                           "affine")))
     for counter, feature in WALK_COUNTERS:
@@ -115,15 +125,20 @@ def features(stats) -> dict:
     # lazy structures refine between passes of rays, inside the trace time
     lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
     if lazy:
-        f["ray.lazy"] = f["ray.shaded"] + f["ray.shadow"]
-        f["refine.pass"] = float(stats.get("build.refine_passes", 0))
+        rays = f["ray.shaded"] + f["ray.shadow"]
+        passes = float(stats.get("build.refine_passes", 0))
+        f["refine.pass"] = f["pass.lazy"] = passes
         for a in lazy:
             # rc refines its own walk's hypercubes; every other lazy kind (lazyoctree) an octree
             walk = "rc" if a.get("kind", "").split("(")[0] == "rc" else "octree"
             refs = float(a.get("refs", 0))
+            megabytes = math.log2(1.0 + a.get("bytes", 0) / 2 ** 20)
             for name, count in (("subdivision", float(a.get("subdivisions", 0))), ("ref", refs),
-                                ("ref_mb", refs * math.log2(1.0 + a.get("bytes", 0) / 2 ** 20))):
+                                ("ref_mb", refs * megabytes)):
                 f[f"refine.{walk}.{name}"] = f.get(f"refine.{walk}.{name}", 0.0) + count
+            f[f"ray.lazy.{walk}"] = rays
+            if walk == "rc":
+                f["ray.lazy.rc_mb"] = f.get("ray.lazy.rc_mb", 0.0) + rays * megabytes
     return f
 
 
@@ -133,13 +148,23 @@ def refining(name: str) -> bool:
 
 
 def unscaled(name: str) -> bool:
-    """Whether a feature is not proportional to the rays: the render's own, refinement."""
-    return name == "render" or refining(name)
+    """Whether a feature is not proportional to the rays: the render's own, the passes, refinement."""
+    return name in ("render", "pass.lazy") or refining(name)
+
+
+def walked_wide(stats) -> bool:
+    """Whether the render's rays took the 4-wide walk (engine/widewalk.py): its scene was one BVH
+    of width 4 over primitives, and its closest-hit searches were lazy about normals (with eager
+    normals they take the general walk)."""
+    aggregates = getattr(stats, "aggregates", [])
+    tricks = getattr(stats, "info", {}).get("tricks", ["lazynormals"])
+    return len(aggregates) == 1 and aggregates[0].get("wide_nodes", 0) > 0 and "lazynormals" in tricks
 
 
 def walks_used(stats) -> set:
-    """The walks that did work in a render."""
-    return {w for w in WALK_NAMES if stats.get(f"walk.{w}.entries", 0) or stats.get(f"walk.{w}.steps", 0)}
+    """The walks that did work in a render (wide for the 4-wide walk's bvh)."""
+    used = {w for w in WALK_NAMES if stats.get(f"walk.{w}.entries", 0) or stats.get(f"walk.{w}.steps", 0)}
+    return {"wide" if w == "bvh" else w for w in used} if walked_wide(stats) else used
 
 
 def fit_split(rows: list[dict], times, refine_times, ridge: float = RIDGE) -> dict:
@@ -264,8 +289,15 @@ def load_default() -> CostModel | None:
 
 
 def current() -> CostModel:
-    """This machine's calibration, else the reference costs shipped with raykernel."""
-    return load_default() or CostModel.load(REFERENCE_PATH)
+    """This machine's calibration, else the reference costs shipped with raykernel (also when
+    this machine's was made by a raykernel that priced other features: a warning says so)."""
+    try:
+        model = load_default()
+    except OptionError as err:
+        import warnings
+        warnings.warn(f"{err}; using the reference costs meanwhile", RuntimeWarning, stacklevel=2)
+        model = None
+    return model or CostModel.load(REFERENCE_PATH)
 
 
 def machine_info() -> dict:
