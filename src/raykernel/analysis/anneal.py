@@ -63,8 +63,10 @@ from ..scene.model import Cones, Group, Instance, Polygons, Scene, Spheres, Tria
 # a search has time for, so rc is left out too
 START_SPECS = ("bvh", "grid", "hgrid", "octree", "hybrid")
 # started from as well, but not a kind at its defaults (best_single leaves them out): a BVH over
-# pieces of long thin polygons (presplit.py) is the one structure that separates a fan of facets
-START_VARIANTS = ("bvh(split=16)",)
+# pieces of long thin polygons (presplit.py) is the one structure that separates a fan of facets,
+# and a BVH whose nodes are reinserted (bvhopt.py) the one that tightens a tree around a small
+# dense cluster in a large sparse scene (the stadium's teapot)
+START_VARIANTS = ("bvh(split=16)", "bvh(optimize=reinsertion)")
 CANDIDATES = (
     "bvh", "bvh(leaf=1)", "bvh(leaf=2)", "bvh(leaf=8)", "bvh(bins=32)", "bvh(optimize=reinsertion)",
     "bvh(build=gs, optimize=reinsertion)", "bvh(split=4)", "bvh(split=16)",
