@@ -40,7 +40,7 @@ octrees with BVHs inside), and the kernel counts each walk's share apart (walk.W
 model prices any nesting of any kinds. A scene that is one BVH over primitives is walked by
 the 4-wide walk of engine/widewalk.py instead, with the primitives' numbers laid out in leaf
 order: its node visits and its tests cost what the general walk's do not (a polygon test
-about half as much), so its walk is W = wide and its tests, hits and corners are priced as
+about a third as much), so its walk is W = wide and its tests, hits and corners are priced as
 test.KIND.wide, hit.KIND.wide and polygon.corner.wide. Costs are wall-clock seconds at the thread count of
 the calibration, so a model only predicts renders made with that many threads on that
 machine; REFERENCE_PATH holds one fitted on a 2-core machine, used where this machine has
