@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import random
 import struct
 
@@ -24,12 +23,11 @@ def python_reading(token: str):
 
 def check(text: str) -> tuple[int, int]:
     """The scan of `text` agrees with Python; returns how many tokens it read as numbers and as OTHER."""
-    starts, values, kinds = tokens.scan(text.encode("ascii"))
+    values, kinds = tokens.scan(text.encode("ascii"))
     words = text.split()
     assert len(kinds) == len(words)
     counted = [0, 0]
-    for start, value, kind, word in zip(starts.tolist(), values.tolist(), kinds.tolist(), words):
-        assert text[start:start + len(word)] == word
+    for value, kind, word in zip(values.tolist(), kinds.tolist(), words):
         if word[0].isalpha():
             assert kind == tokens.WORD, word
         elif kind == tokens.NUMBER:
@@ -52,7 +50,7 @@ def test_edge_tokens():
             "9007199254740993", "1e23", "1e-23", "1.5e-30", "2e400", "1e99999", "1,5", "1/2", "--1"]
     n, other = check(" ".join(list(read) + left))
     assert (n, other) == (len(read), len(left))
-    starts, values, kinds = tokens.scan(" ".join(read).encode())
+    values, kinds = tokens.scan(" ".join(read).encode())
     assert values.tolist() == list(read.values())
 
 
@@ -96,15 +94,14 @@ def test_mantissa_and_exponent(mantissa, exponent, negative):
 
 
 def test_nonfinite_words():
-    starts, values, kinds = tokens.scan(b"nan inf -inf Infinity")
+    values, kinds = tokens.scan(b"nan inf -inf Infinity")
     # words to the reader (its keyword lookup refuses them), OTHER when signed: never a number
     assert kinds.tolist() == [tokens.WORD, tokens.WORD, tokens.OTHER, tokens.WORD]
-    assert not math.isnan(values[0]) or kinds[0] != tokens.NUMBER
 
 
 @pytest.mark.parametrize("size", [1, 2, 3, 1000])
 def test_buffer_bounds(size):
     """Texts of one-character tokens fill the scan's arrays to the last entry."""
     text = " ".join(["7"] * size)
-    starts, values, kinds = tokens.scan(text.encode())
-    assert len(kinds) == size and np.all(values == 7.0) and np.all(starts == np.arange(0, 2 * size, 2))
+    values, kinds = tokens.scan(text.encode())
+    assert len(kinds) == size and np.all(values == 7.0) and np.all(kinds == tokens.NUMBER)

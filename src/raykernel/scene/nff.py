@@ -10,7 +10,7 @@ Every token keeps its line number, so each error is one `SceneError` that
 names the file, the line and what was expected there.
 
 A plain file (ASCII, no comments, as the SPD programs write) is read fast:
-split in one call, its keywords found and its numbers converted at once, and
+its tokens found and its numbers read by one compiled pass (tokens.py), and
 its spheres, cones, polygons, patches and fills cut out and checked in bulk.
 Anything that reading does not accept at once (a comment, a bad token, a
 failed check) sends the file to the token-by-token reading, which gives the
@@ -70,8 +70,8 @@ import numpy as np
 
 from ..atomicfile import write_text
 from ..errors import SceneError
-from .model import Camera, Group, Instance, Light, Material, Scene, TriangleMesh
 from . import tokens
+from .model import Camera, Group, Instance, Light, Material, Scene, TriangleMesh
 from .nffwriter import NffWriter
 
 __all__ = ["read_nff", "parse_nff", "write_nff", "scene_to_nff", "CORNER_TOLERANCE", "MAX_RESOLUTION"]
@@ -468,7 +468,7 @@ class _Reader:
         numbers must run exactly to the next keyword. The few others (the view, lights and
         background) take their handlers in file order. Anything else: _NotPlain."""
         toks, n = self.toks, self.n
-        _, values, kinds = tokens.scan(self._text.encode("ascii"))
+        values, kinds = tokens.scan(self._text.encode("ascii"))
         if len(kinds) != n:
             raise _NotPlain
         is_keyword = kinds == tokens.WORD
@@ -611,8 +611,8 @@ class _Reader:
         return scene
 
 
-# the fast reading's tables: str.split()'s ASCII whitespace, letters (a keyword's first
-# character), the keywords' codes (the entities read in bulk below "v") and the others' handlers
+# the fast reading's tables: the keywords' codes (the entities read in bulk below "v") and the
+# others' handlers
 _CODES = {k: i for i, k in enumerate(("s", "c", "p", "pp", "f", "v", "b", "l") + VIEW_KEYWORDS)}
 _VIEW_CODES = frozenset(_CODES[k] for k in VIEW_KEYWORDS)
 _HANDLERS = {_CODES["v"]: _Reader.view, _CODES["b"]: _Reader.background_color, _CODES["l"]: _Reader.light}

@@ -1,7 +1,7 @@
 """The tokens of an ASCII text and their numbers, read by one compiled pass.
 
-    starts, values, kinds = scan(text.encode("ascii"))
-    # starts[i]: where token i begins; kinds[i]: NUMBER (values[i] is float(token)),
+    values, kinds = scan(text.encode("ascii"))
+    # one entry per token of text.split(): kinds[i] is NUMBER (values[i] is float(token)),
     # WORD (it begins with a letter) or OTHER (ask Python's float(), which may refuse it)
 
 A number is read here only when the answer is certainly Python's: an optional sign,
@@ -27,18 +27,18 @@ _POWERS = np.array([10.0 ** k for k in range(23)])     # each exact in a double
 _EXACT = 2 ** 53
 
 
-def scan(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every token of `data` (ASCII bytes, split as str.split() splits): its start, its value
-    and its kind, as described above."""
+def scan(data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """The value and the kind of every token of `data` (ASCII bytes, split as str.split()
+    splits), as described above."""
     chars = np.frombuffer(data, np.uint8)
     most = len(chars) // 2 + 1
-    starts, values, kinds = np.empty(most, np.int64), np.empty(most), np.empty(most, np.int8)
-    n = _scan(chars, SPACE, _POWERS, starts, values, kinds)
-    return starts[:n], values[:n], kinds[:n]
+    values, kinds = np.empty(most), np.empty(most, np.int8)
+    n = _scan(chars, SPACE, _POWERS, values, kinds)
+    return values[:n], kinds[:n]
 
 
 @njit
-def _scan(chars, space, powers, starts, values, kinds):
+def _scan(chars, space, powers, values, kinds):
     n = 0
     i = 0
     size = chars.shape[0]
@@ -49,7 +49,6 @@ def _scan(chars, space, powers, starts, values, kinds):
         start = i
         while i < size and not space[chars[i]]:
             i += 1
-        starts[n] = start
         kinds[n], values[n] = _token(chars, start, i, powers)
         n += 1
     return n
