@@ -548,7 +548,7 @@ def test_render_passes_trace_every_sample_once_coarse_to_fine(monkeypatch):
 
     def recording(*args):
         # (geo, mats, lights, background, cam, w, h, tile_x, tile_y, counter, last, row0, max_depth, cutoff,
-        #  filtered, tricks, starts, out, counters, passes, step, coarse); the call claims tiles from
+        #  filtered, tricks, starts, out, counters, passes, step, coarse, cull); the call claims tiles from
         # counter[0] up to last (a pass this small runs on one thread, so from its first tile)
         first = int(args[9][0])
         rows = args[18][first:args[10], C.RAYS_EYE]

@@ -46,7 +46,14 @@ def _pool(threads: int) -> ThreadPoolExecutor:
     # one pool per thread count, kept: starting threads for every call would cost more than small calls take
     with _pools_lock:
         if threads not in _pools:
-            _pools[threads] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=WORKER_PREFIX)
+            pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=WORKER_PREFIX)
+            # start every thread now, all waiting for each other: a pool starts a thread per call
+            # of submit, and a thread started while another already runs a kernel call waits for
+            # the GIL that call holds while it unboxes its arguments (1-7 ms on a first render)
+            barrier = threading.Barrier(threads)
+            for future in [pool.submit(barrier.wait) for _ in range(threads)]:
+                future.result()
+            _pools[threads] = pool
         return _pools[threads]
 
 

@@ -145,6 +145,13 @@ def _flush(cnt, n_bounds, n_nodes, n_leaves):
 
 
 @njit(inline="always")
+def count_misses(cnt, n):
+    """The counts of n rays that miss the scene's box, intersect_wide's first test (render.py
+    counts a tile's eye rays so when none can enter the box: rendering/frustum.py)."""
+    _flush(cnt, n, np.int64(0), np.int64(0))
+
+
+@njit(inline="always")
 def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz,
                    dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
     """traverse.intersect (modes CLOSEST, ANY_HIT, ALL_HITS, ANY_OPAQUE) on the arrays prepare()
@@ -154,7 +161,7 @@ def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, b
     ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
     te = box_entry(agg_bounds, root, ox, oy, oz, ix, iy, iz, tmin, tmax)
     if te == INF:
-        _flush(cnt, np.int64(1), np.int64(0), np.int64(0))
+        count_misses(cnt, np.int64(1))
         return False
     return _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz,
                       ix, iy, iz, te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt)

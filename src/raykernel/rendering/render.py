@@ -19,7 +19,9 @@ The image is traced in tiles of TILE x TILE samples, in parallel; each
 tile owns one row of counters, so counts and image bytes do not depend on
 the number of threads. Each thread makes one call of the tile kernel and
 claims tiles from a shared counter (engine/parallel.py) until none are
-left, and a tile's eye rays go to the shading kernel in one call. With lazy structures (aggregates/lazyoctree.py,
+left, and a tile's eye rays go to the shading kernel in one call; a tile
+none of whose eye rays can enter the scene's box (frustum.py) gets the
+background and the counts of those misses without tracing them. With lazy structures (aggregates/lazyoctree.py,
 rc.py) the image is traced coarse to fine (lazy_passes): one sample per tile
 first, in passes that start with one tile, then the samples between them
 level by level, so that the trees, refined after each pass from its counts,
@@ -41,13 +43,14 @@ from ..engine.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, CompileClock,
 from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
-from ..engine.widewalk import with_driver
+from ..engine.widewalk import count_misses, with_driver
 from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.config import compiled, njit
 from ..geometry.primitives import normalize
 from ..scene.model import Scene
 from . import heckbert
+from .frustum import tile_misses_box
 from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, _render_pixels, model_arguments
 from .startlists import prepare as prepare_starts
 from .stats import Stats
@@ -64,34 +67,69 @@ CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change 
 
 @njit
 def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, counter, last, row0,
-                  max_depth, cutoff, filtered, tricks, starts, out, counters, passes, step, coarse):
+                  max_depth, cutoff, filtered, tricks, starts, out, counters, passes, step, coarse, cull):
     """Trace tiles of the sample grid into `out`, adding into one counter row per tile: those
     claimed from `counter` (parallel.claim: every thread of a pass calls this once) below `last`.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
     Within each tile only the samples on the lattice of `step` (every step-th row and column),
     less those on the coarser lattice of `coarse` (0: none) traced before.
-    passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py)."""
+    passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py).
+    cull: a tile none of whose eye rays can enter the scene's box is not traced (_culled)."""
     eyes = np.zeros((TILE * TILE, 5))      # direction, then the sample's row and column
     colors = np.zeros((TILE * TILE, 3))
     while True:
         tile = claim(counter)
         if tile >= last:
             break
-        ws = workspace()        # each tile starts from the same state, whichever thread claims it
-        rays = np.zeros((RAY_STACK, RAY_COLUMNS))
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
-        if starts is None:      # tricks.LEAN: no trick needs a memory, and numba compiles none of their code
-            _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile],
-                         max_depth, cutoff, filtered, tricks, None, out, step, coarse, rays, eyes, colors, ws, cnt)
+        x0, y0 = tile_x[tile], tile_y[tile]
+        if starts is None and cull and _culled(geo, cam, samples_w, samples_h, x0, y0):
+            _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, cnt)
         else:
-            _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, tile_x[tile], tile_y[tile],
-                         max_depth, cutoff, filtered, tricks, memo(lights.shape[0], starts), out, step, coarse, rays,
-                         eyes, colors, ws, cnt)
+            ws = workspace()        # each tile starts from the same state, whichever thread claims it
+            rays = np.zeros((RAY_STACK, RAY_COLUMNS))
+            if starts is None:      # tricks.LEAN: no trick needs a memory, and numba compiles none of their code
+                _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff,
+                             filtered, tricks, None, out, step, coarse, rays, eyes, colors, ws, cnt)
+            else:
+                _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff,
+                             filtered, tricks, memo(lights.shape[0], starts), out, step, coarse, rays, eyes, colors,
+                             ws, cnt)
         for k in range(C.N_COUNTERS):
             counters[tile, k] += cnt[k]
         for k in range(passes.shape[1]):
             passes[tile - row0, k] = cnt[C.N_COUNTERS + k]
         finished(counter)
+
+
+@njit(inline="always")
+def _skipped(i, j, x0, y0, coarse):
+    """Sample (i, j) of the tile at (x0, y0) was traced by the pass of the coarser lattice."""
+    return coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0
+
+
+@njit(inline="always")
+def _culled(geo, cam, samples_w, samples_h, x0, y0):
+    """No eye ray of the tile at (x0, y0) can enter the scene's box, and the scene is one 4-wide
+    BVH, whose walk of a ray that misses its box is that box test alone (widewalk.py)."""
+    return geo.wide_nodes.shape[0] > 0 and tile_misses_box(
+        cam, x0, min(x0 + TILE, samples_w) - 1, y0, min(y0 + TILE, samples_h) - 1, geo.agg_bounds, geo.root)
+
+
+@njit(private=True)
+def _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, cnt):
+    """What tracing a culled tile's eye rays would have given: each sample the background as
+    trace adds it for a missed eye ray (0.0 + 1.0 * background), and each ray the counts of an
+    eye ray that missed the scene's box."""
+    missed = 0
+    for j in range(y0, min(y0 + TILE, samples_h), step):
+        for i in range(x0, min(x0 + TILE, samples_w), step):
+            if not _skipped(i, j, x0, y0, coarse):
+                out[j, i, 0], out[j, i, 1], out[j, i, 2] = 0.0 + background[0], 0.0 + background[1], \
+                    0.0 + background[2]
+                missed += 1
+    cnt[C.RAYS_EYE] += missed
+    count_misses(cnt, np.int64(missed))
 
 
 @njit(private=True)     # one call per tile: the call into trace counts no references
@@ -102,7 +140,7 @@ def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y
     n = 0
     for j in range(y0, min(y0 + TILE, samples_h), step):
         for i in range(x0, min(x0 + TILE, samples_w), step):
-            if coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0:
+            if _skipped(i, j, x0, y0, coarse):
                 continue
             dx = cam[3] + i * cam[6] + j * cam[9]
             dy = cam[4] + i * cam[7] + j * cam[10]
@@ -291,6 +329,8 @@ class RenderJob:
     refits the previous frame's instead. remote: a job whose structures were built elsewhere
     (plan() of that job): this one only gathers its tiles (put_block) and gives the result."""
 
+    frustum_culling = True      # tiles whose eye rays all miss the scene are not traced (frustum.py); same result
+
     def __init__(self, scene: Scene, builder=None, remote: dict | None = None, **kw):
         self.annealed = None
         if remote is None:
@@ -391,7 +431,7 @@ class RenderJob:
                               self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
                               True if self.filtered else None, self.trick_bits,
                               None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
-                              self.pass_counts[p], step, coarse)
+                              self.pass_counts[p], step, coarse, self.frustum_culling)
         else:
             whitted_on, heckbert_on, medium = model_arguments(o["shading"], self.medium)
 
