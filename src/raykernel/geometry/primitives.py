@@ -147,7 +147,12 @@ def hit_plane_polygon(nx, ny, nz, v0, count, axis, band, verts, band_f, band_i, 
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
     if band < 0:
         cnt[POLYGON_CORNERS] += count
-        inside = point_in_polygon(verts, v0, count, axis, px, py, pz)
+        if count == 3:      # most polygons: point_in_polygon's three steps here, without a call
+            iu, iv, u, v = plane_coordinates(axis, px, py, pz)
+            inside = (crosses(verts, v0, v0 + 2, iu, iv, u, v) != crosses(verts, v0 + 1, v0, iu, iv, u, v)) \
+                != crosses(verts, v0 + 2, v0 + 1, iu, iv, u, v)
+        else:
+            inside = point_in_polygon(verts, v0, count, axis, px, py, pz)
     else:
         iu, iv, u, v = plane_coordinates(axis, px, py, pz)
         inside, walked = point_in_bands(verts, v0, count, iu, iv, u, v, band_f, band_i, band)
