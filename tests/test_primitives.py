@@ -28,6 +28,7 @@ from raykernel.geometry.primitives import (
     POLYGON,
     SPHERE,
     TRIANGLE,
+    cone_roots,
     hit_cone,
     hit_polygon,
     hit_sphere,
@@ -314,6 +315,35 @@ def test_cone_hypothesis(base, axis, r0, r1, negative, origin, target):
     if np.linalg.norm(d) < 1e-9:
         return
     compare_with_reference(cone_scene(base, sign * r0, apex, sign * r1), o, d)
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1.0, 1e7])
+def test_cone_pre_test_rejects_only_rays_the_full_test_misses(scale):
+    """hit_cone against its quadratic alone (cone_roots), bit for bit, on rays whose lines pass
+    the axis' line at the widest radius and just inside or outside it (down to 1e-15 of it), and
+    rays nearly along the axis, near and far, at tiny and huge scales."""
+    rng = np.random.default_rng(11)
+    missed = 0
+    for name, (base, r0, apex, r1) in CONES.items():
+        base, apex = np.array(base) * scale + 3.0 * scale, np.array(apex) * scale + 3.0 * scale
+        axis = apex - base
+        length = np.linalg.norm(axis)
+        a = axis / length
+        wide = max(abs(r0), abs(r1)) * scale
+        for _ in range(400):
+            u = np.cross(a, rng.normal(size=3))
+            u /= np.linalg.norm(u)
+            v = np.cross(a, u)
+            gap = wide * (1.0 + rng.choice([-1.0, 1.0]) * rng.choice([0.0, 1e-15, 1e-12, 1e-9, 1e-6, 1e-3, 0.3]))
+            p = base + rng.uniform(-0.5, 1.5) * axis + gap * u
+            tilt = rng.choice([1e-12, 1e-4, 1e-2, 1.0, 10.0])       # small: nearly along the axis
+            d = (tilt * v + a * rng.choice([-1.0, 1.0])) * rng.uniform(0.1, 10.0)
+            o = p - rng.uniform(-2.0, 50.0) * d * length / np.linalg.norm(d)
+            args = (*base, *a, length, r0 * scale, r1 * scale, *o, *d, 0.0, np.inf)
+            got, want = hit_cone(*args), cone_roots(*args)
+            assert got == want or (np.isnan(got) and np.isnan(want)), (name, gap / wide, tilt)
+            missed += want == np.inf
+    assert missed > 500
 
 
 def test_cone_analytic():

@@ -255,11 +255,36 @@ def hit_triangle(v0x, v0y, v0z, v1x, v1y, v1z, v2x, v2y, v2z, ox, oy, oz, dx, dy
                        tmin, tmax, edges)
 
 
+# hit_cone's pre-test rejects a ray only when the squared distance between its line and the axis'
+# line exceeds the widest radius' square by CONE_MARGIN of the squared sizes involved: some 1e6 times
+# the rounding of the full test's quadratic there, so that the full test would have missed it too
+CONE_MARGIN = 1e-10
+CONE_PARALLEL = 1e-6    # |a x d|^2 / |d|^2 below it (within 1e-3 of the axis' direction): no pre-test
+
+
 @njit
 def hit_cone(bx, by, bz, ax, ay, az, length, r0, r1, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Open cone or cylinder from base b along unit axis a for `length`,
     radius r0 at the base and r1 at the apex, no caps. Negative radii
-    (NFF): only the inside is visible."""
+    (NFF): only the inside is visible. A ray whose line passes the axis' line
+    farther off than the widest radius misses without the quadratic (most of
+    the cones a ray is tested against)."""
+    wide = max(abs(r0), abs(r1))
+    cx, cy, cz = ay * dz - az * dy, az * dx - ax * dz, ax * dy - ay * dx      # a x d, normal to both lines
+    cc = cx * cx + cy * cy + cz * cz
+    if cc > CONE_PARALLEL * (dx * dx + dy * dy + dz * dz):
+        wx, wy, wz = ox - bx, oy - by, oz - bz
+        off = wx * cx + wy * cy + wz * cz      # the lines' distance times |a x d|
+        far = abs(wx) + abs(wy) + abs(wz)
+        span = far + length + wide + wide * far / length    # bounds what the quadratic's terms hold
+        if off * off > (wide * wide + CONE_MARGIN * span * span) * cc:
+            return INF
+    return cone_roots(bx, by, bz, ax, ay, az, length, r0, r1, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(inline="always")
+def cone_roots(bx, by, bz, ax, ay, az, length, r0, r1, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """hit_cone without its pre-test: the quadratic, its roots and their checks."""
     inside_only = r0 < 0.0 or r1 < 0.0
     r0 = abs(r0)
     r1 = abs(r1)
