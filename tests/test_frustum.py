@@ -1,7 +1,8 @@
 """Culling a tile's eye rays against the scene's box (rendering/frustum.py, render._render_tiles).
 
 A tile is culled only when every one of its eye rays misses the box in its own slab test, so a
-render gives the same image bytes and every counter the same with culling and without.
+render gives the same image bytes and every counter the same with culling and without, but for
+frustum.culled, which counts the eye rays culled.
 """
 
 from __future__ import annotations
@@ -85,26 +86,34 @@ def test_empty_or_not_finite_boxes_are_never_culled(box):
 
 
 def renders_with_and_without_culling(monkeypatch, scene, **options):
+    """The two renders, checked for the same image bytes and counts."""
     got = []
     for culling in (True, False):
         monkeypatch.setattr(R.RenderJob, "frustum_culling", culling)
         got.append(raykernel.render(scene, **options))
-    return got
+    on, off = got
+    assert np.array_equal(on.image, off.image)
+    culled = on.stats["frustum.culled"]
+    assert off.stats["frustum.culled"] == 0
+    assert work_counts(on.stats) == dict(work_counts(off.stats), **{"frustum.culled": culled})
+    return on, off
 
 
-def culled_tiles(scene, resolution) -> int:
+def culled_tiles(scene, resolution) -> tuple[int, int]:
+    """The tiles of an SPD render the renderer culls, and their samples."""
     job = R.RenderJob(scene, spd=True, resolution=resolution)
-    return sum(R._culled(job.geo, job.cam, job.sw, job.sh, x, y) for x, y in zip(job.tile_x, job.tile_y))
+    culled = [(x, y) for x, y in zip(job.tile_x, job.tile_y) if R._culled(job.geo, job.cam, job.sw, job.sh, x, y)]
+    return len(culled), sum((min(x + R.TILE, job.sw) - x) * (min(y + R.TILE, job.sh) - y) for x, y in culled)
 
 
 @pytest.mark.parametrize("name", ["spd:jacks:1", "spd:sombrero:1"])
 def test_spd_renders_are_the_same_with_and_without_culling(monkeypatch, name):
     scene = raykernel.load(name)
     on, off = renders_with_and_without_culling(monkeypatch, scene, spd=True, resolution=96, threads=2)
-    assert np.array_equal(on.image, off.image)
-    assert work_counts(on.stats) == work_counts(off.stats)
+    tiles, samples = culled_tiles(scene, 96)
+    assert on.stats["frustum.culled"] == samples
     if name == "spd:jacks:1":
-        assert culled_tiles(scene, 96) > 10       # most of the picture is empty
+        assert tiles > 10       # most of the picture is empty
 
 
 @pytest.mark.parametrize("scale", [1e-6, 1.0, 1e7])
@@ -116,7 +125,5 @@ def test_a_sphere_at_a_tiles_edge_renders_the_same_with_and_without_culling(monk
     add_sphere(scene, (-1.2 * scale, 0.0, -0.3 * scale), 0.02 * scale, kd=1.0, ks=0.5)
     scene.add_light((0.0, -5.0 * scale, 5.0 * scale))
     on, off = renders_with_and_without_culling(monkeypatch, scene, spd=True, threads=1)
-    assert np.array_equal(on.image, off.image)
-    assert work_counts(on.stats) == work_counts(off.stats)
     assert on.stats["rays.eye_hit"] > 0
-    assert culled_tiles(scene, 47) > 0
+    assert culled_tiles(scene, 47)[0] > 0

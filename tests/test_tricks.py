@@ -190,4 +190,5 @@ def test_the_lean_default_kernel_does_the_same_work_as_the_one_with_the_tricks_m
     full = render(scene, accel=kind, resolution=20, tricks="closest,lazynormals,transparentlast")
     assert lean.stats.info["tricks"] == ["closest", "lazynormals"]
     assert np.array_equal(lean.image, full.image)
-    assert work_counts(lean.stats) == work_counts(full.stats)
+    # (the lean kernel alone culls tiles whose eye rays all miss: frustum.py)
+    assert work_counts(lean.stats) == dict(work_counts(full.stats), **{"frustum.culled": lean.stats["frustum.culled"]})

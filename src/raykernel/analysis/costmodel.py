@@ -9,6 +9,8 @@ Trace time is modelled as  sum(count * cost)  over these features:
 
   render         one per render: fixed overhead (tile dispatch, allocation)
   ray.shaded     eye + reflection + refraction rays (camera, shading, spawning)
+  ray.culled     eye rays of tiles culled whole (frustum.culled): each costs a background sample,
+                 and neither ray.shaded nor its walk's bound test counts it
   ray.shadow     shadow rays (no shading)
   ray.lazy.W     rays of a render with lazy structures of walk W (rc; octree for lazyoctree),
                  traced coarse to fine: the sparse early passes find little in the caches
@@ -77,7 +79,7 @@ import numpy as np
 from ..aggregates import WALK_COUNTERS, WALK_NAMES
 from ..errors import OptionError
 
-VERSION = 6                 # calibration files of another version priced other features
+VERSION = 7                 # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
@@ -98,11 +100,13 @@ GROUPS = {"ray": "rays", "render": "rays", "test": "tests", "hit": "tests", "pol
 def features(stats) -> dict:
     """The counted operations of one render, named as the model's features (the walks' own
     counters say which structures did the work)."""
+    culled = float(stats.get("frustum.culled", 0))
     f = {
         "render": 1.0,
         "ray.shaded": float(stats["rays.eye"] + stats["rays.reflect"] + stats["rays.refract"]
-                            + stats.get("rays.cast", 0)),
+                            + stats.get("rays.cast", 0)) - culled,
         "ray.shadow": float(stats["rays.shadow"]),
+        "ray.culled": culled,
     }
     wide = walked_wide(stats)
     tail = ".wide" if wide else ""
@@ -116,7 +120,7 @@ def features(stats) -> dict:
         name = "wide" if wide and walk == "bvh" else walk
         f[f"entry.{name}"] = float(stats.get(f"walk.{walk}.entries", 0))
         f[f"step.{name}"] = float(stats.get(f"walk.{walk}.steps", 0))
-        f[f"bound.{name}"] = float(stats.get(f"walk.{walk}.bounds", 0))
+        f[f"bound.{name}"] = float(stats.get(f"walk.{walk}.bounds", 0)) - (culled if name == "wide" else 0.0)
     f["transform"] = float(sum(stats.get(f"transforms.{k}", 0) for k in ("identity", "translation", "scale",
                                                                           "affine")))
     for counter, feature in WALK_COUNTERS:

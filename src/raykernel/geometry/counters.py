@@ -35,15 +35,16 @@ START_LISTS_HITS = 35     # searches a start list bounded, shadow rays it settle
 START_LISTS_BUILT = 36    # start lists built (rendering/startlists.py)
 POLYGON_CORNERS = 37      # corners walked by polygon and patch tests: those whose plane the ray met in range
 HITS = 38                 # + primitive kind: tests that found the primitive within the ray's range
+FRUSTUM_CULLED = 43       # eye rays of tiles culled whole (rendering/frustum.py): counted as misses, not traced
 # each walk's share of the traversal (engine/traverse.py), by the walk's CODE; the registry
 # (aggregates/__init__.py) names them walk.<walk>.entries, .bounds and .steps
 MAX_WALKS = 8
-WALK_ENTRIES = 43         # + walk: rays that entered an aggregate of that walk (its box was hit)
-WALK_BOUNDS = 51          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
-WALK_STEPS = 59           # + walk: its traversal steps (its part of cells.visited)
+WALK_ENTRIES = 44         # + walk: rays that entered an aggregate of that walk (its box was hit)
+WALK_BOUNDS = 52          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
+WALK_STEPS = 60           # + walk: its traversal steps (its part of cells.visited)
 # the columns left for counters of a walk's own (its module's COUNTERS), claimed at import
-WALK_OWN = 67
-N_COUNTERS = 72
+WALK_OWN = 68
+N_COUNTERS = 73
 
 
 NAMES = {
@@ -65,7 +66,7 @@ NAMES = {
     NORMALS_COMPUTED: "normals.computed", FULL_WALKS: "tricks.full_walks", START_LISTS: "start_lists.used",
     SHADOW_STEPS: "shadow.steps", START_LISTS_HITS: "start_lists.hits", START_LISTS_BUILT: "start_lists.built",
     RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
-    POLYGON_CORNERS: "polygon.corners",
+    POLYGON_CORNERS: "polygon.corners", FRUSTUM_CULLED: "frustum.culled",
 }
 
 _next_own = [WALK_OWN]

@@ -120,7 +120,7 @@ def _culled(geo, cam, samples_w, samples_h, x0, y0):
 def _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, cnt):
     """What tracing a culled tile's eye rays would have given: each sample the background as
     trace adds it for a missed eye ray (0.0 + 1.0 * background), and each ray the counts of an
-    eye ray that missed the scene's box."""
+    eye ray that missed the scene's box; frustum.culled counts them too (they cost less)."""
     missed = 0
     for j in range(y0, min(y0 + TILE, samples_h), step):
         for i in range(x0, min(x0 + TILE, samples_w), step):
@@ -129,6 +129,7 @@ def _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, cn
                     0.0 + background[2]
                 missed += 1
     cnt[C.RAYS_EYE] += missed
+    cnt[C.FRUSTUM_CULLED] += missed
     count_misses(cnt, np.int64(missed))
 
 

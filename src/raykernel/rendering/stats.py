@@ -99,6 +99,9 @@ class Stats(dict):
                     f"{self['cells.leaves_per_ray']:.2f} per ray (N_ETS)"))
         out.append(("traversal", "empty leaves", f"{self['cells.empty']:,}",
                     f"{self['cells.empty_per_ray']:.2f} per ray (N_EETS)"))
+        if self.get("frustum.culled"):
+            out.append(("traversal", "culled eye rays", f"{self['frustum.culled']:,}",
+                        "tiles whose eye rays all miss the scene: not traced"))
         if self.get("mailbox.saved"):
             out.append(("traversal", "mailbox saved", f"{self['mailbox.saved']:,}", ""))
         for walk in WALKS:
