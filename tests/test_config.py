@@ -126,7 +126,8 @@ def test_the_kernels_inner_loops_count_no_references():
     from raykernel.geometry import primitives
     from raykernel.rendering import hall, heckbert, render, sampling, startlists, tricks, whitted
 
-    per_item = [primitives.hit_polygon, primitives.point_in_polygon, rc.meets_beam, proximity._closest_on_polygon,
+    per_item = [primitives.hit_polygon, primitives.point_in_polygon, primitives.point_in_triangle, rc.meets_beam,
+                proximity._closest_on_polygon,
                 traverse.walk, widewalk._walk_wide, whitted.trace, heckbert.trace, hall.trace, tricks.test_ref, tricks.list_hint,
                 startlists.start_list,
                 sampling._render_tile, render._render_tile, render._missed_tile,

@@ -123,6 +123,14 @@ def point_in_polygon(verts, start, count, axis, px, py, pz):
 
 
 @njit(borrows=True)   # called per candidate: no reference counting
+def point_in_triangle(verts, start, axis, px, py, pz):
+    """point_in_polygon of a polygon of three corners: its three steps, without the loop."""
+    iu, iv, u0, v0 = plane_coordinates(axis, px, py, pz)
+    return (crosses(verts, start, start + 2, iu, iv, u0, v0) != crosses(verts, start + 1, start, iu, iv, u0, v0)) \
+        != crosses(verts, start + 2, start + 1, iu, iv, u0, v0)
+
+
+@njit(borrows=True)   # called per candidate: no reference counting
 def hit_polygon(normals, starts, counts, axes, bands, verts, band_f, band_i, i, ox, oy, oz, dx, dy, dz, tmin,
                 tmax, cnt):
     return hit_plane_polygon(normals[i, 0], normals[i, 1], normals[i, 2], starts[i], counts[i], axes[i], bands[i],
@@ -147,10 +155,8 @@ def hit_plane_polygon(nx, ny, nz, v0, count, axis, band, verts, band_f, band_i, 
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
     if band < 0:
         cnt[POLYGON_CORNERS] += count
-        if count == 3:      # most polygons: point_in_polygon's three steps here, without a call
-            iu, iv, u, v = plane_coordinates(axis, px, py, pz)
-            inside = (crosses(verts, v0, v0 + 2, iu, iv, u, v) != crosses(verts, v0 + 1, v0, iu, iv, u, v)) \
-                != crosses(verts, v0 + 2, v0 + 1, iu, iv, u, v)
+        if count == 3:      # the commonest polygon
+            inside = point_in_triangle(verts, v0, axis, px, py, pz)
         else:
             inside = point_in_polygon(verts, v0, count, axis, px, py, pz)
     else:

@@ -27,13 +27,35 @@ def _direction(cam, i, j):
 
 
 @njit(inline="always")
-def _beyond(cam, pi, pj, qi, qj, ri, rj, si, sj, boxes, b):
+def _corner(cam, k, i0, i1, j0, j1):
+    """The direction of the tile's corner k, counted around it: (i0, j0), (i1, j0), (i1, j1), (i0, j1)."""
+    k = k % 4
+    return _direction(cam, i1 if k == 1 or k == 2 else i0, j1 if k >= 2 else j0)
+
+
+@njit      # compiled apart, once: inlined, its planes' loops cost the renderer's compile seconds
+def tile_misses_box(cam, i0, i1, j0, j1, boxes, b):
+    """True when every eye ray through the samples of columns i0..i1 and rows j0..j1 misses box b
+    of `boxes` (rows xmin, ymin, zmin, xmax, ymax, zmax); False when some may enter it."""
+    for k in range(6):
+        if not math.isfinite(boxes[b, k]):
+            return False
+    if not (boxes[b, 0] <= boxes[b, 3] and boxes[b, 1] <= boxes[b, 4] and boxes[b, 2] <= boxes[b, 5]):
+        return False
+    for side in range(4):
+        if _beyond(cam, side, i0, i1, j0, j1, boxes, b):
+            return True
+    return False
+
+
+@njit(inline="always")
+def _beyond(cam, side, i0, i1, j0, j1, boxes, b):
     """True when box b lies wholly beyond the side plane through the eye and the directions of
-    samples p and q, on the side away from the directions of samples r and s."""
-    px, py, pz = _direction(cam, pi, pj)
-    qx, qy, qz = _direction(cam, qi, qj)
-    rx, ry, rz = _direction(cam, ri, rj)
-    sx, sy, sz = _direction(cam, si, sj)
+    corners `side` and side + 1, on the side away from the other two corners."""
+    px, py, pz = _corner(cam, side, i0, i1, j0, j1)
+    qx, qy, qz = _corner(cam, side + 1, i0, i1, j0, j1)
+    rx, ry, rz = _corner(cam, side + 2, i0, i1, j0, j1)
+    sx, sy, sz = _corner(cam, side + 3, i0, i1, j0, j1)
     nx, ny, nz = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
     side_r = nx * rx + ny * ry + nz * rz
     side_s = nx * sx + ny * sy + nz * sz
@@ -51,19 +73,3 @@ def _beyond(cam, pi, pj, qi, qj, ri, rj, si, sj, boxes, b):
         if not (nx * wx + ny * wy + nz * wz + MARGIN * norm * math.sqrt(wx * wx + wy * wy + wz * wz) < 0.0):
             return False
     return True
-
-
-@njit(inline="always")
-def tile_misses_box(cam, i0, i1, j0, j1, boxes, b):
-    """True when every eye ray through the samples of columns i0..i1 and rows j0..j1 misses box b
-    of `boxes` (rows xmin, ymin, zmin, xmax, ymax, zmax); False when some may enter it."""
-    for k in range(6):
-        if not math.isfinite(boxes[b, k]):
-            return False
-    if not (boxes[b, 0] <= boxes[b, 3] and boxes[b, 1] <= boxes[b, 4] and boxes[b, 2] <= boxes[b, 5]):
-        return False
-    # the quadrilateral's corners in order: (i0, j0), (i1, j0), (i1, j1), (i0, j1)
-    return (_beyond(cam, i0, j0, i1, j0, i1, j1, i0, j1, boxes, b)
-            or _beyond(cam, i1, j0, i1, j1, i0, j1, i0, j0, boxes, b)
-            or _beyond(cam, i1, j1, i0, j1, i0, j0, i1, j0, boxes, b)
-            or _beyond(cam, i0, j1, i0, j0, i1, j0, i1, j1, boxes, b))
