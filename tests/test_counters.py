@@ -118,3 +118,18 @@ def test_the_cost_model_prices_corners_hits_mailboxes_leaves_and_lazy_rays():
     assert not costmodel.walked_wide(binary) and costmodel.walks_used(binary) == {"bvh"}
     model = costmodel.CostModel.load(costmodel.REFERENCE_PATH)
     assert model.costs["polygon.corner"] > 0 and model.predict(eager) > 0
+
+
+def test_the_cost_model_prices_culled_eye_rays_apart():
+    """Eye rays of tiles culled whole (frustum.culled) leave ray.shaded and the wide walk's bound
+    tests for ray.culled; a render that culls nothing has none."""
+    jacks = raykernel.render(raykernel.load("spd:jacks:1"), accel="bvh", resolution=64, spd=True).stats
+    culled = jacks["frustum.culled"]
+    assert culled > 0
+    f = costmodel.features(jacks)
+    assert f["ray.culled"] == culled
+    assert f["ray.shaded"] == jacks["rays.eye"] + jacks["rays.reflect"] + jacks["rays.refract"] - culled
+    assert f["bound.wide"] == jacks["walk.bvh.bounds"] - culled >= 0
+    grid = raykernel.render(raykernel.load("spd:jacks:1"), accel="grid", resolution=64, spd=True).stats
+    assert grid["frustum.culled"] == 0 and costmodel.features(grid)["ray.culled"] == 0
+    assert costmodel.features(grid)["bound.grid"] == grid["walk.grid.bounds"]
