@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numba
 
+from .inlining import skip_inline_copies_when_compiling
+
 KERNEL_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 PACKAGE = Path(__file__).resolve().parents[1]   # raykernel/
 
@@ -82,6 +84,7 @@ def _cache_dir() -> Path:
 
 
 CACHE_DIR = str(_cache_dir())
+skip_inline_copies_when_compiling()
 
 
 def njit(func=None, *, private=False, borrows=False, **kwargs):

@@ -1,0 +1,81 @@
+"""numba's inliner without its defensive copies (geometry/inlining.py): same results, and only
+where numba has the shape it was written against."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import types
+
+import numba
+import numpy as np
+from numba.core import inline_closurecall
+
+from raykernel.geometry import inlining
+
+
+@numba.njit(inline="always")
+def _scaled(x, k):
+    if x < 0:
+        return -x * k
+    return x * k
+
+
+@numba.njit(inline="always")
+def _twice(x):
+    return _scaled(x, 2) + _scaled(-x, 1)       # an inlined function that inlines another twice
+
+
+@numba.njit
+def _uses_inlined(values):
+    total = 0.0
+    count = 0
+    for v in values:
+        total += _twice(v) + _scaled(v, 3.5)        # the same callees at several sites, other types
+        count += _scaled(np.int64(v > 0), 4)
+    return total, count
+
+
+def _reference(values):
+    scaled = lambda x, k: -x * k if x < 0 else x * k      # noqa: E731
+    total = sum(scaled(v, 2) + scaled(-v, 1) + scaled(v, 3.5) for v in values)
+    return total, sum(scaled(int(v > 0), 4) for v in values)
+
+
+def test_inlined_callees_at_many_sites_give_python_results():
+    values = np.array([-2.5, 0.0, 1.25, 7.0, -0.5])
+    assert inlining.skip_inline_copies()        # this numba has the shape: the change is in effect
+    assert inline_closurecall.InlineWorker.inline_function.__module__ == inlining.__name__
+    assert _uses_inlined(values) == _reference(values)
+    assert inline_closurecall.copy is inlining.copy      # the stand-in is gone after each inlining
+
+
+def test_the_same_kernel_compiles_alike_with_numba_as_shipped():
+    code = ("import json, numpy as np, sys, raykernel; sys.path.insert(0, sys.argv[1]); import test_inlining as t; "
+            "from numba.core import inline_closurecall as m; "
+            "print(json.dumps([t._uses_inlined(np.linspace(-3, 3, 13)), m.InlineWorker.inline_function.__module__]))")
+    results = []
+    for shipped in ("", "1"):
+        env = dict(os.environ, RAYKERNEL_NUMBA_AS_SHIPPED=shipped)
+        out = subprocess.run([sys.executable, "-c", code, os.path.dirname(__file__)], env=env, capture_output=True,
+                             text=True, check=True).stdout
+        results.append(json.loads(out.splitlines()[-1]))
+    (changed, where_changed), (shipped, where_shipped) = results
+    assert changed == shipped == list(_reference(np.linspace(-3, 3, 13)))
+    assert where_changed == "raykernel.geometry.inlining" and where_shipped == "numba.core.inline_closurecall"
+
+
+def test_an_inliner_of_another_shape_is_left_alone():
+    class Worker:
+        def inline_ir(self, caller_ir, block, i, callee_ir, freevars, arg_typs=None):
+            return callee_ir.copy()
+
+        def inline_function(self, caller_ir, block, i, function, arg_typs=None):
+            return self.inline_ir(caller_ir, block, i, function, ())
+
+    other = types.SimpleNamespace(InlineWorker=Worker, copy=inlining.copy)
+    assert not inlining._expected_shape(other)
+    assert not inlining._expected_shape(types.SimpleNamespace(copy=inlining.copy))    # no InlineWorker at all
+    assert inlining._expected_shape(inline_closurecall)
