@@ -1,7 +1,7 @@
 """The fast path of RayScene: one triangle mesh (or several) under one BVH.
 
     mesh = MeshKernel.of(geo, geometries)   # None unless geo is triangles under a single BVH, no instances
-    mesh.kernel(geo, *mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayscene's generic kernel
+    mesh.kernel(*mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayscene's generic kernel
 
 The generic intersection routine (traverse.py) carries every aggregate kind,
 nesting frames, instances and mailboxes through one loop; for the common
@@ -60,7 +60,24 @@ STACK = 192                  # a BVH is at most 96 nodes deep (flatten.MAX_TREE_
 STACK4 = 384                 # the 4-wide tree is no deeper: 4 entries per level
 
 
+class MeshArrays(NamedTuple):
+    """The scene Geometry's arrays that the mesh kernel reads. Given the whole Geometry (some 75
+    arrays) the kernel compiled their unpacking as well: 2 s more of a first query."""
+    agg_bounds: np.ndarray
+    root: int
+    tri_edges: np.ndarray
+    tri_verts: np.ndarray
+    tri_faces: np.ndarray
+    tri_smooth: np.ndarray
+    tri_mat: np.ndarray
+    tri_vnormals: np.ndarray
+    node_bounds: np.ndarray
+    node_first: np.ndarray
+    node_count: np.ndarray
+
+
 class MeshKernel(NamedTuple):
+    geo: MeshArrays          # what the kernel reads of the scene's Geometry
     corners: np.ndarray      # (R, 9 or more) float64: v0, v1, v2 of the triangle of each leaf reference
     ids: np.ndarray          # (R, 4) int64 of each leaf reference: global triangle index, geometry (mesh), face
                              # index within it, 1 where the triangle has vertex normals (one record: one miss a hit)
@@ -90,7 +107,8 @@ class MeshKernel(NamedTuple):
         leaves = count > 0
         blocks, first_block = leaf_blocks(corners, wide.nodes[:, CHILD:CHILD + 4][leaves], count[leaves])
         ids = np.ascontiguousarray(np.c_[prim, geom, local, geo.tri_smooth[prim]].astype(np.int64))
-        return cls(corners, ids, root, wide, blocks, first_block)
+        return cls(MeshArrays(*(getattr(geo, name) for name in MeshArrays._fields)), corners, ids, root, wide, blocks,
+                   first_block)
 
     @property
     def kernel(self):

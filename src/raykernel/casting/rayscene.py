@@ -463,7 +463,7 @@ class RayScene:
             start = time.perf_counter()         # (after waiting for the lock)
             if n and self._mesh is not None:
                 mesh = self._mesh
-                for_ranges(lambda c0, c1: kernel(self.geo, *mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom,
+                for_ranges(lambda c0, c1: kernel(*mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom,
                                                  idx, inst, uv, gn, sn, with_surface, offsets, all_t, all_i, counters,
                                                  c0, c1), len(counters), threads, kernel=kernel)
             elif n and self._lazy is not None:
