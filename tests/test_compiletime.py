@@ -159,3 +159,38 @@ def test_each_kind_of_render_that_compiles_says_so(tmp_path):
     assert first.stderr.count("raykernel: compiling the renderer's kernels") == 2
     again = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert "compiling" not in again.stderr
+
+
+@pytest.mark.slow
+def test_no_kernel_is_compiled_for_a_literal_argument(tmp_path):
+    """numba compiles a kernel once per argument types, and a literal argument (a constant, or
+    a counter that starts at a constant) is a type of its own: a call made with `0` where the
+    same call elsewhere passes an int64 compiles the callee twice (trace was, for the literal
+    0 its counter of eye rays started at: 8 s of a first render). In a fresh process on an
+    empty cache (kernels loaded from a cache bring their callees inside them), a render or
+    query of each kind compiles no kernel for a literal."""
+    import os
+    import subprocess
+    import sys
+    code = """
+import gc, numpy as np, raykernel
+from numba.core import types
+from numba.core.registry import CPUDispatcher
+scene = raykernel.load("spd:balls:1")
+raykernel.render(scene, resolution=24)
+raykernel.render(scene, resolution=24, accel="grid")
+raykernel.RayScene(scene).intersect(np.zeros((1, 3)), np.ones((1, 3)))
+raykernel.RayScene.from_mesh(np.eye(3), [(0, 1, 2)]).intersect(np.zeros((1, 3)), np.ones((1, 3)))
+kernels = [f for f in gc.get_objects() if isinstance(f, CPUDispatcher) and f.py_func.__module__.startswith("raykernel")]
+for f in kernels:
+    for sig in f.overloads:
+        literal = [str(a) for a in sig if isinstance(a, types.Literal)]
+        if literal:
+            print(f.py_func.__module__, f.py_func.__name__, literal)
+print("checked", sum(len(f.overloads) for f in kernels))
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    *literal, checked = out.strip().splitlines()
+    assert int(checked.split()[1]) > 30          # the kernels of all four calls, callees included
+    assert literal == []

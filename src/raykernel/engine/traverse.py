@@ -152,7 +152,8 @@ def _finish(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, tmin, mode, hi
         t = buf_t[k]
         if tmin <= t <= best_t and not (mode == ANY_OPAQUE and clear_material(geo, buf_i[k, 1], buf_i[k, 2])):
             found, best_t, best_ref, best_inst = take(mode, t, buf_i[k, 1], buf_i[k, 2], buf_i[k, 3],
-                                                      buf_i[k, 4] | OPERATOR_SURFACE, buf_m, k, 0, hit_f, hit_i,
+                                                      buf_i[k, 4] | OPERATOR_SURFACE, buf_m, k, np.int64(0), hit_f,
+                                                      hit_i,
                                                       found, best_t, best_ref, best_inst)
             if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                 return found, best_t, best_ref, best_inst, DONE
@@ -167,9 +168,11 @@ def _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, operand, inst, fram
                           geo.sph_radius[idx], ox, oy, oz, dx, dy, dz)
     if t0 <= best_t and t0 != INF:
         cnt[C.HITS + SPHERE] += 1
-        collect.record(buf_t, buf_i, buf_m, buf_n, t0, operand, SPHERE, idx, inst, 0, frame_f, f, cnt, counter)
+        collect.record(buf_t, buf_i, buf_m, buf_n, t0, operand, np.int64(SPHERE), idx, inst, np.int64(0), frame_f, f,
+                       cnt, counter)
     if t1 <= best_t and t1 != INF:
-        collect.record(buf_t, buf_i, buf_m, buf_n, t1, operand, SPHERE, idx, inst, 1, frame_f, f, cnt, counter)
+        collect.record(buf_t, buf_i, buf_m, buf_n, t1, operand, np.int64(SPHERE), idx, inst, np.int64(1), frame_f, f,
+                       cnt, counter)
 
 
 # the counter of operand crossings recorded (the CSG kinds' first own counter): a constant,
@@ -219,7 +222,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     tested interval, -inf there, since a solid's inside depends on crossings behind tmin."""
     stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, buf_t, buf_i, buf_m, buf_n, _ = ws
     best_t = tmax
-    found = False
+    found = np.bool_(False)     # (typed, not literal: see _finish, take and record, compiled once each for these types)
     best_ref = np.int64(-1)
     best_inst = np.int64(-1)
     ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
@@ -326,7 +329,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 if sink >= 0:
                     _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t,
                                    collect.operand(frame_f, frame_i, f, sink, i - 1), frame_i[f, FI_INST], frame_f, f,
-                                   buf_t, buf_i, buf_m, buf_n, cnt, CROSSINGS)
+                                   buf_t, buf_i, buf_m, buf_n, cnt, np.int64(CROSSINGS))
                     continue
                 t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
                                geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, lo, best_t)
@@ -384,10 +387,12 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 cnt[C.HITS + kind] += 1
                 if sink >= 0:
                     collect.record(buf_t, buf_i, buf_m, buf_n, t, collect.operand(frame_f, frame_i, f, sink, i - 1),
-                                   kind, idx, frame_i[f, FI_INST], 0, frame_f, f, cnt, CROSSINGS)
+                                   kind, idx, frame_i[f, FI_INST], np.int64(0), frame_f, f, cnt,
+                                   np.int64(CROSSINGS))
                     continue
-                found, best_t, best_ref, best_inst = take(mode, t, kind, idx, frame_i[f, FI_INST], 0, frame_f, f,
-                                                          F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
+                found, best_t, best_ref, best_inst = take(mode, t, kind, idx, frame_i[f, FI_INST], np.int64(0),
+                                                          frame_f, f, np.int64(F_MAP), hit_f, hit_i, found, best_t,
+                                                          best_ref, best_inst)
                 if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                     return True
                 if mode == CLOSEST_EAGER and best_t == t and hit_i[0] == kind and hit_i[1] == idx:

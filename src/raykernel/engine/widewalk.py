@@ -174,7 +174,7 @@ def _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edg
     widebvh.visit pushes them: v >= 0 a wide node to visit, v < 0 a leaf."""
     for k in range(12):     # the hit's frame is the world: an identity map for take
         frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
-    found = False
+    found = np.bool_(False)      # typed, not literal: numba compiles a private callee once per literal
     best_t = tmax
     best_ref = np.int64(-1)
     best_inst = np.int64(-1)
@@ -211,8 +211,9 @@ def _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edg
             if t == INF:
                 continue
             cnt[C.HITS + kind] += 1
-            found, best_t, best_ref, best_inst = take(mode, t, kind, ref & INDEX_MASK, np.int64(-1), 0, frame_f, 0,
-                                                      F_MAP, hit_f, hit_i, found, best_t, best_ref, best_inst)
+            found, best_t, best_ref, best_inst = take(mode, t, kind, ref & INDEX_MASK, np.int64(-1), np.int64(0),
+                                                      frame_f, np.int64(0), np.int64(F_MAP), hit_f, hit_i, found,
+                                                      best_t, best_ref, best_inst)
             if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                 _flush(cnt, n_bounds, n_nodes, n_leaves)
                 return True

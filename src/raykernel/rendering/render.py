@@ -138,7 +138,7 @@ def _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y
                  tricks, state, out, step, coarse, rays, eyes, colors, ws, cnt):
     """The samples of the tile at (x0, y0) for _render_tiles, with the tile's workspace and counters:
     their eye rays traced in one call, in the order of the tile's rows."""
-    n = 0
+    n = np.int64(0)     # typed int64 from the start: a literal 0 had numba compile trace for n = 0 first
     for j in range(y0, min(y0 + TILE, samples_h), step):
         for i in range(x0, min(x0 + TILE, samples_w), step):
             if _skipped(i, j, x0, y0, coarse):
