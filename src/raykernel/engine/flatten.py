@@ -19,10 +19,10 @@ fields below, then the fields each walk kind declares in its module
 (FIELDS: grid_*, node_*, oct_*, rc_*), in registry order, then, for a
 scene that is one BVH over primitives, that BVH collapsed 4-wide (wide_*),
 which the driver hands to its fast walk (widewalk.py). Kernels are given
-such a scene's Geometry as a WideOnlyGeometry (`for_kernels`), the 36
-fields that walk and the shading read: a kernel that passes a named tuple
-on compiles the unpacking of every field, and the other 43 cost a first
-render about 5 s of compile time.
+such a scene's Geometry as a WideOnlyGeometry (`for_kernels`), the 43
+fields that walk, the shading and the tricks read: a kernel that passes a
+named tuple on compiles the unpacking of every field, and the other 36
+cost a first render about 5 s of compile time.
 
 With lazy octrees in the scene, build["lazy"] holds them
 (aggregates/lazyoctree.py): whoever traces rays refines them between passes.
@@ -123,8 +123,10 @@ Geometry = NamedTuple("Geometry", [(name, np.ndarray) for name in PRIMITIVE_FIEL
 Geometry.__module__ = __name__
 Geometry.__doc__ = "Flat arrays of a built scene, read by the kernels (see the module docstring)."
 
-# what the kernels of a scene that is one 4-wide BVH read (widewalk.wide_only): no other walk's arrays
-WIDE_ONLY_FIELDS = PRIMITIVE_FIELDS + ("agg_bounds", "refs") + WIDE_FIELDS + ("root",)
+# what the kernels of a scene that is one 4-wide BVH read (widewalk.wide_only): its primitives, its box and
+# references, its binary tree (the tricks' start lists walk it) and its 4-wide one; no other walk's arrays
+WIDE_ONLY_FIELDS = (PRIMITIVE_FIELDS + ("agg_kind", "agg_bounds", "agg_start", "agg_count", "refs", "inst_agg",
+                                        "node_bounds", "node_first", "node_count") + WIDE_FIELDS + ("root",))
 WideOnlyGeometry = NamedTuple("WideOnlyGeometry", [(name, Geometry.__annotations__[name]) for name in WIDE_ONLY_FIELDS])
 WideOnlyGeometry.__module__ = __name__
 WideOnlyGeometry.__doc__ = ("The Geometry's fields that kernels read when the scene is one 4-wide BVH: given all 79, "
