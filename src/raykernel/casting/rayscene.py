@@ -456,7 +456,7 @@ class RayScene:
         kernel = self._mesh.kernel if self._mesh is not None else _query
         name = f"meshcast.{kernel.__name__}" if self._mesh is not None else "rayscene._query"
         about = (f"{FIRST_MESH_SECONDS} s" if self._mesh is not None
-                 else f"{FIRST_QUERY_SECONDS} s, 40 s for other structures")
+                 else f"{FIRST_QUERY_SECONDS} s, 35 s for other structures")
         notice = compile_notice(name, f"raykernel: compiling the ray-casting kernels (first use after install, "
                                       f"about {about}; cached for later processes)")
         with self._turn(), CompileClock(notice=notice) as clock:

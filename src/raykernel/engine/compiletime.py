@@ -30,11 +30,11 @@ from ..geometry.config import cached, tell_once
 from .parallel import WORKER_PREFIX
 
 # about how long a first compile takes on a 2-core machine (bench/startup.py), for the notices
-FIRST_RUN_SECONDS = 30      # a first render of a scene that is one BVH (every SPD scene); other structures 40 s
-FIRST_QUERY_SECONDS = 25    # a first RayScene query on a scene that is one BVH; other structures about 40 s
-FIRST_MESH_SECONDS = 15     # and on a mesh (the mesh kernel)
+FIRST_RUN_SECONDS = 20      # a first render of a scene that is one BVH (every SPD scene); other structures 35 s
+FIRST_QUERY_SECONDS = 20    # a first RayScene query on a scene that is one BVH; other structures about 35 s
+FIRST_MESH_SECONDS = 10     # and on a mesh (the mesh kernel)
 # how long the other kinds of render take, after FIRST_RUN_SECONDS in every notice
-OTHER_RENDERS = ("40 s for other structures, one or two minutes for Heckbert's or Hall's shading, antialiasing or "
+OTHER_RENDERS = ("35 s for other structures, 20-40 s for Heckbert's or Hall's shading, antialiasing or "
                  "filtered shadows")
 NOTICE_AFTER = 1.0          # seconds of compiling before CompileClock's notice
 
