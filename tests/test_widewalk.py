@@ -105,28 +105,6 @@ def test_kernels_given_a_wide_geometry_compile_no_general_driver():
     assert first_hit(driven, CLOSEST_EAGER, ws, cnt) == first_hit(driven, CLOSEST, ws, cnt)
 
 
-def test_kernels_are_given_the_fields_the_wide_walk_reads():
-    # a one-BVH scene reaches the kernels as a WideOnlyGeometry: the same arrays, no other walk's
-    from raykernel.engine.flatten import Geometry, WideOnlyGeometry, for_kernels
-    from raykernel.engine.widewalk import with_driver
-
-    wide, _ = flatten(random_scene(3), "bvh")
-    small = for_kernels(wide)
-    assert type(small) is WideOnlyGeometry and len(small) < len(Geometry._fields)
-    assert not [name for name in small._fields if name.startswith(("grid_", "oct_", "rc_", "csg_", "inst_to"))]
-    assert all(getattr(small, name) is getattr(wide, name) for name in WideOnlyGeometry._fields)
-    general, _ = flatten(random_scene(3), "grid")
-    driven = with_driver(wide)
-    assert for_kernels(general) is general and for_kernels(driven) is driven
-
-    rng = np.random.default_rng(3)
-    o, d, tmin, tmax = scene_rays(rng, 400, extent=5.0)
-    answers = [cast_rays(g, o, d, tmin, tmax) for g in (small, wide, driven)]
-    assert np.isfinite(answers[0][0]).mean() > 0.2
-    for got in answers[1:]:
-        assert all(np.array_equal(x, y) for x, y in zip(answers[0], got))
-
-
 def test_eager_normals_render_one_bvh_with_the_driver_and_the_same_image():
     # tricks without lazy normals take CLOSEST_EAGER queries, which only the general driver answers:
     # a render with tricks gets the geometry typed with it

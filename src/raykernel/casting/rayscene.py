@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..engine.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock, compile_notice
-from ..engine.flatten import BVH, LIST, flatten, for_kernels
+from ..engine.flatten import BVH, LIST, flatten
 from ..engine.parallel import for_ranges
 from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..errors import RayKernelError
@@ -498,8 +498,7 @@ class RayScene:
                     all_i[:] = p_all_i[src]
                 self._lazy.update_stats(self.build_stats, self.geo)
             elif n:
-                geo = for_kernels(self.geo)
-                for_ranges(lambda c0, c1: _query(geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv,
+                for_ranges(lambda c0, c1: _query(self.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv,
                                                  gn, sn, with_surface, offsets, all_t, all_i, counters, c0, c1),
                            len(counters), threads, kernel=_query)
         seconds = time.perf_counter() - start - clock.seconds - clock.loading

@@ -18,11 +18,7 @@ Geometry is one named tuple of arrays: the primitives' and the aggregates'
 fields below, then the fields each walk kind declares in its module
 (FIELDS: grid_*, node_*, oct_*, rc_*), in registry order, then, for a
 scene that is one BVH over primitives, that BVH collapsed 4-wide (wide_*),
-which the driver hands to its fast walk (widewalk.py). Kernels are given
-such a scene's Geometry as a WideOnlyGeometry (`for_kernels`), the 43
-fields that walk, the shading and the tricks read: a kernel that passes a
-named tuple on compiles the unpacking of every field, and the other 36
-cost a first render about 5 s of compile time.
+which the driver hands to its fast walk (widewalk.py).
 
 With lazy octrees in the scene, build["lazy"] holds them
 (aggregates/lazyoctree.py): whoever traces rays refines them between passes.
@@ -123,39 +119,20 @@ Geometry = NamedTuple("Geometry", [(name, np.ndarray) for name in PRIMITIVE_FIEL
 Geometry.__module__ = __name__
 Geometry.__doc__ = "Flat arrays of a built scene, read by the kernels (see the module docstring)."
 
-# what the kernels of a scene that is one 4-wide BVH read (widewalk.wide_only): its primitives, its box and
-# references, its binary tree (the tricks' start lists walk it) and its 4-wide one; no other walk's arrays
-WIDE_ONLY_FIELDS = (PRIMITIVE_FIELDS + ("agg_kind", "agg_bounds", "agg_start", "agg_count", "refs", "inst_agg",
-                                        "node_bounds", "node_first", "node_count") + WIDE_FIELDS + ("root",))
-WideOnlyGeometry = NamedTuple("WideOnlyGeometry", [(name, Geometry.__annotations__[name]) for name in WIDE_ONLY_FIELDS])
-WideOnlyGeometry.__module__ = __name__
-WideOnlyGeometry.__doc__ = ("The Geometry's fields that kernels read when the scene is one 4-wide BVH: given all 79, "
-                            "a kernel compiles their unpacking at every call between kernels.")
-
-
-def for_kernels(geo):
-    """geo as render and query kernels take it: the WideOnlyGeometry of a scene that is one
-    4-wide BVH, else geo itself."""
-    if isinstance(geo, Geometry) and widewalk.wide_only(geo):
-        return WideOnlyGeometry(*(getattr(geo, name) for name in WIDE_ONLY_FIELDS))
-    return geo
-
-
 _GEOMETRY_TYPES: dict = {}
 
 
 @typeof_impl.register(Geometry)
-@typeof_impl.register(WideOnlyGeometry)
 def _typeof_geometry(geo, context):
-    """numba's type of a Geometry (or WideOnlyGeometry), computed once per layout: numba types
-    a named tuple field by field at every call of a kernel (about 0.6 ms for the Geometry's 79
-    fields, with the interpreter lock held), and renders and queries call their kernels once
-    per range of work, lazy structures once per pass."""
-    key = (type(geo),) + tuple((a.dtype, a.ndim, a.flags.c_contiguous, a.flags.f_contiguous, a.flags.writeable,
-                                a.flags.aligned) for a in geo[:-1]) + (type(geo.root),)
+    """numba's type of a Geometry, computed once per layout: numba types a named tuple
+    field by field at every call of a kernel (about 0.6 ms for these 70 arrays, with the
+    interpreter lock held), and renders and queries call their kernels once per range of
+    work, lazy structures once per pass."""
+    key = tuple((a.dtype, a.ndim, a.flags.c_contiguous, a.flags.f_contiguous, a.flags.writeable, a.flags.aligned)
+                for a in geo[:-1]) + (type(geo.root),)
     ty = _GEOMETRY_TYPES.get(key)
     if ty is None:
-        ty = _GEOMETRY_TYPES[key] = types.NamedTuple([typeof(x, context.purpose) for x in geo], type(geo))
+        ty = _GEOMETRY_TYPES[key] = types.NamedTuple([typeof(x, context.purpose) for x in geo], Geometry)
     return ty
 
 

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..aggregates.lazyoctree import pass_ranges
 from ..engine.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, CompileClock, compile_notice, typing_setup
-from ..engine.flatten import flatten, for_kernels
+from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..engine.widewalk import count_misses, with_driver
@@ -426,10 +426,9 @@ class RenderJob:
                 if self.pass_counts[p] is None:
                     columns = 0 if self.lazy is None else self.lazy.columns     # (lazy structures change them)
                     self.pass_counts[p] = np.zeros((last - first, columns), np.int64)
-        geo = for_kernels(self.geo)
         if self.plain:
             def run(counter, limit):
-                _render_tiles(geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
+                _render_tiles(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
                               self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
                               True if self.filtered else None, self.trick_bits,
                               None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
@@ -438,7 +437,7 @@ class RenderJob:
             whitted_on, heckbert_on, medium = model_arguments(o["shading"], self.medium)
 
             def run(counter, limit):
-                _render_pixels(geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
+                _render_pixels(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
                                self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
                                self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
                                whitted_on, heckbert_on, self.filtered, self.trick_bits, self.starts, medium,
