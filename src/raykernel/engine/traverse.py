@@ -153,8 +153,7 @@ def _finish(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, tmin, mode, hi
         if tmin <= t <= best_t and not (mode == ANY_OPAQUE and clear_material(geo, buf_i[k, 1], buf_i[k, 2])):
             found, best_t, best_ref, best_inst = take(mode, t, buf_i[k, 1], buf_i[k, 2], buf_i[k, 3],
                                                       buf_i[k, 4] | OPERATOR_SURFACE, buf_m, k, np.int64(0), hit_f,
-                                                      hit_i,
-                                                      found, best_t, best_ref, best_inst)
+                                                      hit_i, found, best_t, best_ref, best_inst)
             if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                 return found, best_t, best_ref, best_inst, DONE
     return found, best_t, best_ref, best_inst, sink
@@ -222,7 +221,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     tested interval, -inf there, since a solid's inside depends on crossings behind tmin."""
     stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, buf_t, buf_i, buf_m, buf_n, _ = ws
     best_t = tmax
-    found = np.bool_(False)     # (typed, not literal: see _finish, take and record, compiled once each for these types)
+    found = np.bool_(False)     # typed, not literal: numba compiles a private callee once per literal
     best_ref = np.int64(-1)
     best_inst = np.int64(-1)
     ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)

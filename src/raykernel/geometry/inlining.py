@@ -29,7 +29,7 @@ import copy
 import inspect
 import os
 
-from numba.core import event
+from numba.core import event, ir
 
 _applied = False
 _listening = False
@@ -40,7 +40,6 @@ class _BlocksAsGiven:
 
     @staticmethod
     def deepcopy(x, memo=None):
-        from numba.core import ir
         return x if isinstance(x, ir.Block) else copy.deepcopy(x, memo)
 
 
