@@ -189,7 +189,7 @@ def main():
                         help="render each structure again until its trace times add up to this (at most "
                              f"{MAX_ROUNDS} rounds)")
     parser.add_argument("--calibrate", action="store_true",
-                        help="fit the cost model on this machine first (raykernel calibrate, a few minutes) and "
+                        help="fit the cost model on this machine first (raykernel calibrate, some 8 minutes) and "
                              "price every run and auto with it: the machine's speed drifts between runs")
     args = parser.parse_args()
     if args.calibrate:

@@ -104,8 +104,14 @@ def test_the_cost_model_prices_corners_hits_mailboxes_leaves_and_lazy_rays():
     g = costmodel.features(lazy)
     assert g["ray.lazy.octree"] == g["ray.shaded"] + g["ray.shadow"] > 0
     assert g["pass.lazy"] == g["refine.pass"] == lazy["build.refine_passes"] > 1 and "ray.lazy.rc" not in g
-    rc = costmodel.features(raykernel.render(scene, accel="rc", resolution=24, spd=True).stats)
+    rc_stats = raykernel.render(scene, accel="rc", resolution=24, spd=True).stats
+    rc = costmodel.features(rc_stats)
     assert rc["ray.lazy.rc"] == rc["ray.shaded"] + rc["ray.shadow"] and rc["ray.lazy.rc_mb"] > 0
+    # tests from rc's candidate lists and its refinement's references by size are priced apart
+    assert rc["test.rc"] == rc_stats["tests.total"] > 0 and rc["polygon.corner.rc"] == rc_stats["polygon.corners"]
+    (agg,) = rc_stats.aggregates
+    assert agg["refs"] > 0 and rc["refine.rc.ref_size"] == pytest.approx(agg["refs"] * agg["bytes"] / 2 ** 20)
+    assert "test.rc" not in f and "test.rc" not in g and "refine.rc.ref_size" not in g
     # a scene that is one BVH takes the 4-wide walk, priced apart; with eager normals it does not
     wide = raykernel.render(scene, accel="bvh", resolution=24, spd=True).stats
     w = costmodel.features(wide)

@@ -1,6 +1,6 @@
 """A linear cost model of trace time: seconds per counted operation, fitted on this machine.
 
-    model = costmodel.calibrate()                   # renders the calibration set, a few minutes
+    model = costmodel.calibrate()                   # renders the calibration set: 8 minutes on 2 cores
     model.save(costmodel.default_path())
     model.predict(result.stats)                     # predicted trace seconds
     costmodel.current()                             # this machine's model, else the reference one
@@ -16,6 +16,9 @@ Trace time is modelled as  sum(count * cost)  over these features:
                  traced coarse to fine: the sparse early passes find little in the caches
   ray.lazy.rc_mb and for ray classification weighted by log2(1 + MiB of its structure): a ray's
                  hypercube and candidates are found in memory that grows with the refinement
+  test.rc        ray/primitive tests of a render walked by ray classification alone, and
+  polygon.corner.rc  the corners they walked: its candidate lists, sorted by distance, send a
+                 test to primitives scattered in memory (some 7 ns more a test than a grid's)
   pass.lazy      passes of such a render: each hands its tiles to the threads again
   test.KIND      ray/primitive tests, one cost per primitive kind
   hit.KIND       and those that found the primitive in range (a hit computes its root and
@@ -34,7 +37,10 @@ Trace time is modelled as  sum(count * cost)  over these features:
   refine.pass    lazy structures' refinement between passes of rays: one per pass
   refine.W.*     and per lazy walk W (rc; octree for lazyoctree): each subdivision, each
                  candidate reference, and each reference weighted by log2(1 + MiB of its
-                 structure) (a reference costs more to filter and copy in a larger structure)
+                 structure) (a reference costs more to filter and copy in a larger structure);
+                 for rc each reference also weighted by the MiB themselves (refine.rc.ref_size):
+                 past the caches, at the hundreds of MiB rc reaches on a 256-pixel render, a
+                 reference costs twice what it does at a few MiB
 
 W is one of the kernel's walks (aggregates.WALK_NAMES: list, bvh, grid, octree, rc,
 csg); every structure kind runs one of them (hgrid runs grids, hybrid and lazyoctree
@@ -50,7 +56,8 @@ none (analysis.anneal ranks candidates with it: rankings move less between machi
 seconds do).
 
 Calibration set (CALIBRATION_SCENES): small SPD scenes, a triangle scene and nested scenes
-(a small park among them), rendered in SPD mode at two resolutions with every structure
+(a small park among them), rendered in SPD mode at two resolutions (128 and 256 pixels: at
+256 ray classification grows to the sizes it reaches on full scenes) with every structure
 kind, the nested ones both with their own structures inside and wholly under the kind (the
 brute-force list only on scenes of at most LIST_MAX_PRIMS primitives); each render is
 repeated REPEATS times and its shortest trace time kept, since other work on the machine
@@ -79,7 +86,7 @@ import numpy as np
 from ..aggregates import WALK_COUNTERS, WALK_NAMES
 from ..errors import OptionError
 
-VERSION = 7                 # calibration files of another version priced other features
+VERSION = 8                 # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
@@ -90,7 +97,7 @@ CALIBRATION_SCENES = (
     "scene:diamond:facets=300", "scene:stadium:stadium_prims=800,teapot_prims=400,teapot_bvh=1",
     "scene:satellite:prims=600", "scene:park:rides=2,horses=6,trees=60,mountain_level=3",
 )
-CALIBRATION_RESOLUTIONS = (64, 128)
+CALIBRATION_RESOLUTIONS = (128, 256)
 LIST_MAX_PRIMS = 1500
 REPEATS = 3
 RIDGE = 1e-4
@@ -126,6 +133,12 @@ def features(stats) -> dict:
     for counter, feature in WALK_COUNTERS:
         if feature:
             f[feature] = float(stats.get(counter, 0))
+    if walks_used(stats) == {"rc"}:
+        # a candidate of ray classification's lists is tested where the list sends it, its
+        # primitive's numbers far from the list: a test and its corners cost more than in cells
+        # or leaves whose references follow the structure
+        f["test.rc"] = sum(float(stats.get(f"tests.{k}", 0)) for k in PRIMITIVE_KINDS)
+        f["polygon.corner.rc"] = float(stats.get("polygon.corners", 0))
     # lazy structures refine between passes of rays, inside the trace time
     lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
     if lazy:
@@ -140,6 +153,9 @@ def features(stats) -> dict:
             for name, count in (("subdivision", float(a.get("subdivisions", 0))), ("ref", refs),
                                 ("ref_mb", refs * megabytes)):
                 f[f"refine.{walk}.{name}"] = f.get(f"refine.{walk}.{name}", 0.0) + count
+            if walk == "rc":
+                # past the caches (rc grows to hundreds of MiB) a reference costs more again
+                f["refine.rc.ref_size"] = f.get("refine.rc.ref_size", 0.0) + refs * a.get("bytes", 0) / 2 ** 20
             f[f"ray.lazy.{walk}"] = rays
             if walk == "rc":
                 f["ray.lazy.rc_mb"] = f.get("ray.lazy.rc_mb", 0.0) + rays * megabytes
