@@ -29,6 +29,9 @@ Trace time is modelled as  sum(count * cost)  over these features:
   leaf           non-empty leaves and cells visited (each starts a loop over references)
   entry.W        rays entering an aggregate of walk W (its set-up: a grid's first cell, an
                  octree's entry point, a ray classification's face and key)
+  entry.grid.more  and bound.grid.more: a grid's entries and bound tests beyond one a ray (an
+                 hgrid's inner grids, the boxes of instances and structures in cells); the
+                 first moves with the ray count and takes a share of a ray's costs with it
   step.W         traversal steps (cells.visited, N_TS) of walk W
   bound.W        ray/bounding-volume tests charged to walk W
   transform      rays mapped into an instance
@@ -86,7 +89,7 @@ import numpy as np
 from ..aggregates import WALK_COUNTERS, WALK_NAMES
 from ..errors import OptionError
 
-VERSION = 8                 # calibration files of another version priced other features
+VERSION = 9                 # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
@@ -128,6 +131,14 @@ def features(stats) -> dict:
         f[f"entry.{name}"] = float(stats.get(f"walk.{walk}.entries", 0))
         f[f"step.{name}"] = float(stats.get(f"walk.{walk}.steps", 0))
         f[f"bound.{name}"] = float(stats.get(f"walk.{walk}.bounds", 0)) - (culled if name == "wide" else 0.0)
+    # a grid's first entry and bound test of a ray move with the ray count (its set-up); those
+    # beyond (an hgrid's inner grids, the boxes of instances and structures in its cells) are
+    # cheaper, and priced apart
+    rays = f["ray.shaded"] + f["ray.shadow"]
+    for what in ("entry", "bound"):
+        count = f[f"{what}.grid"]
+        f[f"{what}.grid"] = min(count, rays)
+        f[f"{what}.grid.more"] = count - f[f"{what}.grid"]
     f["transform"] = float(sum(stats.get(f"transforms.{k}", 0) for k in ("identity", "translation", "scale",
                                                                           "affine")))
     for counter, feature in WALK_COUNTERS:
