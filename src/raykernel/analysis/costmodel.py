@@ -153,7 +153,6 @@ def features(stats) -> dict:
     # lazy structures refine between passes of rays, inside the trace time
     lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
     if lazy:
-        rays = f["ray.shaded"] + f["ray.shadow"]
         passes = float(stats.get("build.refine_passes", 0))
         f["refine.pass"] = f["pass.lazy"] = passes
         for a in lazy:
@@ -164,12 +163,11 @@ def features(stats) -> dict:
             for name, count in (("subdivision", float(a.get("subdivisions", 0))), ("ref", refs),
                                 ("ref_mb", refs * megabytes)):
                 f[f"refine.{walk}.{name}"] = f.get(f"refine.{walk}.{name}", 0.0) + count
-            if walk == "rc":
-                # past the caches (rc grows to hundreds of MiB) a reference costs more again
-                f["refine.rc.ref_size"] = f.get("refine.rc.ref_size", 0.0) + refs * a.get("bytes", 0) / 2 ** 20
             f[f"ray.lazy.{walk}"] = rays
             if walk == "rc":
                 f["ray.lazy.rc_mb"] = f.get("ray.lazy.rc_mb", 0.0) + rays * megabytes
+                # past the caches (rc grows to hundreds of MiB) a reference costs more again
+                f["refine.rc.ref_size"] = f.get("refine.rc.ref_size", 0.0) + refs * a.get("bytes", 0) / 2 ** 20
     return f
 
 
