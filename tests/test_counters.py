@@ -102,8 +102,7 @@ def test_the_cost_model_prices_corners_hits_mailboxes_leaves_and_lazy_rays():
     for what, counter in (("entry", "walk.grid.entries"), ("bound", "walk.grid.bounds")):
         assert 0 < f[f"{what}.grid"] <= rays and f[f"{what}.grid.more"] >= 0
         assert f[f"{what}.grid"] + f[f"{what}.grid.more"] == eager[counter]
-    nested = costmodel.features(raykernel.render(raykernel.load("spd:gears:1"), accel="hgrid", resolution=24,
-                                                 spd=True).stats)
+    nested = costmodel.features(raykernel.render(scene, accel="hgrid", resolution=24, spd=True).stats)
     assert nested["entry.grid.more"] > 0        # an hgrid's inner grids
     rows = {(r[0], r[1]): r for r in eager.rows()}
     assert rows[("tests", "polygon")][3] == f"{eager['hits.polygon']:,} hit"
