@@ -24,7 +24,9 @@ many the model orders the same way. The brute-force list is left out: on these s
 takes hours. Predicted: the cost model's trace seconds from each render's own counts
 (costmodel.current(): this machine's calibration, else the reference costs shipped with
 raykernel; with --calibrate, a model fitted at the start of the run, which auto uses too),
-against the measured trace seconds.
+at the machine's speed during the scene (costmodel.SpeedProbe: calibration renders timed
+again in the scene's first rounds), against the measured trace seconds; the errors at the
+calibration's speed are reported too.
 
 Hand-nested: the stadium's teapot in a BVH of its own (teapot_bvh=1) under a grid and
 under an octree (Haines's fix), the better kept; the park's own hierarchy (Arvo's: a coarse
@@ -86,7 +88,7 @@ def trace(scene, accel, options):
         raykernel.render(scene, accel=accel, **options).stats
 
 
-def scene_rows(name, args, model, errors):
+def scene_rows(name, args, model, probe, errors):
     scene = raykernel.load(name)
     options = dict(resolution=args.resolution, spd=True)
     t0 = time.perf_counter()
@@ -100,7 +102,8 @@ def scene_rows(name, args, model, errors):
     # are the noisiest), or MAX_ROUNDS rounds
     best, rounds, traced = {}, {}, {}
     raykernel.render(scene, resolution=8, spd=True)
-    for _ in range(MAX_ROUNDS):
+    probe.reset()
+    for round_ in range(MAX_ROUNDS):
         due = [run for run in runs if rounds.get(run[0], 0) < args.repeat or
                traced.get(run[0], 0.0) < args.min_seconds]
         if not due:
@@ -111,6 +114,9 @@ def scene_rows(name, args, model, errors):
             traced[label] = traced.get(label, 0.0) + stats["time.trace"]
             if label not in best or stats["time.trace"] < best[label]["time.trace"]:
                 best[label] = stats
+        if round_ < args.repeat:        # the machine's speed, in the same rounds
+            probe.measure()
+    speed = probe.factor()
     # head to head: the best single kind and auto alternately, `head_to_head` more rounds each,
     # since their ratio is the verdict and both traces can be short
     singles = {label: best[label]["time.trace"] for label in KINDS}
@@ -130,20 +136,28 @@ def scene_rows(name, args, model, errors):
     singles = {label: best[label]["time.trace"] for label in KINDS}
     for label, _, _ in runs:
         stats = best[label]
-        predicted = model.predict(stats)
+        calibrated = model.predict(stats)
+        predicted = None if calibrated is None else calibrated * speed
         measured = stats["time.trace"]
         if predicted is not None and label in KINDS:
-            errors.append((name, label, predicted / measured - 1.0))
+            errors.append((name, label, predicted / measured - 1.0, calibrated / measured - 1.0))
         auto = label == "auto"
         out.append({"scene": name, "structure": label, "predicted": predicted, "measured": measured,
                     "tests_per_ray": stats["tests.per_ray"], "bounds_per_ray": stats["bounds.per_ray"],
                     "mb": stats.get("build.bytes", 0) / 2 ** 20, "rays": stats["rays.total"],
                     "anneal": seconds if auto else None, "vs_best": singles[best_single] / measured,
                     "found": found if auto else None,
-                    "same_work": work(stats) == work(best[best_single])})
+                    "same_work": work(stats) == work(best[best_single]), "speed": speed})
     print(f"{name}: best single {best_single} {singles[best_single]:.4f} s; auto {out[-1]['measured']:.4f} s "
           f"({out[-1]['vs_best']:.2f}x), annealed {seconds:.1f} s", flush=True)
     return out, best_single
+
+
+def summary(errors):
+    """Mean absolute, worst and count within 25% of relative errors."""
+    return (f"mean absolute error {100 * np.abs(errors).mean():.0f}%, worst "
+            f"{100 * errors[np.argmax(np.abs(errors))]:+.0f}%, within 25%: {int(np.sum(np.abs(errors) <= 0.25))} "
+            f"of {len(errors)}")
 
 
 def fmt(x, spec):
@@ -199,11 +213,12 @@ def main():
     else:
         model = costmodel.current()
         calibrated = "this machine's" if costmodel.load_default() else "the reference costs"
+    probe = costmodel.SpeedProbe(model)
     names = args.scenes.split(",") if args.scenes else None
     table, errors, verdicts = [], [], []
     stadium = {}
     for name in scenes(names):
-        rows, best_single = scene_rows(name, args, model, errors)
+        rows, best_single = scene_rows(name, args, model, probe, errors)
         table += rows
         auto = rows[-1]
         hand = [r for r in rows if r["structure"].startswith("hand")]
@@ -212,7 +227,7 @@ def main():
             stadium[name] = (min(hand, key=lambda r: r["tests_per_ray"]), auto)
     if names is None:       # the stadium at ratio 600 is its default; and at 10^6
         name = "scene:stadium:ratio=1e6"
-        rows, best_single = scene_rows(name, args, model, errors)
+        rows, best_single = scene_rows(name, args, model, probe, errors)
         table += rows
         hand = [r for r in rows if r["structure"].startswith("hand")]
         verdicts.append((name, best_single, rows[-1], min(r["measured"] for r in hand)))
@@ -228,9 +243,10 @@ def main():
     found_trees = [f"**{r['scene']}**, auto found (predicted {r['found'].energy:.4f} s against "
                    f"{r['found'].best_single[1]:.4f} s for {r['found'].best_single[0]}):\n\n```\n{r['found'].after}\n```"
                    for r in table if r["found"] is not None and r["scene"].startswith("scene:")]
-    errs = np.array([e for _, _, e in errors])
+    errs = np.array([e for _, _, e, _ in errors])
+    raw = np.array([e for _, _, _, e in errors])
     by_kind = {}
-    for _, kind, e in errors:
+    for _, kind, e, _ in errors:
         by_kind.setdefault(kind, []).append(e)
     # ranking: pairs of single kinds on one scene whose measured times differ by more than 10%
     pairs = agree = 0
@@ -246,12 +262,12 @@ def main():
         model_lines.append(f"| {kind} | {len(es)} | {100 * np.abs(es).mean():.0f}% "
                            f"| {100 * es[np.argmax(np.abs(es))]:+.0f}% |")
     verdict_lines = ["| scene | rays (each structure) | best single kind | best single / auto | auto's work "
-                     "| best hand / auto |", "|---|---:|---|---:|---|---:|"]
+                     "| best hand / auto | machine speed |", "|---|---:|---|---:|---|---:|---:|"]
     for name, single, auto, hand in verdicts:
         own = f"the same as {single}" if auto["same_work"] else "its own"
         verdict_lines.append(f"| {name} | {auto['rays']:,} | {single} | {auto['vs_best']:.2f}x | {own} "
                              f"| {fmt(None if hand is None else hand / auto['measured'], '.2f')}"
-                             f"{'' if hand is None else 'x'} |")
+                             f"{'' if hand is None else 'x'} | {auto['speed']:.3f} |")
     faster = [n for n, _, a, _ in verdicts if a["vs_best"] >= 1.1 and not a["same_work"]]
     slower = [n for n, _, a, _ in verdicts if a["vs_best"] < 1 / 1.05]
     verdict_lines += ["", f"Auto at least 10% faster than the best single kind, with work of its own: {len(faster)} "
@@ -288,9 +304,11 @@ def main():
         "",
         *stadium_lines,
         "",
-        f"The cost model on every single-kind run above ({len(errs)} runs): mean absolute error "
-        f"{100 * np.abs(errs).mean():.0f}%, worst {100 * errs[np.argmax(np.abs(errs))]:+.0f}%; within 25%: "
-        f"{int(np.sum(np.abs(errs) <= 0.25))} of {len(errs)}.",
+        f"The cost model on every single-kind run above ({len(errs)} runs), at the machine's speed during the "
+        f"scene (the verdicts' last column: the geometric mean, over {len(probe.anchors)} of the calibration's "
+        f"renders timed again in the scene's first {args.repeat} rounds, of their time now over their time in "
+        "the calibration): "
+        f"{summary(errs)}. At the calibration's speed (the fitted costs alone): {summary(raw)}.",
         "",
         *model_lines,
         "",

@@ -202,6 +202,33 @@ def test_an_older_machine_calibration_falls_back_to_the_reference(tmp_path, monk
         costmodel.CostModel.load(old)
 
 
+def test_the_speed_probe_times_calibration_renders_again():
+    """Per kind, the anchors are the calibration runs nearest ANCHOR_SECONDS; the factor is the
+    geometric mean of each anchor's best time now over its time in the calibration; a scene the
+    calibration rendered under one kind (ONE_KIND) is rendered so again."""
+    park = "scene:park:rides=1,horses=2,trees=4,mountain_level=1"
+    runs = [{"scene": "spd:balls:1", "accel": "grid", "resolution": 8, "trace": t} for t in (1e-5, 0.08, 3.0)]
+    runs += [{"scene": park + costmodel.ONE_KIND, "accel": "bvh", "resolution": 8, "trace": 2e-3},
+             {"scene": "spd:tetra:1", "accel": "bvh", "resolution": 8, "trace": 0.0}]       # never an anchor
+    model = costmodel.CostModel(costs={}, threads=1, calibration=runs)
+    probe = costmodel.SpeedProbe(model, per_kind=2, threads=1)
+    assert [(a["accel"], a["trace"]) for a in probe.anchors] == [("grid", 0.08), ("grid", 3.0), ("bvh", 2e-3)]
+    assert probe.factor() == 1.0 and probe.ratios() == []
+    probe.measure()
+    first = list(probe.best)
+    probe.measure()
+    assert all(0 < b <= f for b, f in zip(probe.best, first))
+    ratios = [b / a["trace"] for b, a in zip(probe.best, probe.anchors)]
+    assert probe.ratios() == ratios
+    assert probe.factor() == pytest.approx(float(np.prod(ratios)) ** (1 / 3))
+    # the park's anchor was rendered wholly under the bvh: one aggregate, no group's own
+    one_kind = probe._scene(park + costmodel.ONE_KIND)
+    assert not costmodel._names_structures(one_kind.root)
+    assert costmodel._names_structures(raykernel.load(park).root)
+    probe.reset()
+    assert probe.factor() == 1.0
+
+
 def test_calibrate_small(tmp_path):
     model = costmodel.calibrate(kinds=["bvh"], scenes=("spd:balls:1", "spd:tetra:1"), resolutions=(8, 12),
                                 threads=1, repeats=1)

@@ -4,6 +4,7 @@
     model.save(costmodel.default_path())
     model.predict(result.stats)                     # predicted trace seconds
     costmodel.current()                             # this machine's model, else the reference one
+    costmodel.SpeedProbe(model)                     # the machine's speed now against the calibration's
 
 Trace time is modelled as  sum(count * cost)  over these features:
 
@@ -16,9 +17,14 @@ Trace time is modelled as  sum(count * cost)  over these features:
                  traced coarse to fine: the sparse early passes find little in the caches
   ray.lazy.rc_mb and for ray classification weighted by log2(1 + MiB of its structure): a ray's
                  hypercube and candidates are found in memory that grows with the refinement
-  test.rc        ray/primitive tests of a render walked by ray classification alone, and
-  polygon.corner.rc  the corners they walked: its candidate lists, sorted by distance, send a
-                 test to primitives scattered in memory (some 7 ns more a test than a grid's)
+  test.rc        in a render walked by ray classification alone, the first RC_TESTS_PER_STEP
+                 ray/primitive tests of each hypercube visited: its candidate lists, sorted by
+                 distance, send them to primitives scattered in memory (some 9 ns more a test
+                 than a grid's in the reference costs);
+  test.rc.more   the tests further down a long list, priced apart: they cost no more than a
+                 grid's (priced as the first, SPD balls' and shells' long lists of spheres
+                 were over-predicted by 40-70%);
+  polygon.corner.rc  and the corners its tests walked
   pass.lazy      passes of such a render: each hands its tiles to the threads again
   test.KIND      ray/primitive tests, one cost per primitive kind
   hit.KIND       and those that found the primitive in range (a hit computes its root and
@@ -89,7 +95,7 @@ import numpy as np
 from ..aggregates import WALK_COUNTERS, WALK_NAMES
 from ..errors import OptionError
 
-VERSION = 9                 # calibration files of another version priced other features
+VERSION = 10                # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
@@ -104,6 +110,10 @@ CALIBRATION_RESOLUTIONS = (128, 256)
 LIST_MAX_PRIMS = 1500
 REPEATS = 3
 RIDGE = 1e-4
+ANCHOR_SECONDS = 0.1         # SpeedProbe: anchors long enough to time, short enough to repeat
+ANCHORS_PER_KIND = 2
+ONE_KIND = " (one kind)"     # a calibration scene rendered wholly under the kind (anneal.without_specs)
+RC_TESTS_PER_STEP = 8       # test.rc: the first tests of each hypercube's list; test.rc.more: the rest
 GROUPS = {"ray": "rays", "render": "rays", "test": "tests", "hit": "tests", "polygon": "tests"}   # breakdown()
 
 
@@ -148,7 +158,9 @@ def features(stats) -> dict:
         # a candidate of ray classification's lists is tested where the list sends it, its
         # primitive's numbers far from the list: a test and its corners cost more than in cells
         # or leaves whose references follow the structure
-        f["test.rc"] = sum(float(stats.get(f"tests.{k}", 0)) for k in PRIMITIVE_KINDS)
+        tests = sum(float(stats.get(f"tests.{k}", 0)) for k in PRIMITIVE_KINDS)
+        f["test.rc"] = min(tests, RC_TESTS_PER_STEP * f["step.rc"])
+        f["test.rc.more"] = tests - f["test.rc"]
         f["polygon.corner.rc"] = float(stats.get("polygon.corners", 0))
     # lazy structures refine between passes of rays, inside the trace time
     lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
@@ -352,6 +364,61 @@ def machine_info() -> dict:
             "raykernel": raykernel.__version__}
 
 
+class SpeedProbe:
+    """The machine's speed now against its speed during the calibration: a few of the
+    calibration's own renders (per kind, the ANCHORS_PER_KIND whose trace took nearest
+    ANCHOR_SECONDS) timed again. A shared machine's speed drifts by 10% and more within an
+    hour, as much as the model's own error, while the costs were fitted once.
+
+        probe = costmodel.SpeedProbe(model)
+        probe.measure()                     # each anchor rendered once; again between other work
+        model.predict(stats) * probe.factor()   # seconds at the speed of the last measurements
+    """
+
+    def __init__(self, model: CostModel, per_kind: int = None, threads: int | None = None):
+        per_kind = ANCHORS_PER_KIND if per_kind is None else per_kind
+        by_kind = {}
+        for run in model.calibration:
+            if run.get("trace", 0) > 0 and {"scene", "accel", "resolution"} <= set(run):
+                by_kind.setdefault(run["accel"], []).append(run)
+        self.anchors = [run for runs in by_kind.values()
+                        for run in sorted(runs, key=lambda r: abs(math.log(r["trace"] / ANCHOR_SECONDS)))[:per_kind]]
+        self.threads = threads
+        self._scenes = {}
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the times measured (the best of each anchor's renders since)."""
+        self.best = [math.inf] * len(self.anchors)
+
+    def _scene(self, name):
+        from ..scene.loading import load
+        from .anneal import without_specs
+        if name not in self._scenes:
+            base = name.removesuffix(ONE_KIND)
+            scene = load(base)
+            self._scenes[name] = without_specs(scene) if name != base else scene
+        return self._scenes[name]
+
+    def measure(self) -> None:
+        """Render every anchor once, keeping each one's best trace time."""
+        from ..rendering.render import render
+        for i, run in enumerate(self.anchors):
+            stats = render(self._scene(run["scene"]), accel=run["accel"], resolution=run["resolution"], spd=True,
+                           threads=self.threads).stats
+            self.best[i] = min(self.best[i], stats["time.trace"])
+
+    def ratios(self) -> list[float]:
+        """Per anchor: its best trace time now over its time in the calibration."""
+        return [best / run["trace"] for best, run in zip(self.best, self.anchors) if math.isfinite(best)]
+
+    def factor(self) -> float:
+        """The geometric mean of the ratios: 1.1 when the machine runs 10% slower than during the
+        calibration (1.0 before any measurement)."""
+        ratios = self.ratios()
+        return math.exp(sum(math.log(r) for r in ratios) / len(ratios)) if ratios else 1.0
+
+
 def _names_structures(group, seen=None) -> bool:
     """Whether `group` or a group below it names a structure of its own."""
     seen = set() if seen is None else seen
@@ -378,7 +445,7 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
         # a scene whose groups name structures of their own is rendered nested and, to price
         # each kind over instances and many small objects, wholly under the kind as well
         if _names_structures(scene.root):
-            loaded.append((f"{name} (one kind)", without_specs(scene)))
+            loaded.append((name + ONE_KIND, without_specs(scene)))
     rows, times, refine_times, runs = [], [], [], []
     for kind in kinds:
         # compile (or load from the cache) before anything is timed
