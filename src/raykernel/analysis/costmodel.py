@@ -110,9 +110,9 @@ CALIBRATION_RESOLUTIONS = (128, 256)
 LIST_MAX_PRIMS = 1500
 REPEATS = 3
 RIDGE = 1e-4
-ANCHOR_SECONDS = 0.1         # SpeedProbe: anchors long enough to time, short enough to repeat
+ANCHOR_SECONDS = 0.1        # SpeedProbe: anchors long enough to time, short enough to repeat
 ANCHORS_PER_KIND = 2
-ONE_KIND = " (one kind)"     # a calibration scene rendered wholly under the kind (anneal.without_specs)
+ONE_KIND = " (one kind)"    # a calibration scene rendered wholly under the kind (anneal.without_specs)
 RC_TESTS_PER_STEP = 8       # test.rc: the first tests of each hypercube's list; test.rc.more: the rest
 GROUPS = {"ray": "rays", "render": "rays", "test": "tests", "hit": "tests", "polygon": "tests"}   # breakdown()
 
@@ -367,15 +367,16 @@ def machine_info() -> dict:
 class SpeedProbe:
     """The machine's speed now against its speed during the calibration: a few of the
     calibration's own renders (per kind, the ANCHORS_PER_KIND whose trace took nearest
-    ANCHOR_SECONDS) timed again. A shared machine's speed drifts by 10% and more within an
-    hour, as much as the model's own error, while the costs were fitted once.
+    ANCHOR_SECONDS) timed again. A shared machine's speed drifts after the costs were fitted
+    (5% on average over a 40-minute benchmark, more on some renders), which adds to the
+    model's own error.
 
         probe = costmodel.SpeedProbe(model)
         probe.measure()                     # each anchor rendered once; again between other work
         model.predict(stats) * probe.factor()   # seconds at the speed of the last measurements
     """
 
-    def __init__(self, model: CostModel, per_kind: int = None, threads: int | None = None):
+    def __init__(self, model: CostModel, per_kind: int | None = None, threads: int | None = None):
         per_kind = ANCHORS_PER_KIND if per_kind is None else per_kind
         by_kind = {}
         for run in model.calibration:
