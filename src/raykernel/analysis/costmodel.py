@@ -86,6 +86,7 @@ import math
 import os
 import platform
 import socket
+import statistics
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -417,7 +418,7 @@ class SpeedProbe:
         """The geometric mean of the ratios: 1.1 when the machine runs 10% slower than during the
         calibration (1.0 before any measurement)."""
         ratios = self.ratios()
-        return math.exp(sum(math.log(r) for r in ratios) / len(ratios)) if ratios else 1.0
+        return statistics.geometric_mean(ratios) if ratios else 1.0
 
 
 def _names_structures(group, seen=None) -> bool:
