@@ -58,6 +58,7 @@ from numba.extending import intrinsic
 from ..errors import SceneError
 from ..geometry.boxes import CONSERVATIVE, INF, slab
 from ..geometry.config import njit
+from ..geometry.unchecked import load, store
 
 
 
@@ -181,7 +182,8 @@ def near_planes(ix, iy, iz):
 @intrinsic
 def box4_entries(typingctx, box, node, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4):
     """Slab test of node's four child boxes in one <4 x double> pass: returns the bit mask of
-    the children the ray enters within [tmin, tmax] and writes their entry distances to t4.
+    the children the ray enters within [tmin, tmax] (bits 0-3) and of the used slots (bits 4-7),
+    and writes their entry distances to t4.
     box: the nodes (int32 records) or their float32 view; the origin relative to the tree's
     center; `near` is near_planes' triple; the directions' inverses must not be STILL."""
     sig = types.int64(box, node, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4)
@@ -227,16 +229,22 @@ def box4_entries(typingctx, box, node, ox, oy, oz, ix, iy, iz, near, tmin, tmax,
         widened = builder.fmul(limited, ir.Constant(d4, [CONSERVATIVE] * 4))
         tfar = builder.select(builder.fcmp_ordered(">", tfar, zero), widened, limited)
         builder.store(tnear, builder.bitcast(out.data, d4.as_pointer()), align=8)
-        hit = builder.fcmp_ordered("<=", tnear, tfar)
-        return builder.zext(builder.bitcast(hit, ir.IntType(4)), i64)
+        hit = builder.zext(builder.bitcast(builder.fcmp_ordered("<=", tnear, tfar), ir.IntType(4)), i64)
+        # the used slots (count >= 0) as bits 4-7, from the node's four count words in one vector compare
+        counts = builder.load(builder.bitcast(builder.gep(builder.bitcast(words, ir.IntType(32).as_pointer()),
+                                                          [builder.add(row, ir.Constant(i64, COUNT))]),
+                                              ir.VectorType(ir.IntType(32), 4).as_pointer()), align=4)
+        used = builder.icmp_signed(">=", counts, ir.Constant(ir.VectorType(ir.IntType(32), 4), [0] * 4))
+        used = builder.zext(builder.bitcast(used, ir.IntType(4)), i64)
+        return builder.or_(hit, builder.shl(used, ir.Constant(i64, 4)))
 
     return sig, codegen
 
 
 @njit(inline="always")
-def box4_still(box, node, ox, oy, oz, ix, iy, iz, tmin, tmax, t4):
+def box4_still(nodes, box, node, ox, oy, oz, ix, iy, iz, tmin, tmax, t4):
     """box4_entries, one box at a time through the scalar slab test, for rays with a STILL axis
-    (box: the float32 view)."""
+    (nodes: the int32 records, box: their float32 view)."""
     mask = 0
     for c in range(4):
         t0, t1 = slab(np.float64(box[node, c]), np.float64(box[node, 12 + c]), ox, ix)
@@ -248,46 +256,64 @@ def box4_still(box, node, ox, oy, oz, ix, iy, iz, tmin, tmax, t4):
         t4[c] = tnear
         if tnear <= tfar:
             mask |= 1 << c
+        if nodes[node, COUNT + c] >= 0:
+            mask |= 1 << (4 + c)
     return mask
 
 
 NO_WIDE = WideBVH(np.zeros((0, 32), np.int32), np.zeros((0, 32), np.float32), np.zeros(3))   # "no wide tree" (width 2)
 
 
+NO_CHILD = -2 ** 62     # visit's answer when the ray enters no child (every stack entry is larger)
+
+
 @njit(inline="always")
 def visit(nodes, boxes, v, still, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4, stack, stack_t, sp):
-    """Test node v's children and push those the ray enters on the stack above sp, the nearest
-    on top: an inner child as its node, a leaf as -(v * 4 + slot) - 1 (leaf_range decodes it).
-    The origin is relative to the tree's center; still: the ray has a STILL axis. Returns the
-    new sp and the child boxes tested (the node's used slots)."""
+    """Test node v's children: return the nearest the ray enters (NO_CHILD if none), for the
+    walk to take next, and push the others on the stack above sp, the nearest of them on top.
+    A child is an inner node as its index (>= 0), a leaf as -(v * 4 + slot) - 1 (leaf_range
+    decodes it). Among children entered at the same distance the later slot comes first, so the
+    order is that of pushing every child and popping the top. The origin is relative to the
+    tree's center; still: the ray has a STILL axis. Returns the nearest child, the new sp and
+    the child boxes tested (the node's used slots)."""
     if still:
-        mask = box4_still(boxes, v, ox, oy, oz, ix, iy, iz, tmin, tmax, t4)
+        mask = box4_still(nodes, boxes, v, ox, oy, oz, ix, iy, iz, tmin, tmax, t4)
     else:
         mask = box4_entries(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4)
+    row = v * 32
     bottom = sp
-    tested = 0
+    used = mask >> 4
+    tested = (used & 1) + (used >> 1 & 1) + (used >> 2 & 1) + (used >> 3)      # used slots come first
+    nearest = np.int64(NO_CHILD)
+    t_nearest = INF
     for s in range(4):
-        k = nodes[v, COUNT + s]
-        if k < 0:
-            break           # the used slots come first
-        tested += 1
         if mask & (1 << s) == 0:
             continue
-        t = t4[s]
-        j = sp              # insertion: the farthest deepest, so the nearest is popped first
-        while j > bottom and stack_t[j - 1] < t:
-            stack[j] = stack[j - 1]
-            stack_t[j] = stack_t[j - 1]
+        t = load(t4, s)
+        child = np.int64(load(nodes, row + CHILD + s))
+        if load(nodes, row + COUNT + s) != 0:
+            child = -(v * 4 + s) - 1        # a leaf
+        if t <= t_nearest:
+            if nearest == NO_CHILD:
+                nearest, t_nearest = child, t
+                continue
+            child, nearest = nearest, child     # the nearest so far goes on the stack, on top
+            t, t_nearest = t_nearest, t
+        j = sp              # insertion: the farthest deepest
+        while j > bottom and load(stack_t, j - 1) < t:
+            store(stack, j, load(stack, j - 1))
+            store(stack_t, j, load(stack_t, j - 1))
             j -= 1
-        stack[j] = np.int64(nodes[v, CHILD + s]) if k == 0 else -(v * 4 + s) - 1
-        stack_t[j] = t
+        store(stack, j, child)
+        store(stack_t, j, t)
         sp += 1
-    return sp, tested
+    return nearest, sp, tested
 
 
 @njit(inline="always")
 def leaf_range(nodes, entry):
     """The references first .. end of the leaf a stack entry < 0 names (see visit)."""
     slot = -entry - 1
-    first = np.int64(nodes[slot >> 2, CHILD + (slot & 3)])
-    return first, first + nodes[slot >> 2, COUNT + (slot & 3)]
+    word = (slot >> 2) * 32 + (slot & 3)
+    first = np.int64(load(nodes, word + CHILD))
+    return first, first + load(nodes, word + COUNT)

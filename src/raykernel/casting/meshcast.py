@@ -44,13 +44,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates.widebvh import CHILD, COUNT, WideBVH, leaf_range, near_planes, visit
+from ..aggregates.widebvh import CHILD, COUNT, NO_CHILD, WideBVH, leaf_range, near_planes, visit
 from ..engine.flatten import BVH, Geometry
 from ..engine.traverse import ALL_HITS
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, STILL, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
+from ..geometry.unchecked import load
 from .hitsurface import IDENTITY, store_corner_surface, store_miss, store_triangle_surface
 from .triangles4 import BLOCK, hit4, leaf_blocks
 
@@ -273,18 +274,20 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
             n_entries += 1
         while sp > 0:
             sp -= 1
-            if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
+            te = load(stack_t, sp)
+            if te > best and te > best * CONSERVATIVE:
                 continue        # entered beyond the closest hit, beyond rounding (ties need the node)
-            v = stack[sp]
-            if v >= 0:
+            v = load(stack, sp)
+            while v >= 0:       # down the nearest children to a leaf
                 n_nodes += 1
-                sp, tested = visit(nodes, boxes, v, still, wx, wy, wz, ix, iy, iz, near, lo, best, t4, stack, stack_t,
-                                   sp)
+                v, sp, tested = visit(nodes, boxes, v, still, wx, wy, wz, ix, iy, iz, near, lo, best, t4, stack,
+                                      stack_t, sp)
                 n_bounds += tested
+            if v == NO_CHILD:
                 continue
             n_leaves += 1
             s0, e0 = leaf_range(nodes, v)
-            best, best_j, best_slot, n_all, tested, hits, done = _leaf4(blocks, first_block[s0], corners, ids, s0,
+            best, best_j, best_slot, n_all, tested, hits, done = _leaf4(blocks, load(first_block, s0), corners, ids, s0,
                                                                         e0, o, kx, ky, kz, sx, sy, sz, lo, best,
                                                                         best_j, best_slot, edges, mode, store,
                                                                         offsets, r, base, n_all, all_t, all_i, t4)
@@ -309,6 +312,8 @@ def _leaf4(blocks, b, corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, b
     for j0 in range(s, e, BLOCK):
         m = hit4(blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, lo, best, t4)
         b += 1
+        if m == 0:
+            continue
         for lane in range(min(BLOCK, e - j0)):
             j = j0 + lane
             if m >> (BLOCK + lane) & 1:

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..aggregates.bvh import CODE as BVH
 from ..aggregates.walk import F_MAP
-from ..aggregates.widebvh import NO_WIDE, collapse, leaf_range, near_planes, visit
+from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, near_planes, visit
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, STILL, box_entry, inverse
 from ..geometry.config import njit
@@ -51,6 +51,7 @@ from ..geometry.primitives import (
     hit_sphere,
     hit_triangle,
 )
+from ..geometry.unchecked import load
 from .hitrule import ANY_HIT, ANY_OPAQUE, take
 
 PRIM_COLUMNS = 10      # the most a kind needs (a triangle's or a cone's nine numbers), and the flag
@@ -189,14 +190,16 @@ def _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edg
     sp = 1
     while sp > 0:
         sp -= 1
-        if stack_t[sp] > best_t and stack_t[sp] > best_t * CONSERVATIVE:
+        te = load(stack_t, sp)
+        if te > best_t and te > best_t * CONSERVATIVE:
             continue        # entered beyond the closest hit, beyond rounding (ties need the node)
-        v = stack[sp]
-        if v >= 0:
+        v = load(stack, sp)
+        while v >= 0:       # down the nearest children to a leaf
             n_nodes += 1
-            sp, tested = visit(nodes, boxes, v, still, wx, wy, wz, ix, iy, iz, near, tmin, best_t, t4, stack, stack_t,
-                               sp)
+            v, sp, tested = visit(nodes, boxes, v, still, wx, wy, wz, ix, iy, iz, near, tmin, best_t, t4, stack,
+                                  stack_t, sp)
             n_bounds += tested
+        if v == NO_CHILD:
             continue
         # a leaf: its references, all primitives
         n_leaves += 1
