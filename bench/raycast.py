@@ -5,7 +5,9 @@
 Each thread count runs in its own process pinned to that many cores
 (taskset). embreex's run() is single-threaded (it releases the GIL), so at
 2 threads it runs on two Python threads over halves of the rays, as many
-threads as raykernel's. Mitsuba 3 (llvm variant) and Open3D run on the same
+threads as raykernel's. raykernel is asked for the outputs embreex returns, in
+float32 (PEER_FIELDS); its default call (every field, float64) has a column of its
+own. Mitsuba 3 (llvm variant) and Open3D run on the same
 rays with their own thread counts set to the same number, where they install
 (pip install -e '.[bench]'; Open3D needs Debian's libusb-1.0-0); the table
 says why where one does not. Writes the `raycast` section of BENCHMARKS.md.
@@ -28,6 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import SHARED_SPD, machine, replace_section  # noqa: E402
 
 SPD_MESHES = ["gears-sf4", "mount-sf6", "teapot-sf6", "tetra-sf6"]
+# what embreex's run(output=1) returns (tfar, primID, geomID, u, v, Ng, float32), asked of raykernel in float32
+PEER_FIELDS = ("t", "prim_id", "geom_id", "uv", "normal")
 
 
 def scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
@@ -201,19 +205,21 @@ def worker(data_path, threads):
         for kind in ("coherent", "incoherent"):
             o, d = data[f"{name}/{kind}/o"], data[f"{name}/{kind}/d"]
             o32, d32 = o.astype(np.float32), d.astype(np.float32)
-            rs.intersect(o[:1000], d[:1000])
-            sec_rk, h = best_of(lambda: rs.intersect(o, d))
+            rs.intersect(o[:1000], d[:1000], fields=PEER_FIELDS, dtype="float32")
+            sec_rk, _ = best_of(lambda: rs.intersect(o, d, fields=PEER_FIELDS, dtype="float32"))
             stats = rs.last_stats
+            rs.intersect(o[:1000], d[:1000])
+            sec_every, h = best_of(lambda: rs.intersect(o, d))      # the default: every field in float64
             # what the mesh kernel brings: the same rays through the generic traversal
             # (every aggregate kind, nesting, instances)
             mesh, rs._mesh = rs._mesh, None
-            rs.intersect(o[:1000], d[:1000])
-            sec_generic, _ = best_of(lambda: rs.intersect(o, d), repeat=1)
+            rs.intersect(o[:1000], d[:1000], fields=PEER_FIELDS, dtype="float32")
+            sec_generic, _ = best_of(lambda: rs.intersect(o, d, fields=PEER_FIELDS, dtype="float32"), repeat=1)
             rs._mesh = mesh
             # the same mesh kernel on the binary tree the 4-wide one is collapsed from
             narrow = RayScene.from_mesh(v, f, accel="bvh(width=2)")
-            narrow.intersect(o[:1000], d[:1000])
-            sec_binary, _ = best_of(lambda: narrow.intersect(o, d), repeat=1)
+            narrow.intersect(o[:1000], d[:1000], fields=PEER_FIELDS, dtype="float32")
+            sec_binary, _ = best_of(lambda: narrow.intersect(o, d, fields=PEER_FIELDS, dtype="float32"), repeat=1)
             nodes_binary = narrow.last_stats.get("cells.visited", 0) / len(o)
             es.run(o32[:1000], d32[:1000], output=1)
             sec_em, (geom_em, t_em) = best_of(lambda: embree_run(es, o32, d32, threads))
@@ -235,6 +241,7 @@ def worker(data_path, threads):
             rows.append(dict(mesh=str(name), tris=len(f), kind=kind, rays=len(o), threads=threads, peers=peer_rates,
                              missing=missing,
                              rk=len(o) / sec_rk / 1e6, em=len(o) / sec_em / 1e6, agree=float(same.mean()),
+                             every=len(o) / sec_every / 1e6,
                              generic=len(o) / sec_generic / 1e6, binary=len(o) / sec_binary / 1e6,
                              nodes_binary=nodes_binary, bounds=stats.get("bounds.tests", 0) / len(o),
                              hit=float(hit_rk.mean()), build_rk=build_rk, build_em=build_em,
@@ -295,8 +302,12 @@ def main():
              "", f"Command: `{command}`", "",
              f"{args.rays} rays per set (coherent: one pinhole camera, square grid; incoherent: origins uniform in the "
              "mesh's box, uniform random directions), the same rays for both libraries and both thread counts; "
-             "closest hit with t, ids, uv and normals for raykernel (`RayScene.intersect`, input checks included), "
-             "closest hit (output=1) for embreex, whose run() is single-threaded and releases the GIL: at 2 threads "
+             "the same outputs from both: the closest hit's t, triangle and mesh ids, uv and geometric normal in "
+             "float32, from embreex's run(output=1) and from raykernel's `RayScene.intersect(o, d, fields=(\"t\", "
+             "\"prim_id\", \"geom_id\", \"uv\", \"normal\"), dtype=\"float32\")` (input checks included; "
+             "raykernel computes in float64 and stores float32); every field: raykernel's default call, every field "
+             "of Hits in float64 (also instance, kind and shading normal: 104 bytes a ray against 32). "
+             "embreex's run() is single-threaded and releases the GIL: at 2 threads "
              "it runs on two Python threads over halves of the rays; best of 2 runs. Each thread count runs in a "
              "process pinned to that many cores with taskset, so both libraries get the same cores. agree: same "
              "hit/miss and |t - t_embree| <= 1e-5 t. raykernel casts through its mesh kernel (meshcast.py) on the "
@@ -313,16 +324,18 @@ def main():
              "ids, uv and normals; ratio = raykernel / peer (above 1: raykernel is "
              "faster); agree against raykernel's t as for embreex.",
              "",
-             "| mesh | triangles | rays | threads | raykernel Mrays/s | embreex Mrays/s | ratio | agree | "
+             "| mesh | triangles | rays | threads | raykernel Mrays/s | every field Mrays/s | embreex Mrays/s | "
+             "ratio | agree | "
              "mitsuba Mrays/s | ratio | agree | open3d Mrays/s | ratio | agree | "
              "width 2 Mrays/s | generic Mrays/s | tests/ray | boxes/ray | nodes/ray | nodes/ray width 2 |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         cells = []
         for peer in ("mitsuba", "open3d"):
             rate, agree = r["peers"].get(peer, (None, None))
             cells += ["-", "-", "-"] if rate is None else [f"{rate:.2f}", f"{r['rk'] / rate:.2f}", f"{agree:.4f}"]
-        lines.append(f"| {r['mesh']} | {r['tris']} | {r['kind']} | {r['threads']} | {r['rk']:.2f} | {r['em']:.2f} | "
+        lines.append(f"| {r['mesh']} | {r['tris']} | {r['kind']} | {r['threads']} | {r['rk']:.2f} | {r['every']:.2f} | "
+                     f"{r['em']:.2f} | "
                      f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {' | '.join(cells)} | {r['binary']:.2f} | "
                      f"{r['generic']:.2f} | {r['tests']:.1f} | {r['bounds']:.1f} | {r['nodes']:.1f} | "
                      f"{r['nodes_binary']:.1f} |")
