@@ -242,8 +242,8 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
             kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
             counters, c, r0, r1, stack, stack_t, o, t4):
     """_chunk on the 4-wide tree. Stack entries: v >= 0 a wide node to visit, v < 0 the leaf in
-    child slot -v - 1 (node * 4 + slot); a node's children the ray enters go on the stack
-    nearest on top."""
+    child slot -v - 1 (node * 4 + slot); of a node's children the ray enters, the nearest is
+    taken next and the others go on the stack nearest on top (widebvh.visit)."""
     store = offsets.shape[0] > 0
     nodes, boxes, center = wide
     edges = geo.tri_edges[0]
