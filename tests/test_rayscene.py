@@ -224,6 +224,52 @@ def test_ray_input_errors(kwargs, match, query):
         getattr(scene, query)(**kwargs)
 
 
+@pytest.mark.parametrize("bad, match", [
+    (("origins", 0, np.nan), r"origins\[{i}\] is not finite"),
+    (("origins", 2, -np.inf), r"origins\[{i}\] is not finite"),
+    (("directions", 1, np.inf), r"directions\[{i}\] is not finite"),
+    (("directions", None, 0.0), r"directions\[{i}\] has zero length"),
+])
+@pytest.mark.parametrize("scene", ["mesh", "spheres", "lazy"])
+@pytest.mark.parametrize("query", ["intersect", "occluded", "count_hits", "intersect_all"])
+def test_a_bad_ray_deep_in_a_batch_is_named_by_every_kernel(bad, match, scene, query):
+    """The kernels check each ray's values as they read it (rayinput.py): a bad ray far past the
+    first chunk, among rays that are fine, raises the error naming it, whichever kernel casts."""
+    rng = np.random.default_rng(3)
+    n, i = 5000, 3777
+    o = rng.uniform(-2, 2, (n, 3))
+    d = rng.normal(size=(n, 3))
+    name, axis, value = bad
+    (o if name == "origins" else d)[i, slice(None) if axis is None else axis] = value
+    v, f = random_mesh(rng)
+    rs = {"mesh": lambda: RayScene.from_mesh(v, f),
+          "spheres": lambda: RayScene.from_spheres([(0, 0, 0), (1, 0, 0)], 0.5),
+          "lazy": lambda: RayScene.from_mesh(v, f, accel="lazyoctree")}[scene]()
+    with pytest.raises(RayInputError, match=match.format(i=i)):
+        getattr(rs, query)(o, d)
+
+
+@pytest.mark.parametrize("o, d, valid", [
+    ((0, 0, 0), (0, 0, 1), True),
+    ((1e308, -1e308, 0), (5e-324, 0, 0), True),         # the largest and the smallest numbers are fine
+    ((0, 0, 0), (0, 0, 0), False),
+    ((0, 0, 0), (-0.0, 0.0, -0.0), False),
+    ((np.nan, 0, 0), (0, 0, 1), False),
+    ((0, np.inf, 0), (0, 0, 1), False),
+    ((0, 0, 0), (0, 0, -np.inf), False),
+    ((0, 0, 0), (np.nan, 1, 1), False),
+])
+def test_valid_ray_agrees_with_the_numpy_checks(o, d, valid):
+    from raykernel.casting.rayinput import valid_ray
+    from raykernel.casting.rayscene import check_ray_values
+    assert valid_ray(*o, *d) == valid
+    if valid:
+        check_ray_values(np.array([o], float), np.array([d], float))
+    else:
+        with pytest.raises(RayInputError):
+            check_ray_values(np.array([o], float), np.array([d], float))
+
+
 @pytest.mark.parametrize("build, match", [
     (lambda: RayScene.from_mesh(np.zeros((3, 2)), [(0, 1, 2)]), r"vertices must have shape"),
     (lambda: RayScene.from_mesh(np.zeros((3, 3)), [(0, 1, 3)]), r"faces refer to vertex 3"),

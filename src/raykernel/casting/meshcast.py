@@ -53,6 +53,7 @@ from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
 from ..geometry.unchecked import load
 from .hitsurface import IDENTITY, store_corner_surface, store_miss, store_triangle_surface
+from .rayinput import valid_ray
 from .triangles4 import BLOCK, hit4, leaf_blocks
 
 INF = np.inf
@@ -177,10 +178,13 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
     # counters in locals (registers), written once per chunk
-    n_bounds = n_nodes = n_leaves = n_tests = n_hits = n_entries = np.int64(0)
+    n_bounds = n_nodes = n_leaves = n_tests = n_hits = n_entries = n_invalid = np.int64(0)
     for r in range(r0, r1):
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+        if not valid_ray(ox, oy, oz, dx, dy, dz):
+            n_invalid += 1      # not cast: RayScene names it (rayinput.py)
+            continue
         o[0], o[1], o[2] = ox, oy, oz
         ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
         kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
@@ -234,7 +238,7 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
                 sp = 0
         _finish(geo, corners, best_j, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
-    _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
+    _count(counters, c, r1 - r0 - n_invalid, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
 
 
 @njit(private=True)
@@ -248,10 +252,13 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
     nodes, boxes, center = wide
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1
-    n_bounds = n_nodes = n_leaves = n_tests = n_hits = n_entries = np.int64(0)
+    n_bounds = n_nodes = n_leaves = n_tests = n_hits = n_entries = n_invalid = np.int64(0)
     for r in range(r0, r1):
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+        if not valid_ray(ox, oy, oz, dx, dy, dz):
+            n_invalid += 1      # not cast: RayScene names it (rayinput.py)
+            continue
         o[0], o[1], o[2] = ox, oy, oz
         ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
         still = ix == STILL or iy == STILL or iz == STILL
@@ -297,7 +304,7 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
                 sp = 0
         _finish(geo, blocks, best_slot, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
-    _count(counters, c, r1 - r0, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
+    _count(counters, c, r1 - r0 - n_invalid, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
 
 
 @njit(inline="always")

@@ -55,6 +55,7 @@ from ..scene.model import Scene, TriangleMesh
 from .hitsurface import store_miss, store_surface
 from .meshcast import MESH_ACCEL, MeshKernel
 from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, point_index, surface_normals
+from .rayinput import valid_ray
 
 CHUNK = 1024
 CLOSEST, ANY = 0, 1
@@ -142,9 +143,11 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
     for r in range(r0, r1):
         lo, hi = tmin[r if per_lo else 0], tmax[r if per_hi else 0]
-        cnt[C.RAYS_CAST] += 1
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
+        if not valid_ray(ox, oy, oz, dx, dy, dz):
+            continue            # not cast: RayScene names it (rayinput.py)
+        cnt[C.RAYS_CAST] += 1
         if mode == ALL_HITS:
             hit_i[0] = 0
             intersect(geo, ox, oy, oz, dx, dy, dz, lo, hi, mode, ws, cnt)
@@ -190,18 +193,23 @@ def _real_array(value, name: str) -> np.ndarray:
     return arr.astype(np.float64, copy=False)
 
 
-def _vectors(value, name: str) -> np.ndarray:
-    """(..., 3) real array, finite; one (3,) vector is one row, (1, 3)."""
+def _vectors(value, name: str, finite: bool = True) -> np.ndarray:
+    """(..., 3) real array, finite unless finite=False; one (3,) vector is one row, (1, 3)."""
     arr = _real_array(value, name)
     if arr.ndim == 1:
         arr = arr[None, :]
     if arr.ndim == 0 or arr.shape[-1] != 3:
         raise RayInputError(f"{name} must have shape (..., 3), e.g. (N, 3) or (3,), got {arr.shape}")
+    if finite:
+        _finite(arr, name)
+    return arr
+
+
+def _finite(arr: np.ndarray, name: str) -> None:
     if not np.isfinite(arr).all():        # (whole-array test first: reductions along rows are slow)
         flat = arr.reshape(-1, 3)
         i = int(np.flatnonzero(~np.all(np.isfinite(flat), axis=1))[0])
         raise RayInputError(f"{name}[{i}] is not finite: {flat[i].tolist()}")
-    return arr
 
 
 def _interval(value, name: str, shape: tuple) -> np.ndarray:
@@ -221,20 +229,19 @@ def _interval(value, name: str, shape: tuple) -> np.ndarray:
 
 
 def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
-    """Validated float64 copies, flat: origins (N, 3), directions (N, 3), tmin and tmax ((N,), or
+    """Checked float64 copies, flat: origins (N, 3), directions (N, 3), tmin and tmax ((N,), or
     (1,) for one number), and the rays' shape: the leading dimensions of origins and directions
-    broadcast together ((N,) for (N, 3) arrays, (H, W) for an image of rays, (1,) for one (3,) ray)."""
-    o = _vectors(origins, "origins")
-    d = _vectors(directions, "directions")
+    broadcast together ((N,) for (N, 3) arrays, (H, W) for an image of rays, (1,) for one (3,) ray).
+    The values of origins and directions are checked by the kernels as they cast (rayinput.py);
+    check_ray_values names the first bad ray."""
+    o = _vectors(origins, "origins", finite=False)
+    d = _vectors(directions, "directions", finite=False)
     try:
         shape = np.broadcast_shapes(o.shape[:-1], d.shape[:-1])
     except ValueError:
         raise RayInputError(f"origins and directions differ in length: {o.shape[:-1]} vs {d.shape[:-1]}") from None
     o = np.broadcast_to(o, shape + (3,)).reshape(-1, 3)
     d = np.broadcast_to(d, shape + (3,)).reshape(-1, 3)
-    zero = (d[:, 0] == 0.0) & (d[:, 1] == 0.0) & (d[:, 2] == 0.0)
-    if zero.any():
-        raise RayInputError(f"directions[{int(np.flatnonzero(zero)[0])}] has zero length")
     lo = _interval(tmin, "tmin", shape)
     hi = _interval(tmax, "tmax", shape)
     bad = lo > hi
@@ -243,6 +250,16 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
         n = len(o)
         raise RayInputError(f"tmin > tmax for ray {i}: {np.broadcast_to(lo, n)[i]} > {np.broadcast_to(hi, n)[i]}")
     return np.ascontiguousarray(o), np.ascontiguousarray(d), lo, hi, shape
+
+
+def check_ray_values(o: np.ndarray, d: np.ndarray) -> None:
+    """Raise RayInputError naming the first ray (of check_rays' flat arrays) that is not finite or
+    has a zero direction: what valid_ray refuses in the kernels."""
+    _finite(o, "origins")
+    _finite(d, "directions")
+    zero = (d[:, 0] == 0.0) & (d[:, 1] == 0.0) & (d[:, 2] == 0.0)
+    if zero.any():
+        raise RayInputError(f"directions[{int(np.flatnonzero(zero)[0])}] has zero length")
 
 
 def _field_names(fields) -> tuple:
@@ -503,6 +520,9 @@ class RayScene:
                            len(counters), threads, kernel=_query)
         seconds = time.perf_counter() - start - clock.seconds - clock.loading
         totals = counters.sum(axis=0)
+        if totals[C.RAYS_CAST] != n:        # the kernels left out rays that are not finite or do not move
+            check_ray_values(o, d)
+            raise RuntimeError(f"the kernels cast {totals[C.RAYS_CAST]} of {n} rays, all of them valid")
         stats = {name: int(totals[k]) for k, name in C.NAMES.items() if totals[k]}
         stats["rays.cast"] = n
         stats["time.trace"] = seconds
@@ -549,7 +569,9 @@ class RayScene:
         dtype: "float64", or "float32" for float32 t, uv and normals and int32 ids: half the
         memory to fill (the arithmetic stays in double precision, t is rounded once).
         out: a Hits of an earlier call with these fields and dtype, for rays of this shape: its arrays
-        are filled in place instead of new ones (no memory to allocate and fault in)."""
+        are filled in place instead of new ones (no memory to allocate and fault in). A ray that is
+        not finite or has a zero direction raises RayInputError naming it, after the other rays
+        were cast: out's arrays then hold their hits."""
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
         arrays, hits = self._outputs(shape, fields, dtype, out)
         stats = self._run(CLOSEST, o, d, lo, hi, arrays, threads=threads)
