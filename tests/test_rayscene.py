@@ -7,6 +7,7 @@ import pytest
 from reference import all_hits, world_primitives
 
 from raykernel import Group, Instance, RayInputError, RayScene, Scene, TriangleMesh
+from raykernel.casting.rayscene import check_rays
 from raykernel.geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 
 
@@ -222,6 +223,28 @@ def test_ray_input_errors(kwargs, match, query):
         getattr(scene, query)(**kwargs)
     with pytest.raises(RayInputError):
         getattr(scene, query)(**kwargs)
+
+
+@pytest.mark.parametrize("tmin, tmax, match", [
+    (np.nan, 1.0, r"tmin\[0\] is NaN"),
+    (0.0, np.nan, r"tmax\[0\] is NaN"),
+    (2.0, 1.0, r"tmin > tmax for ray 0: 2.0 > 1.0"),
+])
+def test_the_common_call_checks_its_numbers_as_the_general_one(tmin, tmax, match):
+    """(N, 3) float64 arrays with two float numbers take check_rays' short way: the same errors,
+    and the same arrays as the general way (reached here with an int tmin or a list)."""
+    o, d = np.zeros((3, 3)), np.tile([0.0, 0.0, 1.0], (3, 1))
+    for origins in (o, o.tolist()):
+        with pytest.raises(RayInputError, match=match):
+            check_rays(origins, d, tmin, tmax)
+    rng = np.random.default_rng(5)
+    o, d = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+    short = check_rays(o, d, 0.25, 4.0)
+    assert short[0] is o and short[1] is d       # the caller's arrays, not copies
+    for general in (check_rays(o.tolist(), d, 0.25, 4.0), check_rays(np.asfortranarray(o), d, 0.25, 4.0)):
+        for a, b in zip(short[:4], general[:4]):
+            assert a.dtype == b.dtype and np.array_equal(a, b)
+        assert short[4] == general[4] == (7,)
 
 
 @pytest.mark.parametrize("bad, match", [
