@@ -22,6 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import machine, replace_section  # noqa: E402
+from raycast import PEER_FIELDS  # noqa: E402
 
 
 def main() -> int:
@@ -84,7 +85,6 @@ def camera(rays: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 SMALL = (1, 100, 1024, 10000)
-PEER_FIELDS = ("t", "prim_id", "geom_id", "uv", "normal")     # what embreex's run(output=1) returns
 
 
 def _per_call(fn, seconds=0.3) -> float:

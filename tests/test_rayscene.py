@@ -211,6 +211,9 @@ def test_empty_batch():
     (dict(origins=[(0, 0, 0)], directions=[(0, np.inf, 1)]), r"directions\[0\] is not finite"),
     (dict(origins=np.zeros((2, 3)), directions=[(0, 0, 1), (0, 0, 0)]), r"directions\[1\] has zero length"),
     (dict(origins=[(0, 0, 0)], directions=[(0, 0, 1)], tmin=2.0, tmax=1.0), r"tmin > tmax"),
+    (dict(origins=np.zeros((0, 3)), directions=np.zeros((0, 3)), tmin=2.0, tmax=1.0), r"tmin > tmax for ray 0"),
+    (dict(origins=np.zeros((2, 3)), directions=np.ones((2, 3)), tmin=[0.0, 3.0], tmax=2.0),
+     r"tmin > tmax for ray 1: 3.0 > 2.0"),
     (dict(origins=[(0, 0, 0)], directions=[(0, 0, 1)], tmin=np.nan), r"tmin\[0\] is NaN"),
     (dict(origins=[(0, 0, 0)], directions=[(0, 0, 1)], tmax=[1.0, 2.0]), r"tmax must be a number or have shape"),
     (dict(origins=np.array([["a", "b", "c"]]), directions=[(0, 0, 1)]), r"origins must be an array of real"),
@@ -231,8 +234,9 @@ def test_ray_input_errors(kwargs, match, query):
     (2.0, 1.0, r"tmin > tmax for ray 0: 2.0 > 1.0"),
 ])
 def test_the_common_call_checks_its_numbers_as_the_general_one(tmin, tmax, match):
-    """(N, 3) float64 arrays with two float numbers take check_rays' short way: the same errors,
-    and the same arrays as the general way (reached here with an int tmin or a list)."""
+    """(N, 3) float64 arrays skip check_rays' broadcasting and float numbers its array conversion:
+    the same errors, and the same arrays as the general way (reached here with a list of rays or
+    a Fortran-ordered array)."""
     o, d = np.zeros((3, 3)), np.tile([0.0, 0.0, 1.0], (3, 1))
     for origins in (o, o.tolist()):
         with pytest.raises(RayInputError, match=match):

@@ -215,6 +215,10 @@ def _finite(arr: np.ndarray, name: str) -> None:
 
 def _interval(value, name: str, shape: tuple) -> np.ndarray:
     """tmin or tmax flat, one per ray, or one number as a (1,) array: the kernels then read it for every ray."""
+    if isinstance(value, float):        # one number, the common call: no array machinery (a few us a call)
+        if value != value:
+            raise RayInputError(f"{name}[0] is NaN")
+        return np.array([value])
     arr = _real_array(value, name)
     if arr.ndim == 0:
         arr = arr.reshape(1)
@@ -235,36 +239,30 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
     broadcast together ((N,) for (N, 3) arrays, (H, W) for an image of rays, (1,) for one (3,) ray).
     The values of origins and directions are checked by the kernels as they cast (rayinput.py);
     check_ray_values names the first bad ray."""
-    if _plain(origins, directions) and isinstance(tmin, float) and isinstance(tmax, float):
-        # the common call, (N, 3) float64 arrays and two numbers, without numpy's broadcasting
-        # machinery (about 25 us a call, most of a small batch's time); the same checks and errors
-        lo, hi = np.array([tmin]), np.array([tmax])
-        for name, value in (("tmin", tmin), ("tmax", tmax)):
-            if value != value:
-                raise RayInputError(f"{name}[0] is NaN")
-        if tmin > tmax:
-            raise RayInputError(f"tmin > tmax for ray 0: {lo[0]} > {hi[0]}")
-        return origins, directions, lo, hi, origins.shape[:1]
-    o = _vectors(origins, "origins", finite=False)
-    d = _vectors(directions, "directions", finite=False)
-    try:
-        shape = np.broadcast_shapes(o.shape[:-1], d.shape[:-1])
-    except ValueError:
-        raise RayInputError(f"origins and directions differ in length: {o.shape[:-1]} vs {d.shape[:-1]}") from None
-    o = np.broadcast_to(o, shape + (3,)).reshape(-1, 3)
-    d = np.broadcast_to(d, shape + (3,)).reshape(-1, 3)
+    if _plain(origins, directions):
+        o, d, shape = origins, directions, origins.shape[:1]      # the common call: nothing to broadcast
+    else:
+        o = _vectors(origins, "origins", finite=False)
+        d = _vectors(directions, "directions", finite=False)
+        try:
+            shape = np.broadcast_shapes(o.shape[:-1], d.shape[:-1])
+        except ValueError:
+            raise RayInputError(f"origins and directions differ in length: {o.shape[:-1]} vs "
+                                f"{d.shape[:-1]}") from None
+        o = np.broadcast_to(o, shape + (3,)).reshape(-1, 3)
+        d = np.broadcast_to(d, shape + (3,)).reshape(-1, 3)
     lo = _interval(tmin, "tmin", shape)
     hi = _interval(tmax, "tmax", shape)
     bad = lo > hi
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        n = len(o)
-        raise RayInputError(f"tmin > tmax for ray {i}: {np.broadcast_to(lo, n)[i]} > {np.broadcast_to(hi, n)[i]}")
+        raise RayInputError(f"tmin > tmax for ray {i}: {lo[i if len(lo) > 1 else 0]} > {hi[i if len(hi) > 1 else 0]}")
     return np.ascontiguousarray(o), np.ascontiguousarray(d), lo, hi, shape
 
 
 def _plain(origins, directions) -> bool:
-    """Both are C-contiguous float64 ndarrays of the same shape (N, 3)."""
+    """Both are C-contiguous float64 ndarrays of the same shape (N, 3): check_rays then skips numpy's
+    broadcasting machinery, about 25 us a call (most of a small batch's time)."""
     return (type(origins) is np.ndarray and type(directions) is np.ndarray and origins.dtype == np.float64
             and directions.dtype == np.float64 and origins.ndim == 2 and origins.shape == directions.shape
             and origins.shape[1] == 3 and origins.flags.c_contiguous and directions.flags.c_contiguous)
