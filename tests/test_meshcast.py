@@ -14,10 +14,12 @@ import copy
 
 import numpy as np
 import pytest
+from numba import njit
 from test_watertight import MESHES, rays_through, targets
 
 from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
-from raykernel.aggregates.widebvh import CHILD, COUNT, collapse
+from raykernel.aggregates.widebvh import CHILD, COUNT, box4_entries, collapse, near_planes, vector_inverse
+from raykernel.geometry.boxes import box_entry, inverse
 from raykernel.geometry.primitives import SPHERE, TRIANGLE
 
 WALK = ("bounds.tests", "cells.visited", "cells.leaves", "tests.triangle", "hits.triangle", "walk.bvh.bounds",
@@ -202,6 +204,62 @@ def test_collapse_keeps_every_leaf_and_contains_every_box():
         b = g.node_bounds[by_first[int(child[w, s])]] - np.tile(wide.center, 2)     # stored relative to center
         assert np.all(box[w, :3, s].astype(float) <= b[:3]) and np.all(box[w, 3:, s].astype(float) >= b[3:])
     assert np.all(box[:, :3][~np.broadcast_to(used[:, None, :], box[:, :3].shape)] == np.inf)
+
+
+@njit
+def _both_box_tests(nodes, boxes, origins, directions, tmin, tmax):
+    """For every ray and node: box4_entries' mask and t4, and box_entry on each child box."""
+    n, w = len(origins), len(nodes)
+    mask = np.zeros((n, w), np.int64)
+    vec_t = np.zeros((n, w, 4))
+    ref_t = np.zeros((n, w, 4))
+    t4 = np.empty(4)
+    box = np.empty((1, 6))
+    for r in range(n):
+        ox, oy, oz = origins[r]
+        ix, iy, iz = inverse(directions[r, 0]), inverse(directions[r, 1]), inverse(directions[r, 2])
+        near = near_planes(ix, iy, iz)
+        vx, vy, vz = vector_inverse(ix), vector_inverse(iy), vector_inverse(iz)
+        for v in range(w):
+            mask[r, v] = box4_entries(nodes, v, ox, oy, oz, vx, vy, vz, near, tmin, tmax, t4)
+            vec_t[r, v] = t4
+            for s in range(4):
+                for a in range(3):
+                    box[0, a] = boxes[v, 4 * a + s]
+                    box[0, 3 + a] = boxes[v, 12 + 4 * a + s]
+                ref_t[r, v, s] = box_entry(box, 0, ox, oy, oz, ix, iy, iz, tmin, tmax)
+    return mask, vec_t, ref_t
+
+
+def test_vector_box_test_equals_the_scalar_one_for_still_rays_on_box_planes():
+    """box4_entries against the scalar slab test (box_entry) on every node's boxes, for
+    axis-parallel rays (an infinite inverse) whose origins lie exactly on box planes, inside
+    and outside boxes, and for oblique rays: the same boxes entered at the same distance."""
+    rng = np.random.default_rng(21)
+    v = rng.uniform(-1, 1, (600, 3))
+    wide = RayScene.from_mesh(v, np.arange(600).reshape(-1, 3), accel="bvh(leaf=2)")._mesh.wide
+    planes = wide.boxes[:, :24].astype(float)
+    planes = planes[np.isfinite(planes)]
+    n = 3000
+    o = rng.uniform(-1.2, 1.2, (n, 3))
+    on_plane = rng.random((n, 3)) < 0.5
+    o[on_plane] = rng.choice(planes, on_plane.sum())          # exactly on some box's plane
+    d = np.zeros((n, 3))
+    d[np.arange(n), rng.integers(0, 3, n)] = rng.choice([-1.0, 1.0], n)
+    two = rng.random(n) < 0.3                                  # some rays still along one axis only
+    d[two, rng.integers(0, 3, two.sum())] = rng.normal(size=two.sum())
+    d[:300] = rng.normal(size=(300, 3))
+    d[300:400] *= -0.0                                        # still along every axis but one, with -0.0
+    d[300:400, 0] = 1.0
+    mask, vec_t, ref_t = _both_box_tests(wide.nodes, wide.boxes, o, d, 0.0, 2.5)
+    entered = (mask[:, :, None] >> np.arange(4)) & 1 == 1
+    used = (mask[:, :, None] >> (4 + np.arange(4))) & 1 == 1
+    assert np.array_equal(used, np.broadcast_to(wide.nodes[:, COUNT:] >= 0, used.shape))
+    assert not entered[~used].any()                     # an unused slot's empty box is never entered
+    # (the scalar test is not asked about empty boxes: the walks never give it one)
+    assert np.array_equal(entered[used], np.isfinite(ref_t[used]))
+    assert np.array_equal(vec_t[entered], ref_t[entered])
+    assert 0.05 < entered[used].mean() < 0.95
 
 
 def test_wide_kernel_against_brute_force():

@@ -44,11 +44,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates.widebvh import CHILD, COUNT, NO_CHILD, WideBVH, leaf_range, near_planes, visit
+from ..aggregates.widebvh import CHILD, COUNT, NO_CHILD, WideBVH, leaf_range, near_planes, vector_inverse, visit
 from ..engine.flatten import BVH, Geometry
 from ..engine.traverse import ALL_HITS
 from ..geometry import counters as C
-from ..geometry.boxes import CONSERVATIVE, STILL, box_entry, inverse
+from ..geometry.boxes import CONSERVATIVE, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
 from ..geometry.unchecked import load
@@ -103,7 +103,7 @@ class MeshKernel(NamedTuple):
         geom = np.searchsorted(geometries[:, 1], prim, side="right") - 1
         local = prim - geometries[geom, 1]
         root = int(geo.agg_start[geo.root])
-        wide = WideBVH(geo.wide_nodes, geo.wide_boxes, geo.wide_center)
+        wide = WideBVH(geo.wide_nodes, geo.wide_center)
         corners = np.ascontiguousarray(corners)
         count = wide.nodes[:, COUNT:COUNT + 4]
         leaves = count > 0
@@ -249,7 +249,7 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
     child slot -v - 1 (node * 4 + slot); of a node's children the ray enters, the nearest is
     taken next and the others go on the stack nearest on top (widebvh.visit)."""
     store = offsets.shape[0] > 0
-    nodes, boxes, center = wide
+    nodes, center = wide
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1
     n_bounds = n_nodes = n_leaves = n_tests = n_hits = n_entries = n_invalid = np.int64(0)
@@ -261,8 +261,8 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
             continue
         o[0], o[1], o[2] = ox, oy, oz
         ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
-        still = ix == STILL or iy == STILL or iz == STILL
         near = near_planes(ix, iy, iz)
+        vx, vy, vz = vector_inverse(ix), vector_inverse(iy), vector_inverse(iz)
         wx, wy, wz = ox - center[0], oy - center[1], oz - center[2]      # the origin as the wide boxes see it
         kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
         lo = tmin[r if per_lo else 0]
@@ -287,8 +287,7 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
             v = load(stack, sp)
             while v >= 0:       # down the nearest children to a leaf
                 n_nodes += 1
-                v, sp, tested = visit(nodes, boxes, v, still, wx, wy, wz, ix, iy, iz, near, lo, best, t4, stack,
-                                      stack_t, sp)
+                v, sp, tested = visit(nodes, v, wx, wy, wz, vx, vy, vz, near, lo, best, t4, stack, stack_t, sp)
                 n_bounds += tested
             if v == NO_CHILD:
                 continue

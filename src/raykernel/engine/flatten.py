@@ -108,8 +108,7 @@ AGGREGATE_FIELDS = (
 ) + tuple(f for w in WALKS for f in w.FIELDS)
 
 WIDE_FIELDS = (         # a scene that is one BVH over primitives: that BVH collapsed 4-wide (widebvh.py), which
-    "wide_nodes",       # engine/widewalk.py walks; (0, 32) arrays otherwise
-    "wide_boxes",
+    "wide_nodes",       # engine/widewalk.py walks; a (0, 32) array otherwise
     "wide_center",      # read-only when the scene is that BVH: kernels then compile no general driver (widewalk.py)
     "wide_prims",       # its leaves' primitives in leaf order, an 80-byte record each (widewalk.py)
 )

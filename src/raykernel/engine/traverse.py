@@ -188,7 +188,7 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     A scene that is one BVH over primitives goes to its fast walk (widewalk.py), which
     takes only the arrays it reads; every other to the general one, `walk`."""
     if geo.wide_nodes.shape[0] and mode != CLOSEST_EAGER:
-        return intersect_wide(geo.wide_nodes, geo.wide_boxes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
+        return intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
                               geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges, ox, oy, oz,
                               dx, dy, dz, tmin, tmax, mode,
                               ws[0], ws[2], ws[3], ws[5], ws[6], ws[11], cnt)

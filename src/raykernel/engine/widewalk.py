@@ -2,7 +2,7 @@
 
     geo = prepare(Geometry(..., **NO_WALK), agg_stats)   # flatten: collapse the root BVH 4-wide, lay out its primitives
     if geo.wide_nodes.shape[0]:          # traverse.intersect then hands each query here
-        found = intersect_wide(geo.wide_nodes, geo.wide_boxes, geo.wide_center, geo.agg_bounds, geo.root,
+        found = intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root,
                                geo.refs, geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i,
                                geo.tri_edges, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f,
                                hit_i, t4, cnt)
@@ -34,9 +34,9 @@ import numpy as np
 
 from ..aggregates.bvh import CODE as BVH
 from ..aggregates.walk import F_MAP
-from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, near_planes, visit
+from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, near_planes, vector_inverse, visit
 from ..geometry import counters as C
-from ..geometry.boxes import CONSERVATIVE, INF, STILL, box_entry, inverse
+from ..geometry.boxes import CONSERVATIVE, INF, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import (
     CONE,
@@ -57,7 +57,7 @@ from .hitrule import ANY_HIT, ANY_OPAQUE, take
 PRIM_COLUMNS = 10      # the most a kind needs (a triangle's or a cone's nine numbers), and the flag
 CLEAR = 9
 # the wide_* fields of every other scene: nothing to walk
-NO_WALK = dict(wide_nodes=NO_WIDE.nodes, wide_boxes=NO_WIDE.boxes, wide_center=NO_WIDE.center,
+NO_WALK = dict(wide_nodes=NO_WIDE.nodes, wide_center=NO_WIDE.center,
                wide_prims=np.zeros((0, PRIM_COLUMNS)))
 
 
@@ -72,7 +72,7 @@ def prepare(geo, agg_stats: list):
     agg_stats[0].update(wide_nodes=len(wide.nodes), wide_bytes=wide.nbytes + prims.nbytes)
     center = wide.center.copy()
     center.flags.writeable = False      # the type that says "wide only" (see wide_only)
-    return geo._replace(wide_nodes=wide.nodes, wide_boxes=wide.boxes, wide_center=center, wide_prims=prims)
+    return geo._replace(wide_nodes=wide.nodes, wide_center=center, wide_prims=prims)
 
 
 def wide_only(geo) -> bool:
@@ -153,7 +153,7 @@ def count_misses(cnt, n):
 
 
 @njit(inline="always")
-def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz,
+def intersect_wide(nodes, center, agg_bounds, root, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz,
                    dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
     """traverse.intersect (modes CLOSEST, ANY_HIT, ALL_HITS, ANY_OPAQUE) on the arrays prepare()
     made, with the workspace's stack, frames, hit record and t4. The scene's box is tested
@@ -164,12 +164,12 @@ def intersect_wide(nodes, boxes, center, agg_bounds, root, refs, prims, verts, b
     if te == INF:
         count_misses(cnt, np.int64(1))
         return False
-    return _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz,
+    return _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz,
                       ix, iy, iz, te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt)
 
 
 @njit(private=True)
-def _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz, ix, iy, iz,
+def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz, ix, iy, iz,
                te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
     """intersect_wide below the scene's box, which the ray enters at te. Stack entries as
     widebvh.visit pushes them: v >= 0 a wide node to visit, v < 0 a leaf."""
@@ -182,8 +182,8 @@ def _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edg
     edges = tri_edges[0]
     n_bounds, n_nodes, n_leaves = np.int64(1), np.int64(0), np.int64(0)
     cnt[C.WALK_ENTRIES + BVH] += 1
-    still = ix == STILL or iy == STILL or iz == STILL
     near = near_planes(ix, iy, iz)
+    vx, vy, vz = vector_inverse(ix), vector_inverse(iy), vector_inverse(iz)
     wx, wy, wz = ox - center[0], oy - center[1], oz - center[2]      # the origin as the wide boxes see it
     stack[0] = 0
     stack_t[0] = te
@@ -196,8 +196,7 @@ def _walk_wide(nodes, boxes, center, refs, prims, verts, band_f, band_i, tri_edg
         v = load(stack, sp)
         while v >= 0:       # down the nearest children to a leaf
             n_nodes += 1
-            v, sp, tested = visit(nodes, boxes, v, still, wx, wy, wz, ix, iy, iz, near, tmin, best_t, t4, stack,
-                                  stack_t, sp)
+            v, sp, tested = visit(nodes, v, wx, wy, wz, vx, vy, vz, near, tmin, best_t, t4, stack, stack_t, sp)
             n_bounds += tested
         if v == NO_CHILD:
             continue
