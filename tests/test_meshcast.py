@@ -246,7 +246,7 @@ def test_vector_box_test_equals_the_scalar_one_for_still_rays_on_box_planes():
     o[on_plane] = rng.choice(planes, on_plane.sum())          # exactly on some box's plane
     d = np.zeros((n, 3))
     d[np.arange(n), rng.integers(0, 3, n)] = rng.choice([-1.0, 1.0], n)
-    two = rng.random(n) < 0.3                                  # some rays still along one axis only
+    two = rng.random(n) < 0.3                                  # some move along a second axis: still along one
     d[two, rng.integers(0, 3, two.sum())] = rng.normal(size=two.sum())
     d[:300] = rng.normal(size=(300, 3))
     d[300:400] *= -0.0                                        # still along every axis but one, with -0.0
