@@ -18,7 +18,7 @@ from numba import njit
 from test_watertight import MESHES, rays_through, targets
 
 from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
-from raykernel.aggregates.widebvh import CHILD, COUNT, box4_entries, collapse, near_planes, vector_inverse
+from raykernel.aggregates.widebvh import CHILD, COUNT, box4_entries, collapse, wide_ray
 from raykernel.geometry.boxes import box_entry, inverse
 from raykernel.geometry.primitives import SPHERE, TRIANGLE
 
@@ -207,8 +207,9 @@ def test_collapse_keeps_every_leaf_and_contains_every_box():
 
 
 @njit
-def _both_box_tests(nodes, boxes, origins, directions, tmin, tmax):
-    """For every ray and node: box4_entries' mask and t4, and box_entry on each child box."""
+def _both_box_tests(nodes, boxes, center, origins, directions, tmin, tmax):
+    """For every ray and node: box4_entries' mask and t4, and box_entry on each child box (origins
+    relative to center, as the boxes are stored)."""
     n, w = len(origins), len(nodes)
     mask = np.zeros((n, w), np.int64)
     vec_t = np.zeros((n, w, 4))
@@ -218,16 +219,15 @@ def _both_box_tests(nodes, boxes, origins, directions, tmin, tmax):
     for r in range(n):
         ox, oy, oz = origins[r]
         ix, iy, iz = inverse(directions[r, 0]), inverse(directions[r, 1]), inverse(directions[r, 2])
-        near = near_planes(ix, iy, iz)
-        vx, vy, vz = vector_inverse(ix), vector_inverse(iy), vector_inverse(iz)
+        wx, wy, wz, vx, vy, vz, near = wide_ray(center, ox, oy, oz, ix, iy, iz)
         for v in range(w):
-            mask[r, v] = box4_entries(nodes, v, ox, oy, oz, vx, vy, vz, near, tmin, tmax, t4)
+            mask[r, v] = box4_entries(nodes, v, wx, wy, wz, vx, vy, vz, near, tmin, tmax, t4)
             vec_t[r, v] = t4
             for s in range(4):
                 for a in range(3):
                     box[0, a] = boxes[v, 4 * a + s]
                     box[0, 3 + a] = boxes[v, 12 + 4 * a + s]
-                ref_t[r, v, s] = box_entry(box, 0, ox, oy, oz, ix, iy, iz, tmin, tmax)
+                ref_t[r, v, s] = box_entry(box, 0, wx, wy, wz, ix, iy, iz, tmin, tmax)
     return mask, vec_t, ref_t
 
 
@@ -251,7 +251,8 @@ def test_vector_box_test_equals_the_scalar_one_for_still_rays_on_box_planes():
     d[:300] = rng.normal(size=(300, 3))
     d[300:400] *= -0.0                                        # still along every axis but one, with -0.0
     d[300:400, 0] = 1.0
-    mask, vec_t, ref_t = _both_box_tests(wide.nodes, wide.boxes, o, d, 0.0, 2.5)
+    # origins taken relative to the tree's center (a zero center here), so that they lie on the planes exactly
+    mask, vec_t, ref_t = _both_box_tests(wide.nodes, wide.boxes, np.zeros(3), o, d, 0.0, 2.5)
     entered = (mask[:, :, None] >> np.arange(4)) & 1 == 1
     used = (mask[:, :, None] >> (4 + np.arange(4))) & 1 == 1
     assert np.array_equal(used, np.broadcast_to(wide.nodes[:, COUNT:] >= 0, used.shape))

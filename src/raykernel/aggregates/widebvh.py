@@ -1,7 +1,8 @@
 """The 4-wide BVH: a binary SAH tree collapsed into nodes of up to four children.
 
     wide = collapse(node_bounds, node_first, node_count, root)     # WideBVH of one binary tree
-    mask = box4_entries(wide.nodes, node, ox - cx, oy - cy, oz - cz, ix, iy, iz, near, tmin, tmax, t4)
+    wx, wy, wz, vx, vy, vz, near = wide_ray(wide.center, ox, oy, oz, ix, iy, iz)   # once per ray
+    mask = box4_entries(wide.nodes, node, wx, wy, wz, vx, vy, vz, near, tmin, tmax, t4)
 
 Why: a binary node visit tests two boxes one after the other; a wide node
 tests its four children's boxes in one vector slab test (four lanes of
@@ -40,11 +41,11 @@ per child box tested (each used slot of the node), so a 4-wide walk shows
 about half the visits of the binary one and a similar number of box tests.
 
 The slab test takes each axis's near and far planes by the sign of the ray's
-direction (`near` offsets, from `near_planes`), subtracts the origin and
+direction (`near` offsets, from `wide_ray`), subtracts the origin and
 multiplies by the inverse direction in float64, and widens the exit distance
 by CONSERVATIVE as the scalar `box_entry` does (Ize 2013). A ray that does not
 move along an axis takes the same vector test with an infinite inverse there
-(`vector_inverse`): a product is then -inf or +inf by the side of the plane the
+(`wide_ray`): a product is then -inf or +inf by the side of the plane the
 origin lies on, and NaN for an origin on the plane, which the test skips (its
 maxima and minima keep the other operand), so the ray is in the closed slab or
 outside it for every t, as the scalar `slab` decides. One test for every ray
@@ -183,16 +184,15 @@ def collapse(node_bounds, node_first, node_count, root: int) -> WideBVH:
 
 
 @njit(inline="always")
-def vector_inverse(i):
-    """The inverse direction box4_entries takes: boxes.inverse's, infinite where that is STILL."""
-    return INF if i == STILL else i
-
-
-@njit(inline="always")
-def near_planes(ix, iy, iz):
-    """Column offsets in a node's box row of the planes each axis enters first (the minimum
-    for a positive direction, else the maximum); the far plane is 12 columns away."""
-    return (0 if ix >= 0.0 else 12), (4 if iy >= 0.0 else 16), (8 if iz >= 0.0 else 20)
+def wide_ray(center, ox, oy, oz, ix, iy, iz):
+    """A ray as box4_entries and visit take it, from its origin and boxes.inverse's inverse
+    direction: the origin relative to the tree's center; the inverse, infinite where it is
+    STILL (see above); and `near`, the column offsets in a node's box row of the planes each
+    axis enters first (the minimum for a positive direction, else the maximum; the far plane
+    is 12 columns away)."""
+    near = (0 if ix >= 0.0 else 12), (4 if iy >= 0.0 else 16), (8 if iz >= 0.0 else 20)
+    return (ox - center[0], oy - center[1], oz - center[2], INF if ix == STILL else ix, INF if iy == STILL else iy,
+            INF if iz == STILL else iz, near)
 
 
 @intrinsic
@@ -200,8 +200,8 @@ def box4_entries(typingctx, box, node, ox, oy, oz, ix, iy, iz, near, tmin, tmax,
     """Slab test of node's four child boxes in one <4 x double> pass: returns the bit mask of
     the children the ray enters within [tmin, tmax] (bits 0-3) and of the used slots (bits 4-7),
     and writes their entry distances to t4.
-    box: the nodes (int32 records) or their float32 view; the origin relative to the tree's
-    center; `near` is near_planes' triple; the inverses are vector_inverse's."""
+    box: the nodes (int32 records) or their float32 view; the origin, inverse and `near` as
+    wide_ray gives them."""
     sig = types.int64(box, node, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4)
 
     def codegen(context, builder, signature, args):
@@ -269,8 +269,8 @@ def visit(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4, stack, stack_t
     walk to take next, and push the others on the stack above sp, the nearest of them on top.
     A child is an inner node as its index (>= 0), a leaf as -(v * 4 + slot) - 1 (leaf_range
     decodes it). Among children entered at the same distance the later slot comes first, so the
-    order is that of pushing every child and popping the top. The origin is relative to the
-    tree's center, the inverses vector_inverse's. Returns the nearest child, the new sp and
+    order is that of pushing every child and popping the top. The ray as wide_ray gives it.
+    Returns the nearest child, the new sp and
     the child boxes tested (the node's used slots)."""
     mask = box4_entries(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4)
     row = v * 32

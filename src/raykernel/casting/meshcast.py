@@ -44,7 +44,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates.widebvh import CHILD, COUNT, NO_CHILD, WideBVH, leaf_range, near_planes, vector_inverse, visit
+from ..aggregates.widebvh import CHILD, COUNT, NO_CHILD, WideBVH, leaf_range, visit, wide_ray
 from ..engine.flatten import BVH, Geometry
 from ..engine.traverse import ALL_HITS
 from ..geometry import counters as C
@@ -261,9 +261,7 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
             continue
         o[0], o[1], o[2] = ox, oy, oz
         ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
-        near = near_planes(ix, iy, iz)
-        vx, vy, vz = vector_inverse(ix), vector_inverse(iy), vector_inverse(iz)
-        wx, wy, wz = ox - center[0], oy - center[1], oz - center[2]      # the origin as the wide boxes see it
+        wx, wy, wz, vx, vy, vz, near = wide_ray(center, ox, oy, oz, ix, iy, iz)
         kx, ky, kz, sx, sy, sz = ray_shear(dx, dy, dz)
         lo = tmin[r if per_lo else 0]
         best = tmax[r if per_hi else 0]

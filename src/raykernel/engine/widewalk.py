@@ -34,7 +34,7 @@ import numpy as np
 
 from ..aggregates.bvh import CODE as BVH
 from ..aggregates.walk import F_MAP
-from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, near_planes, vector_inverse, visit
+from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, visit, wide_ray
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, box_entry, inverse
 from ..geometry.config import njit
@@ -182,9 +182,7 @@ def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox,
     edges = tri_edges[0]
     n_bounds, n_nodes, n_leaves = np.int64(1), np.int64(0), np.int64(0)
     cnt[C.WALK_ENTRIES + BVH] += 1
-    near = near_planes(ix, iy, iz)
-    vx, vy, vz = vector_inverse(ix), vector_inverse(iy), vector_inverse(iz)
-    wx, wy, wz = ox - center[0], oy - center[1], oz - center[2]      # the origin as the wide boxes see it
+    wx, wy, wz, vx, vy, vz, near = wide_ray(center, ox, oy, oz, ix, iy, iz)
     stack[0] = 0
     stack_t[0] = te
     sp = 1
