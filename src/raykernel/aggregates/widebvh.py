@@ -270,8 +270,7 @@ def visit(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4, stack, stack_t
     A child is an inner node as its index (>= 0), a leaf as -(v * 4 + slot) - 1 (leaf_range
     decodes it). Among children entered at the same distance the later slot comes first, so the
     order is that of pushing every child and popping the top. The ray as wide_ray gives it.
-    Returns the nearest child, the new sp and
-    the child boxes tested (the node's used slots)."""
+    Returns the nearest child, the new sp and the child boxes tested (the node's used slots)."""
     mask = box4_entries(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, tmax, t4)
     row = v * 32
     bottom = sp
