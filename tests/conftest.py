@@ -9,14 +9,12 @@ import pytest
 
 from raykernel.scene import Camera, Material, Scene
 
-SPD_DIR = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "spd"
+from support import SPD_DIR
 
 
 @pytest.fixture
 def spd_dir() -> Path:
-    """The directory of the reference SPD files (shared/scenes/spd beside the repository)."""
-    if not SPD_DIR.is_dir():
-        pytest.skip(f"SPD scene directory not found at {SPD_DIR}")
+    """The directory of the reference SPD files (tests/data/spd, unpacked)."""
     return SPD_DIR
 
 

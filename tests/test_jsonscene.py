@@ -28,9 +28,8 @@ from raykernel.scene.jsonscene import (
 )
 
 REPO = Path(__file__).resolve().parents[1]
-SPD_DIR = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "spd"
+from support import SPD_DIR
 BALLS = SPD_DIR / "balls-sf1.nff"
-needs_balls = pytest.mark.skipif(not BALLS.is_file(), reason=f"{BALLS} not found")
 
 TRIANGLE = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
 
@@ -303,7 +302,6 @@ def test_unused_groups_are_still_checked():
           "/groups/spare/items/0/sphere/radius", "zero")
 
 
-@needs_balls
 def test_include_nff_takes_camera_lights_background(tmp_path):
     scene = load(items({"include": str(BALLS)}))
     (child,) = scene.root.children
@@ -315,7 +313,6 @@ def test_include_nff_takes_camera_lights_background(tmp_path):
     assert len(child.spheres) == 10 and len(child.polygons) == 1
 
 
-@needs_balls
 def test_include_relative_path_remaps_materials_and_keeps_json_settings(tmp_path):
     shutil.copy(BALLS, tmp_path / "balls.nff")
     doc = {"camera": {"eye": [0, -9, 0], "look_at": [0, 0, 0]},
@@ -342,7 +339,6 @@ def test_include_relative_path_remaps_materials_and_keeps_json_settings(tmp_path
         parse_json(json.dumps(items({"include": "nope.nff"})), path=tmp_path / "scene.json")
 
 
-@needs_balls
 def test_include_nff_error_names_both_files(tmp_path):
     (tmp_path / "bad.nff").write_text("v\nfrom 0 0 0\n")
     message = error(items({"include": "bad.nff"}), "bad.nff:", "included from", "/scene/items/0/include",

@@ -15,8 +15,7 @@ from raykernel.errors import SceneError
 from raykernel.scene import Camera, Group, Instance, Material, Scene, TriangleMesh
 from raykernel.scene.nff import parse_nff, read_nff, scene_to_nff, write_nff
 
-SPD_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "scenes" / "spd"
-needs_spd = pytest.mark.skipif(not SPD_DIR.is_dir(), reason=f"SPD scene directory not found at {SPD_DIR}")
+from support import SPD_DIR
 
 # Counted independently (README of the SPD directory): spheres, polygons, patches, cones, lights.
 SPD_COUNTS = {
@@ -119,12 +118,10 @@ def assert_same_scene(a: Scene, b: Scene, rtol=1e-6, atol=0.0):
 # The SPD files
 
 
-@needs_spd
 def test_table_covers_every_spd_file():
     assert sorted(p.name for p in SPD_DIR.glob("*.nff")) == sorted(SPD_COUNTS)
 
 
-@needs_spd
 @pytest.mark.parametrize("name", sorted(SPD_COUNTS))
 def test_spd_counts(name):
     scene = spd(name)
@@ -135,7 +132,6 @@ def test_spd_counts(name):
     assert r.patches.count.tolist() == [3] * len(r.patches)
 
 
-@needs_spd
 @pytest.mark.parametrize("name", sorted(SPD_VIEWS))
 def test_spd_views(name):
     eye, at, up, angle, hither, res = SPD_VIEWS[name]
@@ -147,7 +143,6 @@ def test_spd_views(name):
     assert (cam.width, cam.height) == (res, res)
 
 
-@needs_spd
 def test_spd_backgrounds():
     np.testing.assert_allclose(spd("balls-sf1.nff").background, [0.078, 0.361, 0.753])
     np.testing.assert_allclose(spd("jacks-sf1.nff").background, [0.2, 0.05, 0.2])
@@ -155,7 +150,6 @@ def test_spd_backgrounds():
     np.testing.assert_allclose(spd("nurbtst-sf1.nff").background, [0, 0, 0])
 
 
-@needs_spd
 def test_spd_material_line_values():
     # rings: "f 1 0 0 0.5 0.2 3.0827 0 0" precedes the first cylinder and sphere.
     scene = spd("rings-sf1.nff")
@@ -170,7 +164,6 @@ def test_spd_material_line_values():
     np.testing.assert_allclose(mats[glass][:, 3:], np.tile([0.2, 0, 100000, 0.8, 1.1], (1898, 1)))
 
 
-@needs_spd
 def test_spd_materials_registered_once_and_only_when_used():
     # teapot-sf1's single check is grey, so its "f 1 1 1 ..." line is never used.
     scene = spd("teapot-sf1.nff")
@@ -179,7 +172,6 @@ def test_spd_materials_registered_once_and_only_when_used():
     assert Material((1, 1, 1), 0.5, 0.5, 4.81884, 0, 0) not in scene.materials
 
 
-@needs_spd
 def test_spd_zero_area_teapot_patches_are_kept():
     patches = spd("teapot-sf1.nff").root.patches
     tri = patches.vertices.reshape(-1, 3, 3)
@@ -187,7 +179,6 @@ def test_spd_zero_area_teapot_patches_are_kept():
     assert (area == 0).sum() == 4
 
 
-@needs_spd
 @pytest.mark.parametrize("name", sorted(SPD_COUNTS))
 def test_spd_round_trip(name):
     scene = spd(name)
@@ -195,7 +186,6 @@ def test_spd_round_trip(name):
     assert_same_scene(scene, again)
 
 
-@needs_spd
 def test_spd_round_trip_through_a_file(tmp_path):
     scene = spd("rings-sf1.nff")
     target = tmp_path / "rings.nff"
@@ -799,8 +789,7 @@ def test_plain_files_read_fast_to_the_same_scene(name):
     _same_scene(parse_nff(text, "x.nff"), fast)
 
 
-@needs_spd
-@pytest.mark.parametrize("path", sorted(SPD_DIR.glob("*.nff")) if SPD_DIR.is_dir() else [], ids=lambda p: p.name)
+@pytest.mark.parametrize("path", sorted(SPD_DIR.glob("*.nff")), ids=lambda p: p.name)
 def test_reference_files_read_fast_to_the_same_scene(path):
     text = path.read_text()
     _same_scene(read_nff(path), _slow(text, str(path)))

@@ -18,7 +18,7 @@ from raykernel.scene import Polygons
 
 BG = (0.1, 0.2, 0.3)
 
-# Every size-factor-1 NFF file of the shared SPD directory (README table); each renders in
+# Every size-factor-1 NFF file of the SPD programs (tests/data/spd); each renders in
 # well under a second at 64x64 with either accelerator, so all of them are in the fast set.
 SF1_NAMES = ["balls", "gears", "jacks", "lattice", "mount", "nurbtst", "rings", "sample", "shells",
              "sombrero", "teapot", "tetra", "tree"]

@@ -12,7 +12,7 @@ import pytest
 from raykernel.errors import OptionError
 from raykernel.scene import spd
 
-SPD_DIR = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "spd"
+from support import SPD_DIR
 TOLERANCE = 1e-4
 
 REFERENCES = [
@@ -96,12 +96,7 @@ def expected_counts(name: str, sf: int) -> dict:
 
 
 def _reference(name: str, sf: int) -> str:
-    if not SPD_DIR.is_dir():
-        pytest.skip(f"SPD reference scenes not found at {SPD_DIR}")
-    path = SPD_DIR / f"{name}-sf{sf}.nff"
-    if not path.is_file():
-        pytest.skip(f"SPD reference file {path.name} not found in {SPD_DIR}")
-    return path.read_text()
+    return (SPD_DIR / f"{name}-sf{sf}.nff").read_text()
 
 
 # ---------------------------------------------------------------- the comparison helper itself

@@ -12,14 +12,13 @@ from raykernel.errors import OptionError
 from raykernel.scene import spd
 from raykernel.scene.spd import jacks, lattice, nurbtst, sample, sombrero, teapot
 
-SPD_DIR = Path(__file__).resolve().parents[2] / "shared" / "scenes" / "spd"
+from support import SPD_DIR
 TOLERANCE = 1.0e-4
 
 REFERENCES = [("teapot", 1), ("teapot", 2), ("teapot", 6), ("teapot", 12),
               ("jacks", 1), ("jacks", 4), ("lattice", 1), ("lattice", 12),
               ("sombrero", 1), ("sample", 1), ("nurbtst", 1)]
 
-needs_references = pytest.mark.skipif(not SPD_DIR.is_dir(), reason=f"SPD reference scenes not found at {SPD_DIR}")
 
 
 def _teapot_one():
@@ -78,12 +77,9 @@ def test_first_mismatch_reports_token_line_and_values():
     assert "count" in first_mismatch("s 0 0 0 1\n", "s 0 0 0 1\ns 1 1 1 1\n")
 
 
-@needs_references
 @pytest.mark.parametrize("name,size", REFERENCES, ids=[f"{n}-sf{s}" for n, s in REFERENCES])
 def test_matches_reference_file(name, size):
     path = SPD_DIR / f"{name}-sf{size}.nff"
-    if not path.is_file():
-        pytest.skip(f"reference file {path.name} not found")
     mismatch = first_mismatch(_generate(name, size), path.read_text())
     assert mismatch is None, f"{name} -s {size}: {mismatch}"
 
