@@ -384,8 +384,8 @@ def test_spd_unknown_name(capsys):
 ])
 def test_bad_render_options_fail_before_the_compile_notice(tmp_path, capsys, monkeypatch, argv, expected):
     # on a first run the CLI says it will compile; options that cannot work are refused before that
-    import raykernel.engine.compiletime as compiletime
-    monkeypatch.setattr(compiletime, "first_run", lambda: True)
+    import raykernel.rendering.render as render
+    monkeypatch.setattr(render, "first_run", lambda: True)
     nff = write(tmp_path / "good.nff", GOOD_NFF)
     argv = [a.format(tmp=tmp_path) for a in argv]
     if "-o" not in argv:

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 import raykernel
-from raykernel.engine.compiletime import CompileClock, first_run
+from raykernel.geometry.compiletime import CompileClock
+from raykernel.rendering.render import first_run
 
 
 def fresh_kernel():
@@ -56,7 +57,7 @@ def test_the_clocks_notice_fires_once_for_a_compile_that_lasts():
 
 
 def test_a_compile_notice_is_said_again_for_each_later_compile(capsys):
-    from raykernel.engine.compiletime import compile_notice
+    from raykernel.geometry.compiletime import compile_notice
     from raykernel.geometry.config import tell_once
     tell_once("test-notice", None)           # the caller said the first one its own way
     for _ in range(3):
@@ -66,7 +67,7 @@ def test_a_compile_notice_is_said_again_for_each_later_compile(capsys):
 
 LOAD_CHILD = """
 import sys, numba
-from raykernel.engine.compiletime import CompileClock
+from raykernel.geometry.compiletime import CompileClock
 @numba.njit(cache=True)
 def f(x):
     return x * 2 + 1
@@ -96,7 +97,7 @@ def test_numbas_typing_set_up_is_timed_once_per_process():
     """typing_setup: numba's first typeof in a fresh process takes time, every later call none."""
     import subprocess
     import sys
-    code = ("from raykernel.engine.compiletime import typing_setup as t\n"
+    code = ("from raykernel.geometry.compiletime import typing_setup as t\n"
             "print(t(), t())")
     first, again = map(float, subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                                              check=True).stdout.split())

@@ -1,13 +1,19 @@
-"""The kernel cache is keyed on the kernel sources, so no stale kernel runs."""
+"""The kernel cache is keyed on the kernels' code (geometry/cachekey.py): no stale kernel runs, and
+no docstring, comment or blank line recompiles one."""
 
+import re
 import shutil
 import sys
 
 import numba
 import numpy as np
 import pytest
+from numba.core.caching import FunctionCache
 
-from raykernel.geometry import config
+from raykernel.geometry import cachekey, config
+
+KERNEL_FILES = sorted(p.relative_to(config.PACKAGE).as_posix() for p in config.PACKAGE.rglob("*.py")
+                      if b"@njit" in p.read_bytes())
 
 
 def _copy_package(tmp_path):
@@ -16,57 +22,111 @@ def _copy_package(tmp_path):
     return dest
 
 
-def test_hash_changes_with_a_kernel_source(tmp_path):
+def _stamps(pkg):
+    return {name: cachekey.code_stamp(pkg / name, pkg) for name in KERNEL_FILES}
+
+
+def _retext(source: str) -> str:
+    """The same code as other text: every docstring changed, a comment after every def and a blank
+    line before it, and a comment at the end."""
+    import ast
+    lines = source.splitlines(keepends=True)
+    for node in ast.walk(ast.parse(source)):
+        body = getattr(node, "body", None)
+        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef)) and body and isinstance(body[0], ast.Expr)
+                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str)):
+            doc = body[0].value
+            line = lines[doc.lineno - 1]
+            quote = doc.col_offset + (3 if line[doc.col_offset:doc.col_offset + 3] in ('"""', "'''") else 1)
+            lines[doc.lineno - 1] = line[:quote] + "Edited. " + line[quote:]
+    source = "".join(lines)
+    source = re.sub(r"^(\s*def [^\n]*\):)$", r"\n\1  # a comment", source, flags=re.M)
+    return source + "\n\n# the end\n"
+
+
+def test_every_kernel_file_is_stamped_by_its_code_alone(tmp_path):
     pkg = _copy_package(tmp_path)
-    before = config.kernel_source_hash(pkg)
-    assert before == config.kernel_source_hash(config.PACKAGE)
+    before = _stamps(pkg)
+    assert before == {name: cachekey.code_stamp(config.PACKAGE / name) for name in KERNEL_FILES}
+    assert len(KERNEL_FILES) > 20
+    for name in KERNEL_FILES:
+        path = pkg / name
+        text = path.read_text()
+        path.write_text(_retext(text))
+        assert path.read_text() != text
+        assert _stamps(pkg) == before, name
+        path.write_text(text)
+
+
+def test_a_code_change_restamps_its_file_and_every_file_importing_it(tmp_path):
+    pkg = _copy_package(tmp_path)
+    before = _stamps(pkg)
     prims = pkg / "geometry" / "primitives.py"
-    prims.write_text(prims.read_text() + "\n# changed\n")
-    assert config.kernel_source_hash(pkg) != before
+    prims.write_text(prims.read_text() + "\nCHANGED = 1\n")
+    after = _stamps(pkg)
+    assert after["geometry/primitives.py"] != before["geometry/primitives.py"]
+    assert after["engine/traverse.py"] != before["engine/traverse.py"]       # inlines the primitive tests
+    assert after["geometry/boxes.py"] == before["geometry/boxes.py"]         # imports nothing of it
 
 
-@pytest.mark.parametrize("feeder", ["geometry/counters.py", "scene/model.py", "engine/flatten.py"])
-def test_hash_changes_with_a_module_whose_constants_kernels_use(tmp_path, feeder):
-    # no kernel of their own, but counter columns, MAX_NESTING and the stack size are frozen into kernels
+@pytest.mark.parametrize("feeder", ["geometry/counters.py", "aggregates/walk.py"])
+def test_a_constant_that_kernels_freeze_restamps_them(tmp_path, feeder):
+    # no kernel of their own, but counter columns and stack sizes are frozen into kernels
     pkg = _copy_package(tmp_path)
-    before = config.kernel_source_hash(pkg)
+    before = _stamps(pkg)
     path = pkg / feeder
-    assert b"njit" not in path.read_bytes()
-    path.write_text(path.read_text() + "\n# changed\n")
-    assert config.kernel_source_hash(pkg) != before
+    text = path.read_text()
+    number = re.search(r"^([A-Z_]+) = (\d+)", text, re.M)
+    path.write_text(text.replace(number.group(0), f"{number.group(1)} = {int(number.group(2)) + 1}", 1))
+    after = _stamps(pkg)
+    assert after["engine/traverse.py"] != before["engine/traverse.py"]
 
 
 def test_imports_are_found_in_every_form(tmp_path):
     pkg = tmp_path / "pkg"
     (pkg / "sub").mkdir(parents=True)
-    for name in ("a.py", "b.py", "c.py", "sub/__init__.py", "sub/d.py", "sub/e.py", "sub/f.py"):
+    for name in ("a.py", "b.py", "c.py", "g.py", "sub/__init__.py", "sub/d.py", "sub/e.py", "sub/f.py"):
         (pkg / name).write_text("")
     (pkg / "sub" / "k.py").write_text("from ..a import x  # a comment, d\nfrom . import d, e as g\n"
-                                      "from .f import (\n    y,  # z\n    w,\n)\nfrom .. import b\nimport c\n")
-    found = {p.relative_to(pkg).as_posix() for p in config._imported(pkg / "sub" / "k.py", pkg)}
-    assert found == {"a.py", "sub/d.py", "sub/e.py", "sub/f.py", "sub/__init__.py", "b.py"}
+                                      "from .f import (\n    y,  # z\n    w,\n)\nfrom .. import b\nimport c\n"
+                                      "def later():\n    from ..g import h\n")
+    found = {p.relative_to(pkg).as_posix() for p in cachekey.dependencies(pkg / "sub" / "k.py", pkg)}
+    assert found == {"sub/k.py", "a.py", "sub/d.py", "sub/e.py", "sub/f.py", "sub/__init__.py", "b.py", "g.py"}
 
 
-def test_hash_ignores_files_without_kernels(tmp_path):
-    pkg = _copy_package(tmp_path)
-    before = config.kernel_source_hash(pkg)
-    cli = pkg / "cli.py"
-    assert b"njit" not in cli.read_bytes()
-    cli.write_text(cli.read_text() + "\n# changed\n")
-    assert config.kernel_source_hash(pkg) == before
-
-
-def test_cache_dir_is_keyed_and_restored():
-    assert config.kernel_source_hash() in config.CACHE_DIR
+def test_kernels_cache_in_raykernels_folder_and_other_numba_code_in_numbas():
     saved = numba.config.CACHE_DIR
 
     @config.njit
     def twice(x):
         return 2 * x
 
-    assert twice(21) == 42
+    @numba.njit(cache=True)
+    def thrice(x):
+        return 3 * x
+
+    assert twice(21) == 42 and thrice(2) == 6
     assert numba.config.CACHE_DIR == saved
-    assert twice._cache._cache_path.startswith(config.CACHE_DIR)
+    assert isinstance(twice._cache, cachekey.KernelCache)
+    assert twice._cache.cache_path.startswith(config.CACHE_DIR)
+    assert type(thrice._cache) is FunctionCache and not thrice._cache.cache_path.startswith(config.CACHE_DIR)
+
+
+def test_the_entry_name_does_not_move_with_the_lines_above(tmp_path):
+    import importlib.util
+
+    def load(name, source):
+        (tmp_path / f"{name}.py").write_text(source)
+        spec = importlib.util.spec_from_file_location(name, tmp_path / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    plain = load("plain", "def first(x):\n    return x + 1\n")
+    moved = load("moved", "\n\n# moved down\n\ndef first(x):\n    \"\"\"Now documented.\"\"\"\n    return x + 1  # same\n")
+    changed = load("changed", "def first(x):\n    return x + 2\n")
+    assert cachekey.function_key(plain.first) == cachekey.function_key(moved.first)
+    assert cachekey.function_key(plain.first) != cachekey.function_key(changed.first)
 
 
 def test_factory_form_takes_options():
@@ -156,3 +216,28 @@ def test_a_geometry_is_typed_once_per_layout_as_numba_would():
         ty = typeof(other, Purpose.argument)
         assert ty != field_by_field
         assert ty == types.NamedTuple([typeof(x, Purpose.argument) for x in other], type(other))
+
+
+def test_cache_command_shows_and_clears_only_when_asked(tmp_path, monkeypatch, capsys):
+    from raykernel.cli import main
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    old = tmp_path / "raykernel" / "numba-0123456789abcdef"     # an earlier version's folder
+    (old / "rendering_x").mkdir(parents=True)
+    (old / "rendering_x" / "k.nbc").write_bytes(b"x" * 2048)
+    assert main(["cache"]) == 0
+    assert str(old) in capsys.readouterr().out and old.is_dir()     # shown, kept
+    assert main(["cache", "--clear"]) == 0
+    assert "Removed 1" in capsys.readouterr().out and not old.exists()
+
+
+def test_importing_raykernel_deletes_no_folder(tmp_path):
+    import os
+    import subprocess
+    old = tmp_path / "raykernel" / "numba-0123456789abcdef"
+    old.mkdir(parents=True)
+    os.utime(old, (0, 0))           # unused for decades
+    env = dict(os.environ, XDG_CACHE_HOME=str(tmp_path))
+    env.pop("NUMBA_CACHE_DIR", None)
+    subprocess.run([sys.executable, "-c", "import raykernel"], env=env, check=True)
+    assert old.is_dir()

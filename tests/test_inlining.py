@@ -79,3 +79,23 @@ def test_an_inliner_of_another_shape_is_left_alone():
     assert not inlining._expected_shape(other)
     assert not inlining._expected_shape(types.SimpleNamespace(copy=inlining.copy))    # no InlineWorker at all
     assert inlining._expected_shape(inline_closurecall)
+
+
+def test_only_raykernels_callees_skip_the_copies(monkeypatch):
+    # other numba code in the process is inlined by numba's own method, copies and all
+    from raykernel.geometry.boxes import inverse
+    real = inline_closurecall.InlineWorker.inline_ir
+    copied = {}
+
+    def spy(self, caller_ir, block, i, callee_ir, freevars, arg_typs=None):
+        copied[callee_ir.func_id.func.__module__] = inline_closurecall.copy is inlining.copy
+        return real(self, caller_ir, block, i, callee_ir, freevars, arg_typs=arg_typs)
+
+    monkeypatch.setattr(inline_closurecall.InlineWorker, "inline_ir", spy)
+
+    @numba.njit(cache=False)
+    def both(x):
+        return _scaled(x, 2.0) + inverse(x)
+
+    assert both(4.0) == 8.25
+    assert copied == {__name__: True, "raykernel.geometry.boxes": False}

@@ -75,10 +75,10 @@ class _Progress:
 
 def cmd_render(args, console) -> int:
     from .atomicfile import check_output_directory
-    from .engine.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, first_run
+    from .geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS
     from .geometry.config import tell_once
     from .rendering.imageio import image_format
-    from .rendering.render import render
+    from .rendering.render import first_run, render
     from .scene import examples
     from .scene.accel import is_auto, parse_spec
     from .scene.loading import load
@@ -132,7 +132,8 @@ def _cluster(args, console):
         yield None
         return
     from .cluster import Cluster
-    from .engine.compiletime import FIRST_RUN_SECONDS, first_run
+    from .geometry.compiletime import FIRST_RUN_SECONDS
+    from .rendering.render import first_run
     with Cluster(args.dask) as cluster:
         console.print(f"Dask: {cluster.workers} worker(s) at {cluster.client.scheduler.address}", markup=False,
                       highlight=False)
@@ -145,9 +146,10 @@ def _cluster(args, console):
 
 
 def cmd_animate(args, console) -> int:
-    from .engine.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, first_run
+    from .geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS
     from .geometry.config import tell_once
     from .rendering.animate import animate
+    from .rendering.render import first_run
     from .scene.accel import parse_spec
     parse_spec(args.accel)
     options = {k: getattr(args, k) for k in ("max_depth", "shading", "shadows", "tricks") if getattr(args, k) is not None}
@@ -179,6 +181,26 @@ def cmd_animate(args, console) -> int:
 def cmd_accels(args, console) -> int:
     from .scene.accel import describe
     console.print(describe(), markup=False, highlight=False)
+    return 0
+
+
+def cmd_cache(args, console) -> int:
+    import shutil
+
+    from .geometry.config import cache_folders, cache_root
+    folders = cache_folders()
+    sizes = [sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()) / 2 ** 20 for folder in folders]
+    if args.clear:
+        for folder in folders:
+            shutil.rmtree(folder, ignore_errors=True)
+        print(f"Removed {len(folders)} kernel cache folder(s), {sum(sizes):.1f} MiB; the next run compiles its "
+              "kernels again.")
+        return 0
+    print(f"raykernel's kernel cache: {cache_root()}")       # paths whole, never wrapped
+    for folder, mib in zip(folders, sizes):
+        print(f"  {folder}  {mib:.1f} MiB")
+    if not folders:
+        print("  (empty: the next run compiles its kernels)")
     return 0
 
 
@@ -413,6 +435,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     a = sub.add_parser("accels", help="list the accelerator kinds with their parameters and defaults")
     a.set_defaults(func=cmd_accels)
+
+    ca = sub.add_parser("cache", help="show where the compiled kernels are cached and how much they take")
+    ca.add_argument("--clear", action="store_true", help="remove every raykernel kernel cache folder (this "
+                    "version's and earlier ones'); the next run compiles again")
+    ca.set_defaults(func=cmd_cache)
 
     s = sub.add_parser("spd", help="write one of Haines's Standard Procedural Databases as NFF")
     s.add_argument("name", help="balls, gears, mount, rings, teapot, tetra, tree, jacks, lattice, shells, "

@@ -190,7 +190,7 @@ class Cluster:
 
     def render(self, scene, progress=None, **options):
         """render(scene, **options) with its tiles traced on the workers; the same image and counters."""
-        from .engine.compiletime import CompileClock
+        from .geometry.compiletime import CompileClock
         from .rendering.render import RenderJob, tune
         options.pop("builder", None)
         scene, options, annealed = tune(scene, options)     # here, once: the workers build what it found

@@ -74,7 +74,7 @@ import numpy as np
 from ..errors import OptionError, SceneError
 from ..geometry import counters as C
 from ..geometry.boxes import INF, box_entry, cull_margin
-from ..engine.compiletime import CompileClock, compile_notice
+from ..geometry.compiletime import CompileClock, compile_notice
 from ..geometry.config import njit
 from ..scene.accel import Kind, Param
 from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push

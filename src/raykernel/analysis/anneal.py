@@ -647,7 +647,7 @@ def anneal(scene: Scene, target: Group | None = None, seconds: float = 30.0, see
     start: a state of an earlier anneal of the same scene's structure (another
     frame; rebind gives it and its `atoms`), with short=True for a short schedule from it.
     log: callable(str) for progress."""
-    from ..engine.compiletime import CompileClock
+    from ..geometry.compiletime import CompileClock
     with CompileClock() as clock:       # compiling (a first run) is not searching: not in the budget
         return _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, accept0, patience, sample,
                        margin, start, short, model, default, log, options, atoms, clock)

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..engine.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock, compile_notice
+from ..geometry.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock, compile_notice
 from ..engine.flatten import BVH, LIST, flatten
 from ..engine.parallel import for_ranges
 from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace

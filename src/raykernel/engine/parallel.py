@@ -26,10 +26,10 @@ import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
+from ..geometry.compiletime import WORKER_PREFIX
 from ..geometry.config import compiled, njit
 
 CHUNKS_PER_THREAD = 8       # ranges per thread: enough for balance, few enough to keep the call overhead small
-WORKER_PREFIX = "raykernel-worker"
 
 
 def default_threads() -> int:

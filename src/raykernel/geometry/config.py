@@ -4,87 +4,51 @@ All kernels share one decorator so that caching, the GIL and fast-math are
 the same everywhere. fastmath stays off: the tests compare structures to
 1e-9 relative, and the counts must not depend on reassociation.
 
-The on-disk cache lives in a directory named after a hash of every kernel
-source file of the package and of every module they import from (whose
-constants, such as the counter columns, a kernel freezes when it compiles).
-numba checks only the file of the function it compiles, so without this a
-kernel would keep running an old copy of a helper it inlines from another
-module (primitives into the traversal).
-The directory is `$NUMBA_CACHE_DIR/raykernel-<hash>` when that variable is
-set, else `<user cache>/raykernel/numba-<hash>`, so an installed,
-read-only package caches too.
+How the cache is keyed: every kernel is cached on disk, in CACHE_DIR, by
+numba, with a locator of raykernel's own (cachekey.py): a cached kernel is
+stale when the *code* of its file, or of any package file that file imports
+from, has changed (constants a kernel freezes when it compiles included),
+and never for a docstring, a comment or a blank line. CACHE_DIR is
+`$NUMBA_CACHE_DIR/raykernel` when that variable is set, else
+`<user cache>/raykernel/numba`, so an installed, read-only package caches
+too; numba keeps each checkout's kernels in a folder of their own below it.
+Nothing here deletes a folder: `raykernel cache --clear` does, when asked.
 """
 
-import contextlib
-import hashlib
 import os
-import re
-import shutil
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numba
 
-from .inlining import skip_inline_copies_when_compiling
+from . import cachekey
+from .inlining import skip_inline_copies
 
 KERNEL_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
-PACKAGE = Path(__file__).resolve().parents[1]   # raykernel/
+PACKAGE = cachekey.PACKAGE
 
 
-# `from .a.b import c, d` and `from . import c`: the modules a kernel file takes names from
-_RELATIVE_IMPORT = re.compile(rb"^from (\.+)([\w.]*) import (?:\(([^)]*)\)|([^\n#]*))", re.M)
-
-
-def _imported(path: Path, package: Path) -> set:
-    """The package's files that `path` imports from (relative imports), modules named in the
-    import list included."""
-    found = set()
-    for dots, name, listed, names in _RELATIVE_IMPORT.findall(path.read_bytes()):
-        names = re.sub(rb"#[^\n]*", b"", listed or names)
-        base = path.parent
-        for _ in range(len(dots) - 1):
-            base = base.parent
-        target = base.joinpath(*name.decode().split(".")) if name else base
-        candidates = [target.with_suffix(".py"), target / "__init__.py"]
-        candidates += [target / f"{n.split()[0]}.py" for n in names.decode().split(",") if n.strip()]
-        found.update(c for c in candidates if c.is_file() and package in c.parents)
-    return found
-
-
-def kernel_source_hash(package: Path = PACKAGE) -> str:
-    """Hash of the package's source files that define compiled kernels or feed them: every
-    file with `njit`, and every file those import from, directly or not (constants such as
-    the counter columns are frozen into a kernel when it compiles)."""
-    files = {p for p in package.rglob("*.py") if b"njit" in p.read_bytes()}
-    todo = list(files)
-    while todo:
-        for dep in _imported(todo.pop(), package) - files:
-            files.add(dep)
-            todo.append(dep)
-    digest = hashlib.sha256()
-    for path in sorted(files):
-        digest.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes())
-    return digest.hexdigest()[:16]
-
-
-def _cache_dir() -> Path:
-    key = kernel_source_hash()
+def cache_root() -> Path:
+    """The folder that holds raykernel's kernel caches (see the module docstring)."""
     if os.environ.get("NUMBA_CACHE_DIR"):
-        return Path(os.environ["NUMBA_CACHE_DIR"]) / f"raykernel-{key}"
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "raykernel"
-    # caches of other source versions are never read again; drop those
-    # unused for a day (a younger one may belong to a process still running)
-    with contextlib.suppress(OSError):
-        for old in base.glob("numba-*"):
-            if old.name != f"numba-{key}" and time.time() - old.stat().st_mtime > 86400:
-                shutil.rmtree(old, ignore_errors=True)
-    return base / f"numba-{key}"
+        return Path(os.environ["NUMBA_CACHE_DIR"]) / "raykernel"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "raykernel" / "numba"
 
 
-CACHE_DIR = str(_cache_dir())
-skip_inline_copies_when_compiling()
+def cache_folders() -> list[Path]:
+    """Every folder of raykernel's kernel caches on this machine's usual places: this version's
+    (cache_root) and those of earlier versions (numba-<hash> and raykernel-<hash> folders)."""
+    user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "raykernel"
+    found = [cache_root(), user / "numba", *user.glob("numba-*")]
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        found += Path(os.environ["NUMBA_CACHE_DIR"]).glob("raykernel-*")
+    return sorted({f for f in found if f.is_dir()})
+
+
+CACHE_DIR = str(cache_root())
+cachekey._CodeLocator.cache_dir = staticmethod(lambda: CACHE_DIR)
+skip_inline_copies()        # for raykernel's own kernels only (inlining.py)
 
 
 def njit(func=None, *, private=False, borrows=False, **kwargs):
@@ -104,16 +68,16 @@ def njit(func=None, *, private=False, borrows=False, **kwargs):
         options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True, _nrt=False)
     elif borrows:
         options.update(_nrt=False)
+    caching = options.pop("cache")
 
     def decorate(f):
-        # numba picks the cache location when a function is decorated; point it
-        # at ours for that moment only, leaving other numba users alone
-        saved = numba.config.CACHE_DIR
-        numba.config.CACHE_DIR = CACHE_DIR
-        try:
-            return numba.njit(**options)(f)
-        finally:
-            numba.config.CACHE_DIR = saved
+        kernel = numba.njit(**options)(f)
+        if caching:
+            try:
+                kernel._cache = cachekey.KernelCache(kernel.py_func)
+            except RuntimeError:        # no writable cache folder: compiled in every process
+                pass
+        return kernel
 
     return decorate(func) if func is not None else decorate
 
@@ -124,13 +88,11 @@ def compiled(kernel) -> bool:
     return bool(getattr(kernel, "signatures", True))
 
 
-def cached(package: str, kernel: str) -> bool:
-    """True when the kernel cache holds `kernel` (e.g. "render._render_tiles") of the
-    subpackage `package` ("rendering") of this checkout (numba keeps a checkout's kernels in
-    <directory name>_<sha1 of its path>)."""
-    folder = Path(__file__).resolve().parents[1] / package
-    where = Path(CACHE_DIR) / f"{package}_{hashlib.sha1(str(folder).encode()).hexdigest()}"
-    return any(where.glob(f"{kernel}-*.nbc"))
+def cached(kernel) -> bool:
+    """True when the kernel cache holds an entry of `kernel` (a dispatcher made by njit) for its
+    current code."""
+    cache = getattr(kernel, "_cache", None)
+    return isinstance(cache, cachekey.KernelCache) and bool(cache._cache_file._load_index())
 
 
 _told = set()

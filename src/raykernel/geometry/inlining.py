@@ -1,7 +1,7 @@
-"""numba's inlining of `inline="always"` functions without its two defensive copies of the callee.
+"""numba's inlining of raykernel's `inline="always"` functions without its two defensive copies.
 
-    from .inlining import skip_inline_copies_when_compiling
-    skip_inline_copies_when_compiling()     # config.py: from numba's first compile on (not on cache loads)
+    from .inlining import skip_inline_copies
+    skip_inline_copies()      # config.py, at import: raykernel's callees only; numba as shipped for any other
 
 Why: a kernel that inlines many small functions (the walk's box and triangle
 tests, the shading) spends much of its first compile copying numba IR. For
@@ -11,16 +11,15 @@ taking a copy of the whole function's scope with it, and copies that copy
 again to return an untouched original that the inlining pass throws away
 (numba issues 8989 and 9204; numba-cuda pull request 689 drops the same
 copies). Here `inline_function`, the pass's only way into `inline_ir`,
-hands over the fresh IR without copying it. The compiled code is the same:
-only copies of objects nothing else holds are skipped. A first render
-compiled in 29.6 s instead of 36.4 s, a first mesh query in 12.3 s instead
-of 17.5 s (bench/startup.py measures it).
+hands the fresh IR of a raykernel function over without copying it. The
+compiled code is the same: only copies of objects nothing else holds are
+skipped (bench/startup.py measures the first compiles).
 
-The change is made at numba's first compile in the process (a start that
-loads every kernel from the cache never reads numba's inliner), only where
-numba's code has the shape it was written against (checked on its source);
-anywhere else numba runs as shipped. RAYKERNEL_NUMBA_AS_SHIPPED=1 leaves
-numba alone as well.
+Only raykernel's own callees take this path: any other function, in any
+other numba code of the process, is inlined by numba's own method, called
+as it is. The change is made only where numba's code has the shape it was
+written against (checked on its source); anywhere else numba runs as
+shipped. RAYKERNEL_NUMBA_AS_SHIPPED=1 leaves numba alone as well.
 """
 
 from __future__ import annotations
@@ -29,10 +28,10 @@ import copy
 import inspect
 import os
 
-from numba.core import event, ir
+from numba.core import ir
 
 _applied = False
-_listening = False
+OURS = __name__.split(".", 1)[0] + "."     # raykernel.: the modules whose functions take the short path
 
 
 class _BlocksAsGiven:
@@ -68,7 +67,11 @@ def skip_inline_copies() -> bool:
     if not _expected_shape(module):
         return False
 
+    shipped = module.InlineWorker.inline_function
+
     def inline_function(self, caller_ir, block, i, function, arg_typs=None):
+        if not getattr(function, "__module__", "").startswith(OURS):
+            return shipped(self, caller_ir, block, i, function, arg_typs)
         callee_ir = self.run_untyped_passes(function)      # built for this call site alone
         # numba compiles under one global lock, so no other compile sees the stand-in
         module.copy = _BlocksAsGiven
@@ -82,21 +85,3 @@ def skip_inline_copies() -> bool:
     module.InlineWorker.inline_function = inline_function
     _applied = True
     return True
-
-
-class _FirstCompile(event.Listener):
-    """Makes the change as a compile starts (under numba's compile lock)."""
-
-    def on_start(self, ev):
-        skip_inline_copies()
-
-    def on_end(self, ev):
-        pass
-
-
-def skip_inline_copies_when_compiling() -> None:
-    """skip_inline_copies as numba starts its first compile in this process."""
-    global _listening
-    if not _listening:
-        event.register("numba:compile", _FirstCompile())
-        _listening = True

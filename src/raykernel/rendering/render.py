@@ -39,14 +39,14 @@ import numba
 import numpy as np
 
 from ..aggregates.lazyoctree import pass_ranges
-from ..engine.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, CompileClock, compile_notice, typing_setup
+from ..geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, CompileClock, compile_notice, typing_setup
 from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..engine.widewalk import count_misses, with_driver
 from ..errors import OptionError
 from ..geometry import counters as C
-from ..geometry.config import compiled, njit
+from ..geometry.config import cached, compiled, njit
 from ..geometry.primitives import normalize
 from ..scene.model import Scene
 from . import heckbert
@@ -101,6 +101,11 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
             passes[tile - row0, k] = cnt[C.N_COUNTERS + k]
         finished(counter)
 
+
+
+def first_run() -> bool:
+    """True when the kernel cache holds no render kernel for this checkout's code yet."""
+    return not cached(_render_tiles)
 
 @njit(inline="always")
 def _skipped(i, j, x0, y0, coarse):

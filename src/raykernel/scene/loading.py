@@ -17,7 +17,7 @@ def load(source) -> Scene:
     """A Scene from a .nff or .json path, `spd:NAME[:SIZE]`, `scene:NAME` or `example:NAME`;
     its parse_seconds say how long that took (a render reports them as time.parse), less the
     kernels' compiling and loading on a first call (its compile_seconds and load_seconds)."""
-    from ..engine.compiletime import CompileClock, compile_notice, typing_setup
+    from ..geometry.compiletime import CompileClock, compile_notice, typing_setup
     setup = typing_setup()      # numba's, on a process's first kernel call
     t0 = time.perf_counter()
     notice = compile_notice("reader", "compiling the scene reader's kernel (once per install)")

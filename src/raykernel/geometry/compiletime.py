@@ -4,7 +4,6 @@
         kernel(...)                     # may compile first, or load from the cache
     clock.seconds                       # of the time inside, spent compiling (say() ran if over a second)
     clock.loading                       # spent loading compiled kernels from the cache
-    first_run()                         # True when this install's kernels are not yet in the cache
     typing_setup()                      # seconds numba's first argument typing took (0 after the first call)
 
 A render or query subtracts both from its trace time and reports them as
@@ -26,8 +25,10 @@ import numba
 import numpy as np
 from numba.core import entrypoints, event
 
-from ..geometry.config import cached, tell_once
-from .parallel import WORKER_PREFIX
+from .config import tell_once
+
+# the name of the threads parallel.for_ranges and on_threads run kernels on: their compiles are the caller's
+WORKER_PREFIX = "raykernel-worker"
 
 # about how long a first compile takes on a 2-core machine (bench/startup.py), for the notices
 FIRST_RUN_SECONDS = 20      # a first render of a scene that is one BVH (every SPD scene); other structures 35 s
@@ -146,8 +147,3 @@ def typing_setup() -> float:
     numba.typeof(np.zeros((1, 3)))
     _typing_ready.set()
     return time.perf_counter() - start
-
-
-def first_run() -> bool:
-    """True when the kernel cache holds no render kernel of this source version and checkout yet."""
-    return not cached("rendering", "render._render_tiles")
