@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from raykernel.engine.incremental import Hierarchy, sah_cost
+from raykernel.aggregates.bvh import sah_cost
+from raykernel.engine.incremental import Hierarchy
 from raykernel.errors import OptionError, SceneError
 from raykernel.rendering.animate import RECORD_FILE, animate
 from raykernel.rendering.render import render

@@ -17,6 +17,7 @@ from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
 from raykernel.scene.jsonscene import read_json
 from raykernel.scene.model import Group, Instance, Scene, TriangleMesh
+from raykernel.scene.specs import without_specs
 
 SMALL = dict(resolution=16, spd=True, threads=1)
 
@@ -182,7 +183,7 @@ def test_a_single_kind_found_keeps_the_scene_s_own_layout():
     found = anneal.anneal(scene, seed=0, evaluations=len(anneal.START_SPECS + anneal.START_VARIANTS),
                           options=SMALL)
     assert not found.state.children
-    single = anneal.without_specs(scene)
+    single = without_specs(scene)
     ref = raykernel.render(single, accel=found.state.spec, **SMALL)
     got = raykernel.render(found.scene, **SMALL)
     assert {k: v for k, v in got.stats.items() if not k.startswith(("time.", "build.seconds"))} == \
@@ -221,7 +222,7 @@ def test_a_hierarchy_predicted_only_a_little_faster_gives_way_to_the_best_kind()
     assert held.state.spec == best_kind and not held.state.children
     assert held.summary()["kept"] == best_kind
     got = raykernel.render(held.scene, **SMALL).stats
-    ref = raykernel.render(anneal.without_specs(scene), accel=best_kind, **SMALL).stats
+    ref = raykernel.render(without_specs(scene), accel=best_kind, **SMALL).stats
     assert got["tests.total"] == ref["tests.total"] and got["bounds.tests"] == ref["bounds.tests"]
 
 

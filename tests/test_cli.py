@@ -15,7 +15,7 @@ import pytest
 from PIL import Image
 
 from raykernel.cli import main
-from raykernel.scene import accel
+from raykernel.aggregates import registry as accel
 
 RAYKERNEL = Path(sys.executable).parent / "raykernel"
 render_module = importlib.import_module("raykernel.rendering.render")   # the package re-exports the function under the same name

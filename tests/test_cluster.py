@@ -16,7 +16,7 @@ from raykernel.analysis.compare import compare  # noqa: E402
 from raykernel.cluster import Cluster  # noqa: E402
 from raykernel.errors import OptionError  # noqa: E402
 from raykernel.rendering.animate import animate  # noqa: E402
-from raykernel.rendering.render import render  # noqa: E402
+from raykernel.analysis.auto import render  # noqa: E402
 from raykernel.scene.loading import load  # noqa: E402
 
 # figures that are the machine's, not the work's

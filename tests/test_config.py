@@ -191,7 +191,7 @@ def test_the_kernels_inner_loops_count_no_references():
                 traverse.walk, widewalk._walk_wide, whitted.trace, heckbert.trace, hall.trace, tricks.test_ref, tricks.list_hint,
                 startlists.start_list,
                 sampling._render_tile, render._render_tile, render._missed_tile,
-                rayscene._cast, meshcast._chunk, meshcast._chunk4, bvh.step, grid.step, rc.step,
+                rayscene._cast, meshcast._chunk, meshcast._chunk4, bvh.descend, grid.dda, rc.classify,
                 csg.start, collect.record, csg.resolve, octree._parametric, octree._point_walk, transforms.map_ray]
     for kernel in per_item:
         assert kernel.targetoptions.get("_nrt") is False, kernel.py_func.__qualname__

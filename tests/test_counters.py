@@ -13,6 +13,9 @@ import reference as ref
 import raykernel
 from raykernel import RayScene, Scene
 from raykernel.analysis import costmodel
+from raykernel.aggregates import rc as rc_module
+from raykernel.aggregates.bvh import walked_wide
+from raykernel.aggregates.registry import COUNTER_NAMES
 from raykernel.geometry import counters as C
 from raykernel.geometry import polybands
 
@@ -39,7 +42,7 @@ def _stats(scene, accel, origins, directions):
     """Every counter of one query (last_stats leaves out those that stayed 0)."""
     rs = RayScene(scene, accel)
     rs.intersect(origins, directions)
-    return {name: rs.last_stats.get(name, 0) for name in list(C.NAMES.values()) + ["rays.cast"]}
+    return {name: rs.last_stats.get(name, 0) for name in list(COUNTER_NAMES.values()) + ["rays.cast"]}
 
 
 @pytest.mark.parametrize("n", [12, 38])
@@ -96,7 +99,7 @@ def test_the_cost_model_prices_corners_hits_mailboxes_leaves_and_lazy_rays():
     assert f["hit.polygon"] == eager["hits.polygon"] > 0
     assert f["mailbox"] == eager["mailbox.saved"] and f["leaf"] == eager["cells.leaves"] > 0
     assert not any(name.startswith(("ray.lazy", "pass.lazy")) for name in f)
-    assert not costmodel.walked_wide(eager) and "test.polygon.wide" not in f
+    assert not walked_wide(eager) and "test.polygon.wide" not in f
     # a grid's entries and bound tests: one a ray at most, the rest priced apart
     rays = f["ray.shaded"] + f["ray.shadow"]
     for what, counter in (("entry", "walk.grid.entries"), ("bound", "walk.grid.bounds")):
@@ -116,7 +119,7 @@ def test_the_cost_model_prices_corners_hits_mailboxes_leaves_and_lazy_rays():
     assert rc["ray.lazy.rc"] == rc["ray.shaded"] + rc["ray.shadow"] and rc["ray.lazy.rc_mb"] > 0
     # tests from rc's candidate lists and its refinement's references by size are priced apart
     assert rc["test.rc"] + rc["test.rc.more"] == rc_stats["tests.total"] > 0
-    assert 0 < rc["test.rc"] <= costmodel.RC_TESTS_PER_STEP * rc_stats["walk.rc.steps"] and rc["test.rc.more"] >= 0
+    assert 0 < rc["test.rc"] <= rc_module.TESTS_PER_STEP * rc_stats["walk.rc.steps"] and rc["test.rc.more"] >= 0
     assert rc["polygon.corner.rc"] == rc_stats["polygon.corners"]
     (agg,) = rc_stats.aggregates
     assert agg["refs"] > 0 and rc["refine.rc.ref_size"] == pytest.approx(agg["refs"] * agg["bytes"] / 2 ** 20)
@@ -124,13 +127,13 @@ def test_the_cost_model_prices_corners_hits_mailboxes_leaves_and_lazy_rays():
     # a scene that is one BVH takes the 4-wide walk, priced apart; with eager normals it does not
     wide = raykernel.render(scene, accel="bvh", resolution=24, spd=True).stats
     w = costmodel.features(wide)
-    assert costmodel.walked_wide(wide) and costmodel.walks_used(wide) == {"wide"}
+    assert walked_wide(wide) and costmodel.walks_used(wide) == {"wide"}
     assert w["test.polygon.wide"] == wide["tests.polygon"] > 0 and "test.polygon" not in w
     assert w["step.wide"] == wide["walk.bvh.steps"] > 0 and "step.bvh" not in w
     eager_bvh = raykernel.render(scene, accel="bvh", resolution=24, spd=True, tricks="closest").stats
-    assert not costmodel.walked_wide(eager_bvh) and costmodel.features(eager_bvh)["step.bvh"] > 0
+    assert not walked_wide(eager_bvh) and costmodel.features(eager_bvh)["step.bvh"] > 0
     binary = raykernel.render(scene, accel="bvh(width=2)", resolution=24, spd=True).stats
-    assert not costmodel.walked_wide(binary) and costmodel.walks_used(binary) == {"bvh"}
+    assert not walked_wide(binary) and costmodel.walks_used(binary) == {"bvh"}
     model = costmodel.CostModel.load(costmodel.REFERENCE_PATH)
     assert model.costs["polygon.corner"] > 0 and model.predict(eager) > 0
 

@@ -20,6 +20,7 @@ from raykernel.casting.rayscene import RayScene
 from raykernel.engine.flatten import flatten
 from raykernel.errors import OptionError, SceneError
 from raykernel.aggregates import csg
+from raykernel.aggregates.registry import COUNTER_NAMES
 from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance, Material, Scene, TriangleMesh
 from raykernel.scene.jsonscene import scene_from_json, scene_to_json
@@ -407,4 +408,4 @@ def test_the_example_scene_renders():
     img = r.to_uint8()
     assert img.std() > 10
     n = raykernel.render(raykernel.load("examples/csg.json"), resolution=48, threads=1)
-    assert n.image.tobytes() == r.image.tobytes() and C.NAMES[csg.SURFACES] == "csg.surfaces" and "csg.surfaces" in n.stats
+    assert n.image.tobytes() == r.image.tobytes() and COUNTER_NAMES[csg.SURFACES] == "csg.surfaces" and "csg.surfaces" in n.stats

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import add_sphere, make_scene, work_counts
+from support import add_sphere, make_scene, work_counts
 
 import raykernel
 from raykernel.geometry.boxes import INF, box_entry, inverse

@@ -7,12 +7,13 @@ import pytest
 
 import raykernel
 from raykernel.aggregates.grid import build_grid, grid_resolution
-from raykernel.engine.flatten import GRID, flatten
+from raykernel.aggregates.grid import CODE as GRID
+from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError, SceneError
 from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance, Scene, TriangleMesh
-from raykernel.scene.accel import parse_spec
+from raykernel.aggregates.registry import parse_spec
 
 GRID_SPECS = ["grid", "grid(mailbox=off)", "grid(res=woo)", "grid(res=woo, mailbox=off)",
               "grid(density=0.25)", "grid(density=8, max_res=7)", "grid(res=klimaszewski)",

@@ -9,11 +9,12 @@ import pytest
 
 from raykernel.aggregates.bvh import BVHArrays, build_bvh, is_leaf
 from raykernel.aggregates.gsbvh import MAX_DEPTH, ORDERS, build_gs, insertion_order, morton_codes
-from raykernel.engine.flatten import BVH, flatten
+from raykernel.aggregates.bvh import CODE as BVH
+from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
 from raykernel.scene import Group, Material, Scene, TriangleMesh
-from raykernel.scene.accel import parse_spec
+from raykernel.aggregates.registry import parse_spec
 
 EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
 

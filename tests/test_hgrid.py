@@ -7,12 +7,14 @@ import pytest
 
 from raykernel.aggregates.grid import build_grid
 from raykernel.aggregates.hgrid import clipped_bounds, dense_cells, replace_cells
-from raykernel.engine.flatten import GRID, MAX_NESTING, flatten
+from raykernel.aggregates.grid import CODE as GRID
+from raykernel.aggregates.walk import MAX_NESTING
+from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError, SceneError
 from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance, Material, Scene, TriangleMesh
-from raykernel.scene.accel import parse_spec
+from raykernel.aggregates.registry import parse_spec
 
 
 def new_scene() -> Scene:

@@ -6,20 +6,23 @@ import copy
 
 import numpy as np
 import pytest
-from conftest import ray_counts
+from support import ray_counts
 from test_grid import assert_same_hits, cast, fill_group, new_scene, random_rays
 
 import raykernel
 from raykernel.aggregates.hybrid import clip_margin, clipped_bounds, problem_voxels, replace_leaves
 from raykernel.aggregates.octree import build_octree
 from raykernel.casting.rayscene import RayScene
-from raykernel.engine.flatten import BVH, MAX_NESTING, OCTREE, flatten
+from raykernel.aggregates.bvh import CODE as BVH
+from raykernel.aggregates.walk import MAX_NESTING
+from raykernel.aggregates.octree import CODE as OCTREE
+from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError, SceneError
 from raykernel.geometry import counters as C
 from raykernel.geometry.primitives import AGGREGATE, INDEX_MASK, KIND_SHIFT, POLYGON, SPHERE
 from raykernel.scene import Group, pathological
-from raykernel.scene.accel import describe, parse_spec
+from raykernel.aggregates.registry import describe, parse_spec
 from raykernel.scene.jsonscene import scene_from_json
 
 WALKS = ("point", "neighbor", "parametric")

@@ -19,7 +19,8 @@ import pytest
 import reference as ref
 
 from raykernel import Group, Instance, Scene, SceneError, TriangleMesh
-from raykernel.engine.flatten import MAX_NESTING, Geometry, flatten
+from raykernel.aggregates.walk import MAX_NESTING
+from raykernel.engine.flatten import Geometry, flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.geometry import counters as C
 from raykernel.geometry.primitives import CONE, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE

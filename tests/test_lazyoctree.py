@@ -9,23 +9,25 @@ import importlib
 
 import numpy as np
 import pytest
-from conftest import ray_counts
+from support import ray_counts
 from test_grid import assert_same_hits, fill_group, nested_scene, new_scene, random_rays, rotation_scale
 from test_pathological import child, points
 
 import raykernel
 from raykernel import RayScene
 from raykernel.aggregates import lazyoctree
-from raykernel.aggregates.lazyoctree import PASS_CHUNKS, build_lazy, pass_ranges
+from raykernel.aggregates.lazyoctree import build_lazy
+from raykernel.aggregates.lazyset import PASS_CHUNKS, pass_ranges
 from raykernel.aggregates.octree import ADDRESS_BITS, BUDGET_SLACK
 from raykernel.casting.rayscene import CHUNK, coarse_to_fine
-from raykernel.engine.flatten import OCTREE, flatten
+from raykernel.aggregates.octree import CODE as OCTREE
+from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
 from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance
 from raykernel.scene import pathological as P
-from raykernel.scene.accel import describe, parse_spec
+from raykernel.aggregates.registry import describe, parse_spec
 
 WALKS = ("point", "neighbor", "parametric")
 PASS = PASS_CHUNKS * CHUNK          # rays of RayScene's longest pass (8192)
@@ -463,7 +465,7 @@ def test_nested_and_instanced_match_list(outer, inner, instanced):
     rs = same_hits_as_list(scene, "bvh", o, d, repeats=2, plain=plain)
     aggs = rs.build_stats["aggregates"]
     lazy = [a for a in aggs if a["kind"].startswith("lazyoctree")]
-    assert lazy and len(lazy) == len(lazy_of(rs).records)
+    assert lazy and len(lazy) == len(lazy_of(rs).parts[0].records)
     # nested ones refine too (every inner lazy octree here gets plenty of rays)
     assert all(a["subdivisions"] > 0 for a in lazy if "rays=1" in a["kind"])
     assert rs.build_stats["build.subdivisions"] == sum(a["subdivisions"] for a in lazy)

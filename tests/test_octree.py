@@ -17,12 +17,13 @@ from test_grid import (
 )
 
 from raykernel.aggregates.octree import ADDRESS_BITS, build_octree
-from raykernel.engine.flatten import OCTREE, flatten
+from raykernel.aggregates.octree import CODE as OCTREE
+from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
 from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance
-from raykernel.scene.accel import parse_spec
+from raykernel.aggregates.registry import parse_spec
 
 WALKS = ("point", "neighbor", "parametric")
 CRITERIA = ["", "collapse=off", "mailbox=off", "rule60=on", "density=0.3", "vertexcount=on, leaf=8",

@@ -11,7 +11,7 @@ import pytest
 import raykernel
 from raykernel.aggregates.bvh import BVHArrays, build_bvh
 from raykernel.aggregates.presplit import leaves_of_items, split_boxes
-from raykernel.analysis.anneal import without_specs
+from raykernel.scene.specs import without_specs
 from raykernel.errors import OptionError
 
 

@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import ray_counts
+from support import ray_counts
 from test_grid import (
     assert_same_hits,
     axis_and_boundary_rays,
@@ -22,15 +22,16 @@ from test_lazyoctree import same_hits_as_list
 
 import raykernel
 from raykernel import RayScene
-from raykernel.aggregates.lazyoctree import PASS_CHUNKS
-from raykernel.aggregates.rc import NODE_BYTES, VIRTUAL_LEVELS, RcBudgetWarning, build_rc, face_of, meets_beam, start_rc
+from raykernel.aggregates.lazyset import PASS_CHUNKS
+from raykernel.aggregates.rc import NODE_BYTES, LazyRC, VIRTUAL_LEVELS, RcBudgetWarning, build_rc, face_of, meets_beam, start_rc
 from raykernel.casting.rayscene import CHUNK
-from raykernel.engine.flatten import RC, flatten
+from raykernel.aggregates.rc import CODE as RC
+from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
 from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance
-from raykernel.scene.accel import parse_spec
+from raykernel.aggregates.registry import parse_spec
 
 # lazy (the default) and eager alike
 RC_SPECS = ["rc", "rc(lazy=off)", "rc(leaf=2, depth=30)", "rc(leaf=2, depth=30, lazy=off)", "rc(leaf=1, depth=6, rays=3)",
@@ -156,12 +157,12 @@ def test_flatten_stores_rc_and_reports_stats(spec):
     agg = stats["aggregates"][0]
     assert agg["kind"] == spec
     assert stats["build.nodes"] == agg["nodes"] == len(geo.rc_node_a) == len(geo.rc_pass)
-    assert stats["build.refs"] == agg["refs"] == len(geo.rc_key) == len(geo.rc_ref)
+    assert stats["build.refs"] == agg["refs"] == len(geo.keyed_key) == len(geo.keyed_ref)
     assert agg["empty_leaves"] == stats["build.empty_leaves"]
     assert agg["bytes"] > 0 and agg["seconds"] >= 0
     # the candidates are the tagged references of the group's primitives, as the list holds them
     listed, _ = flatten(scene, default_accel="list")
-    assert set(geo.rc_ref.tolist()) == set(listed.refs.tolist()) and len(listed.refs) == agg["items"]
+    assert set(geo.keyed_ref.tolist()) == set(listed.refs.tolist()) and len(listed.refs) == agg["items"]
 
 
 @pytest.mark.parametrize("spec, allowed", [("rc(leaf=0)", "leaf"), ("rc(depth=-1)", "depth"),
@@ -189,7 +190,7 @@ def test_bad_builder_arguments_are_option_errors():
 
 
 def test_rc_is_listed_with_its_help():
-    text = raykernel.scene.accel.describe()
+    text = raykernel.aggregates.registry.describe()
     assert "rc: ray classification" in text and "budget_mb=256.0" in text
     assert "lazy=on" in text and "rays=1" in text
     assert parse_spec("rc") == ("rc", {"leaf": 8, "depth": 40, "budget_mb": 256.0, "lazy": True, "rays": 1})
@@ -392,7 +393,7 @@ def tree_of(geo, box, rc=0):
             if geo.rc_node_b[node] < 0:
                 todo += [(int(geo.rc_node_a[node]), k + 1), (int(geo.rc_node_a[node]) + 1, k + 1)]
     return SimpleNamespace(box=box, face_root=geo.rc_face_root[rc], node_a=geo.rc_node_a, node_b=geo.rc_node_b,
-                           split=geo.rc_split, items=geo.rc_ref & INDEX_MASK, keys=geo.rc_key, depth=depth)
+                           split=geo.rc_split, items=geo.keyed_ref & INDEX_MASK, keys=geo.keyed_key, depth=depth)
 
 
 def root_box(bounds):
@@ -430,8 +431,8 @@ def test_lazy_trees_start_as_six_root_leaves():
     assert len(geo.rc_node_a) == 6 and np.all(geo.rc_node_b[roots] == 40)
     for f in range(6):
         s = geo.rc_node_a[roots[f]]
-        assert sorted(geo.rc_ref[s:s + 40].tolist()) == list(range(40))     # sphere refs: kind 0, index
-        assert np.all(np.diff(geo.rc_key[s:s + 40]) >= 0)
+        assert sorted(geo.keyed_ref[s:s + 40].tolist()) == list(range(40))     # sphere refs: kind 0, index
+        assert np.all(np.diff(geo.keyed_key[s:s + 40]) >= 0)
     # every root may split and looks VIRTUAL_LEVELS levels deep: 2**5 columns each
     assert np.array_equal(geo.rc_pass[roots], np.arange(6))
     assert build["lazy"].columns == 6 * 2 ** VIRTUAL_LEVELS
@@ -488,7 +489,7 @@ def test_rays_along_plus_x_leave_the_other_faces_unsplit():
 
 
 def lazy_rc(build):
-    return build["lazy"].rc
+    return next(part for part in build["lazy"].parts if isinstance(part, LazyRC))
 
 
 def lazy_of(rs):
@@ -616,7 +617,7 @@ def test_lazy_stats_describe_the_grown_trees():
     assert agg["passes"] == rs.build_stats["build.refine_passes"] == 3 * len(lazy_of(rs).ranges(3000, CHUNK))
     assert rs.build_stats["build.bytes"] == sum(a.nbytes for a in rs.geo if isinstance(a, np.ndarray))
     # split leaves' old lists are dropped once they outnumber the live ones
-    assert agg["refs"] <= len(rs.geo.rc_key) <= 2 * agg["refs"]
+    assert agg["refs"] <= len(rs.geo.keyed_key) <= 2 * agg["refs"]
 
 
 @pytest.mark.parametrize("outer, inner, instanced", [

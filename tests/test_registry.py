@@ -1,20 +1,40 @@
-"""The aggregate registry, stack-entry tags and the accelerator spec parser."""
+"""The registry (aggregates/registry.py): kinds and walks declared once, the columns and fields
+derived from them, stack-entry tags, and the accelerator spec parser."""
+
+import dataclasses
+import random
 
 import numpy as np
 import pytest
 
-from raykernel.aggregates import WALKS
-from raykernel.aggregates.walk import STEP_BITS, entry_kind, entry_step, entry_tag
-from raykernel.engine.flatten import AGGREGATE_FIELDS, PRIMITIVE_FIELDS, WIDE_FIELDS, Geometry
+import raykernel
+from raykernel.aggregates import registry as accel
+from raykernel.aggregates.spec import Kind, Param
+from raykernel.aggregates.walk import STEP_BITS, Walk, entry_kind, entry_step, entry_tag
+from raykernel.engine.flatten import flatten
 from raykernel.errors import OptionError
-from raykernel.scene import accel
+from raykernel.geometry import counters as C
 
 
-def test_walk_codes_are_unique_and_dense():
-    assert sorted(w.CODE for w in WALKS) == list(range(len(WALKS)))
+def test_walk_codes_must_be_dense_and_unique():
+    bvh = accel.KINDS["bvh"]
+    clash = dataclasses.replace(bvh, name="other", walk=Walk(code=bvh.walk.code, name="other"))
+    with pytest.raises(ImportError, match="codes"):
+        accel.walks_of({**accel.KINDS, "other": clash})
+    gap = dataclasses.replace(bvh, name="other", walk=Walk(code=len(accel.WALKS) + 1, name="other"))
+    with pytest.raises(ImportError, match="codes"):
+        accel.walks_of({**accel.KINDS, "other": gap})
+    assert [w.code for w in accel.walks_of(accel.KINDS)] == list(range(len(accel.WALKS)))
 
 
-@pytest.mark.parametrize("kind", range(len(WALKS)))
+def test_a_kind_name_declared_twice_is_refused():
+    class Twice:
+        KINDS = (accel.KINDS["bvh"], accel.KINDS["bvh"])
+    with pytest.raises(ImportError, match="twice"):
+        accel.kinds_of([Twice])
+
+
+@pytest.mark.parametrize("kind", range(len(accel.WALKS)))
 def test_entry_tags_decode_to_kind_and_step(kind):
     seen = set()
     for step in range(1 << STEP_BITS):
@@ -25,24 +45,29 @@ def test_entry_tags_decode_to_kind_and_step(kind):
     assert len(seen) == 1 << STEP_BITS
 
 
-def test_tags_of_different_kinds_never_collide():
-    tags = [entry_tag(k, s) for k in range(len(WALKS)) for s in range(1 << STEP_BITS)]
-    assert len(set(tags)) == len(tags)
+def test_counter_columns_do_not_depend_on_the_order_walks_are_named_in():
+    walks = [(w.code, w.name, [n for n, _ in w.counters]) for w in accel.WALKS]
+    shuffled = walks[:]
+    random.Random(1).shuffle(shuffled)
+    assert C.names(shuffled) == C.names(walks) == accel.COUNTER_NAMES
+    names = list(accel.COUNTER_NAMES.values())
+    assert len(names) == len(set(names)) and max(accel.COUNTER_NAMES) < C.N_COUNTERS
+    with pytest.raises(ImportError, match="named twice"):
+        C.names(walks + [(len(walks), "toy", ["rays.eye"])])
+    with pytest.raises(ImportError, match="at most"):
+        C.own_columns(0, C.OWN_PER_WALK + 1)
 
 
-def test_geometry_holds_every_field_once():
-    names = list(PRIMITIVE_FIELDS) + [f.name for f in AGGREGATE_FIELDS] + list(WIDE_FIELDS)
-    assert len(names) == len(set(names))
-    assert list(Geometry._fields) == names + ["root"]
-    for w in WALKS:
-        for f in w.FIELDS:
-            assert f.name in Geometry._fields
-
-
-def test_every_kind_can_be_built():
-    for name, kind in accel.KINDS.items():
-        assert callable(kind.flatten), name
-        assert name in accel.describe()
+@pytest.mark.parametrize("name", [n for n, k in accel.KINDS.items() if not k.operands])
+def test_every_kind_fills_its_walks_fields_and_counts_into_its_own_columns(name):
+    scene = raykernel.load("spd:balls:1")
+    geo, build = flatten(scene, name)
+    walk = accel.KINDS[name].walk
+    for f in walk.fields:
+        assert len(getattr(geo, f.name)), f.name
+    assert set(int(k) for k in geo.agg_kind) <= {w.code for w in accel.WALKS}
+    stats = raykernel.render(scene, accel=name, resolution=8, spd=True).stats
+    assert stats[f"walk.{walk.name}.entries"] > 0
 
 
 def test_spec_key_given_twice_is_an_error():
@@ -58,46 +83,19 @@ def test_bad_spec_error_lists_every_kind(spec):
         assert name in str(err.value)
 
 
-def test_register_twice_is_refused():
-    with pytest.raises(ValueError, match="twice"):
-        accel.register(accel.KINDS["bvh"])
-
-
 def test_format_spec_round_trips():
     for name in accel.KINDS:
         kind, params = accel.parse_spec(name)
         assert accel.parse_spec(accel.format_spec(kind, params)) == (kind, params)
     assert np.all([accel.format_spec(*accel.parse_spec(n)) == n for n in accel.KINDS])
-
-
-def test_walks_own_counters_have_columns_and_names_of_their_own():
-    from raykernel.aggregates import WALK_COUNTERS, csg
-    from raykernel.geometry import counters as C
-    named = list(C.NAMES.values())
-    assert len(named) == len(set(named))
-    assert max(k for k in C.NAMES if k < C.WALK_OWN) < C.WALK_OWN
-    own = {C.NAMES[k] for k in C.NAMES if k >= C.WALK_OWN}
-    assert own == {name for name, _ in WALK_COUNTERS}
-    assert [C.NAMES[k] for k in (csg.CROSSINGS, csg.RESOLVES, csg.SURFACES)] == [n for n, _ in csg.COUNTERS]
-    assert all(C.WALK_OWN <= k < C.N_COUNTERS for k in (csg.CROSSINGS, csg.RESOLVES, csg.SURFACES))
-
-
-def test_claiming_more_counters_than_there_are_columns_is_an_error(monkeypatch):
-    from raykernel.geometry import counters as C
-    monkeypatch.setattr(C, "_next_own", [C.N_COUNTERS - 1])
-    monkeypatch.setattr(C, "NAMES", dict(C.NAMES))
-    with pytest.raises(ImportError, match="named twice"):
-        C.claim(["rays.eye"])
-    with pytest.raises(ImportError, match="no room"):
-        C.claim(["toy.a", "toy.b"])
-    assert C.claim(["toy.a"]) == (C.N_COUNTERS - 1,) and C.NAMES[C.N_COUNTERS - 1] == "toy.a"
+    assert accel.format_spec(*accel.parse_spec("bvh(leaf=2, bins=16)")) == "bvh(leaf=2)"
 
 
 def test_a_walks_own_counters_reach_the_stats_table_and_the_cost_model():
     from raykernel.aggregates import csg
     from raykernel.analysis.costmodel import features
-    from raykernel.geometry import counters as C
     from raykernel.rendering.stats import Stats
+    assert all(C.WALK_OWN <= k < C.N_COUNTERS for k in (csg.CROSSINGS, csg.RESOLVES, csg.SURFACES))
     totals = np.zeros(C.N_COUNTERS, np.int64)
     totals[C.RAYS_EYE] = 10
     totals[csg.CROSSINGS], totals[csg.RESOLVES], totals[csg.SURFACES] = 12, 4, 6
@@ -115,9 +113,9 @@ def test_an_operator_kind_registered_is_a_json_item_of_its_own(monkeypatch):
     # a kind's JSON item comes from its Kind alone: lists, spec from their lengths, operand limit
     from raykernel.errors import SceneError
     from raykernel.scene.jsonscene import scene_from_json
-    toy = accel.Kind("toyop", "a test operator", (accel.Param("first", 1, "operands in the first list", int, 0, 9),),
-                     operands=True, operand_lists=("left", "right"), max_operands=3,
-                     operand_spec=lambda counts: f"toyop(first={counts['left']})")
+    toy = Kind("toyop", "a test operator", (Param("first", 1, "operands in the first list", int, 0, 9),),
+               operands=True, operand_lists=("left", "right"), max_operands=3,
+               operand_spec=lambda counts: f"toyop(first={counts['left']})")
     monkeypatch.setitem(accel.KINDS, "toyop", toy)
     ball = {"sphere": {"center": [0, 0, 0], "radius": 1}}
     doc = {"scene": {"items": [{"toyop": {"left": [ball, ball], "right": [ball]}}]}}
@@ -131,20 +129,3 @@ def test_an_operator_kind_registered_is_a_json_item_of_its_own(monkeypatch):
     monkeypatch.delitem(accel.KINDS, "toyop")
     with pytest.raises(SceneError, match="toyop"):
         scene_from_json({"scene": {"items": [{"toyop": {"left": [ball], "right": []}}]}})
-
-
-def test_the_csg_kinds_need_their_module_and_two_other_files():
-    # adding a kind takes its module plus at most three small edits elsewhere (docs/adding-a-kind.md):
-    # the CSG kinds' code is named outside csg.py only by the registry and the driver
-    import io
-    import tokenize
-    from pathlib import Path
-
-    import raykernel
-    package = Path(raykernel.__file__).parent
-    naming = set()
-    for path in package.rglob("*.py"):
-        tokens = tokenize.generate_tokens(io.StringIO(path.read_text()).readline)
-        if any(t.type == tokenize.NAME and (t.string == "csg" or t.string.startswith("csg_")) for t in tokens):
-            naming.add(path.relative_to(package).as_posix())
-    assert naming == {"aggregates/csg.py", "aggregates/__init__.py", "engine/traverse.py"}

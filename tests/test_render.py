@@ -11,7 +11,7 @@ import textwrap
 import numba
 import numpy as np
 import pytest
-from conftest import add_sphere, add_square, make_scene, ray_counts, work_counts
+from support import add_sphere, add_square, make_scene, ray_counts, work_counts
 
 from raykernel import OptionError, load, render
 from raykernel.scene import Polygons
@@ -583,7 +583,7 @@ def test_sf1_list_is_complete(spd_dir):
 
 @pytest.mark.parametrize("options", [
     {"max_depth": 0}, {"max_depth": 33}, {"max_depth": 2.0}, {"resolution": 0}, {"resolution": -3},
-    {"threads": 0}, {"accel": "kdtree"}, {"accel": "bvh(leaf=0)"}, {"accel": "bvh(depth=3)"},
+    {"threads": 0}, {"accel": "bsptree"}, {"accel": "bvh(leaf=0)"}, {"accel": "bvh(depth=3)"},
     {"accel": "bvh(leaf=4"},
 ], ids=repr)
 def test_bad_options_raise_option_error(options):

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from conftest import work_counts
+from support import work_counts
 
 from raykernel.errors import OptionError
 from raykernel.rendering.render import render

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import work_counts
+from support import work_counts
 
 from raykernel.errors import OptionError
 from raykernel.rendering.hall import fresnel, weights

@@ -5,12 +5,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ray_counts
+from support import ray_counts
 
 from raykernel.errors import OptionError
 from raykernel.rendering import tricks as T
 from raykernel.rendering.render import render
-from raykernel.scene import accel
+from raykernel.aggregates import registry as accel
 from raykernel.scene.loading import load
 from raykernel.scene.model import Camera, Light, Material, Scene
 from raykernel.scene.spd import NAMES as SPD_NAMES
@@ -184,7 +184,7 @@ def test_start_lists_hold_each_primitives_leaf_and_bound_secondary_rays():
 def test_the_lean_default_kernel_does_the_same_work_as_the_one_with_the_tricks_memory(kind):
     # the default tricks run without per-tile state (tricks.LEAN); adding a trick that has nothing to
     # do with opaque shadows runs the kernel with it: every counter must agree
-    from conftest import work_counts
+    from support import work_counts
     scene = small("gears")
     lean = render(scene, accel=kind, resolution=20)
     full = render(scene, accel=kind, resolution=20, tricks="closest,lazynormals,transparentlast")

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reference as ref
-from conftest import make_scene, ray_counts, work_counts
+from support import make_scene, ray_counts, work_counts
 from test_intersect import assert_same, random_scene, scene_rays
 
 import raykernel
@@ -205,7 +205,7 @@ def test_opaque_only_queries_pass_over_transparent_primitives():
         assert not intersect(g, 0.0, -5.0, 0.0, 0.0, 1.0, 0.0, 0.0, 4.5, ANY_OPAQUE, ws, cnt)
         # on to the solid one behind it
         assert intersect(g, 0.0, -5.0, 0.0, 0.0, 1.0, 0.0, 0.0, 20.0, ANY_OPAQUE, ws, cnt)
-        assert ws[6][0] == SPHERE and ws[6][1] == 1
+        assert ws.hit_i[0] == SPHERE and ws.hit_i[1] == 1
 
 
 # ----------------------------------------------------------------- the walk's counters

@@ -6,19 +6,15 @@
     result.image, result.stats
 """
 
-from .analysis.anneal import resolve_auto as _resolve_auto
+from .analysis.auto import render
 from .casting.camera import camera_rays
 from .casting.rayscene import Hits, RayInputError, RayScene
 from .errors import OptionError, RayKernelError, SceneError
-from .rendering.render import AUTO_RESOLVERS as _AUTO_RESOLVERS
-from .rendering.render import RenderResult, render
+from .rendering.render import RenderResult
 from .scene.jsonscene import read_json, write_json
 from .scene.loading import load
 from .scene.model import Camera, Cones, Group, Instance, Light, Material, Polygons, Scene, Spheres, TriangleMesh
 from .scene.nff import parse_nff, read_nff, write_nff
-
-if _resolve_auto not in _AUTO_RESOLVERS:
-    _AUTO_RESOLVERS.append(_resolve_auto)      # the annealer sits above the renderer, which calls it
 
 __version__ = "0.1.0"
 

@@ -78,9 +78,11 @@ def cmd_render(args, console) -> int:
     from .geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS
     from .geometry.config import tell_once
     from .rendering.imageio import image_format
-    from .rendering.render import first_run, render
+    from .analysis.auto import render
+    from .rendering.render import first_run
     from .scene import examples
-    from .scene.accel import is_auto, parse_spec
+    from .aggregates.registry import parse_spec
+    from .aggregates.spec import is_auto
     from .scene.loading import load
 
     scene = load(args.scene)
@@ -150,7 +152,7 @@ def cmd_animate(args, console) -> int:
     from .geometry.config import tell_once
     from .rendering.animate import animate
     from .rendering.render import first_run
-    from .scene.accel import parse_spec
+    from .aggregates.registry import parse_spec
     parse_spec(args.accel)
     options = {k: getattr(args, k) for k in ("max_depth", "shading", "shadows", "tricks") if getattr(args, k) is not None}
     if first_run() and not args.dask:
@@ -179,7 +181,7 @@ def cmd_animate(args, console) -> int:
 
 
 def cmd_accels(args, console) -> int:
-    from .scene.accel import describe
+    from .aggregates.registry import describe
     console.print(describe(), markup=False, highlight=False)
     return 0
 
@@ -317,14 +319,14 @@ def cmd_calibrate(args, console) -> int:
 def cmd_anneal(args, console) -> int:
     from .analysis import anneal
     from .errors import OptionError
-    from .rendering.render import _options, render
+    from .rendering.render import render, render_options
     from .scene.jsonscene import write_json
     from .scene.loading import load
     if not args.output.lower().endswith(".json"):
         raise OptionError(f"--output {args.output}: the hierarchy is written as a JSON scene; name a .json file")
     scene = load(args.scene)
     options = dict(resolution=args.resolution, spd=args.spd, max_depth=args.max_depth, threads=args.threads)
-    _options(scene, **options)      # bad options fail here, before any search
+    render_options(scene, **options)      # bad options fail here, before any search
 
     def say(line):
         console.print(line, markup=False, highlight=False, soft_wrap=True)
@@ -362,7 +364,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="raykernel", description="Ray tracing with nestable acceleration "
                                      "structures and exact statistics.")
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_render(sub)
+    _add_others(sub)
+    return parser
 
+
+def _add_render(sub) -> None:
     r = sub.add_parser("render", help="render a scene to PNG and print its statistics")
     r.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
     r.add_argument("-o", "--output", help="output image: .png, .jpg, .tif, .webp (8-bit) or .npy, .pfm, .exr "
@@ -404,6 +411,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "tcp://HOST:PORT joins a running scheduler (pip install 'raykernel[distributed]')")
     r.set_defaults(func=cmd_render)
 
+
+def _add_others(sub) -> None:
     an = sub.add_parser("animate", help="render the frames of a moving scene (keyframes, or scene:satellite's time)")
     an.add_argument("scene", help="a .json scene with an animation, or scene:NAME[:k=v,...] with a time parameter")
     an.add_argument("-o", "--output", help="a directory of PNG frames (OUT/frame-0000.png, ...), OUT.png (animated "
@@ -515,7 +524,6 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("-o", "--output", help="calibration JSON (default: ~/.cache/raykernel/calibration-HOST.json)")
     cal.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
     cal.set_defaults(func=cmd_calibrate)
-    return parser
 
 
 def main(argv=None) -> int:

@@ -188,17 +188,31 @@ class Cluster:
                 progress(done, len(futures))
         return self.client.gather(futures)
 
+    def animate(self, segments, work, finished) -> None:
+        """animate()'s frames (rendering/animate.py), each segment of them a task; each frame handed
+        to finished(index, image, record) as its segment returns. work: (subject, times, pending
+        frames, options, incremental, rebuild threshold)."""
+        distributed = _import_distributed()
+        subject, times, pending, options, incremental, threshold = work
+        future, _ = self.scatter(subject)
+        options = self.task_options(options)
+        futures = [self.client.submit(_segment_task, future, times, seg, set(pending), options, incremental,
+                                      threshold, pure=False) for seg in segments]
+        for f in distributed.as_completed(futures):
+            for i, image, record in f.result():
+                finished(i, image, record)
+
     def render(self, scene, progress=None, **options):
         """render(scene, **options) with its tiles traced on the workers; the same image and counters."""
+        from .analysis.auto import tune
         from .geometry.compiletime import CompileClock
-        from .rendering.render import RenderJob, tune
+        from .rendering.render import RenderJob
         options.pop("builder", None)
         scene, options, annealed = tune(scene, options)     # here, once: the workers build what it found
         options = self.task_options(options)
         future, key = self.scatter(scene)
         plan = self.client.submit(_plan_task, future, key, options, pure=False).result()
-        job = RenderJob(scene, remote=plan, **options)
-        job.annealed = annealed
+        job = RenderJob(scene, remote=plan, annealed=annealed, **options)
         done, total = 0, sum(job.work)
         t0 = time.perf_counter()
         history = []

@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import math
 import time
-from typing import NamedTuple
 
 import numpy as np
 
@@ -76,31 +75,19 @@ from ..geometry import counters as C
 from ..geometry.boxes import INF, box_entry, cull_margin
 from ..geometry.compiletime import CompileClock, compile_notice
 from ..geometry.config import njit
-from ..scene.accel import Kind, Param
-from .walk import MAX_TREE_DEPTH, START, Field, entry_tag, push
+from ..geometry.primitives import PRIMITIVE_KINDS
+from ..options import number
+from .bvhtree import BVHArrays, as_item_bounds, is_leaf
+from .spec import Kind, Param, Search
+from .walk import MAX_TREE_DEPTH, START, Field, Walk, answer, entry_tag, push
 
-__all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf"]
+__all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item_bounds"]
 
 _MAX_BINS = 1024
 _COMPILING = "raykernel: compiling the BVH builder (first use after install, a few seconds)"
 # corners a polygon's inside test walks in the time of one whole primitive test (reference
 # costs: about 1 ns per corner walked against 5-15 ns per test)
 CORNERS_PER_TEST = 8
-
-
-class BVHArrays(NamedTuple):
-    """A BVH as flat arrays; see the module docstring for the layout."""
-
-    bounds: np.ndarray  # (N, 6) float64 node boxes
-    first: np.ndarray  # (N,) int64: inner -> left child index; leaf -> first position in order
-    count: np.ndarray  # (N,) int64: 0 for an inner node, else items in the leaf
-    order: np.ndarray  # (n,) int64: permutation of item indices
-
-
-def is_leaf(bvh: BVHArrays) -> np.ndarray:
-    """Boolean mask over the nodes: True for leaves (including an empty root)."""
-    idx = np.arange(bvh.count.shape[0], dtype=np.int64)
-    return (bvh.count > 0) | (bvh.first <= idx)
 
 
 @njit
@@ -128,6 +115,176 @@ def _priced(weight, block):
     return weight if block == 1 else float(math.ceil(weight / block))
 
 
+@njit(private=True)
+def _empty_box(box):
+    for k in range(3):
+        box[k] = np.inf
+        box[k + 3] = -np.inf
+
+
+@njit(private=True)
+def _bin_range(data, s, e, cmin, scale, bins, bin_count, bin_weight, bin_box):
+    """Drop the centroids of data[s:e] into the bins of every axis with a scale (0: not binned);
+    returns the range's total weight."""
+    weight = 0.0
+    for p in range(s, e):
+        weight += data[p, 9]
+        for a in range(3):
+            if scale[a] == 0.0:
+                continue
+            f = (data[p, a + 6] - cmin[a]) * scale[a]
+            b = bins - 1
+            if f < bins - 1:
+                b = int(f)
+            bin_count[a, b] += 1
+            bin_weight[a, b] += data[p, 9]
+            for k in range(3):
+                bin_box[a, b, k] = min(bin_box[a, b, k], data[p, k])
+                bin_box[a, b, k + 3] = max(bin_box[a, b, k + 3], data[p, k + 3])
+    return weight
+
+
+@njit(private=True)
+def _sweep(bin_box, bin_weight, nonempty, nn, a, inv, use_area, block, backwards, box, out):
+    """The SAH sweep over axis a's non-empty bins nonempty[:nn], in one direction: out[j] is the
+    measure (surface area, or half-perimeter where the parent is flat) of the union of bins
+    nonempty[:j + 1] (forwards) or nonempty[j:] (backwards), boxes scaled by inv, times their
+    priced weight; for j in 0..nn-2 forwards, 1..nn-1 backwards."""
+    _empty_box(box)
+    weight = 0.0
+    for step in range(nn - 1):
+        j = nn - 1 - step if backwards else step
+        b = nonempty[j]
+        weight += bin_weight[a, b]
+        for k in range(3):
+            if bin_box[a, b, k] < box[k]:
+                box[k] = bin_box[a, b, k]
+            if bin_box[a, b, k + 3] > box[k + 3]:
+                box[k + 3] = bin_box[a, b, k + 3]
+        ex = (box[3] - box[0]) * inv
+        ey = (box[4] - box[1]) * inv
+        ez = (box[5] - box[2]) * inv
+        measure = 2.0 * (ex * ey + ey * ez + ez * ex) if use_area else ex + ey + ez
+        out[j] = measure * _priced(weight, block)
+
+
+@njit(private=True)
+def _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area, block, nonempty, left, right, box):
+    """The cheapest boundary over the binned axes: (summed child cost, axis, first bin of the
+    right side), axis -1 when no axis has two non-empty bins. Boundaries between empty bins give
+    the same partition as the one just left of the next non-empty bin, so only those are priced;
+    ties go to the later axis' and the right-most boundary's first."""
+    best = np.inf
+    split_axis = -1
+    split_bin = 0
+    for a in range(3):
+        if scale[a] == 0.0:
+            continue
+        nn = 0
+        for b in range(bins):
+            if bin_count[a, b] > 0:
+                nonempty[nn] = b
+                nn += 1
+        _sweep(bin_box, bin_weight, nonempty, nn, a, inv, use_area, block, False, box, left)
+        _sweep(bin_box, bin_weight, nonempty, nn, a, inv, use_area, block, True, box, right)
+        for j in range(nn - 1, 0, -1):
+            c = left[j - 1] + right[j]
+            if c < best:
+                best = c
+                split_axis = a
+                split_bin = nonempty[j]
+    return best, split_axis, split_bin
+
+
+@njit(private=True)
+def _child_boxes(bin_count, bin_box, a, bins, split_bin, lbox, rbox):
+    """The boxes of the bins left of split_bin and from it on, on axis a."""
+    _empty_box(lbox)
+    _empty_box(rbox)
+    for b in range(bins):
+        if bin_count[a, b] == 0:
+            continue
+        box = lbox if b < split_bin else rbox
+        for k in range(3):
+            box[k] = min(box[k], bin_box[a, b, k])
+            box[k + 3] = max(box[k + 3], bin_box[a, b, k + 3])
+
+
+@njit(private=True)
+def _clear_bins(bin_count, bin_weight, bin_box, scale, bins):
+    """Leave every bin empty for the next node."""
+    for a in range(3):
+        if scale[a] == 0.0:
+            continue
+        for b in range(bins):
+            if bin_count[a, b] > 0:
+                bin_count[a, b] = 0
+                bin_weight[a, b] = 0.0
+                for k in range(3):
+                    bin_box[a, b, k] = np.inf
+                    bin_box[a, b, k + 3] = -np.inf
+
+
+@njit(private=True)
+def _partition(data, order, s, e, a, cmin, scale, bins, split_bin, lcb, rcb):
+    """Move the items of data[s:e] (and order) whose centroid falls left of split_bin on axis a
+    before the others, gathering each side's centroid box; returns the first of the right side."""
+    _empty_box(lcb)
+    _empty_box(rcb)
+    i = s
+    j = e - 1
+    while i <= j:
+        f = (data[i, a + 6] - cmin[a]) * scale[a]
+        b = bins - 1
+        if f < bins - 1:
+            b = int(f)
+        cb = lcb if b < split_bin else rcb
+        for k in range(3):
+            c = data[i, k + 6]
+            cb[k] = min(cb[k], c)
+            cb[k + 3] = max(cb[k + 3], c)
+        if b < split_bin:
+            i += 1
+            continue
+        it = order[i]
+        order[i] = order[j]
+        order[j] = it
+        for k in range(10):
+            x = data[i, k]
+            data[i, k] = data[j, k]
+            data[j, k] = x
+        j -= 1
+    return i
+
+
+@njit(private=True)
+def _scaled_measure(bounds, node):
+    """(1 / the node box's largest extent (1 if none), its measure on the box so scaled, whether
+    that measure is a surface area (else the half-perimeter: a flat box))."""
+    dx = bounds[node, 3] - bounds[node, 0]
+    dy = bounds[node, 4] - bounds[node, 1]
+    dz = bounds[node, 5] - bounds[node, 2]
+    big = max(dx, max(dy, dz))
+    inv = 1.0 / big if big > 0.0 else 1.0
+    dx *= inv
+    dy *= inv
+    dz *= inv
+    area = 2.0 * (dx * dy + dy * dz + dz * dx)
+    return inv, (area if area > 0.0 else dx + dy + dz), area > 0.0
+
+
+@njit(private=True)
+def _push_work(st_node, st_start, st_end, st_depth, st_cb, top, node, s, e, depth, cb):
+    """Push the work item (node over data[s:e], at depth, centroid box cb); returns the new top."""
+    st_node[top] = node
+    st_start[top] = s
+    st_end[top] = e
+    st_depth[top] = depth
+    for k in range(6):
+        st_cb[top, k] = cb[k]
+    return top + 1
+
+
 @njit
 def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_cost, block):
     """Build the tree; returns (bounds, first, count, order, node count, max depth)."""
@@ -140,9 +297,7 @@ def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_
     if n == 0:
         first[0] = 0
         count[0] = 0
-        for k in range(3):
-            bounds[0, k] = np.inf
-            bounds[0, k + 3] = -np.inf
+        _empty_box(bounds[0])
         return bounds, first, count, order, 1, 0
 
     # per position in order: item box and centroid, permuted along with order so
@@ -167,11 +322,10 @@ def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_
     bin_box = np.empty((3, bins, 6), dtype=np.float64)
     for a in range(3):
         for b in range(bins):
-            for k in range(3):
-                bin_box[a, b, k] = np.inf
-                bin_box[a, b, k + 3] = -np.inf
+            _empty_box(bin_box[a, b])
     nonempty = np.empty(bins, dtype=np.int64)
     left_measure = np.empty(bins, dtype=np.float64)
+    right_measure = np.empty(bins, dtype=np.float64)
     box = np.empty(6, dtype=np.float64)
     cbox = np.empty(6, dtype=np.float64)
     lbox = np.empty(6, dtype=np.float64)
@@ -184,12 +338,8 @@ def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_
     _range_bounds(data, np.int64(0), n, box, cbox)
     for k in range(6):
         bounds[0, k] = box[k]
-        st_cb[0, k] = cbox[k]
-    st_node[0] = 0
-    st_start[0] = 0
-    st_end[0] = n
-    st_depth[0] = 0
-    top = 1
+    zero = np.int64(0)      # not the literal 0: numba would compile _push_work again for it
+    top = _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, n, zero, cbox)
     next_node = 1
     max_depth = 0
 
@@ -225,92 +375,11 @@ def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_
             if cnt > leaf_size:
                 split_axis = 3
         else:
-            weight = 0.0
-            for p in range(s, e):
-                weight += data[p, 9]
-                for a in range(3):
-                    if scale[a] == 0.0:
-                        continue
-                    f = (data[p, a + 6] - cmin[a]) * scale[a]
-                    b = bins - 1
-                    if f < bins - 1:
-                        b = int(f)
-                    bin_count[a, b] += 1
-                    bin_weight[a, b] += data[p, 9]
-                    for k in range(3):
-                        bin_box[a, b, k] = min(bin_box[a, b, k], data[p, k])
-                        bin_box[a, b, k + 3] = max(bin_box[a, b, k + 3], data[p, k + 3])
-
+            weight = _bin_range(data, s, e, cmin, scale, bins, bin_count, bin_weight, bin_box)
             # measures on boxes scaled by the parent's largest extent
-            dx = bounds[node, 3] - bounds[node, 0]
-            dy = bounds[node, 4] - bounds[node, 1]
-            dz = bounds[node, 5] - bounds[node, 2]
-            big = max(dx, max(dy, dz))
-            inv = 1.0 / big if big > 0.0 else 1.0
-            dx *= inv
-            dy *= inv
-            dz *= inv
-            parent_measure = 2.0 * (dx * dy + dy * dz + dz * dx)
-            use_area = parent_measure > 0.0
-            if not use_area:
-                parent_measure = dx + dy + dz
-
-            # sweep the non-empty bins only: boundaries between empty bins give
-            # the same partition as the boundary just left of the next non-empty bin
-            best = np.inf
-            for a in range(3):
-                if scale[a] == 0.0:
-                    continue
-                nn = 0
-                for b in range(bins):
-                    if bin_count[a, b] > 0:
-                        nonempty[nn] = b
-                        nn += 1
-                for k in range(3):
-                    lbox[k] = np.inf
-                    lbox[k + 3] = -np.inf
-                lc = 0.0
-                for j in range(nn - 1):
-                    b = nonempty[j]
-                    lc += bin_weight[a, b]
-                    for k in range(3):
-                        if bin_box[a, b, k] < lbox[k]:
-                            lbox[k] = bin_box[a, b, k]
-                        if bin_box[a, b, k + 3] > lbox[k + 3]:
-                            lbox[k + 3] = bin_box[a, b, k + 3]
-                    ex = (lbox[3] - lbox[0]) * inv
-                    ey = (lbox[4] - lbox[1]) * inv
-                    ez = (lbox[5] - lbox[2]) * inv
-                    lcost = _priced(lc, block)
-                    if use_area:
-                        left_measure[j] = 2.0 * (ex * ey + ey * ez + ez * ex) * lcost
-                    else:
-                        left_measure[j] = (ex + ey + ez) * lcost
-                for k in range(3):
-                    rbox[k] = np.inf
-                    rbox[k + 3] = -np.inf
-                rc = 0.0
-                for j in range(nn - 1, 0, -1):
-                    b = nonempty[j]
-                    rc += bin_weight[a, b]
-                    for k in range(3):
-                        if bin_box[a, b, k] < rbox[k]:
-                            rbox[k] = bin_box[a, b, k]
-                        if bin_box[a, b, k + 3] > rbox[k + 3]:
-                            rbox[k + 3] = bin_box[a, b, k + 3]
-                    ex = (rbox[3] - rbox[0]) * inv
-                    ey = (rbox[4] - rbox[1]) * inv
-                    ez = (rbox[5] - rbox[2]) * inv
-                    rcost = _priced(rc, block)
-                    if use_area:
-                        c = left_measure[j - 1] + 2.0 * (ex * ey + ey * ez + ez * ex) * rcost
-                    else:
-                        c = left_measure[j - 1] + (ex + ey + ez) * rcost
-                    if c < best:
-                        best = c
-                        split_axis = a
-                        split_bin = b
-
+            inv, parent_measure, use_area = _scaled_measure(bounds, node)
+            best, split_axis, split_bin = _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area,
+                                                      block, nonempty, left_measure, right_measure, box)
             if split_axis >= 0:
                 split_cost = traversal_cost + best / parent_measure * intersection_cost
                 leaf_cost = _priced(weight, block) * intersection_cost
@@ -318,36 +387,9 @@ def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_
                     split_axis = -1
             elif cnt > leaf_size:
                 split_axis = 3  # no usable boundary (non-finite measures): middle split
-
             if 0 <= split_axis < 3:
-                a = split_axis
-                for k in range(3):
-                    lbox[k] = np.inf
-                    lbox[k + 3] = -np.inf
-                    rbox[k] = np.inf
-                    rbox[k + 3] = -np.inf
-                for b in range(bins):
-                    if bin_count[a, b] == 0:
-                        continue
-                    if b < split_bin:
-                        for k in range(3):
-                            lbox[k] = min(lbox[k], bin_box[a, b, k])
-                            lbox[k + 3] = max(lbox[k + 3], bin_box[a, b, k + 3])
-                    else:
-                        for k in range(3):
-                            rbox[k] = min(rbox[k], bin_box[a, b, k])
-                            rbox[k + 3] = max(rbox[k + 3], bin_box[a, b, k + 3])
-            # leave every bin empty for the next node
-            for a in range(3):
-                if scale[a] == 0.0:
-                    continue
-                for b in range(bins):
-                    if bin_count[a, b] > 0:
-                        bin_count[a, b] = 0
-                        bin_weight[a, b] = 0.0
-                        for k in range(3):
-                            bin_box[a, b, k] = np.inf
-                            bin_box[a, b, k + 3] = -np.inf
+                _child_boxes(bin_count, bin_box, split_axis, bins, split_bin, lbox, rbox)
+            _clear_bins(bin_count, bin_weight, bin_box, scale, bins)
 
         if split_axis < 0:
             first[node] = s
@@ -358,39 +400,7 @@ def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_
             _range_bounds(data, s, mid, lbox, lcb)
             _range_bounds(data, mid, e, rbox, rcb)
         else:
-            a = split_axis
-            for k in range(3):
-                lcb[k] = np.inf
-                lcb[k + 3] = -np.inf
-                rcb[k] = np.inf
-                rcb[k + 3] = -np.inf
-            i = s
-            j = e - 1
-            while i <= j:
-                f = (data[i, a + 6] - cmin[a]) * scale[a]
-                b = bins - 1
-                if f < bins - 1:
-                    b = int(f)
-                if b < split_bin:
-                    for k in range(3):
-                        c = data[i, k + 6]
-                        lcb[k] = min(lcb[k], c)
-                        lcb[k + 3] = max(lcb[k + 3], c)
-                    i += 1
-                else:
-                    for k in range(3):
-                        c = data[i, k + 6]
-                        rcb[k] = min(rcb[k], c)
-                        rcb[k + 3] = max(rcb[k + 3], c)
-                    it = order[i]
-                    order[i] = order[j]
-                    order[j] = it
-                    for k in range(10):
-                        x = data[i, k]
-                        data[i, k] = data[j, k]
-                        data[j, k] = x
-                    j -= 1
-            mid = i
+            mid = _partition(data, order, s, e, split_axis, cmin, scale, bins, split_bin, lcb, rcb)
 
         left = next_node
         next_node += 2
@@ -400,20 +410,8 @@ def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_
             bounds[left, k] = lbox[k]
             bounds[left + 1, k] = rbox[k]
         # right child below left on the stack: the left subtree is built first
-        st_node[top] = left + 1
-        st_start[top] = mid
-        st_end[top] = e
-        st_depth[top] = depth + 1
-        for k in range(6):
-            st_cb[top, k] = rcb[k]
-        top += 1
-        st_node[top] = left
-        st_start[top] = s
-        st_end[top] = mid
-        st_depth[top] = depth + 1
-        for k in range(6):
-            st_cb[top, k] = lcb[k]
-        top += 1
+        top = _push_work(st_node, st_start, st_end, st_depth, st_cb, top, left + 1, mid, e, depth + 1, rcb)
+        top = _push_work(st_node, st_start, st_end, st_depth, st_cb, top, left, s, mid, depth + 1, lcb)
 
     return bounds, first, count, order, next_node, max_depth
 
@@ -468,42 +466,6 @@ def _node_area(b, i):
     return dx * dy + dy * dz + dz * dx
 
 
-def _as_item_bounds(bounds, what: str = "bounds") -> np.ndarray:
-    arr = np.asarray(bounds)
-    if arr.dtype.kind not in "fiu":
-        raise ValueError(f"{what} must be numeric, got dtype {arr.dtype}")
-    arr = np.ascontiguousarray(arr, dtype=np.float64)
-    if arr.ndim == 1 and arr.size == 0:
-        arr = arr.reshape(0, 6)
-    if arr.ndim != 2 or arr.shape[1] != 6:
-        raise ValueError(f"{what} must have shape (n, 6), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what} must be finite")
-    if np.any(arr[:, :3] > arr[:, 3:]):
-        bad = int(np.nonzero(np.any(arr[:, :3] > arr[:, 3:], axis=1))[0][0])
-        raise ValueError(f"{what}[{bad}] has a minimum above its maximum: {arr[bad].tolist()}")
-    return arr
-
-
-def _int_option(value, name: str, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise OptionError(f"{name} must be an integer, got {value!r}")
-    if not lo <= int(value) <= hi:
-        raise OptionError(f"{name} must be in [{lo}, {hi}], got {value}")
-    return int(value)
-
-
-def _cost_option(value, name: str, positive: bool) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise OptionError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(v) or v < 0.0 or (positive and v == 0.0):
-        need = "positive" if positive else "non-negative"
-        raise OptionError(f"{name} must be finite and {need}, got {value!r}")
-    return v
-
-
 def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0, block=1, weights=None):
     """Build a binned-SAH BVH over item boxes.
 
@@ -525,13 +487,13 @@ def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_
     edges from the root to the deepest leaf (0 for a lone root).
     """
     t0 = time.perf_counter()
-    items = _as_item_bounds(bounds)
-    leaf_size = _int_option(leaf_size, "leaf_size", 1, 1 << 30)
-    bins = _int_option(bins, "bins", 2, _MAX_BINS)
-    tc = _cost_option(traversal_cost, "traversal_cost", positive=False)
-    ic = _cost_option(intersection_cost, "intersection_cost", positive=True)
+    items = as_item_bounds(bounds)
+    leaf_size = int(number(leaf_size, "leaf_size", 1, 1 << 30, integer=True))
+    bins = int(number(bins, "bins", 2, _MAX_BINS, integer=True))
+    tc = float(number(traversal_cost, "traversal_cost", 0.0, math.inf))
+    ic = float(number(intersection_cost, "intersection_cost", 0.0, math.inf, above=True))
 
-    block = _int_option(block, "block", 1, 64)
+    block = int(number(block, "block", 1, 64, integer=True))
     if weights is None:
         weights = np.ones(len(items))
     weights = np.ascontiguousarray(weights, np.float64)
@@ -565,7 +527,7 @@ def refit(bvh: BVHArrays, item_bounds) -> None:
 
     item_bounds is (n, 6) like the input of `build_bvh`, with n == len(bvh.order).
     """
-    items = _as_item_bounds(item_bounds, "item_bounds")
+    items = as_item_bounds(item_bounds, "item_bounds")
     if items.shape[0] != bvh.order.shape[0]:
         raise ValueError(f"item_bounds has {items.shape[0]} items, the BVH has {bvh.order.shape[0]}")
     b = bvh.bounds
@@ -596,10 +558,11 @@ def append_bvh(flat, tree: BVHArrays, refs, box, margin: float) -> int:
 
 
 @njit(private=True)
-def step(node_bounds, node_first, node_count, node, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b, stack_t,
-         sp, cnt):
-    """Descend from `node` to the nearest leaf the ray enters, pushing the farther child
-    of every inner node passed; returns (sp, s, e): the leaf's references (none: s == e)."""
+def descend(node_bounds, node_first, node_count, node, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b,
+            stack_t, sp, cnt):
+    """The binary walk: descend from `node` to the nearest leaf the ray enters, pushing the
+    farther child of every inner node passed (a START entry); returns (sp, s, e): the leaf's
+    references (none: s == e)."""
     while True:
         cnt[C.CELLS_VISITED] += 1
         n_items = node_count[node]
@@ -623,6 +586,95 @@ def step(node_bounds, node_first, node_count, node, ox, oy, oz, ix, iy, iz, tmin
             if tl != INF:
                 sp = push(stack_a, stack_b, stack_t, sp, left, entry_tag(CODE, START), tl)
             node = right
+
+
+@njit(inline="always")
+def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
+    """Every entry is a node to descend from (walk.py's step contract)."""
+    ox, oy, oz, _, _, _, ix, iy, iz = ray
+    sp, s, e = descend(geo.node_bounds, geo.node_first, geo.node_count, a, ox, oy, oz, ix, iy, iz, lo, best_t,
+                       ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt)
+    return answer(sp, s, e, ray, best_t)
+
+
+def walked_wide(stats) -> bool:
+    """Whether a render's rays took the 4-wide walk (engine/widewalk.py): its scene was one BVH of
+    width 4 over primitives, and its closest-hit searches were lazy about normals (with eager
+    normals they take the general walk)."""
+    aggregates = getattr(stats, "aggregates", [])
+    tricks = getattr(stats, "info", {}).get("tricks", ["lazynormals"])
+    return len(aggregates) == 1 and aggregates[0].get("wide_nodes", 0) > 0 and "lazynormals" in tricks
+
+
+def features(stats, f, used) -> None:
+    """The cost model's features of a render walked 4-wide (walked_wide): its node visits and
+    tests cost what the general walk's do not (a polygon test about a third as much, its
+    primitives' numbers read in leaf order), so its walk is priced as `wide` and its tests,
+    hits and corners as test.KIND.wide, hit.KIND.wide and polygon.corner.wide; the eye rays of
+    culled tiles, counted as one bound test each, are priced as ray.culled."""
+    if not walked_wide(stats):
+        return
+    for k in PRIMITIVE_KINDS:
+        f[f"test.{k}.wide"] = f.pop(f"test.{k}")
+        f[f"hit.{k}.wide"] = f.pop(f"hit.{k}")
+    f["polygon.corner.wide"] = f.pop("polygon.corner")
+    for what in ("entry", "step", "bound"):
+        f[f"{what}.wide"] = f.pop(f"{what}.bvh")
+    f["bound.wide"] -= f["ray.culled"]
+
+
+def _areas(b: np.ndarray) -> np.ndarray:
+    d = np.maximum(b[:, 3:] - b[:, :3], 0.0)
+    return d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0]
+
+
+def sah_cost(node_bounds, node_first, node_count, start: int, count: int) -> float:
+    """The SAH cost of the BVH in nodes start..start+count-1 (traversal and intersection cost 1):
+    sum of inner node areas plus leaf areas times their items, over the root's area."""
+    b = node_bounds[start:start + count]
+    n = node_count[start:start + count]
+    area = _areas(b)
+    root = area[0] if area[0] > 0 else 1.0
+    return float((np.sum(area[n == 0]) + np.sum(area[n > 0] * n[n > 0])) / root)
+
+
+def refit_aggregate(flat, agg, memo, refs, old_bounds, bounds, params, threshold):
+    """Kind.refit: the BVH agg keeps its tree, the boxes of the nodes above the items that moved
+    recomputed from the leaves up; returns the nodes touched, or None (rebuild it) for a tree
+    over pieces (split > 1: an item in several leaves) or when its SAH cost grew past
+    `threshold` times its cost when built (the refit nodes are then left unused). memo keeps,
+    from the first refit on, how the tree placed the items, its cost and its culling margin."""
+    if params.get("split", 1) > 1:
+        return None
+    nb, nf, nc = (flat.parts[n][0] for n in ("node_bounds", "node_first", "node_count"))
+    s = int(flat.parts["agg_start"][0][agg])
+    n = int(flat.parts["agg_count"][0][agg])
+    first, count = nf[s:s + n], nc[s:s + n]
+    inner = count == 0
+    if not memo:        # first refit since the build
+        memo["first_ref"] = int(first[~inner].min())
+        placed = flat.parts["refs"][0][memo["first_ref"]:memo["first_ref"] + len(refs)]
+        by_ref = np.argsort(refs, kind="stable")
+        memo["order"] = by_ref[np.searchsorted(refs[by_ref], placed)]
+        memo["cost"] = sah_cost(nb, nf, nc, s, n)
+        memo["cost_sum"] = memo["cost"] * _areas(nb[s:s + 1])[0]
+        memo["margin"] = cull_margin(flat.agg_box(agg))
+    moved = np.any(old_bounds != bounds, axis=1)[memo["order"]]
+    box = np.concatenate([bounds[:, :3].min(axis=0), bounds[:, 3:].max(axis=0)])
+    m = cull_margin(box)
+    if m > memo["margin"]:      # a wider box needs a wider margin everywhere: refit every node
+        moved[:] = True
+        memo["margin"] = m
+    local_first = np.where(inner, first - s, first - memo["first_ref"])
+    view = nb[s:s + n]
+    touched, grown = refit_moved(view, local_first, count, memo["order"], np.ascontiguousarray(bounds, np.float64),
+                                 moved, memo["margin"])
+    memo["cost_sum"] += grown
+    root = _areas(view[:1])[0]
+    if memo["cost_sum"] / (root if root > 0 else 1.0) > threshold * memo["cost"]:
+        memo.clear()
+        return None
+    return int(touched)
 
 
 def sah_weights(corners) -> np.ndarray | None:
@@ -662,6 +714,16 @@ def flatten(builder, params, refs, bounds, name, box):
     return append_bvh(builder.flat, tree, refs, box, cull_margin(box)), dict(stats, width=params["width"])
 
 
+WALK = Walk(code=CODE, name="bvh", fields=FIELDS, step=walk_step, features=features)
+# the annealer starts from a BVH over pieces of long thin polygons (presplit.py), the one structure
+# that separates a fan of facets, and from BVHs whose nodes are reinserted (bvhopt.py), the ones that
+# tighten a tree around a small dense cluster in a large sparse scene (the stadium's teapot), with
+# leaves of at most two items the tightest there
+SEARCH = Search(start=True, variants=("bvh(split=16)", "bvh(optimize=reinsertion)",
+                                      "bvh(leaf=2, optimize=reinsertion)"),
+                candidates=("bvh", "bvh(leaf=1)", "bvh(leaf=2)", "bvh(leaf=8)", "bvh(bins=32)",
+                            "bvh(optimize=reinsertion)", "bvh(leaf=2, optimize=reinsertion)",
+                            "bvh(build=gs, optimize=reinsertion)", "bvh(split=4)", "bvh(split=16)"))
 KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (build=sah) or "
               "Goldsmith-Salmon insertion (build=gs)", (
     Param("leaf", 4, "maximum items in a leaf the SAH may keep (sah only; gs leaves hold one item)", int, 1, 64),
@@ -688,4 +750,4 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
           "nodes tested with one vector slab test (widebvh.py), 2 walks the binary tree; RayScene's mesh "
           "kernel and the fast walk of a scene that is one BVH over primitives (engine/widewalk.py) use it, "
           "a BVH nested with other aggregates is walked binary", int, choices=(2, 4)),
-), flatten=flatten)
+), flatten=flatten, walk=WALK, refit=refit_aggregate, search=SEARCH)

@@ -338,7 +338,7 @@ def _depth(first, count) -> int:
 
 def sah(tree) -> float:
     """bvh.py's SAH cost of a tree (1 for a lone leaf of one item)."""
-    from .bvh import is_leaf
+    from .bvhtree import is_leaf
     leaves = is_leaf(tree)
     b = tree.bounds
     area = _area_rows(b)
@@ -353,7 +353,7 @@ def _area_rows(b):
 
 def optimize(tree, method: str):
     """(optimised BVHArrays, info) for method in METHODS; "none" returns the tree as it is."""
-    from .bvh import BVHArrays, is_leaf
+    from .bvhtree import BVHArrays, is_leaf
     if method not in METHODS:
         raise ValueError(f"unknown BVH optimisation {method!r}; choose from {', '.join(METHODS)}")
     before = sah(tree)

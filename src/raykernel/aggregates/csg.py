@@ -53,10 +53,10 @@ import numpy as np
 from ..errors import SceneError
 from ..geometry.boxes import INF, box_entry, cull_margin
 from ..geometry.config import njit
-from ..geometry.counters import claim
-from ..scene.accel import Kind, Param
+from ..geometry.counters import own_columns
 from .collect import CAPACITY, COLUMNS, begin
-from .walk import Field
+from .spec import Kind, Param
+from .walk import Field, Walk
 
 CODE = 5
 DIFFERENCE, INTERSECTION, UNION = 0, 1, 2
@@ -66,9 +66,9 @@ MAX_OPERANDS = 63            # one bit of an int64 per operand (resolve's inside
 FIELDS = (Field("csg_op", np.int64), Field("csg_base", np.int64), Field("csg_first", np.int64),
           Field("csg_count", np.int64), Field("csg_bounds", np.float64, (6,)))
 
-# its own counters (the first, crossings, is counted by the driver: collect.py)
+# its own counters (the first, crossings, is counted by the driver: collect.py), and their cost-model features
 COUNTERS = (("csg.crossings", "csg.crossing"), ("csg.resolves", "csg.resolve"), ("csg.surfaces", None))
-CROSSINGS, RESOLVES, SURFACES = claim([name for name, _ in COUNTERS])
+CROSSINGS, RESOLVES, SURFACES = own_columns(CODE, len(COUNTERS))
 
 
 def stats_rows(stats) -> list:
@@ -123,19 +123,24 @@ def _flatten(op):
     return flatten
 
 
-_BASE = Param("base", 1, "operands that form the base; the rest are subtracted", int, 0, MAX_OPERANDS)
-KINDS = (
-    Kind("difference", "CSG: the first `base` operands less the rest", (_BASE,), flatten=_flatten(DIFFERENCE),
-         operands=True, operand_lists=("base", "subtract"), max_operands=MAX_OPERANDS,
-         operand_spec=lambda counts: f"difference(base={counts['base']})"),
-    Kind("intersection", "CSG: where every operand is", flatten=_flatten(INTERSECTION), operands=True,
-         max_operands=MAX_OPERANDS),
-    Kind("union", "CSG: where any operand is (one solid: inner surfaces removed)", flatten=_flatten(UNION),
-         operands=True, max_operands=MAX_OPERANDS),
-)
-
-
 # ---------------------------------------------------------------- the walk
+
+@njit(inline="always")
+def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
+    """walk.py's step contract: START makes the frame a sink, the ray's origin moved before the
+    operands' box, and answers the operand references."""
+    ox, oy, oz, dx, dy, dz, ix, iy, iz = ray
+    ox, oy, oz, best_t, s, e = start(geo.csg_bounds, geo.csg_first, geo.csg_count, a, ox, oy, oz, dx, dy, dz, ix,
+                                     iy, iz, best_t, ws.frame_f, ws.frame_i, f, ws.buf_n)
+    return sp, s, e, False, 0.0, 0.0, (ox, oy, oz, dx, dy, dz, ix, iy, iz), best_t, True
+
+
+@njit(inline="always")
+def walk_resolve(geo, node, region, shift, operand, ws, cnt):
+    """collect.py's resolve contract: node `node`'s surfaces among the crossings from `region` on."""
+    return resolve(geo.csg_op[node], geo.csg_base[node], geo.csg_count[node], ws.buf_t, ws.buf_i, ws.buf_m, ws.buf_n,
+                   region, shift, operand, cnt)
+
 
 @njit(private=True)
 def start(csg_bounds, csg_first, csg_count, node, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, frame_i, f,
@@ -231,3 +236,17 @@ def resolve(op, base, count, csg_t, csg_i, csg_m, csg_n, region, shift, operand,
     cnt[RESOLVES] += 1
     cnt[SURFACES] += out - region
     return out - region
+
+
+WALK = Walk(code=CODE, name="csg", fields=FIELDS, step=walk_step, resolve=walk_resolve, counters=COUNTERS,
+            stats_rows=stats_rows)
+_BASE = Param("base", 1, "operands that form the base; the rest are subtracted", int, 0, MAX_OPERANDS)
+KINDS = (
+    Kind("difference", "CSG: the first `base` operands less the rest", (_BASE,), flatten=_flatten(DIFFERENCE),
+         walk=WALK, operands=True, operand_lists=("base", "subtract"), max_operands=MAX_OPERANDS,
+         operand_spec=lambda counts: f"difference(base={counts['base']})"),
+    Kind("intersection", "CSG: where every operand is", flatten=_flatten(INTERSECTION), walk=WALK, operands=True,
+         max_operands=MAX_OPERANDS),
+    Kind("union", "CSG: where any operand is (one solid: inner surfaces removed)", flatten=_flatten(UNION),
+         walk=WALK, operands=True, max_operands=MAX_OPERANDS),
+)

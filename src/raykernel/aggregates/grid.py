@@ -74,9 +74,9 @@ import numpy as np
 from ..errors import OptionError, SceneError
 from ..geometry import counters as C
 from ..geometry.config import njit
-from ..scene.accel import Kind, Param
 from .memory import check, memory_limit
-from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push
+from .spec import Kind, Param, Search
+from .walk import F_STATE, START, Field, Walk, answer, entry_tag, mailbox_reset, push
 
 __all__ = ["GridArrays", "RULES", "build_grid", "grid_resolution"]
 
@@ -324,10 +324,20 @@ def flatten(builder, params, refs, bounds, name, box):
     return append_grid(builder.flat, grid, grid.cell_start, refs[grid.items], params["mailbox"], box), dict(stats)
 
 
+@njit(inline="always")
+def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
+    """walk.py's step contract: START at the grid's entry point, NEXT at the frame's next cell."""
+    ox, oy, oz, dx, dy, dz, ix, iy, iz = ray
+    sp, s, e = dda(geo.grid_cell_offset, geo.grid_cell_size, geo.grid_cells, geo.grid_inv_cell, geo.grid_mailbox,
+                   geo.grid_origin, geo.grid_res, step, a, te, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, ws.frame_f,
+                   f, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt)
+    return answer(sp, s, e, ray, best_t)
+
+
 @njit(private=True)
-def step(grid_cell_offset, grid_cell_size, grid_cells, grid_inv_cell, grid_mailbox, grid_origin, grid_res,
-         kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
-         stack_a, stack_b, stack_t, sp, cnt):
+def dda(grid_cell_offset, grid_cell_size, grid_cells, grid_inv_cell, grid_mailbox, grid_origin, grid_res,
+        kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
+        stack_a, stack_b, stack_t, sp, cnt):
     """The 3D-DDA (Amanatides and Woo 1987) from the entry point (START) or the frame's
     next cell (NEXT) to the next non-empty cell; empty cells are stepped over in one go.
     Returns (sp, s, e): that cell's references, with a NEXT entry pushed below them
@@ -397,6 +407,18 @@ def step(grid_cell_offset, grid_cell_size, grid_cells, grid_inv_cell, grid_mailb
         return sp, s, e
 
 
+def features(stats, f, used) -> None:
+    """The cost model's features: a grid's first entry and bound test of a ray move with the ray
+    count (its set-up); those beyond (an hgrid's inner grids, the boxes of instances and structures
+    in its cells) are cheaper, and priced apart (entry.grid.more, bound.grid.more)."""
+    rays = f["ray.shaded"] + f["ray.shadow"]
+    for what in ("entry", "bound"):
+        count = f[f"{what}.grid"]
+        f[f"{what}.grid"] = min(count, rays)
+        f[f"{what}.grid.more"] = count - f[f"{what}.grid"]
+
+
+WALK = Walk(code=CODE, name="grid", fields=FIELDS, step=walk_step, features=features)
 KIND = Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatides-Woo)", (
     Param("res", "regular", "resolution rule: regular (about density*N cubic cells), woo "
           "(longest side density*N^(1/3) cells) or klimaszewski (our reading of Klimaszewski's heterogeneous "
@@ -405,4 +427,5 @@ KIND = Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatid
     Param("density", 2.0, "cells per item (regular) or per cube root of the item count (woo)", float, 0.001, 1000.0),
     Param("max_res", 256, "most cells along any axis", int, 1, 4096),
     Param("mailbox", True, "skip items already tested against the ray in an earlier cell", bool),
-), flatten=flatten)
+), flatten=flatten, walk=WALK, search=Search(start=True, candidates=("grid", "grid(density=0.5)", "grid(density=8)",
+                                                                   "grid(res=woo, density=16)")))

@@ -64,7 +64,8 @@ import numpy as np
 
 from ..errors import OptionError
 from ..geometry.config import njit
-from .bvh import BVHArrays, _as_item_bounds, _int_option, is_leaf
+from ..options import number
+from .bvhtree import BVHArrays, as_item_bounds, is_leaf
 
 __all__ = ["build_gs", "insertion_order", "morton_codes", "ORDERS", "MAX_DEPTH"]
 
@@ -287,11 +288,11 @@ def build_gs(bounds, order="file", *, seed=1, max_depth=MAX_DEPTH):
     "max_depth") and "order", the insertion order's name.
     """
     t0 = time.perf_counter()
-    items = _as_item_bounds(bounds)
+    items = as_item_bounds(bounds)
     if order not in ORDERS:
         raise OptionError(f"insertion order must be one of {', '.join(ORDERS)}, got {order!r}")
-    seed = _int_option(seed, "seed", 0, 2 ** 63 - 1)
-    max_depth = _int_option(max_depth, "max_depth", 1, 1 << 20)
+    seed = int(number(seed, "seed", 0, 2 ** 63 - 1, integer=True))
+    max_depth = int(number(max_depth, "max_depth", 1, 1 << 20, integer=True))
     n = items.shape[0]
     if n > 1 and (n - 1).bit_length() > max_depth:
         raise OptionError(f"max_depth {max_depth} is too small for {n} items")

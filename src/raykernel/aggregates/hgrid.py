@@ -39,8 +39,8 @@ import time
 import numpy as np
 
 from ..geometry.primitives import AGGREGATE, make_ref
-from ..scene.accel import Kind, Param, format_spec
-from .grid import GridArrays, append_grid, build_grid
+from .grid import WALK, GridArrays, append_grid, build_grid
+from .spec import Kind, Param, Search, format_spec
 from .walk import MAX_NESTING
 
 __all__ = ["dense_cells", "clipped_bounds", "replace_cells", "cell_margin"]
@@ -120,7 +120,7 @@ def _level(builder, params, refs, bounds, name, level, levels, budget):
         sub_start = time.perf_counter()
         sub, sub_stats = _level(builder, params, refs[items], clipped_bounds(grid, bounds, c, items), name,
                                 level + 1, levels, budget)
-        sub_stats.update(kind=format_spec("hgrid", params), name=name, items=len(items),
+        sub_stats.update(kind=format_spec(KIND.name, params, {KIND.name: KIND}), name=name, items=len(items),
                          seconds=time.perf_counter() - sub_start)
         builder.agg_stats.append(sub_stats)
         subs.append(sub)
@@ -146,4 +146,4 @@ KIND = Kind("hgrid", "hierarchical grid: a uniform grid whose cells with more th
     Param("depth", 2, "most levels of sub-grids below the top grid (clamped so that no ray path nests more "
           "than 16 aggregates)", int, 0, 15),
     Param("mailbox", True, "skip items already tested against the ray in an earlier cell of the same grid", bool),
-), flatten=flatten)
+), flatten=flatten, walk=WALK, search=Search(start=True, candidates=("hgrid",)))

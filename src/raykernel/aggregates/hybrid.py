@@ -54,7 +54,7 @@ merges the repeats, as it does for grids.
 
 Each BVH adds one aggregate to the nesting on paths through a problem
 voxel. Where the hybrid and the aggregates below it already nest
-MAX_NESTING (scene.model) deep, the problem voxels keep their items and the
+MAX_NESTING (walk.py) deep, the problem voxels keep their items and the
 statistics say so (``bvhs`` < ``problem_voxels``). Groups are built from the
 leaves up, so a hybrid placed so deep below the root that its BVHs would be
 one aggregate too many on a path is rejected with the nesting SceneError,
@@ -66,8 +66,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.primitives import AGGREGATE, make_ref
-from ..scene.accel import Kind, Param, parse_spec
-from .octree import ADDRESS_BITS, OctreeArrays, append_octree, build_octree
+from . import bvh
+from .octree import ADDRESS_BITS, WALK, OctreeArrays, append_octree, build_octree
+from .spec import Kind, Param, Search
 from .walk import MAX_NESTING
 
 __all__ = ["problem_voxels", "clipped_bounds", "clip_margin", "replace_leaves", "hybrid_stats", "STAT_KEYS"]
@@ -159,7 +160,7 @@ def flatten(builder, params, refs, bounds, name, box):
     n_problem = len(voxels)
     if builder.nesting >= MAX_NESTING:
         voxels = voxels[:0]     # a BVH would be one aggregate too many on a ray's path
-    bvh_spec = parse_spec(f"bvh(build=gs, order={params['order']}, seed={params['seed']})")
+    bvh_spec = (bvh.KIND.name, dict(bvh.KIND.defaults(), build="gs", order=params["order"], seed=params["seed"]))
     subs, bvh_stats = [], []
     for node in voxels:
         items = tree.order[tree.first[node]:tree.first[node] + tree.count[node]]
@@ -195,4 +196,4 @@ KIND = Kind("hybrid", "Haines's hybrid (RTN 2(1), 1988): an octree whose problem
     Param("walk", "neighbor", "octree traversal: point, neighbor or parametric (see octree)", str,
           choices=("point", "neighbor", "parametric")),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf of the octree", bool),
-), flatten=flatten)
+), flatten=flatten, walk=WALK, search=Search(start=True, candidates=("hybrid",)))

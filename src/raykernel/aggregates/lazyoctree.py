@@ -123,14 +123,14 @@ import numpy as np
 
 from ..errors import OptionError
 from ..geometry.config import njit
-from ..scene.accel import Kind, Param
-from .memory import check
-from .octree import ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, append_octree, octree_frame
+from ..options import number
+from .lazyset import scene_totals, tree_counts
+from .memory import check, grown
+from .octree import (ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, WALK, OctreeArrays, append_octree,
+                     octree_frame, overlaps)
+from .spec import Kind, Param
 
-__all__ = ["LazyOctrees", "build_lazy", "pass_ranges", "FIRST_PASS", "PASS_CHUNKS"]
-
-FIRST_PASS = 16            # RayScene: rays in the first pass
-PASS_CHUNKS = 8            # RayScene: at most this many chunks of rays (of rayscene.CHUNK) per pass
+__all__ = ["LazyOctrees", "build_lazy"]
 CHILD_SHARE = 8            # a split leaf's surplus passes are shared out among its 8 children
 # bytes of one node in the octree arrays: bounds 48, first 8, count 8, loc 24,
 # level 8, slot 8, neighbours 48, pass column 8
@@ -139,25 +139,15 @@ _KEPT, _SPLIT, _BUDGET = 0, 1, 2   # _split's status of a chosen leaf
 _NODE_FIELDS = ("oct_bounds", "oct_first", "oct_count", "oct_loc", "oct_level", "oct_slot", "oct_nbr", "oct_pass")
 
 
-def _check(value, name, lo, hi, kind):
-    if isinstance(value, bool) or not isinstance(value, kind) or not lo <= value <= hi:
-        what = "an integer" if kind is int else "a number"
-        raise OptionError(f"lazyoctree {name} must be {what} in [{lo}, {hi}], got {value!r}")
-
-
 def build_lazy(bounds, *, depth=16, rays=2, k=0.0, rule60=False, budget=16.0, name=None):
     """The one-leaf start of a lazy octree over item boxes (at least one finite box).
 
     Returns (OctreeArrays with one node, stats, widened item boxes for later splits)."""
     t0 = time.perf_counter()
-    _check(depth, "depth", 0, MAX_DEPTH, int)
-    if isinstance(budget, int) and not isinstance(budget, bool):
-        budget = float(budget)
-    _check(budget, "budget", 0.0, 1e6, float)
-    _check(rays, "rays", 1, 1 << 40, int)
-    if isinstance(k, int) and not isinstance(k, bool):
-        k = float(k)
-    _check(k, "k", 0.0, 1e9, float)
+    number(depth, "lazyoctree depth", 0, MAX_DEPTH, integer=True)
+    budget = float(number(budget, "lazyoctree budget", 0.0, 1e6))
+    number(rays, "lazyoctree rays", 1, 1 << 40, integer=True)
+    k = float(number(k, "lazyoctree k", 0.0, 1e9))
     if not isinstance(rule60, (bool, np.bool_)):
         raise OptionError(f"lazyoctree rule60 must be on or off, got {rule60!r}")
     # the octree's frame, so a fully refined lazy octree holds what octree(leaf=1, collapse=off) holds
@@ -210,12 +200,7 @@ def _split(nodes, owner, origin, unit, rule60, live_refs, max_refs, boxes, item_
             it = ref_item[st + p]
             bits = 0
             for c in range(8):
-                inside = True
-                for a in range(3):
-                    if boxes[it, a] > chi[c, a] or boxes[it, a + 3] < clo[c, a]:
-                        inside = False
-                        break
-                if inside:
+                if overlaps(boxes, it, clo, chi, c):
                     bits |= 1 << c
                     child_n[c] += 1
             mask[p] = bits
@@ -305,12 +290,14 @@ class LazyOctrees:
         raise TypeError("use LazyOctrees.attach(geo, records)")
 
     @classmethod
-    def attach(cls, geo, records):
+    def attach(cls, geo, records, base=0):
         """Take over geo's octree and reference arrays for the lazy octrees in `records`
         (from flatten: octree index, root node, first ref, widened boxes, refs, params,
-        stats dict). Returns (geo viewing the growable arrays, LazyOctrees)."""
+        stats dict), their pass columns numbered from `base`. Returns (geo viewing the growable
+        arrays, LazyOctrees)."""
         self = object.__new__(cls)
         self.records = records
+        self.base = int(base)
         self.max_bytes = min(rec["max_bytes"] for rec in records)
         n, nr = len(geo.oct_count), len(geo.refs)
         self.n0, self.n_nodes, self.n_refs = n, n, nr
@@ -363,17 +350,16 @@ class LazyOctrees:
     def columns(self) -> int:
         return len(self.cand)
 
-    @staticmethod
-    def ranges(n: int, chunk: int):
-        """RayScene's passes over n rays: FIRST_PASS rays, then as many as went before, up to
-        PASS_CHUNKS chunks of `chunk` rays (a power of two at least FIRST_PASS)."""
-        return pass_ranges(n, FIRST_PASS, PASS_CHUNKS * chunk)
-
-    def refine(self, geo, pass_counts):
+    def refine(self, geo, pass_counts, base=None):
         """Add a pass's counts ((work items, columns) int64, one row per tile or chunk)
-        to the candidates and subdivide those that meet the criteria; returns the
-        Geometry to trace the next pass with."""
+        to the candidates and subdivide those that meet the criteria; number the columns of
+        the next pass from `base` (columns of other lazy structures before these). Returns
+        the Geometry to trace the next pass with."""
         t0 = time.perf_counter()
+        if base is not None and base != self.base:
+            self.base = int(base)
+            self._number()
+            geo = self._view(geo)
         pass_counts = np.asarray(pass_counts)
         if pass_counts.ndim != 2 or pass_counts.shape[1] != len(self.cand):
             raise ValueError(f"pass counts must have {len(self.cand)} columns, got shape {pass_counts.shape}")
@@ -451,9 +437,9 @@ class LazyOctrees:
         self._number()
 
     def _number(self):
-        # columns in node order
+        # columns in node order, from base
         self.cand = np.sort(self.cand)
-        self.buf["oct_pass"][self.cand] = np.arange(len(self.cand), dtype=np.int64)
+        self.buf["oct_pass"][self.cand] = self.base + np.arange(len(self.cand), dtype=np.int64)
 
     def _reserve(self, nodes, refs):
         node_cap = max(len(self.owner), self.n_nodes + nodes)
@@ -469,15 +455,15 @@ class LazyOctrees:
         if need > len(self.owner):
             cap = max(need, 2 * len(self.owner))
             for name, a in list(self.buf.items()):
-                self.buf[name] = _grown(a, cap, self.n_nodes)
-            self.owner = _grown(self.owner, cap, self.n_nodes)
-            self.acc = _grown(self.acc, cap, self.n_nodes)
-            self.final = _grown(self.final, cap, self.n_nodes)
+                self.buf[name] = grown(a, cap, self.n_nodes)
+            self.owner = grown(self.owner, cap, self.n_nodes)
+            self.acc = grown(self.acc, cap, self.n_nodes)
+            self.final = grown(self.final, cap, self.n_nodes)
         need = self.n_refs + refs
         if need > len(self.refs):
             cap = max(need, 2 * len(self.refs))
-            self.refs = _grown(self.refs, cap, self.n_refs)
-            self.ref_item = _grown(self.ref_item, cap, self.n_refs)
+            self.refs = grown(self.refs, cap, self.n_refs)
+            self.ref_item = grown(self.ref_item, cap, self.n_refs)
 
     def _view(self, geo):
         n, b = self.n_nodes, self.buf
@@ -527,56 +513,14 @@ class LazyOctrees:
         scene_totals(build, geo, self.passes, int(self.subdivisions.sum()), self.seconds)
 
 
-def tree_counts(count) -> dict:
-    """N_IN + N_V, N_IN, N_V, N_EV and N_OIV of a lazy tree from its nodes' counts (a leaf's
-    item count, negative for an inner node)."""
-    leaves = count >= 0
-    return {"nodes": len(count), "inner": int(np.count_nonzero(~leaves)), "leaves": int(np.count_nonzero(leaves)),
-            "empty_leaves": int(np.count_nonzero(count == 0)), "refs": int(count[leaves].sum())}
-
-
-def scene_totals(build, geo, passes, subdivisions, seconds):
-    """The scene's build figures once its lazy aggregates' own statistics are up to date."""
-    aggs = build.get("aggregates", [])
-    for key, name in (("build.nodes", "nodes"), ("build.empty_leaves", "empty_leaves"), ("build.refs", "refs")):
-        build[key] = int(sum(s.get(name, 0) for s in aggs))
-    build["build.bytes"] = int(sum(a.nbytes for a in geo if isinstance(a, np.ndarray)))
-    build["build.refine_passes"] = passes
-    build["build.subdivisions"] = subdivisions
-    build["build.refine_seconds"] = seconds
-
-
-def pass_ranges(n: int, first: int, most: int) -> list[tuple[int, int]]:
-    """Passes over n units of work, as [start, end) ranges: `first` units, then as many as
-    all the passes before (first, first, 2 first, 4 first, ...), at most `most`.
-
-    Boundaries depend only on n, first and most (never on threads or timing). When
-    B = first * 2**j and most is a multiple of B, the passes before unit B cut the first
-    block of B units (a render tile's rows, RayScene's first chunk) and every later
-    boundary is a multiple of B, so later passes are whole tiles or chunks."""
-    if first < 1 or most < first:
-        raise ValueError(f"pass sizes need 1 <= first <= most, got first={first}, most={most}")
-    out, a = [], 0
-    while a < n:
-        b = min(n, a + min(most, max(first, a)))
-        out.append((a, b))
-        a = b
-    return out
-
-
-def _grown(a, cap, used):
-    b = np.empty((cap,) + a.shape[1:], a.dtype)
-    b[:used] = a[:used]
-    return b
-
-
 def flatten(builder, params, refs, bounds, name, box):
     # Lathrop's lazy octree: one leaf now, subdivided between passes of rays
     flat = builder.flat
     tree, stats, boxes = build_lazy(bounds, depth=params["depth"], rays=params["rays"], k=params["k"],
                                     rule60=params["rule60"], budget=params["budget"], name=name)
-    flat.lazy.append(dict(params, octree=flat.size("oct_root"), node=flat.size("oct_count"), ref=flat.size("refs"),
-                          refs=refs, boxes=boxes, stats=stats, max_bytes=builder.max_bytes))
+    flat.lazy[KIND.name].append(dict(params, octree=flat.size("oct_root"), node=flat.size("oct_count"),
+                                     ref=flat.size("refs"), refs=refs, boxes=boxes, stats=stats,
+                                     max_bytes=builder.max_bytes))
     return append_octree(flat, tree, refs, params["walk"], params["mailbox"], box), stats
 
 
@@ -599,4 +543,4 @@ KIND = Kind("lazyoctree", "lazy octree (Lathrop 1988): one leaf at first; betwee
     Param("walk", "neighbor", "traversal: point, neighbor or parametric (see octree)", str,
           choices=("point", "neighbor", "parametric")),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
-), flatten=flatten)
+), flatten=flatten, walk=WALK, lazy=LazyOctrees)

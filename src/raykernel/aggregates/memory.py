@@ -3,6 +3,7 @@
     limit = memory_limit()                  # bytes: the default, a safe share of this machine
     limit = parse_size("8G")                # --max-memory / max_memory= in bytes, K, M, G or T (1024s)
     check(nbytes, limit, "octree of group root", "lower depth or set budget")
+    a = grown(a, rows, used)                # a builder's growing array, doubled (kernels and Python alike)
 
 A build whose arrays would pass the limit stops with one MemoryBudgetError
 that names the structure, the memory it needed and the parameter to change,
@@ -23,7 +24,10 @@ try:
 except ImportError:     # not on Windows
     resource = None
 
+import numpy as np
+
 from ..errors import OptionError, RayKernelError
+from ..geometry.config import njit
 
 SAFE_SHARE = 0.5            # of physical memory (or of the address-space limit, if lower)
 
@@ -90,3 +94,14 @@ def over_budget(limit: int, what: str, hint: str, nbytes: float | None = None):
     need = f"at least {describe_bytes(nbytes)}, more than" if nbytes is not None else "more than"
     raise MemoryBudgetError(f"{what} needs {need} the memory budget of {describe_bytes(limit)}; {hint}, or "
                             f"raise the budget with --max-memory (max_memory=)")
+
+
+@njit
+def grown(a, rows, used):
+    """a if it has `rows` rows, else a new array of twice its rows (or `rows`, if more), its first
+    `used` rows a's: how every builder grows its arrays."""
+    if rows <= a.shape[0]:
+        return a
+    out = np.empty((max(rows, 2 * a.shape[0]),) + a.shape[1:], a.dtype)
+    out[:used] = a[:used]
+    return out

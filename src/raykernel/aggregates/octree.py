@@ -110,19 +110,20 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import OptionError, SceneError
+from ..errors import SceneError
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, STILL, slab
 from ..geometry.config import njit
-from ..scene.accel import Kind, Param
+from ..options import number
 from .grid import grid_box
-from .memory import check, memory_limit
-from .walk import F_STATE, START, Field, entry_tag, mailbox_reset, push
+from .memory import check, grown, memory_limit
+from .spec import Kind, Param, Search
+from .walk import F_STATE, FI_AGG, START, Field, Walk, answer, entry_tag, mailbox_reset, push
 
 __all__ = ["OctreeArrays", "build_octree", "ADDRESS_BITS", "MAX_DEPTH"]
 
 ADDRESS_BITS = 28
-WALKS = ("point", "neighbor", "parametric")   # oct_walk codes 0, 1, 2
+TRAVERSALS = ("point", "neighbor", "parametric")   # oct_walk codes 0, 1, 2
 MAX_DEPTH = 24             # the parametric walk keeps up to 3 siblings per level on the kernel's stack
 MAX_NODES = 20_000_000
 BUDGET_SLACK = 4096        # references a budget allows on top of budget * items (small scenes stay free)
@@ -150,6 +151,15 @@ class OctreeArrays(NamedTuple):
 def _before(key_a, node_a, key_b, node_b):
     """Split order: the larger key (items times surface area) first, then the smaller node."""
     return key_a > key_b or (key_a == key_b and node_a < node_b)
+
+
+@njit(inline="always")
+def overlaps(boxes, it, clo, chi, c):
+    """Whether item it's box (closed) meets child octant c's, clo[c]..chi[c]."""
+    for a in range(3):
+        if boxes[it, a] > chi[c, a] or boxes[it, a + 3] < clo[c, a]:
+            return False
+    return True
 
 
 @njit
@@ -257,20 +267,13 @@ def _subdivide(items, vols, weights, origin, unit, depth, leaf, rule60, density,
             need = first.shape[0] * PEAK_NODE_BYTES + 2 * lists.shape[0] * PEAK_REF_BYTES
             if need > max_bytes:
                 return first[:n_nodes], count[:n_nodes], loc[:n_nodes], level[:n_nodes], lists, need
-            bigger = np.empty(2 * lists.shape[0], np.int64)
-            bigger[:top_list] = lists[:top_list]
-            lists = bigger
+            lists = grown(lists, 2 * lists.shape[0], top_list)
         for c in range(8):
             child_n[c] = 0
         for p in range(s, s + m):
             it = lists[p]
             for c in range(8):
-                inside = True
-                for a in range(3):
-                    if items[it, a] > chi[c, a] or items[it, a + 3] < clo[c, a]:
-                        inside = False
-                        break
-                if inside:
+                if overlaps(items, it, clo, chi, c):
                     lists[top_list + c * m + child_n[c]] = it
                     child_n[c] += 1
         held = 0
@@ -298,19 +301,9 @@ def _subdivide(items, vols, weights, origin, unit, depth, leaf, rule60, density,
             need = new_cap * PEAK_NODE_BYTES + lists.shape[0] * PEAK_REF_BYTES
             if need > max_bytes:
                 return first[:n_nodes], count[:n_nodes], loc[:n_nodes], level[:n_nodes], lists, need
-            f2 = np.empty(new_cap, np.int64)
-            c2 = np.empty(new_cap, np.int64)
-            l2 = np.empty((new_cap, 3), np.int64)
-            v2 = np.empty(new_cap, np.int64)
-            k2 = np.empty(new_cap)
-            h2 = np.empty(new_cap, np.int64)
-            f2[:n_nodes] = first[:n_nodes]
-            c2[:n_nodes] = count[:n_nodes]
-            l2[:n_nodes] = loc[:n_nodes]
-            v2[:n_nodes] = level[:n_nodes]
-            k2[:queued] = heap_key[:queued]
-            h2[:queued] = heap_node[:queued]
-            first, count, loc, level, heap_key, heap_node = f2, c2, l2, v2, k2, h2
+            first, count = grown(first, new_cap, n_nodes), grown(count, new_cap, n_nodes)
+            loc, level = grown(loc, new_cap, n_nodes), grown(level, new_cap, n_nodes)
+            heap_key, heap_node = grown(heap_key, new_cap, queued), grown(heap_node, new_cap, queued)
         base = n_nodes
         n_nodes += 8
         pos = top_list
@@ -426,12 +419,6 @@ def _finish(first, count, loc, level, lists, collapse, origin, unit):
     return n_first, n_count, n_loc, n_level, n_slot, nbr, bounds, order
 
 
-def _check(value, name, lo, hi, kind):
-    if isinstance(value, bool) or not isinstance(value, kind) or not lo <= value <= hi:
-        raise OptionError(f"octree {name} must be {'an integer' if kind is int else 'a number'} in "
-                          f"[{lo}, {hi}], got {value!r}")
-
-
 def octree_frame(bounds, depth, what):
     """The frame every octree (and lazy octree) builds in: item boxes as (n, 6), which of them
     are solid (finite, lo <= hi), the root's origin and 28-bit address unit, and the boxes
@@ -460,10 +447,10 @@ def build_octree(bounds, *, depth=16, leaf=3, rule60=False, density=0.0, vertexc
     the memory budget (memory.memory_limit() when None); a tree that would need more is a
     MemoryBudgetError."""
     t0 = time.perf_counter()
-    _check(depth, "depth", 0, MAX_DEPTH, int)
-    _check(leaf, "leaf", 1, 1 << 30, int)
-    _check(float(density), "density", 0.0, 1e6, float)
-    _check(float(budget), "budget", 0.0, 1e6, float)
+    number(depth, "octree depth", 0, MAX_DEPTH, integer=True)
+    number(leaf, "octree leaf", 1, 1 << 30, integer=True)
+    number(density, "octree density", 0.0, 1e6)
+    number(budget, "octree budget", 0.0, 1e6)
     items, solid, origin, unit, widened = octree_frame(bounds, depth, "an octree")
     vols = np.where(solid[:, None], items, 0.0)
     if vertexcount and weights is not None:
@@ -526,7 +513,7 @@ def append_octree(flat, tree: OctreeArrays, refs, walk: str, mailbox: bool, box)
                 oct_count=tree.count, oct_loc=tree.loc, oct_level=tree.level, oct_slot=tree.slot,
                 oct_nbr=np.where(tree.nbr >= 0, tree.nbr + n0, -1), oct_pass=np.full(len(tree.count), -1),
                 oct_root=[n0], oct_origin=tree.origin[None], oct_unit=tree.unit[None], oct_scale=1.0 / tree.unit[None],
-                oct_walk=[WALKS.index(walk)], oct_mailbox=[int(mailbox)])
+                oct_walk=[TRAVERSALS.index(walk)], oct_mailbox=[int(mailbox)])
     return flat.add_aggregate(CODE, o, len(tree.count), box)
 
 
@@ -550,8 +537,18 @@ def _address(x, origin, scale, lo, hi):
     return min(max(q, lo), hi)
 
 
-@njit(inline="always")   # the dispatch only: the walks are compiled apart (their IR inlined would cost 15 s)
-def step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_nbr, oct_origin, oct_pass, oct_root,
+@njit(inline="always")
+def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
+    """walk.py's step contract: the octree's walk (oct_walk) from its START, NEXT or PARAM entries."""
+    sp, s, e = octree_step(geo.oct_bounds, geo.oct_count, geo.oct_first, geo.oct_level, geo.oct_loc, geo.oct_mailbox,
+                           geo.oct_nbr, geo.oct_origin, geo.oct_pass, geo.oct_root, geo.oct_scale, geo.oct_slot,
+                           geo.oct_unit, geo.oct_walk, step, a, te, geo.agg_start[ws.frame_i[f, FI_AGG]], ray,
+                           lo, best_t, ws.frame_f, f, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt)
+    return answer(sp, s, e, ray, best_t)
+
+
+@njit(inline="always")   # the choice of walk only: the walks are compiled apart (their IR inlined would cost 15 s)
+def octree_step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_nbr, oct_origin, oct_pass, oct_root,
          oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, tmin, best_t, frame_f, f, stack_a, stack_b,
          stack_t, sp, cnt):
     """One step of octree `oi`'s walk; returns (sp, s, e), the references of the next
@@ -792,6 +789,7 @@ def flatten(builder, params, refs, bounds, name, box):
     return append_octree(builder.flat, tree, refs, params["walk"], params["mailbox"], box), dict(stats)
 
 
+WALK = Walk(code=CODE, name="octree", fields=FIELDS, step=walk_step)
 KIND = Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
               "objects in every child their box overlaps; nodes with the most items times box area are split "
               "first, until depth, leaf, the criteria or the reference budget stop them. Defaults: depth 16 and "
@@ -816,4 +814,4 @@ KIND = Kind("octree", "octree (Glassner 1984): centre subdivision of the scene b
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
     Param("budget", 16.0, "the leaves together hold at most budget * items + 4096 references; a split that "
           "would exceed it is skipped (0: no limit)", float, 0.0, 1e6),
-), flatten=flatten)
+), flatten=flatten, walk=WALK, search=Search(start=True, candidates=("octree", "octree(depth=8)", "octree(leaf=8)")))

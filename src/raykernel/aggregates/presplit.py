@@ -28,7 +28,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.config import njit
-from .bvh import BVHArrays
+from .bvhtree import BVHArrays
+from .memory import grown
 
 CUT_GAIN = 0.75          # a piece is cut when its halves' box areas add up to at most this times its own
 MAX_PIECES = 64
@@ -123,7 +124,7 @@ def _split_kernel(verts, start, count, boxes, pieces):
         if k < 3 or pieces <= 1:        # no outline (a sphere, a cone, a child aggregate): whole
             if m == cap:
                 cap *= 2
-                item, out = _grow(item, out, cap)
+                item, out = grown(item, cap, m), grown(out, cap, m)
             item[m] = r
             out[m] = boxes[r]
             m += 1
@@ -169,20 +170,11 @@ def _split_kernel(verts, start, count, boxes, pieces):
             else:
                 if m == cap:
                     cap *= 2
-                    item, out = _grow(item, out, cap)
+                    item, out = grown(item, cap, m), grown(out, cap, m)
                 item[m] = r
                 out[m] = b
                 m += 1
     return item[:m].copy(), out[:m].copy()
-
-
-@njit
-def _grow(item, out, cap):
-    item2 = np.empty(cap, np.int64)
-    out2 = np.empty((cap, 6))
-    item2[:item.shape[0]] = item
-    out2[:out.shape[0]] = out
-    return item2, out2
 
 
 def split_boxes(verts, start, count, boxes, pieces: int):

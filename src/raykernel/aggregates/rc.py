@@ -10,12 +10,12 @@ Flat layout (the Geometry fields it owns)
 -----------------------------------------
 RC aggregates, RN nodes, RK candidates of all of them:
   rc_face_root  (RC, 6) int64    root hypercube of each direction-cube face    48 B an aggregate
-  rc_node_a     (RN,)   int64    inner: first child (global); leaf: first candidate in rc_ref   8 B a node
+  rc_node_a     (RN,)   int64    inner: first child (global); leaf: first candidate in keyed_ref   8 B a node
   rc_node_b     (RN,)   int64    inner: -(split dimension + 1) of x, y, z, u, v; leaf: candidates   8 B
   rc_split      (RN,)   float64  inner: split coordinate                        8 B
   rc_pass       (RN,)   int64    lazy leaf that may split: its row of rc_vinfo, else -1   8 B
-  rc_key        (RK,)   float64  near-face key of each candidate, rising within a leaf   8 B a candidate
-  rc_ref        (RK,)   int64    tagged reference of each candidate             8 B
+  keyed_key        (RK,)   float64  near-face key of each candidate, rising within a leaf   8 B a candidate
+  keyed_ref        (RK,)   int64    tagged reference of each candidate             8 B
   rc_vinfo      (RP, 3) int64    lazy candidate: first pass counter column, levels K, first entry
                                  in rc_vdim/rc_vsplit
   rc_vdim       (RS,)   int64    split dimension of each inner node of the virtual subtrees
@@ -155,14 +155,15 @@ from typing import NamedTuple
 import numpy as np
 from numba import prange
 
-from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.config import njit
-from ..scene.accel import Kind, Param
+from ..geometry.primitives import PRIMITIVE_KINDS
+from ..options import number
 from .grid import grid_box
-from .lazyoctree import scene_totals, tree_counts
-from .memory import memory_limit, over_budget
-from .walk import F_KEY_D, F_KEY_END, F_KEY_O, Field
+from .lazyset import scene_totals, tree_counts
+from .memory import grown, memory_limit, over_budget
+from .spec import Kind, Param
+from .walk import F_KEY_D, F_KEY_END, F_KEY_O, Field, Walk
 
 __all__ = ["RcArrays", "RcBudgetWarning", "LazyRC", "build_rc", "start_rc", "face_of", "NODE_BYTES",
            "CANDIDATE_BYTES", "VIRTUAL_LEVELS"]
@@ -264,33 +265,6 @@ def _longest(lo, hi, norm):
 
 
 @njit
-def _grow_i(a, n):
-    if n <= a.shape[0]:
-        return a
-    out = np.empty(max(n, 2 * a.shape[0]), a.dtype)
-    out[:a.shape[0]] = a
-    return out
-
-
-@njit
-def _grow_f(a, n):
-    if n <= a.shape[0]:
-        return a
-    out = np.empty(max(n, 2 * a.shape[0]), a.dtype)
-    out[:a.shape[0]] = a
-    return out
-
-
-@njit
-def _grow_rows(a, n):
-    if n <= a.shape[0]:
-        return a
-    out = np.empty((max(n, 2 * a.shape[0]), a.shape[1]), a.dtype)
-    out[:a.shape[0]] = a
-    return out
-
-
-@njit
 def _build_kernel(bx, keys, orders, root_lo, root_hi, leaf, max_depth, budget, keep):
     """Breadth-first build of the six face trees; see the module docstring.
     keys: (n, 6) key of each item per face; orders: (6, n) items of each face root, by key.
@@ -344,7 +318,7 @@ def _build_kernel(bx, keys, orders, root_lo, root_hi, leaf, max_depth, budget, k
             if not exceeded and cnt > leaf and dep < max_depth and stale < STALE_SPLITS:
                 dim = _longest(lv_lo[j], lv_hi[j], norm)
                 mid = 0.5 * (lv_lo[j, dim] + lv_hi[j, dim])
-                nx_buf = _grow_i(nx_buf, nb + 2 * cnt)
+                nx_buf = grown(nx_buf, nb + 2 * cnt, nx_buf.shape[0])
                 counts = np.zeros(2, np.int64)
                 start0 = nb
                 for side in range(2):
@@ -368,16 +342,16 @@ def _build_kernel(bx, keys, orders, root_lo, root_hi, leaf, max_depth, budget, k
                 else:
                     done = False
                     used += delta
-                    node_a = _grow_i(node_a, n_nodes + 2)
-                    node_b = _grow_i(node_b, n_nodes + 2)
-                    split = _grow_f(split, n_nodes + 2)
+                    node_a = grown(node_a, n_nodes + 2, node_a.shape[0])
+                    node_b = grown(node_b, n_nodes + 2, node_b.shape[0])
+                    split = grown(split, n_nodes + 2, split.shape[0])
                     node_a[nd] = n_nodes
                     node_b[nd] = -(dim + 1)
                     split[nd] = mid
-                    nx_node = _grow_i(nx_node, nm + 2)
-                    nx_info = _grow_rows(nx_info, nm + 2)
-                    nx_lo = _grow_rows(nx_lo, nm + 2)
-                    nx_hi = _grow_rows(nx_hi, nm + 2)
+                    nx_node = grown(nx_node, nm + 2, nx_node.shape[0])
+                    nx_info = grown(nx_info, nm + 2, nx_info.shape[0])
+                    nx_lo = grown(nx_lo, nm + 2, nx_lo.shape[0])
+                    nx_hi = grown(nx_hi, nm + 2, nx_hi.shape[0])
                     pos = start0
                     for side in range(2):
                         nx_node[nm] = n_nodes
@@ -400,14 +374,14 @@ def _build_kernel(bx, keys, orders, root_lo, root_hi, leaf, max_depth, budget, k
                         deepest = dep + 1
             if done:
                 # a leaf: its list, already in key order, goes to the output
-                node_a = _grow_i(node_a, n_nodes)
-                node_b = _grow_i(node_b, n_nodes)
-                split = _grow_f(split, n_nodes)
+                node_a = grown(node_a, n_nodes, node_a.shape[0])
+                node_b = grown(node_b, n_nodes, node_b.shape[0])
+                split = grown(split, n_nodes, split.shape[0])
                 node_a[nd] = n_out
                 node_b[nd] = cnt
                 split[nd] = 0.0
-                out_items = _grow_i(out_items, n_out + cnt)
-                out_keys = _grow_f(out_keys, n_out + cnt)
+                out_items = grown(out_items, n_out + cnt, out_items.shape[0])
+                out_keys = grown(out_keys, n_out + cnt, out_keys.shape[0])
                 for q in range(st, st + cnt):
                     out_items[n_out] = buf[q]
                     out_keys[n_out] = keys[buf[q], face]
@@ -418,16 +392,10 @@ def _build_kernel(bx, keys, orders, root_lo, root_hi, leaf, max_depth, budget, k
             out_items[:n_out].copy(), out_keys[:n_out].copy(), deepest, exceeded)
 
 
-def _check(value, name, low, high, kind):
-    if isinstance(value, bool) or not isinstance(value, kind) or not (low <= value <= high) or (
-            isinstance(value, float) and not math.isfinite(value)):
-        raise OptionError(f"rc {name} must be a number in [{low}, {high}], got {value!r}")
-
-
 def _check_all(leaf, depth, budget_mb):
-    _check(leaf, "leaf", 1, 1 << 20, (int, np.integer))
-    _check(depth, "depth", 0, 200, (int, np.integer))
-    _check(budget_mb, "budget_mb", 0.0, 1 << 20, (int, float, np.integer, np.floating))
+    number(leaf, "rc leaf", 1, 1 << 20, integer=True)
+    number(depth, "rc depth", 0, 200, integer=True)
+    number(budget_mb, "rc budget_mb", 0.0, 1 << 20)
 
 
 def _prepare(bounds):
@@ -523,7 +491,7 @@ def start_rc(bounds, *, leaf=8, depth=40, budget_mb=256.0, rays=1, name=None):
     boxes and keys are what LazyRC needs to split leaves later."""
     t0 = time.perf_counter()
     _check_all(leaf, depth, budget_mb)
-    _check(rays, "rays", 1, 1 << 40, (int, np.integer))
+    number(rays, "rc rays", 1, 1 << 40, integer=True)
     box, bx, keys, orders, root_lo, root_hi = _prepare(bounds)
     n = orders.shape[1]
     cand = orders.reshape(-1).copy()
@@ -593,9 +561,9 @@ def _refine_kernel(cand, levels, hoff, hist, node_a, node_b, split, key, ref, it
             dim = _longest(cell[nd, :5], cell[nd, 5:], norm[r])
             mid = 0.5 * (cell[nd, dim] + cell[nd, 5 + dim])
             # the children's lists from the parent's, in the same (key) order
-            key = _grow_f(key, n_cands + 2 * m)
-            ref = _grow_i(ref, n_cands + 2 * m)
-            item = _grow_i(item, n_cands + 2 * m)
+            key = grown(key, n_cands + 2 * m, key.shape[0])
+            ref = grown(ref, n_cands + 2 * m, ref.shape[0])
+            item = grown(item, n_cands + 2 * m, item.shape[0])
             start0 = n_cands
             st = node_a[nd]
             for side in range(2):
@@ -605,7 +573,7 @@ def _refine_kernel(cand, levels, hoff, hist, node_a, node_b, split, key, ref, it
             hi2[0, dim] = mid
             lo2[1, dim] = mid
             if m >= PARALLEL_LIST:
-                side_mask = _grow_i(side_mask, m)
+                side_mask = grown(side_mask, m, side_mask.shape[0])
                 _beam_sides(bx, item, st, m, lo2, hi2, face, side_mask)
             for side in range(2):
                 counts[side] = 0
@@ -629,11 +597,11 @@ def _refine_kernel(cand, levels, hoff, hist, node_a, node_b, split, key, ref, it
                 continue
             used[r] += delta
             subdivisions[r] += 1
-            node_a = _grow_i(node_a, n_nodes + 2)
-            node_b = _grow_i(node_b, n_nodes + 2)
-            split = _grow_f(split, n_nodes + 2)
-            state = _grow_rows(state, n_nodes + 2)
-            cell = _grow_rows(cell, n_nodes + 2)
+            node_a = grown(node_a, n_nodes + 2, node_a.shape[0])
+            node_b = grown(node_b, n_nodes + 2, node_b.shape[0])
+            split = grown(split, n_nodes + 2, split.shape[0])
+            state = grown(state, n_nodes + 2, state.shape[0])
+            cell = grown(cell, n_nodes + 2, cell.shape[0])
             node_a[nd] = n_nodes
             node_b[nd] = -(dim + 1)
             split[nd] = mid
@@ -745,12 +713,12 @@ class LazyRC:
         self = object.__new__(cls)
         self.records = records
         self.base = int(base)
-        n, nc = len(geo.rc_node_a), len(geo.rc_key)
+        n, nc = len(geo.rc_node_a), len(geo.keyed_key)
         self.n_nodes, self.n_cands = n, nc
         cap, ccap = n + max(1024, n), nc + max(4096, nc)
         b = self.buf = {}
         for name, a in (("node_a", geo.rc_node_a), ("node_b", geo.rc_node_b), ("split", geo.rc_split),
-                        ("key", geo.rc_key), ("ref", geo.rc_ref)):
+                        ("key", geo.keyed_key), ("ref", geo.keyed_ref)):
             b[name] = np.empty(ccap if name in _CAND_ARRAYS else cap, a.dtype)
             b[name][:len(a)] = a
         b["state"] = np.zeros((cap, 6), np.int64)
@@ -889,7 +857,7 @@ class LazyRC:
     def _view(self, geo):
         n, nc, b = self.n_nodes, self.n_cands, self.buf
         return geo._replace(rc_node_a=b["node_a"][:n], rc_node_b=b["node_b"][:n], rc_split=b["split"][:n],
-                            rc_key=b["key"][:nc], rc_ref=b["ref"][:nc], rc_pass=b["pass_"][:n],
+                            keyed_key=b["key"][:nc], keyed_ref=b["ref"][:nc], rc_pass=b["pass_"][:n],
                             rc_vinfo=self.vinfo, rc_vdim=self.vdim, rc_vsplit=self.vsplit)
 
     # ------------------------------------------------------------- all-hits queries run twice
@@ -938,27 +906,36 @@ class LazyRC:
 
 
 CODE = 4
-FIELDS = (
+FIELDS = (   # and the driver's keyed lists, keyed_key and keyed_ref (walk.py): the candidate lists
     Field("rc_face_root", np.int64, (6,)), Field("rc_node_a", np.int64, ()), Field("rc_node_b", np.int64, ()),
-    Field("rc_split", np.float64, ()), Field("rc_pass", np.int64, ()), Field("rc_key", np.float64, ()),
-    Field("rc_ref", np.int64, ()), Field("rc_vinfo", np.int64, (3,)), Field("rc_vdim", np.int64, ()),
-    Field("rc_vsplit", np.float64, ()),
+    Field("rc_split", np.float64, ()), Field("rc_pass", np.int64, ()), Field("rc_vinfo", np.int64, (3,)),
+    Field("rc_vdim", np.int64, ()), Field("rc_vsplit", np.float64, ()),
 )
 
 
 def append_rc(flat, tree: RcArrays, refs, box) -> int:
     """Store rc trees over refs as the next aggregate."""
-    n0, k0 = flat.size("rc_node_b"), flat.size("rc_key")
+    n0, k0 = flat.size("rc_node_b"), flat.size("keyed_key")
     r = flat.size("rc_face_root")
     flat.append(rc_face_root=tree.face_root[None] + n0,
                 rc_node_a=np.where(tree.node_b < 0, tree.node_a + n0, tree.node_a + k0), rc_node_b=tree.node_b,
-                rc_split=tree.split, rc_pass=np.full(len(tree.node_b), -1), rc_key=tree.keys, rc_ref=refs[tree.items])
+                rc_split=tree.split, rc_pass=np.full(len(tree.node_b), -1), keyed_key=tree.keys, keyed_ref=refs[tree.items])
     return flat.add_aggregate(CODE, r, len(tree.node_b), box)
 
 
+@njit(inline="always")
+def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
+    """walk.py's step contract: the ray's hypercube's candidates, a keyed list."""
+    ox, oy, oz, dx, dy, dz, _, _, _ = ray
+    s, e, key_o, key_d = classify(geo.rc_face_root, geo.rc_node_a, geo.rc_node_b, geo.rc_pass, geo.rc_split,
+                                  geo.rc_vdim, geo.rc_vinfo, geo.rc_vsplit, a, te, ox, oy, oz, dx, dy, dz, best_t,
+                                  ws.frame_f, f, cnt)
+    return sp, s, e, True, key_o, key_d, ray, best_t, False
+
+
 @njit(private=True)
-def step(rc_face_root, rc_node_a, rc_node_b, rc_pass, rc_split, rc_vdim, rc_vinfo, rc_vsplit, a, te, ox, oy, oz, dx,
-         dy, dz, best_t, frame_f, f, cnt):
+def classify(rc_face_root, rc_node_a, rc_node_b, rc_pass, rc_split, rc_vdim, rc_vinfo, rc_vsplit, a, te, ox, oy, oz,
+             dx, dy, dz, best_t, frame_f, f, cnt):
     """Classify the ray (direction-cube face, u, v, and its entry point at te as origin),
     descend its face's 5D tree to one hypercube and return (s, e, key_o, key_d): the
     hypercube's keyed candidate list (none: s == e), also kept in the frame for resuming.
@@ -1015,14 +992,46 @@ def flatten(builder, params, refs, bounds, name, box):
         # six root leaves now, split between passes where rays arrive (LazyRC)
         tree, stats, boxes, keys = start_rc(bounds, leaf=params["leaf"], depth=params["depth"],
                                             budget_mb=params["budget_mb"], rays=params["rays"], name=name)
-        flat.lazy_rc.append(dict(params, node=flat.size("rc_node_b"), cand=flat.size("rc_key"), items=tree.items,
-                                 boxes=boxes, box=tree.box, stats=stats, name=name, max_bytes=builder.max_bytes))
+        flat.lazy[KIND.name].append(dict(params, node=flat.size("rc_node_b"), cand=flat.size("keyed_key"),
+                                         items=tree.items, boxes=boxes, box=tree.box, stats=stats, name=name,
+                                         max_bytes=builder.max_bytes))
     else:
         tree, stats = build_rc(bounds, leaf=params["leaf"], depth=params["depth"], budget_mb=params["budget_mb"],
                                name=name, max_bytes=builder.max_bytes)
     return append_rc(flat, tree, refs, box), stats
 
 
+TESTS_PER_STEP = 8       # test.rc: the first tests of each hypercube's list; test.rc.more: the rest
+
+
+def features(stats, f, used) -> None:
+    """The cost model's features. In a render walked by ray classification alone, the first
+    TESTS_PER_STEP ray/primitive tests of each hypercube visited (test.rc): its candidate lists,
+    sorted by distance, send them to primitives scattered in memory (some 9 ns more a test than a
+    grid's in the reference costs); the tests further down a long list (test.rc.more) cost no
+    more than a grid's (priced as the first, SPD balls' and shells' long lists of spheres were
+    over-predicted by 40-70%); and the corners its tests walked (polygon.corner.rc). A lazy one's
+    rays weighted by log2(1 + MiB of its structure) (ray.lazy.rc_mb: a ray's hypercube and
+    candidates are found in memory that grows with the refinement), and its refinement's
+    references by the MiB themselves (refine.rc.ref_size: past the caches, at the hundreds of
+    MiB rc reaches on a 256-pixel render, a reference costs twice what it does at a few MiB)."""
+    if used == {"rc"}:
+        tests = sum(float(stats.get(f"tests.{k}", 0)) for k in PRIMITIVE_KINDS)
+        f["test.rc"] = min(tests, TESTS_PER_STEP * f["step.rc"])
+        f["test.rc.more"] = tests - f["test.rc"]
+        f["polygon.corner.rc"] = float(stats.get("polygon.corners", 0))
+    rays = f["ray.shaded"] + f["ray.shadow"]
+    for a in getattr(stats, "aggregates", []):
+        if "subdivisions" in a and a.get("kind", "").split("(")[0] == "rc":
+            megabytes = math.log2(1.0 + a.get("bytes", 0) / 2 ** 20)
+            f["ray.lazy.rc_mb"] = f.get("ray.lazy.rc_mb", 0.0) + rays * megabytes
+            f["refine.rc.ref_size"] = f.get("refine.rc.ref_size", 0.0) + float(a.get("refs", 0)) * a.get("bytes", 0) / 2 ** 20
+
+
+WALK = Walk(code=CODE, name="rc", fields=FIELDS, step=walk_step, features=features)
+# the annealer does not offer it: a sample of rays would price the lazy one as the coarse trees it
+# leaves, and the eager one costs more to build, on scenes of thousands of items, than a search has
+# time for
 KIND = Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (origin, direction-cube face and "
               "u, v), six 5D bisection trees, candidate lists tested near first; lazy (default): each face's root "
               "starts as one leaf, and between passes of rays (those of lazyoctree) a leaf where at least `rays` "
@@ -1036,4 +1045,4 @@ KIND = Kind("rc", "ray classification (Arvo-Kirk 1987): rays as 5D points (origi
           "splits in a row that each keep more than 3/4 of its candidates; off: eagerly, breadth first over all "
           "of 5D space until leaf, depth, 5 such splits or the budget stop it", bool),
     Param("rays", 1, "lazy: rays that must arrive at a leaf before it is split", int, 1, 1 << 40),
-), flatten=flatten)
+), flatten=flatten, walk=WALK, lazy=LazyRC)

@@ -2,7 +2,13 @@
 
     wide = collapse(node_bounds, node_first, node_count, root)     # WideBVH of one binary tree
     wx, wy, wz, vx, vy, vz, near = wide_ray(wide.center, ox, oy, oz, ix, iy, iz)   # once per ray
-    mask = box4_entries(wide.nodes, node, wx, wy, wz, vx, vy, vz, near, tmin, tmax, t4)
+    stack[0], stack_t[0], sp = 0, te, 1                            # the root, entered at te
+    while True:                                                    # the 4-wide walk, written once
+        leaf, sp, n_nodes, n_bounds = next_leaf(wide.nodes, wx, wy, wz, vx, vy, vz, near, tmin, best_t, t4,
+                                                stack, stack_t, sp, n_nodes, n_bounds)
+        if leaf == NO_CHILD:
+            break
+        first, end = leaf_range(wide.nodes, leaf)                  # test refs first..end-1, lower best_t
 
 Why: a binary node visit tests two boxes one after the other; a wide node
 tests its four children's boxes in one vector slab test (four lanes of
@@ -309,3 +315,25 @@ def leaf_range(nodes, entry):
     word = (slot >> 2) * 32 + (slot & 3)
     first = np.int64(load(nodes, word + CHILD))
     return first, first + load(nodes, word + COUNT)
+
+
+@njit(inline="always")
+def next_leaf(nodes, ox, oy, oz, ix, iy, iz, near, tmin, best_t, t4, stack, stack_t, sp, n_nodes, n_bounds):
+    """The 4-wide walk (every caller's: the fast render walk, engine/widewalk.py, and the mesh kernel,
+    casting/meshcast.py): pop entries, dropping those entered beyond the closest hit best_t (beyond
+    rounding: ties need the node), and go down the nearest children to the next leaf the ray enters.
+    Returns (that leaf as visit names it, NO_CHILD once the stack is empty; sp; n_nodes and n_bounds
+    with the nodes visited and child boxes tested added). The ray as wide_ray gives it."""
+    while sp > 0:
+        sp -= 1
+        te = load(stack_t, sp)
+        if te > best_t and te > best_t * CONSERVATIVE:
+            continue
+        v = load(stack, sp)
+        while v >= 0:
+            n_nodes += 1
+            v, sp, tested = visit(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, best_t, t4, stack, stack_t, sp)
+            n_bounds += tested
+        if v != NO_CHILD:
+            return v, sp, n_nodes, n_bounds
+    return np.int64(NO_CHILD), sp, n_nodes, n_bounds

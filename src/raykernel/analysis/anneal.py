@@ -53,29 +53,27 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..aggregates.registry import CANDIDATES, DEFAULT, SMALL_ONLY, START_SPECS, START_VARIANTS, parse_spec
+from ..aggregates.spec import is_auto
 from ..errors import OptionError, RayKernelError
-from ..scene.accel import is_auto
+from ..options import number
 from ..scene.model import Cones, Group, Instance, Polygons, Scene, Spheres, TriangleMesh
+from ..scene.specs import is_operator, without_specs  # noqa: F401  (without_specs: for the searches' callers)
 
-# lazy structures (lazyoctree, rc's default) refine as rays arrive, so a sample of rays would
-# price them as the coarse trees it leaves: the search offers only eager ones. Eager ray
-# classification (rc(lazy=off)) costs more to build, on scenes of thousands of items, than
-# a search has time for, so rc is left out too
-START_SPECS = ("bvh", "grid", "hgrid", "octree", "hybrid")
-# started from as well, but not a kind at its defaults (best_single leaves them out): a BVH over
-# pieces of long thin polygons (presplit.py) is the one structure that separates a fan of facets,
-# and a BVH whose nodes are reinserted (bvhopt.py) the one that tightens a tree around a small
-# dense cluster in a large sparse scene (the stadium's teapot), with leaves of at most two
-# items the tightest there (the stadium 1.23x the SAH BVH's speed, 1.18x with reinsertion alone)
-START_VARIANTS = ("bvh(split=16)", "bvh(optimize=reinsertion)", "bvh(leaf=2, optimize=reinsertion)")
-CANDIDATES = (
-    "bvh", "bvh(leaf=1)", "bvh(leaf=2)", "bvh(leaf=8)", "bvh(bins=32)", "bvh(optimize=reinsertion)",
-    "bvh(leaf=2, optimize=reinsertion)",
-    "bvh(build=gs, optimize=reinsertion)", "bvh(split=4)", "bvh(split=16)",
-    "grid", "grid(density=0.5)", "grid(density=8)", "grid(res=woo, density=16)",
-    "hgrid", "octree", "octree(depth=8)", "octree(leaf=8)", "hybrid", "list",
-)
-LIST_MAX = 16            # a group of more primitives than this is never offered the brute-force list
+# What the search starts from and offers comes from the kinds' own declarations (spec.Search):
+# START_SPECS, the kinds started from at their defaults over the whole target (lazy structures
+# refine as rays arrive, so a sample of rays would price them as the coarse trees it leaves: the
+# search offers only eager ones); START_VARIANTS, other specs started from but not a kind at its
+# defaults (best_single leaves them out); CANDIDATES, every spec a group may be given; and
+# SMALL_ONLY, kinds offered only to groups of at most so many primitives.
+
+
+def _offered(spec: str, prims: int) -> bool:
+    """Whether a group of `prims` primitives may be given `spec`."""
+    limit = SMALL_ONLY.get(spec.split("(", 1)[0])
+    return limit is None or prims <= limit
+
+
 MOVES = ("spec", "split", "merge", "move", "wrap", "dissolve")
 MAX_ATOMS = 192
 MIN_ATOM = 8
@@ -92,13 +90,6 @@ class _Region:
     children: list = field(default_factory=list)     # _Region
 
 
-def _is_operator(group: Group) -> bool:
-    from ..scene.accel import KINDS, parse_spec
-    if not group.accel or is_auto(group.accel):
-        return False
-    return KINDS[parse_spec(group.accel)[0]].operands
-
-
 def _regions(group: Group) -> _Region:
     """The target group's primitives and opaque children, by the groups with specs below it."""
     region = _Region(None)
@@ -107,7 +98,7 @@ def _regions(group: Group) -> _Region:
         for s in g.primitive_sets():
             into.elements += [(s, i) for i in range(len(s))]
         for child in g.children:
-            if isinstance(child, Instance) or _is_operator(child):
+            if isinstance(child, Instance) or is_operator(child):
                 into.elements.append((child, None))
             elif child.accel is None or is_auto(child.accel):
                 collect(child, into)
@@ -360,7 +351,7 @@ def propose(state: Node, atoms: Atoms, rng, max_levels: int = MAX_LEVELS):
     centres = atoms.centres
     if move == "spec":
         prims = int(atoms.counts[node.all_atoms()].sum())
-        choices = [c for c in CANDIDATES if c != node.spec and (c != "list" or prims <= LIST_MAX)]
+        choices = [c for c in CANDIDATES if c != node.spec and _offered(c, prims)]
         node.spec = choices[int(rng.integers(len(choices)))]
     elif move == "split":
         if len(node.atoms) < 2 or depth >= max_levels:
@@ -399,8 +390,8 @@ def propose(state: Node, atoms: Atoms, rng, max_levels: int = MAX_LEVELS):
         k = int(rng.integers(1, len(own)))
         near = own[np.argsort(np.sum((centres[own] - centres[seed]) ** 2, axis=1), kind="stable")[:k]]
         spec = CANDIDATES[int(rng.integers(len(CANDIDATES)))]
-        if spec == "list" and int(atoms.counts[near].sum()) > LIST_MAX:
-            spec = "bvh"
+        if not _offered(spec, int(atoms.counts[near].sum())):
+            spec = DEFAULT
         node.atoms = [a for a in node.atoms if a not in set(near.tolist())]
         node.children.append(Node(spec, near.tolist()))
     else:   # dissolve
@@ -482,27 +473,13 @@ def _replace(root: Group, target: Group, new: Group) -> Group:
     return visit(root)
 
 
-def without_specs(scene: Scene) -> Scene:
-    """The scene with no group naming a structure (boolean operators kept): rendered with
-    accel=KIND, everything is under that one kind. The primitive sets are shared, not copied."""
-    memo: dict[int, Group] = {}
-
-    def visit(g: Group) -> Group:
-        if id(g) not in memo:
-            kids = [Instance(visit(c.group), c.matrix) if isinstance(c, Instance) else visit(c) for c in g.children]
-            memo[id(g)] = dataclasses.replace(g, children=kids, accel=g.accel if _is_operator(g) else None)
-        return memo[id(g)]
-
-    return dataclasses.replace(scene, root=visit(scene.root))
-
-
 def _under_one(group: Group, spec: str) -> Group:
     """`group` under one structure: `spec` on it and no spec on the groups it merges (instances
     and operators kept whole, as atoms keep them). The scene's own groups and sets are kept, so
     a single kind found over everything renders exactly as that kind does (the same layout: a
     regrouped copy of the park, as fast by its counters, traced 10% slower)."""
     def visit(g: Group) -> Group:
-        kids = [c if isinstance(c, Instance) or _is_operator(c) else visit(c) for c in g.children]
+        kids = [c if isinstance(c, Instance) or is_operator(c) else visit(c) for c in g.children]
         return dataclasses.replace(g, children=kids, accel=None)
 
     return dataclasses.replace(visit(group), accel=spec)
@@ -527,8 +504,8 @@ class Energy:
     evaluations: int = 0
 
     def __post_init__(self):
-        from ..rendering.render import _options
-        o = _options(self.scene, **{k: v for k, v in self.options.items() if k != "accel"})
+        from ..rendering.render import render_options
+        o = render_options(self.scene, **{k: v for k, v in self.options.items() if k != "accel"})
         w = o["resolution"] or self.scene.camera.width
         h = o["resolution"] or self.scene.camera.height
         # the sample keeps the render's aspect (and so its view), its longer side `sample` pixels
@@ -612,8 +589,7 @@ class Annealed:
 
 
 def _check(name, value, lo, hi, integer=False):
-    from ..rendering.render import _number
-    return _number(value, f"anneal {name}", lo, hi, integer)
+    return number(value, f"anneal {name}", lo, hi, integer)
 
 
 def atoms_of(scene: Scene, target: Group | None = None, max_atoms: int = MAX_ATOMS):
@@ -807,12 +783,11 @@ def _auto_targets(group: Group, seen=None):
 
 
 def resolve_auto(scene: Scene, accel: str, options: dict, log=None):
-    """render()'s step for `auto` specs (rendering/render.py AUTO_RESOLVERS): (the scene with
+    """raykernel.render's step for `auto` specs (auto.py): (the scene with
     every auto group annealed, the default spec for the rest, a summary per annealed group),
     None where nothing is auto. With accel auto the root is annealed."""
     from ..geometry.config import tell_once
-    from ..scene.accel import parse_spec
-    default = "bvh" if is_auto(accel) else accel
+    default = DEFAULT if is_auto(accel) else accel
     targets = [(scene.root, parse_spec(accel)[1])] if is_auto(accel) else \
         [(g, parse_spec(g.accel)[1]) for g in _auto_targets(scene.root)]
     if not targets:

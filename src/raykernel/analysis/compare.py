@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import OptionError
-from ..rendering.render import render
+from ..rendering.stats import jsonable
+from .auto import render
 
 TIMING_KEYS = ("time.parse", "time.preprocess", "time.trace", "time.compile", "time.load", "time.rays_per_second",
                "build.seconds")
@@ -131,7 +132,7 @@ def _warm_up(accels, spd, threads):
 
 
 def _check_accels(accels):
-    from ..scene.accel import parse_spec
+    from ..aggregates.registry import parse_spec
     if not accels:
         raise OptionError("name at least one structure with --accel SPEC")
     for a in accels:
@@ -403,17 +404,9 @@ def table(cmp: Comparison, title=None):
 
 def _run_dict(run: Run) -> dict:
     return {"scene": run.scene, "accel": run.accel, "params": run.params, "primitives": run.primitives,
-            "counters": {k: _plain(v) for k, v in run.stats.items()},
+            "counters": {k: jsonable(v) for k, v in run.stats.items()},
             "predicted_trace": run.predicted, "aggregates": run.stats.aggregates,
             "info": run.stats.info}
-
-
-def _plain(v):
-    if isinstance(v, np.integer):
-        return int(v)
-    if isinstance(v, np.floating):
-        return float(v)
-    return v
 
 
 def to_dict(cmp: Comparison) -> dict:
@@ -427,9 +420,8 @@ def to_dict(cmp: Comparison) -> dict:
 
 def write_json(cmp: Comparison, path) -> None:
     from ..atomicfile import atomic_write
-    from ..rendering.stats import _plain as stats_plain
     with atomic_write(path) as f:
-        json.dump(to_dict(cmp), f, indent=2, default=stats_plain)
+        json.dump(to_dict(cmp), f, indent=2, default=jsonable)
         f.write("\n")
 
 

@@ -13,18 +13,9 @@ Trace time is modelled as  sum(count * cost)  over these features:
   ray.culled     eye rays of tiles culled whole (frustum.culled): each costs a background sample,
                  and neither ray.shaded nor its walk's bound test counts it
   ray.shadow     shadow rays (no shading)
-  ray.lazy.W     rays of a render with lazy structures of walk W (rc; octree for lazyoctree),
-                 traced coarse to fine: the sparse early passes find little in the caches
-  ray.lazy.rc_mb and for ray classification weighted by log2(1 + MiB of its structure): a ray's
-                 hypercube and candidates are found in memory that grows with the refinement
-  test.rc        in a render walked by ray classification alone, the first RC_TESTS_PER_STEP
-                 ray/primitive tests of each hypercube visited: its candidate lists, sorted by
-                 distance, send them to primitives scattered in memory (some 9 ns more a test
-                 than a grid's in the reference costs);
-  test.rc.more   the tests further down a long list, priced apart: they cost no more than a
-                 grid's (priced as the first, SPD balls' and shells' long lists of spheres
-                 were over-predicted by 40-70%);
-  polygon.corner.rc  and the corners its tests walked
+  ray.lazy.W     rays of a render with lazy structures of walk W (the walk of the lazy kind:
+                 octree for lazyoctree, rc for rc), traced coarse to fine: the sparse early
+                 passes find little in the caches
   pass.lazy      passes of such a render: each hands its tiles to the threads again
   test.KIND      ray/primitive tests, one cost per primitive kind
   hit.KIND       and those that found the primitive in range (a hit computes its root and
@@ -35,41 +26,32 @@ Trace time is modelled as  sum(count * cost)  over these features:
   leaf           non-empty leaves and cells visited (each starts a loop over references)
   entry.W        rays entering an aggregate of walk W (its set-up: a grid's first cell, an
                  octree's entry point, a ray classification's face and key)
-  entry.grid.more  and bound.grid.more: a grid's entries and bound tests beyond one a ray (an
-                 hgrid's inner grids, the boxes of instances and structures in cells); the
-                 first moves with the ray count and takes a share of a ray's costs with it
   step.W         traversal steps (cells.visited, N_TS) of walk W
   bound.W        ray/bounding-volume tests charged to walk W
   transform      rays mapped into an instance
-  (a walk's own) what a walk's module prices apart (its COUNTERS with a feature name: the boolean
-                 operators' csg.crossing and csg.resolve)
+  (a walk's own) its counters with a feature name (Walk.counters: the boolean operators'
+                 csg.crossing and csg.resolve), and whatever its Walk.features prices apart
+                 (the BVH's 4-wide walk as `wide`, a grid's entries beyond one a ray, ray
+                 classification's tests and lazy memory: their modules say why)
   refine.pass    lazy structures' refinement between passes of rays: one per pass
-  refine.W.*     and per lazy walk W (rc; octree for lazyoctree): each subdivision, each
-                 candidate reference, and each reference weighted by log2(1 + MiB of its
-                 structure) (a reference costs more to filter and copy in a larger structure);
-                 for rc each reference also weighted by the MiB themselves (refine.rc.ref_size):
-                 past the caches, at the hundreds of MiB rc reaches on a 256-pixel render, a
-                 reference costs twice what it does at a few MiB
+  refine.W.*     and per lazy walk W: each subdivision, each candidate reference, and each
+                 reference weighted by log2(1 + MiB of its structure) (a reference costs more
+                 to filter and copy in a larger structure)
 
-W is one of the kernel's walks (aggregates.WALK_NAMES: list, bvh, grid, octree, rc,
-csg); every structure kind runs one of them (hgrid runs grids, hybrid and lazyoctree
-octrees with BVHs inside), and the kernel counts each walk's share apart (walk.W.*), so one
-model prices any nesting of any kinds. A scene that is one BVH over primitives is walked by
-the 4-wide walk of engine/widewalk.py instead, with the primitives' numbers laid out in leaf
-order: its node visits and its tests cost what the general walk's do not (a polygon test
-about a third as much), so its walk is W = wide and its tests, hits and corners are priced as
-test.KIND.wide, hit.KIND.wide and polygon.corner.wide. Costs are wall-clock seconds at the thread count of
-the calibration, so a model only predicts renders made with that many threads on that
-machine; REFERENCE_PATH holds one fitted on a 2-core machine, used where this machine has
+W is one of the kernel's walks (registry.WALK_NAMES); every structure kind runs one of them
+(hgrid runs grids, hybrid and lazyoctree octrees with BVHs inside), and the kernel counts
+each walk's share apart (walk.W.*), so one model prices any nesting of any kinds. Costs
+are wall-clock seconds at the thread count of the calibration, so a model only predicts
+renders made with that many threads on that machine; REFERENCE_PATH holds one fitted on a 2-core machine, used where this machine has
 none (analysis.anneal ranks candidates with it: rankings move less between machines than
 seconds do).
 
 Calibration set (CALIBRATION_SCENES): small SPD scenes, a triangle scene and nested scenes
 (a small park among them), rendered in SPD mode at two resolutions (128 and 256 pixels: at
 256 ray classification grows to the sizes it reaches on full scenes) with every structure
-kind, the nested ones both with their own structures inside and wholly under the kind (the
-brute-force list only on scenes of at most LIST_MAX_PRIMS primitives); each render is
-repeated REPEATS times and its shortest trace time kept, since other work on the machine
+kind, the nested ones both with their own structures inside and wholly under the kind (a
+kind offered only to small groups, the brute-force list, only on scenes of at most
+SMALL_SCENE_PRIMS primitives); each render is repeated REPEATS times and its shortest trace time kept, since other work on the machine
 only ever adds time.
 The fit is least squares on relative error (each render weighs the same, whatever its
 length), with costs held non-negative and a small ridge term so that features that always
@@ -93,12 +75,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..aggregates import WALK_COUNTERS, WALK_NAMES
+from ..aggregates.registry import KINDS, SMALL_ONLY, WALK_COUNTERS, WALK_NAMES, WALKS
+from ..geometry.primitives import PRIMITIVE_KINDS
 from ..errors import OptionError
 
 VERSION = 10                # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
-PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
 
 CALIBRATION_SCENES = (
     "spd:balls:1", "spd:balls:2", "spd:gears:1", "spd:gears:2", "spd:tetra:3", "spd:tetra:4",
@@ -108,19 +90,19 @@ CALIBRATION_SCENES = (
     "scene:satellite:prims=600", "scene:park:rides=2,horses=6,trees=60,mountain_level=3",
 )
 CALIBRATION_RESOLUTIONS = (128, 256)
-LIST_MAX_PRIMS = 1500
+SMALL_SCENE_PRIMS = 1500   # a kind offered only to small groups (registry.SMALL_ONLY) is calibrated on scenes this small
 REPEATS = 3
 RIDGE = 1e-4
 ANCHOR_SECONDS = 0.1        # SpeedProbe: anchors long enough to time, short enough to repeat
 ANCHORS_PER_KIND = 2
-ONE_KIND = " (one kind)"    # a calibration scene rendered wholly under the kind (anneal.without_specs)
-RC_TESTS_PER_STEP = 8       # test.rc: the first tests of each hypercube's list; test.rc.more: the rest
+ONE_KIND = " (one kind)"    # a calibration scene rendered wholly under the kind (scene.specs.without_specs)
 GROUPS = {"ray": "rays", "render": "rays", "test": "tests", "hit": "tests", "polygon": "tests"}   # breakdown()
 
 
 def features(stats) -> dict:
     """The counted operations of one render, named as the model's features (the walks' own
-    counters say which structures did the work)."""
+    counters say which structures did the work); each walk adds what it prices apart
+    (Walk.features)."""
     culled = float(stats.get("frustum.culled", 0))
     f = {
         "render": 1.0,
@@ -129,58 +111,39 @@ def features(stats) -> dict:
         "ray.shadow": float(stats["rays.shadow"]),
         "ray.culled": culled,
     }
-    wide = walked_wide(stats)
-    tail = ".wide" if wide else ""
     for k in PRIMITIVE_KINDS:
-        f[f"test.{k}{tail}"] = float(stats.get(f"tests.{k}", 0))
-        f[f"hit.{k}{tail}"] = float(stats.get(f"hits.{k}", 0))
-    f[f"polygon.corner{tail}"] = float(stats.get("polygon.corners", 0))
+        f[f"test.{k}"] = float(stats.get(f"tests.{k}", 0))
+        f[f"hit.{k}"] = float(stats.get(f"hits.{k}", 0))
+    f["polygon.corner"] = float(stats.get("polygon.corners", 0))
     f["mailbox"] = float(stats.get("mailbox.saved", 0))
     f["leaf"] = float(stats.get("cells.leaves", 0))
     for walk in WALK_NAMES:
-        name = "wide" if wide and walk == "bvh" else walk
-        f[f"entry.{name}"] = float(stats.get(f"walk.{walk}.entries", 0))
-        f[f"step.{name}"] = float(stats.get(f"walk.{walk}.steps", 0))
-        f[f"bound.{name}"] = float(stats.get(f"walk.{walk}.bounds", 0)) - (culled if name == "wide" else 0.0)
-    # a grid's first entry and bound test of a ray move with the ray count (its set-up); those
-    # beyond (an hgrid's inner grids, the boxes of instances and structures in its cells) are
-    # cheaper, and priced apart
-    rays = f["ray.shaded"] + f["ray.shadow"]
-    for what in ("entry", "bound"):
-        count = f[f"{what}.grid"]
-        f[f"{what}.grid"] = min(count, rays)
-        f[f"{what}.grid.more"] = count - f[f"{what}.grid"]
+        f[f"entry.{walk}"] = float(stats.get(f"walk.{walk}.entries", 0))
+        f[f"step.{walk}"] = float(stats.get(f"walk.{walk}.steps", 0))
+        f[f"bound.{walk}"] = float(stats.get(f"walk.{walk}.bounds", 0))
     f["transform"] = float(sum(stats.get(f"transforms.{k}", 0) for k in ("identity", "translation", "scale",
                                                                           "affine")))
     for counter, feature in WALK_COUNTERS:
         if feature:
             f[feature] = float(stats.get(counter, 0))
-    if walks_used(stats) == {"rc"}:
-        # a candidate of ray classification's lists is tested where the list sends it, its
-        # primitive's numbers far from the list: a test and its corners cost more than in cells
-        # or leaves whose references follow the structure
-        tests = sum(float(stats.get(f"tests.{k}", 0)) for k in PRIMITIVE_KINDS)
-        f["test.rc"] = min(tests, RC_TESTS_PER_STEP * f["step.rc"])
-        f["test.rc.more"] = tests - f["test.rc"]
-        f["polygon.corner.rc"] = float(stats.get("polygon.corners", 0))
     # lazy structures refine between passes of rays, inside the trace time
+    rays = f["ray.shaded"] + f["ray.shadow"]
     lazy = [a for a in getattr(stats, "aggregates", []) if "subdivisions" in a]
     if lazy:
         passes = float(stats.get("build.refine_passes", 0))
         f["refine.pass"] = f["pass.lazy"] = passes
         for a in lazy:
-            # rc refines its own walk's hypercubes; every other lazy kind (lazyoctree) an octree
-            walk = "rc" if a.get("kind", "").split("(")[0] == "rc" else "octree"
+            walk = KINDS[a.get("kind", "").split("(")[0]].walk.name      # the walk it refines
             refs = float(a.get("refs", 0))
             megabytes = math.log2(1.0 + a.get("bytes", 0) / 2 ** 20)
             for name, count in (("subdivision", float(a.get("subdivisions", 0))), ("ref", refs),
                                 ("ref_mb", refs * megabytes)):
                 f[f"refine.{walk}.{name}"] = f.get(f"refine.{walk}.{name}", 0.0) + count
             f[f"ray.lazy.{walk}"] = rays
-            if walk == "rc":
-                f["ray.lazy.rc_mb"] = f.get("ray.lazy.rc_mb", 0.0) + rays * megabytes
-                # past the caches (rc grows to hundreds of MiB) a reference costs more again
-                f["refine.rc.ref_size"] = f.get("refine.rc.ref_size", 0.0) + refs * a.get("bytes", 0) / 2 ** 20
+    used = {w for w in WALK_NAMES if stats.get(f"walk.{w}.entries", 0) or stats.get(f"walk.{w}.steps", 0)}
+    for walk in WALKS:
+        if walk.features is not None:
+            walk.features(stats, f, used)
     return f
 
 
@@ -194,19 +157,11 @@ def unscaled(name: str) -> bool:
     return name in ("render", "pass.lazy") or refining(name)
 
 
-def walked_wide(stats) -> bool:
-    """Whether the render's rays took the 4-wide walk (engine/widewalk.py): its scene was one BVH
-    of width 4 over primitives, and its closest-hit searches were lazy about normals (with eager
-    normals they take the general walk)."""
-    aggregates = getattr(stats, "aggregates", [])
-    tricks = getattr(stats, "info", {}).get("tricks", ["lazynormals"])
-    return len(aggregates) == 1 and aggregates[0].get("wide_nodes", 0) > 0 and "lazynormals" in tricks
-
-
 def walks_used(stats) -> set:
-    """The walks that did work in a render (wide for the 4-wide walk's bvh)."""
-    used = {w for w in WALK_NAMES if stats.get(f"walk.{w}.entries", 0) or stats.get(f"walk.{w}.steps", 0)}
-    return {"wide" if w == "bvh" else w for w in used} if walked_wide(stats) else used
+    """The walks whose work a render's features price (a walk's own pricing may name it apart:
+    wide for a BVH walked 4-wide)."""
+    return {name.split(".", 1)[1] for name, count in features(stats).items()
+            if count and name.split(".")[0] in ("entry", "step") and name.count(".") == 1}
 
 
 def fit_split(rows: list[dict], times, refine_times, ridge: float = RIDGE) -> dict:
@@ -346,10 +301,14 @@ def machine_info() -> dict:
     """CPU model, cores, threads and versions."""
     import sys
 
+    from importlib.metadata import PackageNotFoundError, version
+
     import numba
     import numpy
-
-    import raykernel
+    try:
+        ours = version("raykernel")
+    except PackageNotFoundError:      # a source tree that is not installed
+        ours = "unknown"
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as f:
@@ -362,7 +321,7 @@ def machine_info() -> dict:
     return {"cpu": cpu, "cores": os.cpu_count(), "threads": numba.get_num_threads(),
             "host": socket.gethostname(), "system": f"{platform.system()} {platform.release()}",
             "python": sys.version.split()[0], "numpy": numpy.__version__, "numba": numba.__version__,
-            "raykernel": raykernel.__version__}
+            "raykernel": ours}
 
 
 class SpeedProbe:
@@ -395,7 +354,7 @@ class SpeedProbe:
 
     def _scene(self, name):
         from ..scene.loading import load
-        from .anneal import without_specs
+        from ..scene.specs import without_specs
         if name not in self._scenes:
             base = name.removesuffix(ONE_KIND)
             scene = load(base)
@@ -436,9 +395,8 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
     import numba
 
     from ..rendering.render import render
-    from ..scene.accel import KINDS
     from ..scene.loading import load
-    from .anneal import without_specs
+    from ..scene.specs import without_specs
     kinds = list(kinds or (name for name, kind in KINDS.items() if not kind.operands))
     loaded = []
     for name in scenes:
@@ -453,7 +411,7 @@ def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RES
         # compile (or load from the cache) before anything is timed
         render(loaded[0][1], accel=kind, resolution=4, spd=True, threads=threads)
         for name, scene in loaded:
-            if kind == "list" and scene.count_primitives() > LIST_MAX_PRIMS:
+            if kind in SMALL_ONLY and scene.count_primitives() > SMALL_SCENE_PRIMS:
                 continue
             for res in resolutions:
                 t0 = time.perf_counter()

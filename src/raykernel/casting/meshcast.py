@@ -11,11 +11,12 @@ box test and runs the same watertight triangle test, so its hits, ties and
 surfaces are identical to the generic kernel's (tested), with four changes
 that make it fast:
 
-* `query` walks the BVH collapsed 4-wide (aggregates/widebvh.py): a node's
-  four child boxes are tested in one vector slab test and the children the
-  ray enters are visited nearest first. The leaves are the binary tree's,
-  so a ray meets the same triangles; `query_binary` (bvh(width=2)) walks the
-  binary tree node for node as the generic kernel does, counters included;
+* `query` walks the BVH collapsed 4-wide (aggregates/widebvh.py, next_leaf:
+  the 4-wide walk the fast render walk takes too): a node's four child boxes
+  are tested in one vector slab test and the children the ray enters are
+  visited nearest first. The leaves are the binary tree's, so a ray meets the
+  same triangles; `query_binary` (bvh(width=2)) walks the binary tree with the
+  generic kernel's own binary walk (bvh.descend), counters included;
 * the ray's permutation and shear for the watertight test are computed once
   per ray instead of once per triangle (the same arithmetic, bit for bit),
   and the test is inlined into the leaf loop;
@@ -44,8 +45,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates.widebvh import CHILD, COUNT, NO_CHILD, WideBVH, leaf_range, visit, wide_ray
-from ..engine.flatten import BVH, Geometry
+from ..aggregates.bvh import CODE as BVH
+from ..aggregates.bvh import descend
+from ..aggregates.widebvh import CHILD, COUNT, NO_CHILD, WideBVH, leaf_range, next_leaf, wide_ray
+from ..engine.flatten import Geometry
 from ..engine.traverse import ALL_HITS
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, box_entry, inverse
@@ -155,30 +158,30 @@ def query(geo, corners, ids, root, wide, blocks, first_block, origins, direction
 def query_binary(geo, corners, ids, root, wide, blocks, first_block, origins, directions, tmin, tmax,
                  mode, chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface,
                  offsets, all_t, all_i, counters, c0, c1):
-    """query on the binary tree as built (bvh(width=2)), node for node the general kernel's walk."""
+    """query on the binary tree as built (bvh(width=2)), with the general kernel's binary walk."""
     n = origins.shape[0]
     for c in range(c0, c1):
-        stack = np.empty(STACK, np.int64)
+        stack_a = np.empty(STACK, np.int64)
+        stack_b = np.empty(STACK, np.int64)
         stack_t = np.empty(STACK)
         o = np.empty(3)
+        cnt = np.zeros(C.N_COUNTERS, np.int64)
         _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
                idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c,
-               c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o)
+               c * chunk, min(n, (c + 1) * chunk), stack_a, stack_b, stack_t, o, cnt)
 
 
 @njit(private=True)     # one call per chunk; without reference counting: the surfaces read geo's arrays per hit
 def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
            idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c, r0, r1,
-           stack, stack_t, o):
-    """Rays r0..r1-1 of query, counting into counters[c], with the chunk's stack and origin scratch."""
+           stack_a, stack_b, stack_t, o, cnt):
+    """Rays r0..r1-1 of query, counting into counters[c], with the chunk's stack, origin scratch
+    and counter row for the binary walk's visits (bvh.descend counts them)."""
     store = offsets.shape[0] > 0
-    nb = geo.node_bounds
-    first = geo.node_first
-    count = geo.node_count
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
     # counters in locals (registers), written once per chunk
-    n_bounds = n_nodes = n_leaves = n_tests = n_hits = n_entries = n_invalid = np.int64(0)
+    n_bounds = n_tests = n_hits = n_entries = n_invalid = np.int64(0)
     for r in range(r0, r1):
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
@@ -197,7 +200,7 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
         n_bounds += 1
         te = box_entry(geo.agg_bounds, geo.root, ox, oy, oz, ix, iy, iz, lo, best)
         if te != INF:
-            stack[0] = root
+            stack_a[0] = root
             stack_t[0] = te
             sp = 1
             n_entries += 1
@@ -205,31 +208,11 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
             sp -= 1
             if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
                 continue        # entered beyond the closest hit, beyond rounding (ties need the node)
-            node = stack[sp]
-            n_nodes += 1
-            k = count[node]
-            if k == 0:
-                left = first[node]
-                n_bounds += 2
-                tl = box_entry(nb, left, ox, oy, oz, ix, iy, iz, lo, best)
-                tr = box_entry(nb, left + 1, ox, oy, oz, ix, iy, iz, lo, best)
-                if tl <= tr:
-                    if tr != INF:
-                        stack[sp], stack_t[sp] = left + 1, tr
-                        sp += 1
-                    if tl != INF:
-                        stack[sp], stack_t[sp] = left, tl
-                        sp += 1
-                else:
-                    if tl != INF:
-                        stack[sp], stack_t[sp] = left, tl
-                        sp += 1
-                    stack[sp], stack_t[sp] = left + 1, tr
-                    sp += 1
+            sp, s, e = descend(geo.node_bounds, geo.node_first, geo.node_count, stack_a[sp], ox, oy, oz, ix, iy, iz,
+                               lo, best, stack_a, stack_b, stack_t, sp, cnt)
+            if s == e:
                 continue
-            n_leaves += 1
-            s = first[node]
-            best, best_j, n_all, tested, hits, done = _leaf(corners, ids, s, s + k, o, kx, ky, kz, sx, sy, sz, lo,
+            best, best_j, n_all, tested, hits, done = _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo,
                                                             best, best_j, edges, mode, store, offsets, r, base, n_all,
                                                             all_t, all_i)
             n_tests += tested
@@ -238,7 +221,8 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
                 sp = 0
         _finish(geo, corners, best_j, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
-    _count(counters, c, r1 - r0 - n_invalid, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
+    _count(counters, c, r1 - r0 - n_invalid, n_bounds + cnt[C.BOUNDS_TESTS], cnt[C.CELLS_VISITED], n_entries,
+           cnt[C.CELLS_LEAVES], n_tests, n_hits)
 
 
 @njit(private=True)
@@ -277,18 +261,11 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
             stack_t[0] = te
             sp = 1
             n_entries += 1
-        while sp > 0:
-            sp -= 1
-            te = load(stack_t, sp)
-            if te > best and te > best * CONSERVATIVE:
-                continue        # entered beyond the closest hit, beyond rounding (ties need the node)
-            v = load(stack, sp)
-            while v >= 0:       # down the nearest children to a leaf
-                n_nodes += 1
-                v, sp, tested = visit(nodes, v, wx, wy, wz, vx, vy, vz, near, lo, best, t4, stack, stack_t, sp)
-                n_bounds += tested
+        while True:
+            v, sp, n_nodes, n_bounds = next_leaf(nodes, wx, wy, wz, vx, vy, vz, near, lo, best, t4, stack, stack_t,
+                                                 sp, n_nodes, n_bounds)
             if v == NO_CHILD:
-                continue
+                break
             n_leaves += 1
             s0, e0 = leaf_range(nodes, v)
             best, best_j, best_slot, n_all, tested, hits, done = _leaf4(blocks, load(first_block, s0), corners, ids, s0,

@@ -45,7 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock, compile_notice
-from ..engine.flatten import BVH, LIST, flatten
+from ..aggregates.registry import COUNTER_NAMES
+from ..engine.flatten import flatten
 from ..engine.parallel import for_ranges
 from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..errors import RayKernelError
@@ -120,14 +121,11 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
     for c in range(c0, c1):
         r0 = c * chunk
         r1 = min(n, (c + 1) * chunk)
-        ws0 = workspace()
         cap = 0
         if mode == ALL_HITS and store:
             for r in range(r0, r1):
                 cap = max(cap, offsets[r + 1] - offsets[r])
-        hit_f = np.zeros(HIT_F + cap)
-        hit_i = np.zeros(HIT_I + 3 * cap, np.int64)
-        ws = (ws0[0], ws0[1], ws0[2], ws0[3], ws0[4], hit_f, hit_i, ws0[7], ws0[8], ws0[9], ws0[10], ws0[11])
+        ws = workspace(cap)
         cnt = np.zeros(counters.shape[1], np.int64)     # columns past N_COUNTERS: lazy octree passes
         _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, uv_out, gn_out, sn_out,
               with_surface, offsets, all_t, all_i, r0, r1, ws, cnt)
@@ -139,7 +137,7 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
 def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, uv_out, gn_out, sn_out,
           with_surface, offsets, all_t, all_i, r0, r1, ws, cnt):
     """Rays r0..r1-1 of _query, with the chunk's workspace and counters."""
-    hit_f, hit_i = ws[5], ws[6]
+    hit_f, hit_i = ws.hit_f, ws.hit_i
     store = offsets.shape[0] > 0
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
     for r in range(r0, r1):
@@ -351,11 +349,11 @@ class RayScene:
         # per kind family (polygons and patches share one numbering): first global index of each geometry
         family = np.where(table[:, 0] == PATCH, POLYGON, table[:, 0]) if len(table) else table[:, 0]
         self._geom_of = {int(k): (np.flatnonzero(family == k), table[family == k, 1]) for k in np.unique(family)}
-        # a primitive can be met twice along a ray through a group nested twice, or in several cells
-        # of any structure but a list or a BVH (a grid or an octree holds an item in every cell it overlaps),
-        # or in several leaves of a BVH built over pieces (bvh(split=...))
-        self._may_repeat = bool(np.any((self.geo.agg_kind != LIST) & (self.geo.agg_kind != BVH))) or \
-            len(self.geo.agg_kind) > 1 or any("pieces" in s for s in self.build_stats.get("aggregates", ()))
+        # a primitive can be met twice along a ray through a group nested twice, or where its aggregate
+        # refers to it more than once (a grid or an octree holds an item in every cell it overlaps, a BVH
+        # built over pieces in every leaf of a piece: bvh(split=...))
+        self._may_repeat = len(self.geo.agg_kind) > 1 or any(
+            a.get("refs", np.inf) > a.get("items", 0) for a in self.build_stats.get("aggregates", ()))
         # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
         self._lazy = self.build_stats.get("lazy")
         self._may_repeat = self._may_repeat or self._lazy is not None or edges == "inclusive"
@@ -501,7 +499,7 @@ class RayScene:
                                                  c0, c1), len(counters), threads, kernel=kernel)
             elif n and self._lazy is not None:
                 # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
-                # chunks (lazyoctree.pass_ranges); the lazy structures refine after each; passes shorter
+                # chunks (lazyset.pass_ranges); the lazy structures refine after each; passes shorter
                 # than a chunk add into the first chunk's row. Results go back to the rays' own order.
                 order = coarse_to_fine(n)
                 ins = [np.broadcast_to(a, (n,) + a.shape[1:])[order] for a in (o, d, lo, hi)]
@@ -540,7 +538,7 @@ class RayScene:
             check_ray_values(o, d)
             raise RuntimeError(f"the kernels cast {totals[C.RAYS_CAST]} of {n} rays, all of them valid")
         totals = totals.tolist()
-        stats = {name: totals[k] for k, name in C.NAMES.items() if totals[k]}
+        stats = {name: totals[k] for k, name in COUNTER_NAMES.items() if totals[k]}
         stats["rays.cast"] = n
         stats["time.trace"] = seconds
         stats["time.compile"] = clock.seconds

@@ -6,7 +6,7 @@
 
 Each Group becomes one aggregate over its primitives and children, built
 with the group's `accel` spec (or the default) by that kind's `flatten`
-(the registry, aggregates/__init__.py). A child Group with no spec of its
+(the registry, aggregates/registry.py). A child Group with no spec of its
 own is merged into its parent; a child Group with a spec is a nested
 aggregate; an Instance refers to its group's aggregate through a matrix. A
 group instanced many times is built once.
@@ -16,19 +16,19 @@ aggregate can hold a primitive, an aggregate or an instance.
 
 Geometry is one named tuple of arrays: the primitives' and the aggregates'
 fields below, then the fields each walk kind declares in its module
-(FIELDS: grid_*, node_*, oct_*, rc_*), in registry order, then, for a
+(Walk.fields: grid_*, node_*, oct_*, rc_*, after the driver's keyed lists), in code order, then, for a
 scene that is one BVH over primitives, that BVH collapsed 4-wide (wide_*),
 which the driver hands to its fast walk (widewalk.py).
 
-With lazy octrees in the scene, build["lazy"] holds them
-(aggregates/lazyoctree.py): whoever traces rays refines them between passes.
-With lazy ray classification (aggregates/rc.py) too, it holds a LazySet
-(aggregates/lazyset.py) of both.
+With lazy structures in the scene (lazy octrees, lazy ray classification),
+build["lazy"] holds them as a LazySet (aggregates/lazyset.py): whoever traces
+rays refines them between passes.
 """
 
 from __future__ import annotations
 
 import time
+from collections import defaultdict
 from typing import NamedTuple
 
 import numpy as np
@@ -36,17 +36,14 @@ from numba.core import types
 from numba.core.typing.typeof import typeof
 from numba.extending import typeof_impl
 
-from ..aggregates import WALKS
-from ..aggregates.bruteforce import CODE as LIST
-from ..aggregates.bvh import CODE as BVH
-from ..aggregates.grid import CODE as GRID
+from ..aggregates.lazyset import LazySet
 from ..aggregates.memory import memory_limit
-from ..aggregates.octree import CODE as OCTREE
-from ..aggregates.rc import CODE as RC
+from ..aggregates.registry import EMPTY, FIELDS, KINDS, LAZY_KINDS, format_spec, parse_spec
+from ..aggregates.spec import AUTO
 from ..aggregates.walk import MAX_NESTING, MAX_TREE_DEPTH, STACK_SIZE, Field
 from ..errors import OptionError, SceneError
-from ..geometry.boxes import cull_margin
 from ..geometry import polybands
+from ..geometry.boxes import cull_margin
 from ..geometry.primitives import (
     AGGREGATE,
     CONE,
@@ -59,13 +56,11 @@ from ..geometry.primitives import (
     TRIANGLE,
     make_ref,
 )
-from ..scene import accel
 from ..scene.model import Group, Instance, Scene
 from . import widewalk
 from .transforms import transform_class
 
-__all__ = ["Geometry", "flatten", "transform_box", "LIST", "BVH", "GRID", "OCTREE", "RC", "MAX_NESTING",
-           "MAX_TREE_DEPTH", "STACK_SIZE"]
+__all__ = ["Geometry", "flatten", "transform_box", "MAX_NESTING", "MAX_TREE_DEPTH", "STACK_SIZE"]
 
 PRIMITIVE_FIELDS = (
     "sph_center",      # (S, 3)
@@ -97,7 +92,7 @@ PRIMITIVE_FIELDS = (
     "mat_clear",       # (M,) bool: the material transmits (T > 0), skipped by opaque-only shadow queries
 )
 AGGREGATE_FIELDS = (
-    Field("agg_kind", np.int64),          # (A,) walk kind: the CODE of its module (LIST, BVH, GRID, OCTREE, RC)
+    Field("agg_kind", np.int64),          # (A,) its walk's code (aggregates/walk.py)
     Field("agg_bounds", np.float64, (6,)),  # (A, 6) xmin ymin zmin xmax ymax zmax, widened by boxes.cull_margin
     Field("agg_start", np.int64),         # (A,) list: first ref; other kinds: see their module
     Field("agg_count", np.int64),         # (A,) list: refs; other kinds: nodes or cells
@@ -105,7 +100,7 @@ AGGREGATE_FIELDS = (
     Field("inst_agg", np.int64),          # (I,) aggregate an instance shows
     Field("inst_to_local", np.float64, (12,)),  # (I, 12) world-to-local affine map, row-major 3x4
     Field("inst_class", np.int64),        # (I,) the map's class (transform_class): what mapping a ray needs
-) + tuple(f for w in WALKS for f in w.FIELDS)
+) + FIELDS     # the keyed lists and the walks' own fields (aggregates/registry.py)
 
 WIDE_FIELDS = (         # a scene that is one BVH over primitives: that BVH collapsed 4-wide (widebvh.py), which
     "wide_nodes",       # engine/widewalk.py walks; a (0, 32) array otherwise
@@ -169,8 +164,7 @@ class FlatArrays:
         self.geometries = []   # (kind, first global index, count) of each primitive set, in build order
         self.parts = {f.name: [] for f in AGGREGATE_FIELDS}
         self.rows = {f.name: 0 for f in AGGREGATE_FIELDS}
-        self.lazy = []     # one record per lazy octree, for aggregates/lazyoctree.py
-        self.lazy_rc = []  # one record per lazy rc aggregate, for aggregates/rc.py
+        self.lazy = defaultdict(list)   # kind name -> one record per lazy aggregate of the kind (lazyset.py)
         self.seeded = {}   # field -> rows it started with (seed)
 
     def size(self, name: str) -> int:
@@ -276,7 +270,7 @@ def _mesh_refs(arr: FlatArrays, m):
 
 
 def _concrete(spec):
-    if spec[0] == accel.AUTO.name:
+    if spec[0] == AUTO.name:
         raise OptionError("auto is a search for a hierarchy, made by render() before anything is built "
                           "(analysis/anneal.py); flatten takes the structures it found")
     return spec
@@ -290,8 +284,8 @@ class Builder:
     def __init__(self, default_accel: str, max_bytes: int):
         self.flat = FlatArrays()
         self.max_bytes = max_bytes     # the memory budget every build keeps within (memory.py)
-        self.default = _concrete(accel.parse_spec(default_accel))
-        if accel.KINDS[self.default[0]].operands:
+        self.default = _concrete(parse_spec(default_accel))
+        if KINDS[self.default[0]].operands:
             raise OptionError(f"{self.default[0]} is a boolean operator, not a structure for every group: "
                               "give it to a group (a JSON \"difference\", \"intersection\" or \"union\" item)")
         self.built: dict[int, tuple[int, int]] = {}   # id(group) -> (aggregate, depth)
@@ -308,9 +302,9 @@ class Builder:
             names = " -> ".join(g.name or "?" for g in self._active_groups) + f" -> {group.name or '?'}"
             raise SceneError(f"group cycle: {names}")
         self._active_groups.append(group)
-        spec = _concrete(accel.parse_spec(group.accel)) if group.accel else self.default
+        spec = _concrete(parse_spec(group.accel)) if group.accel else self.default
         refs, bounds = [], []
-        if accel.KINDS[spec[0]].operands:
+        if KINDS[spec[0]].operands:
             depth = self._collect_operands(group, spec[0], refs, bounds)
         else:
             depth = self._collect(group, refs, bounds)
@@ -447,10 +441,10 @@ class Builder:
         solid = np.all(bounds[:, :3] <= bounds[:, 3:], axis=1) if len(bounds) else np.zeros(0, bool)
         box = np.concatenate([bounds[solid, :3].min(axis=0), bounds[solid, 3:].max(axis=0)]) if solid.any() \
             else np.array([np.inf] * 3 + [-np.inf] * 3)
-        # an empty aggregate of any kind is an empty list: nothing to traverse
-        entry = accel.KINDS["list" if len(refs) == 0 else kind]
+        # an empty aggregate of any kind is stored as an empty EMPTY: nothing to traverse
+        entry = EMPTY if len(refs) == 0 else KINDS[kind]
         agg, stats = entry.flatten(self, params, refs, bounds, name, box)
-        stats.update(kind=accel.format_spec(kind, params), name=name, items=len(refs),
+        stats.update(kind=format_spec(kind, params), name=name, items=len(refs),
                      seconds=time.perf_counter() - start)
         self.agg_stats.append(stats)
         return agg
@@ -551,17 +545,8 @@ def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None, builder=N
         root=int(root), **fields, **widewalk.NO_WALK,
     )
     geo = widewalk.prepare(geo, b.agg_stats)
-    lazy = None
-    if arr.lazy:
-        # lazy octrees take over the octree and reference arrays to grow them between passes
-        from ..aggregates.lazyoctree import LazyOctrees
-        geo, lazy = LazyOctrees.attach(geo, arr.lazy)
-    if arr.lazy_rc:
-        # lazy ray classification refines between the same passes; its columns follow the octrees'
-        from ..aggregates.lazyset import LazySet
-        from ..aggregates.rc import LazyRC
-        geo, lazy_rc = LazyRC.attach(geo, arr.lazy_rc, base=0 if lazy is None else lazy.columns)
-        lazy = LazySet(lazy, lazy_rc)
+    # lazy structures take over the arrays they grow between passes (aggregates/lazyset.py)
+    geo, lazy = LazySet.attach(geo, LAZY_KINDS, arr.lazy)
     n_materials = max(1, len(scene.materials))
     for name in ("sph_mat", "cone_mat", "poly_mat", "tri_mat"):
         mats = getattr(geo, name)

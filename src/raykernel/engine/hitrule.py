@@ -1,18 +1,23 @@
 """What every walk of the scene shares once it meets a primitive: the query modes, the
 primitive tests and the hit rule.
 
-    t = hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)     # inf on a miss
+    t = hit(kind, geo, idx, geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges[0],
+            ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)                 # inf on a miss
+    t = hit(kind, prims, row, verts, band_f, band_i, edges, ...)      # the same test on a leaf-order record
     found, best_t, best_ref, best_inst = take(mode, t, kind, idx, inst, 0, maps, row, col, hit_f, hit_i,
                                               found, best_t, best_ref, best_inst)
 
-The general driver (traverse.py) and the fast walk of a scene that is one BVH over
-primitives (widewalk.py) both apply `take`, so the two answer every query with the same hit,
-tie for tie. Both make the primitive tests of `hit_primitive` (the same functions on the same
-numbers) inline in their own loops, the driver from Geometry's arrays, the fast walk from its
-leaf-order records; hit_primitive itself tests the objects Haines's tricks remember.
+The primitive tests are dispatched once, in `hit`: the kind picks the test, and the test reads
+its primitive's numbers either from the Geometry's arrays (the general driver, traverse.py;
+tricks.py) or from the fast walk's leaf-order records (widewalk.py, one row per reference), the
+same numbers either way (`sphere_of`, `polygon_of`, `triangle_of`, `cone_of` give them for
+either form). Both walks apply `take`, so they answer every query with the same hit, tie for
+tie.
 """
 
 import numpy as np
+from numba.core import types
+from numba.extending import overload
 
 from ..geometry import counters as C
 from ..geometry.boxes import INF
@@ -25,7 +30,7 @@ from ..geometry.primitives import (
     SPHERE,
     TRIANGLE,
     hit_cone,
-    hit_polygon,
+    hit_plane_polygon,
     hit_sphere,
     hit_triangle,
     normalize,
@@ -45,28 +50,98 @@ HIT_F = 13                   # hit_f: t, world-to-local 3x4 of the frame that wa
 HIT_I = 4                    # hit_i: kind, index, innermost instance (-1: none), flags:
 FLIP, OPERATOR_SURFACE = 1, 2  # hit_i[3] bits: reverse the normal; a surface of an operator's result (not its
                                # primitive's own surface everywhere, so a test of the primitive alone may disagree)
+# a leaf-order record (widewalk.py): a sphere's centre and signed radius; a polygon's unit normal, first
+# corner, corner count, dropped axis and bins; a triangle's corners; a cone's base, unit axis, length
+# and radii; CLEAR: 1.0 when the material transmits
+RECORD_COLUMNS = 10
+CLEAR = 9
+
+
+def sphere_of(src, i):
+    """(centre, signed radius) of sphere i: src a Geometry, or records and i a row."""
+
+
+def polygon_of(src, i):
+    """(unit normal, first corner in poly_verts, corner count, dropped axis, bins) of polygon i."""
+
+
+def triangle_of(src, i):
+    """The corners v0, v1, v2 of triangle i."""
+
+
+def cone_of(src, i):
+    """(base, unit axis, length, base radius, apex radius) of cone i."""
+
+
+def _records(src) -> bool:
+    return isinstance(src, types.Array)
+
+
+@overload(sphere_of, inline="always")
+def _sphere_of(src, i):
+    if _records(src):
+        return lambda src, i: (src[i, 0], src[i, 1], src[i, 2], src[i, 3])
+    return lambda src, i: (src.sph_center[i, 0], src.sph_center[i, 1], src.sph_center[i, 2], src.sph_radius[i])
+
+
+@overload(polygon_of, inline="always")
+def _polygon_of(src, i):
+    if _records(src):
+        return lambda src, i: (src[i, 0], src[i, 1], src[i, 2], np.int64(src[i, 3]), np.int64(src[i, 4]),
+                               np.int64(src[i, 5]), np.int64(src[i, 6]))
+    return lambda src, i: (src.poly_normal[i, 0], src.poly_normal[i, 1], src.poly_normal[i, 2], src.poly_start[i],
+                           src.poly_count[i], src.poly_axis[i], src.poly_band[i])
+
+
+@overload(triangle_of, inline="always")
+def _triangle_of(src, i):
+    if _records(src):
+        return lambda src, i: (src[i, 0], src[i, 1], src[i, 2], src[i, 3], src[i, 4], src[i, 5], src[i, 6],
+                               src[i, 7], src[i, 8])
+
+    def corners(src, i):
+        fa, fb, fc = src.tri_faces[i, 0], src.tri_faces[i, 1], src.tri_faces[i, 2]
+        v = src.tri_verts
+        return v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2], v[fc, 0], v[fc, 1], v[fc, 2]
+    return corners
+
+
+@overload(cone_of, inline="always")
+def _cone_of(src, i):
+    if _records(src):
+        return lambda src, i: (src[i, 0], src[i, 1], src[i, 2], src[i, 3], src[i, 4], src[i, 5], src[i, 6],
+                               src[i, 7], src[i, 8])
+    return lambda src, i: (src.cone_base[i, 0], src.cone_base[i, 1], src.cone_base[i, 2], src.cone_axis[i, 0],
+                           src.cone_axis[i, 1], src.cone_axis[i, 2], src.cone_length[i], src.cone_r0[i],
+                           src.cone_r1[i])
+
+
+@njit(inline="always")
+def hit(kind, src, i, verts, band_f, band_i, edges, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    """t of the ray's nearest hit on primitive i of `kind` in [tmin, tmax], inf for a miss: src
+    the Geometry (i the primitive's index) or the leaf-order records (i the row); verts, band_f
+    and band_i the polygons' corners and bins, edges the triangle test's edge rule."""
+    if kind == SPHERE:
+        cx, cy, cz, r = sphere_of(src, i)
+        return hit_sphere(cx, cy, cz, r, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    if kind == POLYGON or kind == PATCH:
+        nx, ny, nz, v0, count, axis, band = polygon_of(src, i)
+        return hit_plane_polygon(nx, ny, nz, v0, count, axis, band, verts, band_f, band_i, ox, oy, oz, dx, dy, dz,
+                                 tmin, tmax, cnt)
+    if kind == TRIANGLE:
+        ax, ay, az, bx, by, bz, cx, cy, cz = triangle_of(src, i)
+        return hit_triangle(ax, ay, az, bx, by, bz, cx, cy, cz, ox, oy, oz, dx, dy, dz, tmin, tmax, edges)
+    if kind == CONE:
+        bx, by, bz, ax, ay, az, length, r0, r1 = cone_of(src, i)
+        return hit_cone(bx, by, bz, ax, ay, az, length, r0, r1, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    return INF
 
 
 @njit(inline="always")
 def hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
-    """t of the ray's nearest hit on primitive (kind, idx) in [tmin, tmax], inf for a miss."""
-    if kind == SPHERE:
-        return hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
-                          geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, tmin, tmax)
-    if kind == POLYGON or kind == PATCH:
-        return hit_polygon(geo.poly_normal, geo.poly_start, geo.poly_count, geo.poly_axis, geo.poly_band,
-                           geo.poly_verts, geo.poly_band_f, geo.poly_band_i, idx, ox, oy, oz, dx, dy, dz, tmin, tmax,
-                           cnt)
-    if kind == TRIANGLE:
-        fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
-        v = geo.tri_verts
-        return hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
-                            v[fc, 0], v[fc, 1], v[fc, 2], ox, oy, oz, dx, dy, dz, tmin, tmax, geo.tri_edges[0])
-    if kind == CONE:
-        return hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
-                        geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
-                        geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx], ox, oy, oz, dx, dy, dz, tmin, tmax)
-    return INF
+    """hit for primitive (kind, idx) of the Geometry."""
+    return hit(kind, geo, idx, geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges[0], ox, oy, oz,
+               dx, dy, dz, tmin, tmax, cnt)
 
 
 @njit(private=True)

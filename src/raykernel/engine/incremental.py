@@ -10,9 +10,10 @@ is recorded: its spec, its references and its items' boxes. A later frame walks 
 the same way; each aggregate whose spec and references are unchanged is then
 
 - reused as it is when its items' boxes are the same (a static subspace);
-- refit when they moved and it is a BVH: the same tree, the boxes of the nodes above the
-  moved items recomputed from the leaves up (build.refit_nodes); rebuilt instead when the refit tree's SAH cost has
-  grown past `rebuild_threshold` times the cost it had when it was built;
+- refit when they moved and its kind can be refit in place (Kind.refit): a BVH keeps its
+  tree and recomputes the boxes of the nodes above the moved items from the leaves up
+  (build.refit_nodes), or is rebuilt when the refit tree's SAH cost has grown past
+  `rebuild_threshold` times the cost it had when it was built; a list keeps its references;
 - rebuilt otherwise (grids, octrees and the rest depend on where their items lie), its new
   arrays appended and the old ones left unused (build.rebuilt_nodes).
 
@@ -34,13 +35,10 @@ import time
 
 import numpy as np
 
-from ..aggregates.bruteforce import CODE as LIST
-from ..aggregates.bvh import CODE as BVH
-from ..aggregates.bvh import refit_moved
-from ..geometry.boxes import cull_margin
+from ..aggregates.registry import EMPTY, KINDS
 from .flatten import AGGREGATE_FIELDS, Builder, flatten
 
-__all__ = ["Hierarchy", "sah_cost"]
+__all__ = ["Hierarchy"]
 
 _FRAME_FIELDS = ("inst_agg", "inst_to_local", "inst_class")   # rewritten every frame by the walk
 _AGG_ROW_FIELDS = ("agg_kind", "agg_bounds", "agg_start", "agg_count")
@@ -58,33 +56,14 @@ def _box_of(bounds: np.ndarray) -> np.ndarray:
     return np.concatenate([bounds[:, :3].min(axis=0), bounds[:, 3:].max(axis=0)])
 
 
-def _area(b: np.ndarray) -> np.ndarray:
-    d = np.maximum(b[:, 3:] - b[:, :3], 0.0)
-    return d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0]
-
-
-def sah_cost(node_bounds, node_first, node_count, start: int, count: int) -> float:
-    """The SAH cost of the BVH in nodes start..start+count-1 (traversal and intersection cost 1):
-    sum of inner node areas plus leaf areas times their items, over the root's area."""
-    b = node_bounds[start:start + count]
-    n = node_count[start:start + count]
-    area = _area(b)
-    root = area[0] if area[0] > 0 else 1.0
-    return float((np.sum(area[n == 0]) + np.sum(area[n > 0] * n[n > 0])) / root)
-
-
 class _Record:
     """One top-level aggregate build of a frame: what it was built from."""
 
-    __slots__ = ("spec", "refs", "bounds", "agg", "stats", "cost", "cost_sum", "margin", "order", "first_ref")
+    __slots__ = ("spec", "refs", "bounds", "agg", "stats", "refit")
 
     def __init__(self, spec, refs, bounds, agg, stats):
         self.spec, self.refs, self.bounds, self.agg, self.stats = spec, refs, bounds, agg, stats
-        self.cost = None        # a BVH's SAH cost when built
-        self.cost_sum = 0.0     # its SAH sum of areas now (cost x root area)
-        self.margin = 0.0       # the culling margin its node boxes are widened by
-        self.order = None       # a BVH's ref positions -> items (found at its first refit)
-        self.first_ref = 0
+        self.refit = {}         # what its kind's refit keeps between frames (Kind.refit)
 
 
 class _RecordingBuilder(Builder):
@@ -134,13 +113,13 @@ class _ReplayBuilder(Builder):
             self.work["reused"] += 1
             return rec.agg
         box = _box_of(bounds)
-        kind = self.flat.parts["agg_kind"][0][rec.agg]
-        # a BVH over pieces (bvh(split=...)) holds an item in several leaves: rebuilt, not refit
-        if len(refs) and kind == BVH and spec[1].get("split", 1) <= 1 and self._refit(rec, bounds, box):
+        kind = KINDS[spec[0]] if len(refs) else EMPTY       # what the aggregate was stored as
+        touched = None if kind.refit is None else kind.refit(self.flat, rec.agg, rec.refit, rec.refs, rec.bounds,
+                                                             bounds, spec[1], self.threshold)
+        if touched is not None:
+            self._set_box(rec.agg, box)
             self.work["refit"] += 1
-        elif kind == LIST:
-            self._set_box(rec.agg, box)      # a list has no boxes of its own
-            self.work["refit"] += 1
+            self.work["refit_nodes"] += touched
         else:
             self._rebuild(rec, spec, refs, bounds, name)
             self.work["rebuilt"] += 1
@@ -149,41 +128,6 @@ class _ReplayBuilder(Builder):
 
     def _set_box(self, agg: int, box) -> None:
         self.flat.parts["agg_bounds"][0][agg] = box
-
-    def _refit(self, rec: _Record, bounds, box) -> bool:
-        """Refit the BVH of rec to the items' new boxes, only the nodes above the items that
-        moved; False where its SAH cost grew past the threshold (it is rebuilt then, and the
-        refit nodes are left unused)."""
-        flat = self.flat
-        nb, nf, nc = (flat.parts[n][0] for n in ("node_bounds", "node_first", "node_count"))
-        s = int(flat.parts["agg_start"][0][rec.agg])
-        n = int(flat.parts["agg_count"][0][rec.agg])
-        first, count = nf[s:s + n], nc[s:s + n]
-        inner = count == 0
-        if rec.order is None:       # first refit since the build: how the tree placed the items
-            rec.first_ref = int(first[~inner].min())
-            placed = flat.parts["refs"][0][rec.first_ref:rec.first_ref + len(rec.refs)]
-            by_ref = np.argsort(rec.refs, kind="stable")
-            rec.order = by_ref[np.searchsorted(rec.refs[by_ref], placed)]
-            rec.cost = sah_cost(nb, nf, nc, s, n)
-            rec.cost_sum = rec.cost * _area(nb[s:s + 1])[0]
-            rec.margin = cull_margin(self.flat.agg_box(rec.agg))
-        moved = np.any(rec.bounds != bounds, axis=1)[rec.order]
-        m = cull_margin(box)
-        if m > rec.margin:          # a wider box needs a wider margin everywhere: refit every node
-            moved[:] = True
-            rec.margin = m
-        local_first = np.where(inner, first - s, first - rec.first_ref)
-        view = nb[s:s + n]
-        touched, grown = refit_moved(view, local_first, count, rec.order, np.ascontiguousarray(bounds, np.float64),
-                                     moved, rec.margin)
-        rec.cost_sum += grown
-        root = _area(view[:1])[0]
-        if rec.cost_sum / (root if root > 0 else 1.0) > self.threshold * rec.cost:
-            return False
-        self.work["refit_nodes"] += touched
-        self._set_box(rec.agg, box)
-        return True
 
     def _rebuild(self, rec: _Record, spec, refs, bounds, name) -> None:
         """Build rec's aggregate anew at the end of the arrays, then give it rec's index."""
@@ -201,7 +145,7 @@ class _ReplayBuilder(Builder):
             flat.parts[f][0][rec.agg] = part[0]
         assert new == flat.rows["agg_kind"], "the rebuilt aggregate is the last one appended"
         self.agg_stats[self.calls - 1] = stats
-        rec.stats, rec.cost, rec.order = stats, None, None
+        rec.stats, rec.refit = stats, {}
         self.work["rebuilt_nodes"] += int(stats.get("nodes", 0)) or 1
 
     def finish(self) -> None:

@@ -1,15 +1,15 @@
 """The intersection driver: one routine for every aggregate, nested to any depth.
 
-    ws = workspace()                    # per thread: stacks, frames, hit record
+    ws = workspace()                    # per thread: stacks, frames, hit record (walk.Workspace)
     found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, CLOSEST, ws, cnt)
-    t = ws[5][0]; kind, index, instance = ws[6]
+    t = ws.hit_f[0]; kind, index, instance = ws.hit_i[:3]
 
 The driver owns the stack, the frames, the reference loop, instances and
 the hit rule; each aggregate kind owns its walk, a step function in its
-module under aggregates/ (the registry in aggregates/__init__.py ties
-them together). An explicit stack replaces recursion: a range of
-references, or a step of a kind's walk (aggregates/walk.py says how entries
-are tagged). When a reference names an aggregate or an instance, the rest of
+module under aggregates/, which the driver calls in one line through the
+registry (aggregates/registry.py: walk_step; aggregates/walk.py is the
+contract). An explicit stack replaces recursion: a range of references, or a
+step of a kind's walk (aggregates/walk.py says how entries are tagged). When a reference names an aggregate or an instance, the rest of
 the current range is pushed, a frame is opened for the child (the ray mapped
 into its space for an instance) and the child's START entry pushed above. A
 frame ends when the stack falls to its base. Instance maps are affine and
@@ -23,8 +23,10 @@ so: widewalk.wide_only).
 import numpy as np
 from numba.extending import overload
 
-from ..aggregates import bvh, collect, csg, grid, octree, rc
+from ..aggregates import collect
+from ..aggregates.registry import CROSSINGS, walk_resolve, walk_step
 from ..aggregates.walk import (
+    DRIVER,
     F_DIR,
     F_KEY_D,
     F_KEY_END,
@@ -41,8 +43,12 @@ from ..aggregates.walk import (
     FRAME_F,
     FRAME_I,
     KEY_SLACK,
+    KEYED_STEP,
+    MAX_NESTING,
     MBOX_SLOTS,
+    STACK_SIZE,
     START,
+    Workspace,
     entry_kind,
     entry_step,
     entry_tag,
@@ -53,18 +59,10 @@ from ..geometry.boxes import CONSERVATIVE, INF, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import (
     AGGREGATE,
-    CONE,
     INDEX_MASK,
     INSTANCE,
     KIND_SHIFT,
-    PATCH,
-    POLYGON,
     SPHERE,
-    TRIANGLE,
-    hit_cone,
-    hit_polygon,
-    hit_sphere,
-    hit_triangle,
     sphere_roots,
 )
 from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, for intersect's callers)
@@ -79,34 +77,33 @@ from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, fo
     OPERATOR_SURFACE,
     clear_material,
     eager_normal,
+    hit_primitive,
     take,
 )
-from .flatten import LIST, MAX_NESTING, STACK_SIZE
 from .parallel import for_ranges
 from .transforms import compose_map, map_ray
 from .widewalk import intersect_wide
 
 # stack entry: go on with the frame's keyed list at stack_a (py_func: calling the kernel would load it at import)
-KEYED = entry_tag.py_func(LIST, 1)
+KEYED = entry_tag.py_func(DRIVER, KEYED_STEP)
 DONE = np.int64(-2)          # _finish's sink when an ANY_HIT query is answered
 
 
 @njit
-def workspace():
-    """Scratch arrays for one thread, allocated once per tile or chunk:
-    (stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, then the operators' crossing
-    buffer buf_t, buf_i, buf_m, buf_n (aggregates/collect.py), then the 4-wide walk's entry
-    distances t4)."""
+def workspace(hits=0):
+    """Scratch arrays for one thread, allocated once per tile or chunk (walk.Workspace); `hits`:
+    room in the hit record for as many hits of an ALL_HITS query (hitrule.take)."""
     buf_t, buf_i, buf_m, buf_n = collect.buffers()
-    return (np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
-            np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, FRAME_I), np.int64),
-            np.zeros(HIT_F + 3), np.zeros(HIT_I, np.int64), buf_t, buf_i, buf_m, buf_n, np.empty(4))
+    return Workspace(np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
+                     np.zeros(STACK_SIZE), np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, FRAME_I), np.int64),
+                     np.zeros(HIT_F + max(3, hits)), np.zeros(HIT_I + 3 * hits, np.int64), buf_t, buf_i, buf_m,
+                     buf_n, np.empty(4))
 
 
 @njit(inline="always")
-def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b,
-           stack_t, sp, cnt):
-    """Test aggregate a's bounds and push its first entry; returns the new stack pointer."""
+def _enter(agg_bounds, agg_kind, agg_start, a, ox, oy, oz, ix, iy, iz, tmin, tmax, stack_a, stack_b, stack_t, sp,
+           cnt):
+    """Test aggregate a's bounds and push its walk's START entry; returns the new stack pointer."""
     kind = agg_kind[a]
     cnt[C.BOUNDS_TESTS] += 1
     cnt[C.WALK_BOUNDS + kind] += 1
@@ -114,33 +111,19 @@ def _enter(agg_bounds, agg_kind, agg_start, agg_count, a, ox, oy, oz, ix, iy, iz
     if te == INF:
         return sp
     cnt[C.WALK_ENTRIES + kind] += 1
-    if kind == LIST:
-        return push(stack_a, stack_b, stack_t, sp, agg_start[a], agg_start[a] + agg_count[a], te)
     return push(stack_a, stack_b, stack_t, sp, agg_start[a], entry_tag(kind, START), te)
 
 
-@njit(inline="always")
-def _resolve(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, cnt):
-    """How many surfaces of its own the operator of sink frame f found among the frame's
-    crossings: its resolve rewrites them from the frame's region on (collect.py). An
-    operator kind adds its call here."""
-    kind, node = geo.agg_kind[frame_i[f, FI_AGG]], geo.agg_start[frame_i[f, FI_AGG]]
-    region = np.int64(frame_f[f, collect.SLOT_REGION])
-    shift, operand = frame_f[f, collect.SLOT_SHIFT], np.int64(frame_f[f, collect.SLOT_OPERAND])
-    if kind == csg.CODE:
-        return csg.resolve(geo.csg_op[node], geo.csg_base[node], geo.csg_count[node], buf_t, buf_i, buf_m, buf_n,
-                           region, shift, operand, cnt)
-    return np.int64(0)
-
-
 @njit(private=True)
-def _finish(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, tmin, mode, hit_f, hit_i, found, best_ref,
-            best_inst, cnt):
-    """End sink frame f: its operator's surfaces go to the enclosing sink, or, from the
-    outermost, to the hit rule. Returns (found, best_t, best_ref, best_inst, enclosing
-    sink), the sink DONE when an ANY_HIT query has its hit."""
-    n = _resolve(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, cnt)
+def _finish(geo, f, ws, tmin, mode, found, best_ref, best_inst, cnt):
+    """End sink frame f: its operator's surfaces (its walk's resolve, collect.py) go to the
+    enclosing sink, or, from the outermost, to the hit rule. Returns (found, best_t, best_ref,
+    best_inst, enclosing sink), the sink DONE when an ANY_HIT query has its hit."""
+    frame_f, frame_i, buf_t, buf_i, buf_n = ws.frame_f, ws.frame_i, ws.buf_t, ws.buf_i, ws.buf_n
     region = np.int64(frame_f[f, collect.SLOT_REGION])
+    agg = frame_i[f, FI_AGG]
+    n = walk_resolve(geo.agg_kind[agg], geo, geo.agg_start[agg], region, frame_f[f, collect.SLOT_SHIFT],
+                     np.int64(frame_f[f, collect.SLOT_OPERAND]), ws, cnt)
     best_t = frame_f[f, collect.SLOT_BEST]
     sink = np.int64(frame_f[f, collect.SLOT_SINK])
     frame_i[f, FI_SINK] = sink      # done: the frame may be reused
@@ -152,8 +135,8 @@ def _finish(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n, tmin, mode, hi
         t = buf_t[k]
         if tmin <= t <= best_t and not (mode == ANY_OPAQUE and clear_material(geo, buf_i[k, 1], buf_i[k, 2])):
             found, best_t, best_ref, best_inst = take(mode, t, buf_i[k, 1], buf_i[k, 2], buf_i[k, 3],
-                                                      buf_i[k, 4] | OPERATOR_SURFACE, buf_m, k, np.int64(0), hit_f,
-                                                      hit_i, found, best_t, best_ref, best_inst)
+                                                      buf_i[k, 4] | OPERATOR_SURFACE, ws.buf_m, k, np.int64(0),
+                                                      ws.hit_f, ws.hit_i, found, best_t, best_ref, best_inst)
             if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                 return found, best_t, best_ref, best_inst, DONE
     return found, best_t, best_ref, best_inst, sink
@@ -174,11 +157,6 @@ def _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t, operand, inst, fram
                        cnt, counter)
 
 
-# the counter of operand crossings recorded (the CSG kinds' first own counter): a constant,
-# since looking the sink's kind up at every crossing made the octree walks a fifth slower
-CROSSINGS = csg.CROSSINGS
-
-
 @njit(inline="always")
 def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     """Closest hit (mode CLOSEST) or the first hit found (ANY_HIT) of the ray with the
@@ -190,8 +168,8 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     if geo.wide_nodes.shape[0] and mode != CLOSEST_EAGER:
         return intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
                               geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges, ox, oy, oz,
-                              dx, dy, dz, tmin, tmax, mode,
-                              ws[0], ws[2], ws[3], ws[5], ws[6], ws[11], cnt)
+                              dx, dy, dz, tmin, tmax, mode, ws.stack_a, ws.stack_t, ws.frame_f, ws.hit_f, ws.hit_i,
+                              ws.t4, cnt)
     return _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
 
 
@@ -219,7 +197,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     Below an operator the frames collect crossings instead (aggregates/collect.py): `sink` is
     the frame that gathers them, -1 above every operator, and `lo` the lower end of the
     tested interval, -inf there, since a solid's inside depends on crossings behind tmin."""
-    stack_a, stack_b, stack_t, frame_f, frame_i, hit_f, hit_i, buf_t, buf_i, buf_m, buf_n, _ = ws
+    stack_a, stack_b, stack_t, frame_f, frame_i = ws.stack_a, ws.stack_b, ws.stack_t, ws.frame_f, ws.frame_i
     best_t = tmax
     found = np.bool_(False)     # typed, not literal: numba compiles a private callee once per literal
     best_ref = np.int64(-1)
@@ -234,18 +212,17 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     frame_i[0, FI_AGG], frame_i[0, FI_BASE], frame_i[0, FI_INST] = geo.root, 0, -1
     frame_i[0, FI_SINK], frame_i[0, FI_OPERAND] = -1, 0
     frame_f[0, F_MBOX_ON] = 0.0
-    buf_n[0] = 0
+    ws.buf_n[0] = 0
     sink = np.int64(-1)
     lo = tmin
     base = 0
-    sp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.agg_count, geo.root, ox, oy, oz, ix, iy, iz, tmin,
-                best_t, stack_a, stack_b, stack_t, base, cnt)
+    sp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.root, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a,
+                stack_b, stack_t, base, cnt)
     while True:
         if sp == base:
             if frame_i[f, FI_SINK] == f:
                 # an operator's crossings are all in: its own surfaces, on the enclosing ray
-                found, best_t, best_ref, best_inst, sink = _finish(geo, f, frame_f, frame_i, buf_t, buf_i, buf_m, buf_n,
-                                                                   tmin, mode, hit_f, hit_i, found, best_ref,
+                found, best_t, best_ref, best_inst, sink = _finish(geo, f, ws, tmin, mode, found, best_ref,
                                                                    best_inst, cnt)
                 if sink == DONE:
                     return True
@@ -272,43 +249,24 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
             s, e = a, np.int64(frame_f[f, F_KEY_END])
             key_o, key_d, keyed = frame_f[f, F_KEY_O], frame_f[f, F_KEY_D], True
         else:
-            # a step of the frame's walk: its kind, then which step
-            kind, step = entry_kind(b), entry_step(b)
+            # a step of the frame's walk (aggregates/walk.py), its share of the work charged to it
+            kind = entry_kind(b)
             visited, tested = cnt[C.CELLS_VISITED], cnt[C.BOUNDS_TESTS]
-            if kind == bvh.CODE:
-                sp, s, e = bvh.step(geo.node_bounds, geo.node_first, geo.node_count, a, ox, oy, oz, ix, iy, iz, lo,
-                                    best_t, stack_a, stack_b, stack_t, sp, cnt)
-            elif kind == grid.CODE:
-                sp, s, e = grid.step(geo.grid_cell_offset, geo.grid_cell_size, geo.grid_cells, geo.grid_inv_cell,
-                                     geo.grid_mailbox, geo.grid_origin, geo.grid_res, step, a, te, ox, oy, oz, dx, dy,
-                                     dz, ix, iy, iz, best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
-            elif kind == octree.CODE:
-                sp, s, e = octree.step(geo.oct_bounds, geo.oct_count, geo.oct_first, geo.oct_level, geo.oct_loc,
-                                       geo.oct_mailbox, geo.oct_nbr, geo.oct_origin, geo.oct_pass, geo.oct_root,
-                                       geo.oct_scale, geo.oct_slot, geo.oct_unit, geo.oct_walk, step, a, te,
-                                       geo.agg_start[frame_i[f, FI_AGG]], (ox, oy, oz, dx, dy, dz, ix, iy, iz), lo,
-                                       best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
-            elif kind == rc.CODE:
-                s, e, key_o, key_d = rc.step(geo.rc_face_root, geo.rc_node_a, geo.rc_node_b, geo.rc_pass, geo.rc_split,
-                                             geo.rc_vdim, geo.rc_vinfo, geo.rc_vsplit, a, te, ox, oy, oz, dx, dy, dz,
-                                             best_t, frame_f, f, cnt)
-                keyed = True
-            elif kind == csg.CODE:
-                ox, oy, oz, best_t, s, e = csg.start(geo.csg_bounds, geo.csg_first, geo.csg_count, a, ox, oy, oz, dx,
-                                                     dy, dz, ix, iy, iz, best_t, frame_f, frame_i, f, buf_n)
-                sink, lo = f, -INF
-            else:
-                s = e = 0
-            cnt[C.WALK_STEPS + kind] += cnt[C.CELLS_VISITED] - visited      # the walk's share, for the cost model
+            sp, s, e, keyed, key_o, key_d, ray, best_t, opened = walk_step(
+                kind, geo, entry_step(b), a, te, (ox, oy, oz, dx, dy, dz, ix, iy, iz), lo, best_t, f, sp, ws, cnt)
+            ox, oy, oz = ray[0], ray[1], ray[2]
+            if opened:
+                sink, lo = f, -INF      # an operator's START: this frame collects crossings from now on
+            cnt[C.WALK_STEPS + kind] += cnt[C.CELLS_VISITED] - visited
             cnt[C.WALK_BOUNDS + kind] += cnt[C.BOUNDS_TESTS] - tested
         mbox = frame_f[f, F_MBOX_ON] != 0.0
         # the reference loop
         i = s
         while i < e:
             if keyed:
-                if geo.rc_key[i] > key_o + best_t * key_d * KEY_SLACK + 1e-9 * abs(key_o):
+                if geo.keyed_key[i] > key_o + best_t * key_d * KEY_SLACK + 1e-9 * abs(key_o):
                     break       # this and every later candidate lies beyond the closest hit
-                ref = geo.rc_ref[i]
+                ref = geo.keyed_ref[i]
             else:
                 ref = geo.refs[i]
             kind = ref >> KIND_SHIFT
@@ -323,33 +281,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 frame_f[f, slot] = tag
             if mode == ANY_OPAQUE and sink < 0 and kind < AGGREGATE and clear_material(geo, kind, idx):
                 continue        # transparent: left to the walk that filters light through it
-            if kind == SPHERE:
-                cnt[C.TESTS + SPHERE] += 1
-                if sink >= 0:
-                    _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t,
-                                   collect.operand(frame_f, frame_i, f, sink, i - 1), frame_i[f, FI_INST], frame_f, f,
-                                   buf_t, buf_i, buf_m, buf_n, cnt, np.int64(CROSSINGS))
-                    continue
-                t = hit_sphere(geo.sph_center[idx, 0], geo.sph_center[idx, 1], geo.sph_center[idx, 2],
-                               geo.sph_radius[idx], ox, oy, oz, dx, dy, dz, lo, best_t)
-            elif kind == POLYGON or kind == PATCH:
-                cnt[C.TESTS + kind] += 1
-                t = hit_polygon(geo.poly_normal, geo.poly_start, geo.poly_count, geo.poly_axis, geo.poly_band,
-                                geo.poly_verts, geo.poly_band_f, geo.poly_band_i, idx, ox, oy, oz, dx, dy, dz, lo, best_t,
-                                cnt)
-            elif kind == TRIANGLE:
-                cnt[C.TESTS + TRIANGLE] += 1
-                fa, fb, fc = geo.tri_faces[idx, 0], geo.tri_faces[idx, 1], geo.tri_faces[idx, 2]
-                v = geo.tri_verts
-                t = hit_triangle(v[fa, 0], v[fa, 1], v[fa, 2], v[fb, 0], v[fb, 1], v[fb, 2],
-                                 v[fc, 0], v[fc, 1], v[fc, 2], ox, oy, oz, dx, dy, dz, lo, best_t, geo.tri_edges[0])
-            elif kind == CONE:
-                cnt[C.TESTS + CONE] += 1
-                t = hit_cone(geo.cone_base[idx, 0], geo.cone_base[idx, 1], geo.cone_base[idx, 2],
-                             geo.cone_axis[idx, 0], geo.cone_axis[idx, 1], geo.cone_axis[idx, 2],
-                             geo.cone_length[idx], geo.cone_r0[idx], geo.cone_r1[idx],
-                             ox, oy, oz, dx, dy, dz, lo, best_t)
-            else:
+            if kind >= AGGREGATE:
                 # a child aggregate: keep the rest of this range, open a frame for the child
                 if i < e:
                     sp = push(stack_a, stack_b, stack_t, sp, i, KEYED if keyed else e, -INF)
@@ -364,8 +296,8 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                     nox, noy, noz, ndx, ndy, ndz = map_ray(geo.inst_to_local, geo.inst_class, idx, ox, oy, oz, dx, dy,
                                                            dz, cnt)
                 nix, niy, niz = inverse(ndx), inverse(ndy), inverse(ndz)
-                nsp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.agg_count, child, nox, noy, noz, nix, niy,
-                             niz, lo, best_t, stack_a, stack_b, stack_t, sp, cnt)
+                nsp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, child, nox, noy, noz, nix, niy, niz, lo,
+                             best_t, stack_a, stack_b, stack_t, sp, cnt)
                 if nsp == sp:
                     break       # missed the child's bounds
                 frame_f[g, F_ORIGIN], frame_f[g, F_ORIGIN + 1], frame_f[g, F_ORIGIN + 2] = nox, noy, noz
@@ -382,20 +314,28 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 ox, oy, oz, dx, dy, dz = nox, noy, noz, ndx, ndy, ndz
                 ix, iy, iz = nix, niy, niz
                 break
+            cnt[C.TESTS + kind] += 1
+            if kind == SPHERE and sink >= 0:
+                # below a sink a sphere records both of the line's crossings
+                _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t,
+                               collect.operand(frame_f, frame_i, f, sink, i - 1), frame_i[f, FI_INST], frame_f, f,
+                               ws.buf_t, ws.buf_i, ws.buf_m, ws.buf_n, cnt, np.int64(CROSSINGS))
+                continue
+            t = hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, lo, best_t, cnt)
             if t != INF:
                 cnt[C.HITS + kind] += 1
                 if sink >= 0:
-                    collect.record(buf_t, buf_i, buf_m, buf_n, t, collect.operand(frame_f, frame_i, f, sink, i - 1),
-                                   kind, idx, frame_i[f, FI_INST], np.int64(0), frame_f, f, cnt,
-                                   np.int64(CROSSINGS))
+                    collect.record(ws.buf_t, ws.buf_i, ws.buf_m, ws.buf_n, t,
+                                   collect.operand(frame_f, frame_i, f, sink, i - 1), kind, idx, frame_i[f, FI_INST],
+                                   np.int64(0), frame_f, f, cnt, np.int64(CROSSINGS))
                     continue
                 found, best_t, best_ref, best_inst = take(mode, t, kind, idx, frame_i[f, FI_INST], np.int64(0),
-                                                          frame_f, f, np.int64(F_MAP), hit_f, hit_i, found, best_t,
-                                                          best_ref, best_inst)
+                                                          frame_f, f, np.int64(F_MAP), ws.hit_f, ws.hit_i, found,
+                                                          best_t, best_ref, best_inst)
                 if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
                     return True
-                if mode == CLOSEST_EAGER and best_t == t and hit_i[0] == kind and hit_i[1] == idx:
-                    eager_normal(geo, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f, cnt)
+                if mode == CLOSEST_EAGER and best_t == t and ws.hit_i[0] == kind and ws.hit_i[1] == idx:
+                    eager_normal(geo, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, ws.hit_f, cnt)
     return found
 
 
@@ -405,7 +345,7 @@ def _cast_chunks(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_
     n = origins.shape[0]
     for c in range(c0, c1):
         ws = workspace()
-        hit_f, hit_i = ws[5], ws[6]
+        hit_f, hit_i = ws.hit_f, ws.hit_i
         cnt = np.zeros(C.N_COUNTERS, np.int64)
         for r in range(c * chunk, min(n, (c + 1) * chunk)):
             cnt[C.RAYS_CAST] += 1

@@ -11,13 +11,14 @@ Why a walk of its own: the general driver carries frames, instances, mailboxes a
 every call that takes the scene's Geometry (about 75 arrays, which numba passes as some 650
 numbers) costs about a quarter of a microsecond, more than a coherent ray's whole walk. This
 walk takes only the arrays it reads: the root BVH collapsed 4-wide (aggregates/widebvh.py),
-whose node tests its four child boxes in one vector slab test, children entered nearest first;
-and the leaves' primitives laid out in leaf order (wide_prims), one 80-byte record per
-reference, so a leaf's primitives are read from one block. The leaves are the binary tree's
-and the tests and the hit rule the driver's (hitrule.py, the same arithmetic), so every query
-gets the same hit as the general walk, tie for tie.
+whose node tests its four child boxes in one vector slab test, children entered nearest first
+(widebvh.next_leaf, the 4-wide walk the mesh kernel takes too); and the leaves' primitives laid
+out in leaf order (wide_prims), one 80-byte record per reference, so a leaf's primitives are
+read from one block. The leaves are the binary tree's and the tests and the hit rule the
+driver's (hitrule.hit and take, reading the records), so every query gets the same hit as the
+general walk, tie for tie.
 
-wide_prims, one row of 10 float64 per reference of geo.refs (R, 10):
+wide_prims, one row of hitrule.RECORD_COLUMNS float64 per reference of geo.refs (R, 10):
     sphere     centre (3), signed radius
     triangle   corners v0, v1, v2 (9): also the mesh kernel's corners (casting/meshcast.py)
     polygon    unit normal (3), first corner in poly_verts, corner count, dropped axis, its bins'
@@ -34,31 +35,16 @@ import numpy as np
 
 from ..aggregates.bvh import CODE as BVH
 from ..aggregates.walk import F_MAP
-from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, visit, wide_ray
+from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, next_leaf, wide_ray
 from ..geometry import counters as C
-from ..geometry.boxes import CONSERVATIVE, INF, box_entry, inverse
+from ..geometry.boxes import INF, box_entry, inverse
 from ..geometry.config import njit
-from ..geometry.primitives import (
-    CONE,
-    INDEX_MASK,
-    KIND_SHIFT,
-    PATCH,
-    POLYGON,
-    SPHERE,
-    TRIANGLE,
-    hit_cone,
-    hit_plane_polygon,
-    hit_sphere,
-    hit_triangle,
-)
-from ..geometry.unchecked import load
-from .hitrule import ANY_HIT, ANY_OPAQUE, take
+from ..geometry.primitives import CONE, INDEX_MASK, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE
+from .hitrule import ANY_HIT, ANY_OPAQUE, CLEAR, RECORD_COLUMNS, hit, take
 
-PRIM_COLUMNS = 10      # the most a kind needs (a triangle's or a cone's nine numbers), and the flag
-CLEAR = 9
 # the wide_* fields of every other scene: nothing to walk
 NO_WALK = dict(wide_nodes=NO_WIDE.nodes, wide_center=NO_WIDE.center,
-               wide_prims=np.zeros((0, PRIM_COLUMNS)))
+               wide_prims=np.zeros((0, RECORD_COLUMNS)))
 
 
 def prepare(geo, agg_stats: list):
@@ -94,7 +80,7 @@ def _records(geo) -> np.ndarray:
     """wide_prims (see the module docstring) for geo.refs."""
     kind = geo.refs >> KIND_SHIFT
     idx = geo.refs & INDEX_MASK
-    rec = np.zeros((len(kind), PRIM_COLUMNS))
+    rec = np.zeros((len(kind), RECORD_COLUMNS))
     clear = geo.mat_clear
     k = kind == SPHERE
     rec[k, :3] = geo.sph_center[idx[k]]
@@ -118,22 +104,6 @@ def _records(geo) -> np.ndarray:
     rec[k, 8] = geo.cone_r1[idx[k]]
     rec[k, CLEAR] = clear[geo.cone_mat[idx[k]]]
     return rec
-
-
-@njit(inline="always")
-def _hit(kind, p, i, verts, band_f, band_i, edges, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
-    """hitrule.hit_primitive for the record p[i]: the same tests on the same numbers."""
-    if kind == SPHERE:
-        return hit_sphere(p[i, 0], p[i, 1], p[i, 2], p[i, 3], ox, oy, oz, dx, dy, dz, tmin, tmax)
-    if kind == POLYGON or kind == PATCH:
-        return hit_plane_polygon(p[i, 0], p[i, 1], p[i, 2], np.int64(p[i, 3]), np.int64(p[i, 4]),
-                                 np.int64(p[i, 5]), np.int64(p[i, 6]), verts, band_f, band_i, ox, oy, oz, dx, dy, dz,
-                                 tmin, tmax, cnt)
-    if kind == TRIANGLE:
-        return hit_triangle(p[i, 0], p[i, 1], p[i, 2], p[i, 3], p[i, 4], p[i, 5], p[i, 6], p[i, 7], p[i, 8],
-                            ox, oy, oz, dx, dy, dz, tmin, tmax, edges)
-    return hit_cone(p[i, 0], p[i, 1], p[i, 2], p[i, 3], p[i, 4], p[i, 5], p[i, 6], p[i, 7], p[i, 8],
-                    ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
 @njit(inline="always")
@@ -186,18 +156,11 @@ def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox,
     stack[0] = 0
     stack_t[0] = te
     sp = 1
-    while sp > 0:
-        sp -= 1
-        te = load(stack_t, sp)
-        if te > best_t and te > best_t * CONSERVATIVE:
-            continue        # entered beyond the closest hit, beyond rounding (ties need the node)
-        v = load(stack, sp)
-        while v >= 0:       # down the nearest children to a leaf
-            n_nodes += 1
-            v, sp, tested = visit(nodes, v, wx, wy, wz, vx, vy, vz, near, tmin, best_t, t4, stack, stack_t, sp)
-            n_bounds += tested
+    while True:
+        v, sp, n_nodes, n_bounds = next_leaf(nodes, wx, wy, wz, vx, vy, vz, near, tmin, best_t, t4, stack, stack_t,
+                                             sp, n_nodes, n_bounds)
         if v == NO_CHILD:
-            continue
+            break
         # a leaf: its references, all primitives
         n_leaves += 1
         first, end = leaf_range(nodes, v)
@@ -207,7 +170,7 @@ def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox,
             ref = refs[i]
             kind = ref >> KIND_SHIFT
             cnt[C.TESTS + kind] += 1
-            t = _hit(kind, prims, i, verts, band_f, band_i, edges, ox, oy, oz, dx, dy, dz, tmin, best_t, cnt)
+            t = hit(kind, prims, i, verts, band_f, band_i, edges, ox, oy, oz, dx, dy, dz, tmin, best_t, cnt)
             if t == INF:
                 continue
             cnt[C.HITS + kind] += 1

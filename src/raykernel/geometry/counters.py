@@ -36,15 +36,16 @@ START_LISTS_BUILT = 36    # start lists built (rendering/startlists.py)
 POLYGON_CORNERS = 37      # corners walked by polygon and patch tests: those whose plane the ray met in range
 HITS = 38                 # + primitive kind: tests that found the primitive within the ray's range
 FRUSTUM_CULLED = 43       # eye rays of tiles culled whole (rendering/frustum.py): counted as misses, not traced
-# each walk's share of the traversal (engine/traverse.py), by the walk's CODE; the registry
-# (aggregates/__init__.py) names them walk.<walk>.entries, .bounds and .steps
+# each walk's share of the traversal (engine/traverse.py), by the walk's code; the registry
+# (aggregates/registry.py) names them walk.<walk>.entries, .bounds and .steps
 MAX_WALKS = 8
 WALK_ENTRIES = 44         # + walk: rays that entered an aggregate of that walk (its box was hit)
 WALK_BOUNDS = 52          # + walk: bound tests charged to it (its aggregates' boxes, its nodes' boxes and walls)
 WALK_STEPS = 60           # + walk: its traversal steps (its part of cells.visited)
-# the columns left for counters of a walk's own (its module's COUNTERS), claimed at import
+# each walk's counters of its own (its Walk.counters): OWN_PER_WALK columns a walk, by its code
 WALK_OWN = 68
-N_COUNTERS = 73
+OWN_PER_WALK = 4
+N_COUNTERS = WALK_OWN + MAX_WALKS * OWN_PER_WALK
 
 
 NAMES = {
@@ -68,18 +69,28 @@ NAMES = {
     RAYS_CUT_OFF: "rays.cut_off", RAYS_TIR: "rays.tir", EYE_LIGHT_SKIPPED: "shadow.eye_light_skipped",
     POLYGON_CORNERS: "polygon.corners", FRUSTUM_CULLED: "frustum.culled",
 }
+"""The fixed columns' names; with the walks' columns, registry.COUNTER_NAMES."""
 
-_next_own = [WALK_OWN]
+
+def own_columns(code: int, n: int) -> tuple:
+    """The columns of walk `code`'s n counters of its own (a walk's module takes them as it loads)."""
+    if not 0 <= code < MAX_WALKS or n > OWN_PER_WALK:
+        raise ImportError(f"counters: walk code {code} must be below {MAX_WALKS} and its counters at most "
+                          f"{OWN_PER_WALK}, got {n}")
+    first = WALK_OWN + code * OWN_PER_WALK
+    return tuple(range(first, first + n))
 
 
-def claim(names) -> tuple:
-    """Columns for a walk's own counters, named `names`: the next free ones (in import order)."""
-    first = _next_own[0]
-    if first + len(names) > N_COUNTERS:
-        raise ImportError(f"counters: no room for {list(names)}; N_COUNTERS leaves {N_COUNTERS - first} columns")
-    for k, name in enumerate(names):
-        if name in NAMES.values():
-            raise ImportError(f"counters: {name!r} is named twice")
-        NAMES[first + k] = name
-    _next_own[0] = first + len(names)
-    return tuple(range(first, first + len(names)))
+def names(walks) -> dict:
+    """Every column's name: the fixed ones, and for each walk (code, name, own counters) its entries,
+    bounds, steps and own counters; the same whatever order the walks' modules were imported in."""
+    out = dict(NAMES)
+    for code, name, own in walks:
+        out[WALK_ENTRIES + code] = f"walk.{name}.entries"
+        out[WALK_BOUNDS + code] = f"walk.{name}.bounds"
+        out[WALK_STEPS + code] = f"walk.{name}.steps"
+        for column, counter in zip(own_columns(code, len(own)), own):
+            out[column] = counter
+    if len(set(out.values())) != len(out):
+        raise ImportError("counters: a counter is named twice")
+    return out

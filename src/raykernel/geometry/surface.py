@@ -1,7 +1,7 @@
 """Where a ray hit: the normals and material of a primitive at a point, for every shading model.
 
     gx, gy, gz, sx, sy, sz, mat = surface(geo, kind, index, x, y, z)   # in the primitive's own frame
-    gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, ws[5], ws[6], px, py, pz)   # of intersect's hit, world
+    gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, ws.hit_f, ws.hit_i, px, py, pz)   # of intersect's hit, world
 """
 
 from .config import njit
@@ -9,7 +9,7 @@ from .primitives import CONE, PATCH, POLYGON, SPHERE, cone_normal, normalize
 
 
 @njit(inline="always")
-def _dot(ax, ay, az, bx, by, bz):
+def dot(ax, ay, az, bx, by, bz):
     return ax * bx + ay * by + az * bz
 
 
@@ -27,12 +27,12 @@ def corner_weights(ax, ay, az, bx, by, bz, cx, cy, cz, gx, gy, gz, px, py, pz):
     """barycentric of the triangle with corners a, b, c given as numbers."""
     e1x, e1y, e1z = bx - ax, by - ay, bz - az
     e2x, e2y, e2z = cx - ax, cy - ay, cz - az
-    area = _dot(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x, gx, gy, gz)
+    area = dot(e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x, gx, gy, gz)
     if area == 0.0:
         return 0.0, 0.0, 0.0
     wx, wy, wz = px - ax, py - ay, pz - az
-    beta = _dot(wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x, gx, gy, gz) / area
-    gamma = _dot(e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx, gx, gy, gz) / area
+    beta = dot(wy * e2z - wz * e2y, wz * e2x - wx * e2z, wx * e2y - wy * e2x, gx, gy, gz) / area
+    gamma = dot(e1y * wz - e1z * wy, e1z * wx - e1x * wz, e1x * wy - e1y * wx, gx, gy, gz) / area
     return beta, gamma, area
 
 

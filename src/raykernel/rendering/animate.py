@@ -30,6 +30,7 @@ import numpy as np
 from ..atomicfile import atomic_write, write_text
 from ..errors import OptionError, SceneError
 from .imageio import save_png
+from .stats import jsonable
 
 __all__ = ["animate", "animation_of", "render_frame", "AnimationResult", "RECORD_FILE"]
 
@@ -79,11 +80,7 @@ def render_frame(subject, t: float, hierarchy, options: dict):
     from .render import render
     result = render(_scene_at(subject, t), builder=hierarchy, **options)
     counters = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in result.stats.items()}
-    return result.to_uint8(), {"time": t, "counters": counters, "info": _plain(result.stats.info)}
-
-
-def _plain(value):
-    return json.loads(json.dumps(value, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v)))
+    return result.to_uint8(), {"time": t, "counters": counters, "info": jsonable(result.stats.info)}
 
 
 def render_segment(subject, times, indices, pending, options: dict, incremental: bool, threshold: float):
@@ -206,10 +203,10 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
     if stats_json is not None and not Path(stats_json).parent.is_dir():
         raise OptionError(f"{stats_json}: directory {Path(stats_json).parent} does not exist")
     times = anim.times(frames, span)
-    from .render import _options
+    from .render import render_options
     probe = scene if scene is not None else anim.at(None, times[0])
-    _options(probe, **options)      # bad options fail now
-    identity = _plain({"source": name, "times": times, "options": options, "incremental": incremental,
+    render_options(probe, **options)      # bad options fail now
+    identity = jsonable({"source": name, "times": times, "options": options, "incremental": incremental,
                        "rebuild_threshold": rebuild_threshold, "segment": segment})
 
     frames_dir.mkdir(exist_ok=True)
@@ -250,28 +247,13 @@ def animate(source, frames: int | None = None, time=None, fps: float | None = No
                                                    rebuild_threshold):
                 finished(i, image, record)
     else:
-        _segments_on(cluster, segments, work, finished)
+        cluster.animate(segments, work, finished)       # each segment a task on the cluster
 
     result.frames = [{"index": i, **records[i], "skipped": i not in pending} for i in range(frames)]
     result.totals = _totals(result.frames)
     if stats_json is not None:
-        write_text(stats_json, json.dumps(_plain(result.to_dict()), indent=1) + "\n")
+        write_text(stats_json, json.dumps(jsonable(result.to_dict()), indent=1) + "\n")
     if movie is not None:
         _write_movie(frames_dir, frames, output, movie, fps)
         shutil.rmtree(frames_dir)
     return result
-
-
-def _segments_on(cluster, segments, work, finished) -> None:
-    """Each segment a task on the cluster; its frames written as it returns."""
-    from distributed import as_completed
-
-    from ..cluster import _segment_task
-    subject, times, pending, options, incremental, threshold = work
-    future, _ = cluster.scatter(subject)
-    options = cluster.task_options(options)
-    futures = [cluster.client.submit(_segment_task, future, times, seg, set(pending), options, incremental, threshold,
-                                     pure=False) for seg in segments]
-    for f in as_completed(futures):
-        for i, image, record in f.result():
-            finished(i, image, record)

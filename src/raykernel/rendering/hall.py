@@ -32,10 +32,10 @@ import numpy as np
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
-from ..geometry.surface import _dot, hit_normals
+from ..geometry.surface import dot, hit_normals
 from .shadows import filter_by_distance, light_through
 from .tricks import ORIGIN, closest, hold_origin, shadow_slot
-from .whitted import OFFSET, shadow_reach, spawn
+from .whitted import pop, seen_side, shadow_reach, spawn
 
 
 @njit(inline="always")
@@ -71,19 +71,11 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
     rays[0, ORIGIN] = -1.0      # leaves no object
     top = 1
     while top > 0:
-        top -= 1
-        ox, oy, oz = rays[top, 0], rays[top, 1], rays[top, 2]
-        dx, dy, dz = rays[top, 3], rays[top, 4], rays[top, 5]
-        wr, wg, wb = rays[top, 6], rays[top, 7], rays[top, 8]
-        depth = int(rays[top, 9])
-        ray_kind = int(rays[top, 10])
-        inside = np.int64(rays[top, 11])
-        node = np.int64(rays[top, 12])
-        cnt[C.RAYS_EYE + 2 * ray_kind] += 1
+        top, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, ray_kind, inside, node = pop(rays, top, cnt)
         found = closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt)
-        hit_f, hit_i = ws[5], ws[6]
+        hit_f, hit_i = ws.hit_f, ws.hit_i
         t = hit_f[0] if found else np.inf
-        wr, wg, wb = filter_by_distance(mats, inside, t * math.sqrt(_dot(dx, dy, dz, dx, dy, dz)), wr, wg, wb)
+        wr, wg, wb = filter_by_distance(mats, inside, t * math.sqrt(dot(dx, dy, dz, dx, dy, dz)), wr, wg, wb)
         if not found:
             r_out += wr * background[0]
             g_out += wg * background[1]
@@ -94,18 +86,13 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
         cnt[C.NORMALS_COMPUTED] += 1
         hold_origin(state, ws)      # the object the shadow and secondary rays below leave
-        entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
-        if not entering:
-            gx, gy, gz = -gx, -gy, -gz
-        if _dot(sx, sy, sz, gx, gy, gz) < 0.0:
-            sx, sy, sz = -sx, -sy, -sz
-        eps = OFFSET * max(max(abs(px), abs(py)), max(abs(pz), max(max(abs(ox), abs(oy)), abs(oz))))
+        entering, gx, gy, gz, sx, sy, sz, eps = seen_side(gx, gy, gz, sx, sy, sz, ox, oy, oz, dx, dy, dz, px, py, pz)
         ax, ay, az = px + eps * gx, py + eps * gy, pz + eps * gz     # on the side the ray came from
         bx, by, bz = px - eps * gx, py - eps * gy, pz - eps * gz     # the far side
         cr, cg, cb = mats[mat, 0], mats[mat, 1], mats[mat, 2]
         kd, ks, shine, tr, ior, kl = mats[mat, 3], mats[mat, 4], mats[mat, 5], mats[mat, 6], mats[mat, 7], mats[mat, 8]
         vx, vy, vz = normalize(-dx, -dy, -dz)
-        cos_i = _dot(vx, vy, vz, sx, sy, sz)
+        cos_i = dot(vx, vy, vz, sx, sy, sz)
         # the boundary: refraction, Fresnel, the weights; the medium beyond it
         f, cos_t, eta = 1.0, 0.0, 1.0
         far = inside
@@ -130,14 +117,14 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
             near_side = True
             lx, ly, lz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
             ulx, uly, ulz = normalize(lx, ly, lz)
-            n_dot_l = _dot(sx, sy, sz, ulx, uly, ulz)
-            if n_dot_l <= 0.0 or _dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
+            n_dot_l = dot(sx, sy, sz, ulx, uly, ulz)
+            if n_dot_l <= 0.0 or dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
                 if tr <= 0.0 or w_refract <= 0.0:
                     continue        # faces away, and nothing comes through: no shadow ray
                 near_side = False
                 lx, ly, lz = lights[li, 0] - bx, lights[li, 1] - by, lights[li, 2] - bz
                 ulx, uly, ulz = normalize(lx, ly, lz)
-                if _dot(gx, gy, gz, ulx, uly, ulz) >= 0.0:
+                if dot(gx, gy, gz, ulx, uly, ulz) >= 0.0:
                     continue
             if near_side and lights[li, 7] != 0.0 and ray_kind == 0:
                 # Haines's light at the eye: an eye ray's hit is seen from it, so it is lit
@@ -159,14 +146,14 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
                 dr += n_dot_l * lr
                 dg += n_dot_l * lg
                 db += n_dot_l * lb
-                r_dot_l = _dot(mx, my, mz, ulx, uly, ulz)
+                r_dot_l = dot(mx, my, mz, ulx, uly, ulz)
                 if w_mirror > 0.0 and r_dot_l > 0.0:
                     spec = w_mirror * r_dot_l ** shine
                     hr += spec * lr
                     hg += spec * lg
                     hb += spec * lb
             else:
-                t_dot_l = _dot(qx, qy, qz, ulx, uly, ulz)
+                t_dot_l = dot(qx, qy, qz, ulx, uly, ulz)
                 if t_dot_l > 0.0:
                     spec = w_refract * t_dot_l ** shine
                     hr += spec * lr

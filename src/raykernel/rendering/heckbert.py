@@ -33,8 +33,8 @@ import numpy as np
 from ..engine.traverse import ANY_HIT, CLOSEST, intersect
 from ..geometry import counters as C
 from ..geometry.config import njit
-from ..geometry.surface import _dot, hit_normals
-from .whitted import spawn
+from ..geometry.surface import dot, hit_normals
+from .whitted import pop, spawn
 
 T_MIN = 1e-7      # the program's hit threshold, in units of the ray's (unit) direction
 
@@ -64,25 +64,19 @@ def trace(geo, mats, lights, ambient, ox, oy, oz, dx, dy, dz, max_depth, rays, w
     spawn(rays, 0, 0.0, ox, oy, oz, dx, dy, dz, 1.0, 1.0, 1.0, 1, 0, -1, 1, None, cnt)
     top = 1
     while top > 0:
-        top -= 1
-        ox, oy, oz = rays[top, 0], rays[top, 1], rays[top, 2]
-        dx, dy, dz = rays[top, 3], rays[top, 4], rays[top, 5]
-        wr, wg, wb = rays[top, 6], rays[top, 7], rays[top, 8]
-        depth = int(rays[top, 9])
-        ray_kind = int(rays[top, 10])
-        cnt[C.RAYS_EYE + 2 * ray_kind] += 1
+        top, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, ray_kind, _, _ = pop(rays, top, cnt)
         if not intersect(geo, ox, oy, oz, dx, dy, dz, T_MIN, np.inf, CLOSEST, ws, cnt):
             r_out += wr * ambient[0]
             g_out += wg * ambient[1]
             b_out += wb * ambient[2]
             continue
         cnt[C.RAYS_EYE_HIT + 2 * ray_kind] += 1
-        hit_f, hit_i = ws[5], ws[6]
+        hit_f, hit_i = ws.hit_f, ws.hit_i
         t = hit_f[0]
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
         _, _, _, nx, ny, nz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
         nx, ny, nz = -nx, -ny, -nz          # the program's N: centre - P
-        d = -_dot(dx, dy, dz, nx, ny, nz)
+        d = -dot(dx, dy, dz, nx, ny, nz)
         ior = mats[mat, 7]
         eta = ior
         if d < 0.0:
@@ -92,11 +86,11 @@ def trace(geo, mats, lights, ambient, ox, oy, oz, dx, dy, dz, max_depth, rays, w
         cr, cg, cb = ambient[0], ambient[1], ambient[2]
         for li in range(lights.shape[0]):
             lx, ly, lz = lights[li, 0] - px, lights[li, 1] - py, lights[li, 2] - pz
-            distance = math.sqrt(_dot(lx, ly, lz, lx, ly, lz))
+            distance = math.sqrt(dot(lx, ly, lz, lx, ly, lz))
             if distance == 0.0:
                 continue
             lx, ly, lz = lx / distance, ly / distance, lz / distance
-            e = _dot(nx, ny, nz, lx, ly, lz)
+            e = dot(nx, ny, nz, lx, ly, lz)
             if e <= 0.0:
                 continue
             cnt[C.RAYS_SHADOW] += 1

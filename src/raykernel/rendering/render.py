@@ -38,20 +38,21 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..aggregates.lazyoctree import pass_ranges
+from ..aggregates.lazyset import pass_ranges
 from ..geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, CompileClock, compile_notice, typing_setup
 from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..engine.widewalk import count_misses, with_driver
 from ..errors import OptionError
+from ..options import choice, number
 from ..geometry import counters as C
 from ..geometry.config import cached, compiled, njit
 from ..geometry.primitives import normalize
 from ..scene.model import Scene
 from . import heckbert
 from .frustum import tile_misses_box
-from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, _render_pixels, model_arguments
+from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, render_pixels, model_arguments
 from .startlists import prepare as prepare_starts
 from .stats import Stats
 from .tricks import DEFAULT as TRICKS_DEFAULT
@@ -255,47 +256,32 @@ class RenderResult:
                 f"{self.stats._repr_html_()}</div>")
 
 
-def _number(value, name: str, lo: float, hi: float, integer: bool = False):
-    """value checked to be a number (an integer if asked) in [lo, hi], else an OptionError."""
-    kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
-    if isinstance(value, bool) or not isinstance(value, kinds) or not lo <= value <= hi:
-        what = "an integer" if integer else "a number"
-        raise OptionError(f"{name} must be {what} in [{lo:g}, {hi:g}], got {value!r}")
-    return value
-
-
-def _choice(value, name: str, choices) -> str:
-    if value not in choices:
-        raise OptionError(f"unknown {name} {value!r}; choose from {', '.join(choices)}")
-    return value
-
-
-def _options(scene: Scene, accel="bvh", resolution=None, spd=False, max_depth=5, threads=None, max_memory=None,
+def render_options(scene: Scene, accel="bvh", resolution=None, spd=False, max_depth=5, threads=None, max_memory=None,
              shading="whitted", aa=None, samples=4, seed=0, aa_threshold=0.1, aa_depth=2, cutoff=None,
              shadows="opaque", eye_light=None, eye_light_shadows="skip", tricks="default") -> dict:
     """render()'s arguments checked (OptionError names the bad one), with the defaults resolved."""
-    max_depth = _number(max_depth, "max_depth", 1, 32, integer=True)
+    max_depth = number(max_depth, "max_depth", 1, 32, integer=True)
     if resolution is not None:
-        resolution = _number(resolution, "resolution", 1, 16384, integer=True)
+        resolution = number(resolution, "resolution", 1, 16384, integer=True)
     if threads is not None:
-        threads = _number(threads, "threads", 1, 1 << 20, integer=True)
-    shading = _choice(shading, "shading", SHADINGS)
-    aa = _choice("none" if aa is None else aa, "anti-aliasing (aa)", SAMPLERS)
-    samples = _number(samples, "samples", 1, 4096, integer=True)
+        threads = number(threads, "threads", 1, 1 << 20, integer=True)
+    shading = choice(shading, "shading", SHADINGS)
+    aa = choice("none" if aa is None else aa, "anti-aliasing (aa)", SAMPLERS)
+    samples = number(samples, "samples", 1, 4096, integer=True)
     if aa == "jitter" and math.isqrt(samples) ** 2 != samples:
         raise OptionError(f"samples for jittered anti-aliasing must be a square number (1, 4, 9, 16, ...), "
                           f"got {samples}")
-    seed = _number(seed, "seed", 0, 2 ** 63 - 1, integer=True)
-    aa_threshold = _number(aa_threshold, "aa_threshold", 0.0, math.inf)
-    aa_depth = _number(aa_depth, "aa_depth", 0, MAX_AA_DEPTH, integer=True)
+    seed = number(seed, "seed", 0, 2 ** 63 - 1, integer=True)
+    aa_threshold = number(aa_threshold, "aa_threshold", 0.0, math.inf)
+    aa_depth = number(aa_depth, "aa_depth", 0, MAX_AA_DEPTH, integer=True)
     if cutoff is not None:
-        cutoff = _number(cutoff, "cutoff", 0.0, 1.0)
-    shadows = _choice(shadows, "shadows", ("opaque", "filtered"))
+        cutoff = number(cutoff, "cutoff", 0.0, 1.0)
+    shadows = choice(shadows, "shadows", ("opaque", "filtered"))
     default = isinstance(tricks, str) and tricks.strip().lower() == "default"
     trick_bits = int(TRICKS_DEFAULT if default else parse_tricks(tricks))
     if eye_light is not None:
-        eye_light = _number(eye_light, "eye_light", 0.0, math.inf)
-    eye_light_shadows = _choice(eye_light_shadows, "eye_light_shadows", ("skip", "cast"))
+        eye_light = number(eye_light, "eye_light", 0.0, math.inf)
+    eye_light_shadows = choice(eye_light_shadows, "eye_light_shadows", ("skip", "cast"))
     if shading == "heckbert" and shadows != "opaque":
         raise OptionError("heckbert shading follows the printed program, whose shadows are opaque; "
                           f"shadows {shadows!r} is not allowed with it")
@@ -348,16 +334,14 @@ class RenderJob:
 
     frustum_culling = True      # tiles whose eye rays all miss the scene are not traced (frustum.py); same result
 
-    def __init__(self, scene: Scene, builder=None, remote: dict | None = None, **kw):
-        self.annealed = None
-        if remote is None:
-            scene, kw, self.annealed = tune(scene, kw)
-        o = self.options = _options(scene, **kw)
+    def __init__(self, scene: Scene, builder=None, remote: dict | None = None, annealed: dict | None = None, **kw):
+        self.annealed = annealed        # what annealing found for the scene's auto specs (analysis/auto.py)
+        o = self.options = render_options(scene, **kw)
         if o["threads"] is not None:
             numba.set_num_threads(min(o["threads"], numba.config.NUMBA_NUM_THREADS))
         self.scene = scene
         self.plain = o["shading"] == "whitted" and o["aa"] == "none"      # the renderer's own kernel, the fastest
-        self.kernel = _render_tiles if self.plain else _render_pixels
+        self.kernel = _render_tiles if self.plain else render_pixels
         self.width = self.height = o["resolution"]
         if o["resolution"] is None:
             self.width, self.height = scene.camera.width, scene.camera.height
@@ -455,7 +439,7 @@ class RenderJob:
             whitted_on, heckbert_on, medium = model_arguments(o["shading"], self.medium)
 
             def run(counter, limit):
-                _render_pixels(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
+                render_pixels(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
                                self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
                                self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
                                whitted_on, heckbert_on, self.filtered, self.trick_bits, self.starts, medium,
@@ -546,26 +530,6 @@ class RenderJob:
         return RenderResult(image=image, stats=stats)
 
 
-AUTO_RESOLVERS: list = []
-"""What turns `auto` specs into hierarchies: analysis/anneal.py's resolve_auto, registered by
-the package (raykernel/__init__.py), since the annealer renders and so sits above this layer."""
-
-
-def tune(scene: Scene, kw: dict):
-    """Resolve `auto` specs (the render's accel or a group's) by annealing: (the scene with the
-    hierarchies found, the options with a concrete accel, what was found: {"seconds",
-    "groups"}, or None where nothing was auto)."""
-    t0 = time.perf_counter()
-    options = {k: v for k, v in kw.items() if k != "accel"}
-    for resolve in AUTO_RESOLVERS:
-        found = resolve(scene, kw.get("accel", "bvh"), options)
-        if found is not None:
-            tuned, default, groups = found
-            tuned.source = scene.source
-            return tuned, {**kw, "accel": default}, {"seconds": time.perf_counter() - t0, "groups": groups}
-    return scene, kw, None
-
-
 def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:
     """The samples of an h x w tile a pass of (step, coarse) traces (_render_tile's rule)."""
     j, i = np.mgrid[0:h, 0:w]
@@ -586,7 +550,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
            shading: str = "whitted", aa: str | None = None, samples: int = 4, seed: int = 0,
            aa_threshold: float = 0.1, aa_depth: int = 2, cutoff: float | None = None, shadows: str = "opaque",
            eye_light: float | None = None, eye_light_shadows: str = "skip", tricks="default",
-           builder=None) -> RenderResult:
+           builder=None, annealed: dict | None = None) -> RenderResult:
     """Render `scene`; returns the float image and the statistics.
 
     accel: the default accelerator spec for groups that name none.
@@ -615,9 +579,12 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     the ray counts; heckbert shading runs the printed program's searches and takes none.
     builder: what builds the structures (default: flatten.flatten, from scratch); an
     engine.incremental.Hierarchy keeps them between the frames of an animation.
+    annealed: what annealing found for the scene's auto specs, for the statistics (a render
+    with auto specs is raykernel.render's, analysis/auto.py, which anneals first).
     """
-    job = RenderJob(scene, builder=builder, accel=accel, resolution=resolution, spd=spd, max_depth=max_depth,
-                    threads=threads, max_memory=max_memory, shading=shading, aa=aa, samples=samples, seed=seed,
+    job = RenderJob(scene, builder=builder, annealed=annealed, accel=accel, resolution=resolution, spd=spd,
+                    max_depth=max_depth, threads=threads, max_memory=max_memory, shading=shading, aa=aa,
+                    samples=samples, seed=seed,
                     aa_threshold=aa_threshold, aa_depth=aa_depth, cutoff=cutoff, shadows=shadows,
                     eye_light=eye_light, eye_light_shadows=eye_light_shadows, tricks=tricks)
     n_threads = job.threads

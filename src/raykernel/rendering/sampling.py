@@ -4,7 +4,7 @@ adaptive supersampling, under any shading model (whitted.py, hall.py, heckbert.p
     render(scene, aa="jitter", samples=16, seed=1)          # 4 x 4 strata, one random ray in each
     render(scene, aa="adaptive", aa_threshold=0.1, aa_depth=2)
 
-The render driver (render.py) calls `_render_pixels` in place of its plain kernel whenever the
+The render driver (render.py) calls `render_pixels` in place of its plain kernel whenever the
 shading is not Whitted's or a sampler is asked for; it keeps the same tiles, passes and
 counter rows, over pixels rather than samples.
 
@@ -83,7 +83,7 @@ def _sample(geo, mats, lights, background, cam, u, v, whitted_on, heckbert_on, m
 
 
 @njit
-def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, counter, last, row0, max_depth,
+def render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, counter, last, row0, max_depth,
                    cutoff, out, counters, passes, step, coarse, tile_size, whitted_on, heckbert_on, filtered, tricks,
                    starts, medium, sampler, samples, seed, threshold, aa_depth):
     """render._render_tiles over pixels (tiles of tile_size), each from `sampler`'s samples
@@ -117,7 +117,7 @@ def _render_pixels(geo, mats, lights, background, cam, width, height, tile_x, ti
 def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile_size, max_depth, cutoff, out,
                  step, coarse, whitted_on, heckbert_on, filtered, tricks, medium, sampler, samples, seed, threshold,
                  aa_depth, state, rays, eye, color, ws, cnt, lattice, known, squares):
-    """The pixels of the tile at (x0, y0) for _render_pixels. lattice, known: the adaptive
+    """The pixels of the tile at (x0, y0) for render_pixels. lattice, known: the adaptive
     sampler's points of the tile, 2^aa_depth per pixel side, traced on first use; squares: its
     stack of squares, rows of (column, row, size) on that lattice and the cuts made."""
     k = 1

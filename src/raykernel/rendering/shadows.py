@@ -17,7 +17,7 @@ import numpy as np
 from ..engine.traverse import ANY_HIT, ANY_OPAQUE, CLOSEST, intersect
 from ..geometry import counters as C
 from ..geometry.config import njit
-from ..geometry.surface import _dot, hit_normals
+from ..geometry.surface import dot, hit_normals
 from .tricks import TRANSPARENTLAST, cached_block, remember_blocker
 from .tricks import blocked as tricks_blocked
 
@@ -37,7 +37,7 @@ def light_through(geo, mats, ox, oy, oz, tx, ty, tz, reach, medium, filtered, sl
     """Fraction of a light's colour that reaches (ox, oy, oz) along (tx, ty, tz) (to the light, t in
     [0, reach]), starting in `medium`: 0 when an opaque surface (any surface, unless filtered) is in
     the way. slot, tricks, state: the shadow cache and trick 4 (tricks.py)."""
-    length = math.sqrt(_dot(tx, ty, tz, tx, ty, tz))
+    length = math.sqrt(dot(tx, ty, tz, tx, ty, tz))
     if not filtered:
         if tricks_blocked(geo, ox, oy, oz, tx, ty, tz, reach, ANY_HIT, slot, tricks, state, ws, cnt):
             return 0.0, 0.0, 0.0
@@ -54,7 +54,7 @@ def light_through(geo, mats, ox, oy, oz, tx, ty, tz, reach, medium, filtered, sl
         cnt[C.SHADOW_STEPS] += 1
         if not intersect(geo, ox, oy, oz, tx, ty, tz, t0, reach, CLOSEST, ws, cnt):
             return filter_by_distance(mats, medium, (reach - t0) * length, fr, fg, fb)
-        hit_f, hit_i = ws[5], ws[6]
+        hit_f, hit_i = ws.hit_f, ws.hit_i
         t = hit_f[0]
         px, py, pz = ox + t * tx, oy + t * ty, oz + t * tz
         gx, gy, gz, _, _, _, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
@@ -63,6 +63,6 @@ def light_through(geo, mats, ox, oy, oz, tx, ty, tz, reach, medium, filtered, sl
             remember_blocker(slot, tricks, state, ws)
             return 0.0, 0.0, 0.0
         fr, fg, fb = filter_by_distance(mats, medium, (t - t0) * length, fr * kt, fg * kt, fb * kt)
-        medium = mat if _dot(gx, gy, gz, tx, ty, tz) < 0.0 else np.int64(-1)
+        medium = mat if dot(gx, gy, gz, tx, ty, tz) < 0.0 else np.int64(-1)
         t0 = t + 1e-9 * max(1.0, t)
     return 0.0, 0.0, 0.0

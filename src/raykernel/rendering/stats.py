@@ -14,9 +14,8 @@ import json
 
 import numpy as np
 
-from ..aggregates import WALKS
+from ..aggregates.registry import COUNTER_NAMES, WALKS
 from ..engine.transforms import AFFINE, TRANSFORM_MULTIPLIES
-from ..geometry import counters as C
 
 RAY_KINDS = ("eye", "reflect", "refract", "shadow")
 
@@ -34,7 +33,7 @@ class Stats(dict):
         (start-up), already left out of `preprocess` and `trace`; anneal: seconds spent finding
         the hierarchy of an `auto` spec, before the build; parse: seconds spent reading the scene."""
         s = cls()
-        for column, name in C.NAMES.items():
+        for column, name in COUNTER_NAMES.items():
             s[name] = int(totals[column])
         s["tests.total"] = sum(s[f"tests.{k}"] for k in ("sphere", "polygon", "patch", "cone", "triangle"))
         rays = s["rays.eye"] + s["rays.reflect"] + s["rays.refract"] + s["rays.shadow"] + s["rays.cast"]
@@ -70,7 +69,7 @@ class Stats(dict):
     def to_json(self, path) -> None:
         from ..atomicfile import atomic_write
         with atomic_write(path) as f:
-            json.dump(self.to_dict(), f, indent=2, default=_plain)
+            json.dump(self.to_dict(), f, indent=2, default=jsonable)
             f.write("\n")
 
     def rows(self):
@@ -105,7 +104,7 @@ class Stats(dict):
         if self.get("mailbox.saved"):
             out.append(("traversal", "mailbox saved", f"{self['mailbox.saved']:,}", ""))
         for walk in WALKS:
-            if hasattr(walk, "stats_rows"):
+            if walk.stats_rows is not None:
                 out.extend(walk.stats_rows(self))       # the rows of its own counters
         out.append(("build", "nodes", f"{self.get('build.nodes', 0):,}",
                     f"{self.get('build.aggregates', 0)} aggregate(s)"))
@@ -150,11 +149,17 @@ class Stats(dict):
         return f"<table>{cells}</table>"
 
 
-def _plain(value):
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
+def jsonable(value):
+    """value as JSON writes it: numpy numbers and arrays made Python ones, tuples lists, inside
+    dicts and lists too; anything else JSON cannot write as its str (also json.dump's default=)."""
+    if isinstance(value, np.generic):
+        return value.item()
     if isinstance(value, np.ndarray):
         return value.tolist()
+    if isinstance(value, dict):
+        return {k: jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if value is None or isinstance(value, (str, int, float, bool)):
+        return value
     return str(value)

@@ -116,7 +116,7 @@ def hold_origin(state, ws):
     """Trick 6: the hit intersect just found is the object the next rays leave (its start list)."""
     if state is None:
         return
-    _remember(state[4], 0, ws[5], ws[6])
+    _remember(state[4], 0, ws.hit_f, ws.hit_i)
 
 
 @njit(inline="always")
@@ -215,12 +215,12 @@ def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, rays, 
                                 cnt):
         cnt[C.RAYTREE_HITS if from_tree else C.START_LISTS_HITS] += 1
         if memorable:
-            _remember(memory, node, ws[5], ws[6])
+            _remember(memory, node, ws.hit_f, ws.hit_i)
         return True
     found = intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
     if memorable:
         if found:
-            _remember(memory, node, ws[5], ws[6])
+            _remember(memory, node, ws.hit_f, ws.hit_i)
         else:
             memory[node, 0] = -1.0
     return found
@@ -255,7 +255,7 @@ def remember_blocker(slot, tricks, state, ws):
     if state is None:
         return
     if tricks & SHADOWCACHE and slot >= 0:
-        _remember(state[1], slot, ws[5], ws[6])
+        _remember(state[1], slot, ws.hit_f, ws.hit_i)
 
 
 @njit(inline="always")

@@ -20,7 +20,7 @@ from ..engine.traverse import ANY_HIT, CLOSEST, intersect
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
-from ..geometry.surface import _dot, hit_normals
+from ..geometry.surface import dot, hit_normals
 from .shadows import light_through
 from .tricks import ORIGIN, blocked, closest, hold_origin, pass_origin, shadow_slot
 
@@ -66,6 +66,32 @@ def spawn(rays, top, cutoff, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, kind, me
     return top + 1
 
 
+@njit(inline="always")
+def seen_side(gx, gy, gz, sx, sy, sz, ox, oy, oz, dx, dy, dz, px, py, pz):
+    """The geometric and shading normals of the hit p of ray o + t d turned to the side the ray
+    sees (two-sided shading; vertex normals may disagree with the winding), whether the ray enters
+    the surface, and how far off it secondary rays start (OFFSET of the coordinates' magnitude):
+    (entering, g, s, eps)."""
+    entering = dot(gx, gy, gz, dx, dy, dz) < 0.0
+    if not entering:
+        gx, gy, gz = -gx, -gy, -gz
+    if dot(sx, sy, sz, gx, gy, gz) < 0.0:
+        sx, sy, sz = -sx, -sy, -sz
+    eps = OFFSET * max(max(abs(px), abs(py)), max(abs(pz), max(max(abs(ox), abs(oy)), abs(oz))))
+    return entering, gx, gy, gz, sx, sy, sz, eps
+
+
+@njit(inline="always")
+def pop(rays, top, cnt):
+    """Take the ray on top of the ray stack (spawn's columns) and count it by its kind: (new top,
+    origin, direction, weight, depth, kind, medium, node). Every shading model's loop starts so."""
+    top -= 1
+    cnt[C.RAYS_EYE + 2 * int(rays[top, 10])] += 1
+    return (top, rays[top, 0], rays[top, 1], rays[top, 2], rays[top, 3], rays[top, 4], rays[top, 5],
+            rays[top, 6], rays[top, 7], rays[top, 8], int(rays[top, 9]), int(rays[top, 10]),
+            np.int64(rays[top, 11]), np.int64(rays[top, 12]))
+
+
 @njit(private=True)
 def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth, cutoff, filtered, tricks, state,
           rays, ws, cnt):
@@ -87,14 +113,7 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
             rays[0, ORIGIN] = -1.0      # leaves no object
             top = 1
             e += 1
-        top -= 1
-        ox, oy, oz = rays[top, 0], rays[top, 1], rays[top, 2]
-        dx, dy, dz = rays[top, 3], rays[top, 4], rays[top, 5]
-        wr, wg, wb = rays[top, 6], rays[top, 7], rays[top, 8]
-        depth = int(rays[top, 9])
-        ray_kind = int(rays[top, 10])
-        node = np.int64(rays[top, 12])
-        cnt[C.RAYS_EYE + 2 * ray_kind] += 1
+        top, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, ray_kind, _, node = pop(rays, top, cnt)
         # `state is None` tested here, on trace's own argument: numba then prunes the tricks'
         # calls before it would inline them (it inlines before it prunes the callees' tests)
         if state is None:
@@ -107,26 +126,19 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
             b_out += wb * background[2]
             continue
         cnt[C.RAYS_EYE_HIT + 2 * ray_kind] += 1
-        hit_f, hit_i = ws[5], ws[6]
+        hit_f, hit_i = ws.hit_f, ws.hit_i
         t = hit_f[0]
         px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
         gx, gy, gz, sx, sy, sz, mat = hit_normals(geo, hit_f, hit_i, px, py, pz)
         cnt[C.NORMALS_COMPUTED] += 1
         if state is not None:
             hold_origin(state, ws)      # the object the shadow and secondary rays below leave
-        entering = _dot(gx, gy, gz, dx, dy, dz) < 0.0
-        if not entering:
-            # two-sided: shade the side the ray sees
-            gx, gy, gz = -gx, -gy, -gz
-        if _dot(sx, sy, sz, gx, gy, gz) < 0.0:
-            # vertex normals may disagree with the winding; keep them on the seen side
-            sx, sy, sz = -sx, -sy, -sz
-        eps = OFFSET * max(max(abs(px), abs(py)), max(abs(pz), max(max(abs(ox), abs(oy)), abs(oz))))
+        entering, gx, gy, gz, sx, sy, sz, eps = seen_side(gx, gy, gz, sx, sy, sz, ox, oy, oz, dx, dy, dz, px, py, pz)
         ax, ay, az = px + eps * gx, py + eps * gy, pz + eps * gz     # on the side the ray came from
         cr, cg, cb = mats[mat, 0], mats[mat, 1], mats[mat, 2]
         kd, ks, shine, tr, ior = mats[mat, 3], mats[mat, 4], mats[mat, 5], mats[mat, 6], mats[mat, 7]
         ndx, ndy, ndz = normalize(dx, dy, dz)
-        cos_i = -_dot(ndx, ndy, ndz, sx, sy, sz)
+        cos_i = -dot(ndx, ndy, ndz, sx, sy, sz)
         # mirror direction, also used for the Phong highlight
         rx, ry, rz = ndx + 2.0 * cos_i * sx, ndy + 2.0 * cos_i * sy, ndz + 2.0 * cos_i * sz
         dr, dg, db = 0.0, 0.0, 0.0
@@ -134,8 +146,8 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
         for li in range(n_lights):
             tlx, tly, tlz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
             ulx, uly, ulz = normalize(tlx, tly, tlz)
-            n_dot_l = _dot(sx, sy, sz, ulx, uly, ulz)
-            if n_dot_l <= 0.0 or _dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
+            n_dot_l = dot(sx, sy, sz, ulx, uly, ulz)
+            if n_dot_l <= 0.0 or dot(gx, gy, gz, ulx, uly, ulz) <= 0.0:
                 continue        # the surface faces away from this light: no shadow ray
             lr, lg, lb = lights[li, 3], lights[li, 4], lights[li, 5]
             if lights[li, 7] != 0.0 and ray_kind == 0:
@@ -165,7 +177,7 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
             dg += n_dot_l * lg
             db += n_dot_l * lb
             if ks > 0.0:
-                r_dot_l = _dot(rx, ry, rz, ulx, uly, ulz)
+                r_dot_l = dot(rx, ry, rz, ulx, uly, ulz)
                 if r_dot_l > 0.0:
                     spec = ks * r_dot_l ** shine
                     hr += spec * lr

@@ -198,10 +198,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..aggregates.registry import KINDS, parse_spec
 from ..atomicfile import write_text
-from ..errors import SceneError
+from ..errors import OptionError, SceneError
 from .animation import CAMERA_FIELDS, Animation, CameraPath, Keyframe, Motion, axis_angle_quaternion, default_span
-from .accel import KINDS
 from .model import MAX_NESTING, Camera, Group, Instance, Light, Material, Scene, TriangleMesh
 
 __all__ = ["MAX_NESTING", "read_json", "parse_json", "scene_from_json", "scene_to_json",
@@ -598,11 +598,6 @@ class _Reader:
             return None
         if not isinstance(value, str) or not value.strip():
             self.fail(ptr, f"expected an accelerator spec such as \"bvh\" (or null), got {_describe(value)}")
-        try:
-            from ..errors import OptionError
-            from .accel import parse_spec
-        except ImportError:
-            return value.strip()
         try:
             parse_spec(value)
         except OptionError as e:

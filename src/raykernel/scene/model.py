@@ -19,12 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..aggregates.walk import MAX_NESTING  # noqa: F401  (the deepest level a group may sit at: the kernels' frames)
 from ..errors import SceneError
-
-MAX_NESTING = 16
-"""Most aggregates along any path from the root, the root included: the deepest level a
-group may sit at (the root is level 1, each group within a group or an instance one more).
-The kernel keeps one frame for each."""
 
 
 def _vec3(value, what: str) -> np.ndarray:

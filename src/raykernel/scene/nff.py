@@ -563,7 +563,6 @@ class _Reader:
                                                                        v[:, 4:7].copy(), v[:, 7].copy())
         cones.material = material
         for kind, target in (("p", root.polygons), ("pp", root.patches)):
-            per_vertex = 3 if kind == "p" else 6
             v, count, material = self.bulk[kind]
             start = np.cumsum(count) - count
             vertices = np.ascontiguousarray(v[:, :3])

@@ -1,12 +1,14 @@
-"""Accelerator specs: the little language that names an acceleration structure.
+"""Accelerator specs, and what every aggregate kind declares about itself.
 
-    kind, params = parse_spec("bvh(leaf=4, bins=16)")
-    print(describe())          # every kind with its parameters and defaults
+    KIND = Kind("bvh", "help", (Param("leaf", 4, "help", int, 1, 64), ...), flatten=flatten, walk=WALK)
+    name, params = parse(spec, KINDS)      # registry.parse_spec(spec) with the registered kinds
+    format_spec(name, params, KINDS)       # the canonical string: only non-default parameters
 
 A spec is a kind name, optionally followed by `key=value` parameters in
-parentheses. Each kind registers its parameters with defaults and checks;
-unknown names, unknown parameters and values out of range are OptionErrors
-that list what is allowed.
+parentheses ("bvh(leaf=4, bins=16)"). Each kind declares its parameters with
+defaults and checks; unknown names, unknown parameters and values out of
+range are OptionErrors that list what is allowed. The kinds themselves are
+collected by the registry (registry.py); this module only describes them.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import re
 from dataclasses import dataclass, field
 
 from ..errors import OptionError
+from .walk import Walk
 
 
 @dataclass(frozen=True)
@@ -64,15 +67,42 @@ class Param:
 
 
 @dataclass(frozen=True)
+class Search:
+    """What the searches for a hierarchy (analysis/anneal.py, the cost model's calibration) may try
+    of a kind: `start`, the kind at its defaults, and `variants`, specs they start from over the
+    whole target; `candidates`, specs a group may be given; `max_items`, when non-zero, the most
+    primitives of a group it is offered to (and of a scene it is calibrated on: a brute-force
+    search grows with the items)."""
+    start: bool = False
+    variants: tuple = ()
+    candidates: tuple = ()
+    max_items: int = 0
+
+
+@dataclass(frozen=True)
 class Kind:
+    """One aggregate kind, as its module declares it (KIND, or KINDS for several):
+    name and help, as `raykernel accels` lists them; params, its spec's parameters;
+    flatten(builder, params, refs, bounds, name, box) -> (aggregate index, build statistics), which
+    stores it in the flat arrays (engine/flatten.py's Builder); walk, the Walk its aggregates are
+    stored with (another kind's where it builds those: hgrid grids, hybrid and lazyoctree octrees);
+    lazy, a class that refines its aggregates between passes of rays, whose `attach(geo, records,
+    base)` takes over the arrays flatten's records name (FlatArrays.lazy[name]); refit(flat, agg,
+    memo, refs, old_bounds, bounds, params, threshold), where an animation's frame may keep an
+    aggregate whose items moved (engine/incremental.py): the nodes it touched, or None to have it
+    rebuilt (memo: a dict it may keep between frames); search, what the annealer may try of it. An operator (aggregates/collect.py) has `operands`: its items are the
+    group's children, one reference each, never merged; in a JSON scene an item {name: {list:
+    [items], ...}} for each of operand_lists, its operands their items in order, its group's spec
+    operand_spec(the lists' lengths) (None: the kind's name), at most max_operands of them (0: no
+    limit)."""
     name: str
     help: str
     params: tuple = ()
-    flatten: object = field(default=None, compare=False)   # (builder, params, refs, bounds, name, box) -> (agg, stats)
-    # an operator (aggregates/collect.py): its items are the group's children, one reference
-    # each, never merged; in a JSON scene an item {name: {list: [items], ...}} for each of
-    # operand_lists, its operands their items in order, its group's spec operand_spec(the lists'
-    # lengths) (None: the kind's name), at most max_operands of them (0: no limit)
+    flatten: object = field(default=None, compare=False)
+    walk: Walk | None = field(default=None, compare=False)
+    lazy: object = field(default=None, compare=False)
+    refit: object = field(default=None, compare=False)
+    search: Search = Search()
     operands: bool = False
     operand_lists: tuple = ("items",)
     operand_spec: object = field(default=None, compare=False)
@@ -82,9 +112,7 @@ class Kind:
         return {p.name: p.default for p in self.params}
 
 
-KINDS: dict[str, Kind] = {}    # filled by the registry, aggregates/__init__.py (imported by raykernel)
-
-# not a structure but a search for one: render() anneals a hierarchy of the others (analysis/anneal.py)
+# not a structure but a search for one: raykernel.render anneals a hierarchy of the others (analysis/anneal.py)
 AUTO = Kind("auto", "the hierarchy of structures found by simulated annealing (Arvo 1988) for this render's rays: "
             "groups, kinds and parameters chosen to minimise the cost model's predicted trace time", (
                 Param("seconds", 30.0, "time budget of the search", float, 0.0, 1e7),
@@ -101,13 +129,6 @@ AUTO = Kind("auto", "the hierarchy of structures found by simulated annealing (A
             ))
 
 
-def register(kind: Kind) -> Kind:
-    if kind.name in KINDS:
-        raise ValueError(f"accelerator kind {kind.name!r} registered twice")
-    KINDS[kind.name] = kind
-    return kind
-
-
 def is_auto(spec) -> bool:
     """Whether a spec asks for the annealed hierarchy (auto or auto(...))."""
     return isinstance(spec, str) and spec.strip().lower().split("(", 1)[0].strip() == AUTO.name
@@ -116,18 +137,18 @@ def is_auto(spec) -> bool:
 _SPEC = re.compile(r"^\s*([A-Za-z_][\w-]*)\s*(?:\((.*)\))?\s*$", re.S)
 
 
-def parse_spec(spec: str) -> tuple[str, dict]:
-    """'kind(key=value, ...)' -> (kind, parameters with defaults filled in)."""
+def parse(spec: str, kinds: dict) -> tuple[str, dict]:
+    """'kind(key=value, ...)' -> (kind, parameters with defaults filled in), for the kinds given."""
     if not isinstance(spec, str):
         raise OptionError(f"an accelerator spec must be a string, got {spec!r}")
     m = _SPEC.match(spec)
     if not m:
         raise OptionError(f"accelerator spec {spec!r} is not of the form kind or kind(key=value, ...); "
-                          f"kinds: {', '.join(KINDS)}, auto")
+                          f"kinds: {', '.join(kinds)}, auto")
     name, body = m.group(1).lower(), m.group(2)
-    if name not in KINDS and name != AUTO.name:
-        raise OptionError(f"unknown accelerator {name!r} in spec {spec!r}; kinds: {', '.join(KINDS)}, auto")
-    kind = AUTO if name == AUTO.name else KINDS[name]
+    if name not in kinds and name != AUTO.name:
+        raise OptionError(f"unknown accelerator {name!r} in spec {spec!r}; kinds: {', '.join(kinds)}, auto")
+    kind = AUTO if name == AUTO.name else kinds[name]
     params = kind.defaults()
     allowed = {p.name: p for p in kind.params}
     given = set()
@@ -147,9 +168,9 @@ def parse_spec(spec: str) -> tuple[str, dict]:
     return name, params
 
 
-def format_spec(name: str, params: dict) -> str:
+def format_spec(name: str, params: dict, kinds: dict) -> str:
     """The canonical spec string: only parameters that differ from the defaults."""
-    kind = AUTO if name == AUTO.name else KINDS[name]
+    kind = AUTO if name == AUTO.name else kinds[name]
     changed = [f"{p.name}={_fmt(params[p.name])}" for p in kind.params if params.get(p.name, p.default) != p.default]
     return f"{name}({', '.join(changed)})" if changed else name
 
@@ -160,10 +181,10 @@ def _fmt(value) -> str:
     return str(value)
 
 
-def describe() -> str:
+def describe(kinds: dict) -> str:
     """A plain-text list of every kind with its parameters and defaults."""
     lines = []
-    for kind in [*KINDS.values(), AUTO]:
+    for kind in [*kinds.values(), AUTO]:
         lines.append(f"{kind.name}: {kind.help}")
         for p in kind.params:
             lines.append(f"    {p.name}={_fmt(p.default)}  ({p._what()}) {p.help}")

@@ -1,0 +1,57 @@
+"""The package's layers hold (raykernel/layers.py): no import goes up a layer, none goes round in a
+circle, no private name crosses a module boundary (every import statement, module-level or inside a
+function), and the README's Layout section lists the layers as the code has them."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import raykernel
+from raykernel import layers
+
+PACKAGE = Path(raykernel.__file__).parent
+README = PACKAGE.parents[1] / "README.md"
+EDGES = layers.imports_of(PACKAGE)
+
+
+def test_every_module_has_a_layer():
+    modules = {a for a, _, _, _ in EDGES}
+    assert len(modules) > 80
+    assert not [m for m in modules if layers.layer_of(m) is None]
+
+
+def test_no_import_goes_up_a_layer():
+    assert not layers.upward(EDGES), "\n".join(layers.upward(EDGES))
+
+
+def test_no_private_name_crosses_a_module_boundary():
+    assert not layers.private(EDGES), "\n".join(layers.private(EDGES))
+
+
+def test_no_import_cycle():
+    assert not layers.cycles(EDGES)
+
+
+def test_each_rule_finds_what_breaks_it(tmp_path):
+    pkg = tmp_path / "raykernel"
+    for folder in ("geometry", "engine", "aggregates"):
+        (pkg / folder).mkdir(parents=True)
+        (pkg / folder / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    (pkg / "geometry" / "low.py").write_text("def later():\n    from ..engine.high import run\n")
+    (pkg / "engine" / "high.py").write_text("from ..geometry.low import later\nfrom ..aggregates.a import _hidden\n")
+    (pkg / "aggregates" / "a.py").write_text("from .b import x\n_hidden = 1\n")
+    (pkg / "aggregates" / "b.py").write_text("from . import a\nx = 2\n")
+    edges = layers.imports_of(pkg)
+    assert layers.upward(edges) == ["raykernel.geometry.low:2 imports raykernel.engine.high (geometry below engine)"]
+    assert layers.private(edges) == ["raykernel.engine.high:2 imports raykernel.aggregates.a._hidden"]
+    assert sorted(map(tuple, layers.cycles(edges))) == [
+        ("raykernel.aggregates.a", "raykernel.aggregates.b"),
+        ("raykernel.engine.high", "raykernel.geometry.low")]
+
+
+def test_readme_layout_lists_the_layers_of_the_code():
+    section = re.search(r"^## Layout\n(.*?)(?=^## |\Z)", README.read_text(), re.S | re.M)
+    assert section, "README.md has no Layout section"
+    assert layers.describe() in section.group(1), "README's Layout is not layers.describe()'s text"
