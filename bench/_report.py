@@ -1,6 +1,7 @@
-"""Shared by the benchmark scripts: machine description and BENCHMARKS.md sections.
+"""Shared by the benchmark scripts: machine description, scene files, BENCHMARKS.md sections.
 
     replace_section("spd_scenes", markdown_text)   # rewrites only that section
+    path = spd_file("teapot", 6, ".obj")           # SPD teapot at size 6 as OBJ, written once by raykernel
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS = ROOT / "BENCHMARKS.md"
-SHARED_SPD = ROOT.parent / "shared" / "scenes" / "spd"
+CACHE = ROOT / "bench" / ".cache"       # scene files the benches make with raykernel's own writers
 
 
 def machine() -> str:
@@ -43,3 +44,14 @@ def replace_section(name: str, text: str) -> None:
     tmp = BENCHMARKS.with_suffix(".md.tmp")
     tmp.write_text(new)
     os.replace(tmp, BENCHMARKS)
+
+
+def spd_file(name: str, size: int, suffix: str) -> Path:
+    """An SPD scene at `size` as a .nff, .obj or .pov file, written by raykernel's generators and
+    converters into bench/.cache the first time it is asked for."""
+    from raykernel.scene.convert import convert
+    path = CACHE / f"{name}-sf{size}{suffix}"
+    if not path.exists():
+        CACHE.mkdir(parents=True, exist_ok=True)
+        convert(f"spd:{name}:{size}", path)
+    return path

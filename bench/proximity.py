@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import SHARED_SPD, machine, replace_section  # noqa: E402
+from _report import machine, replace_section, spd_file  # noqa: E402
 
 
 def best(fn, repeat=2):
@@ -42,9 +42,7 @@ def meshes():
     out = {"icosphere-20k": trimesh.creation.icosphere(subdivisions=5),
            "torus": trimesh.creation.torus(major_radius=1.0, minor_radius=0.3, major_sections=128,
                                            minor_sections=64)}
-    teapot = SHARED_SPD / "teapot-sf6.obj"
-    if teapot.exists():
-        out["teapot-sf6"] = trimesh.load(teapot, force="mesh")
+    out["teapot-sf6"] = trimesh.load(spd_file("teapot", 6, ".obj"), force="mesh")
     return out
 
 

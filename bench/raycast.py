@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import SHARED_SPD, machine, replace_section  # noqa: E402
+from _report import machine, replace_section, spd_file  # noqa: E402
 
 SPD_MESHES = ["gears-sf4", "mount-sf6", "teapot-sf6", "tetra-sf6"]
 # what embreex's run(output=1) returns (tfar, primID, geomID, u, v, Ng, float32), asked of raykernel in float32
@@ -80,7 +80,8 @@ def _icosphere():
 
 MESHES = {
     "sphere-80k": _icosphere,
-    **{name: (lambda name=name: _load_obj(SHARED_SPD / f"{name}.obj")) for name in SPD_MESHES},
+    **{name: (lambda name=name: _load_obj(spd_file(name.split("-sf")[0], int(name.split("-sf")[1]), ".obj")))
+       for name in SPD_MESHES},
     "tetra-sf10": lambda: scene_triangles(__import__("raykernel").load("spd:tetra:10")),   # 4^10 triangles
     "stadium": lambda: obj_triangles(__import__("raykernel").load("scene:stadium")),     # teapot in a stadium
 }

@@ -2,8 +2,9 @@
 
     .venv/bin/python bench/renders.py [--scenes balls,gears] [--threads 2] [--repeat 2]
 
-For each SPD generator at its default size, renders ../shared/scenes/spd's
-.nff with `raykernel render --spd --resolution 512` (the SPD procedure:
+For each SPD generator at its default size, written as NFF and as a POV-Ray
+3.7 scene by raykernel's own generator and converter (bench/.cache), renders
+the .nff with `raykernel render --spd --resolution 512` (the SPD procedure:
 513x513 corner rays averaged to 512x512, depth 5) and its .pov with
 `povray +W512 +H512 -D -A +WT<threads>` (Debian's povray 3.7; -A: one ray
 per pixel, no antialiasing), each as a fresh process, alternating, best of
@@ -42,7 +43,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import ROOT, SHARED_SPD, machine, replace_section  # noqa: E402
+from _report import ROOT, machine, replace_section, spd_file  # noqa: E402
 
 from raykernel.scene import spd  # noqa: E402
 
@@ -105,17 +106,11 @@ def povray_rays(text: str) -> int:
 
 
 def spd_files(names: str, tmp: str):
-    """(stem, .nff, .pov) of each named SPD scene at its default size that ../shared holds,
-    with the files its .pov reads copied into tmp (the sombrero's height field)."""
+    """(stem, .nff, .pov) of each named SPD scene at its default size, written by raykernel's
+    generator and its POV-Ray converter (bench/.cache)."""
     for name in names.split(","):
-        stem = f"{name}-sf{spd.default_size(name)}"
-        nff, pov = SHARED_SPD / f"{stem}.nff", SHARED_SPD / f"{stem}.pov"
-        if not (nff.exists() and pov.exists()):
-            print(f"skipping {name}: {stem}.nff/.pov not in {SHARED_SPD}")
-            continue
-        for extra in SHARED_SPD.glob("*.tga"):
-            shutil.copy(extra, tmp)
-        yield stem, nff, pov
+        size = spd.default_size(name)
+        yield f"{name}-sf{size}", spd_file(name, size, ".nff"), spd_file(name, size, ".pov")
 
 
 def antialiased(args) -> None:

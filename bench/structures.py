@@ -20,16 +20,20 @@ import sys
 from _report import machine, replace_section
 
 import raykernel
-from raykernel.scene import accel, spd
+from raykernel.aggregates.registry import KINDS
+from raykernel.scene import spd
 
 RAY_KEYS = ("rays.eye", "rays.eye_hit", "rays.reflect", "rays.reflect_hit", "rays.refract", "rays.refract_hit",
             "rays.shadow", "rays.shadow_blocked")
 # the defaults first, then one change each: walks, criteria off or on (whichever is not the default),
 # limits up and down, and the old defaults (depth 8, no budget)
-OCTREE_VARIANTS = ("octree", "octree(walk=point)", "octree(walk=parametric)", "octree(rule60=on)",
+OCTREE_VARIANTS = ("octree", "octree(walk=point)", "octree(walk=parametric)", "octree(walk=wall)", "octree(rule60=on)",
                    "octree(density=0.3)", "octree(vertexcount=on)", "octree(collapse=off)", "octree(mailbox=off)",
                    "octree(leaf=1)", "octree(leaf=8)", "octree(depth=8)", "octree(depth=24)", "octree(budget=8)",
                    "octree(budget=32)", "octree(depth=8, budget=0)")
+# the four octree walks over the same tree (the wall walk builds without collapse: so does the last)
+OCTREE_WALKS = ("octree(walk=point, collapse=off)", "octree(walk=neighbor, collapse=off)",
+                "octree(walk=parametric, collapse=off)", "octree(walk=wall)")
 # the lazy structures beside the eager octree, at several image sizes
 LAZY_SPECS = ("octree", "lazyoctree", "rc")
 
@@ -62,11 +66,22 @@ def table(rows):
     return lines
 
 
+def walk_table(rows):
+    lines = ["| scene | walk | N_TS | N_ETS | wall steps | bound tests | N_IT | trace s |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
+    for name, spec, s in rows:
+        rays = max(1, s["rays.total"])
+        lines.append(f"| {name} | `{spec}` | {s['cells.visited_per_ray']:.2f} | {s['cells.leaves_per_ray']:.2f} | "
+                     f"{s.get('octree.wall_steps', 0) / rays:.2f} | {s['bounds.tests'] / rays:.2f} | "
+                     f"{s['tests.per_ray']:.2f} | {s['time.trace']:.2f} |")
+    return lines
+
+
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--resolution", type=int, default=128)
     parser.add_argument("--scenes", default=",".join(spd.NAMES) + ",stadium")
-    parser.add_argument("--kinds", default=",".join(k for k, kind in accel.KINDS.items()
+    parser.add_argument("--kinds", default=",".join(k for k, kind in KINDS.items()
                                                     if k != "list" and not kind.operands))   # (operators: per group)
     parser.add_argument("--octree-scenes", default="balls,teapot,stadium")
     parser.add_argument("--lazy-scenes", default="balls,teapot,stadium")
@@ -79,18 +94,25 @@ def main():
     scenes = [(n, load(n)) for n in args.scenes.split(",")]
     kinds = args.kinds.split(",")
     warm = raykernel.load("spd:balls:1")
-    for spec in dict.fromkeys(kinds + list(OCTREE_VARIANTS) + list(LAZY_SPECS)):
+    for spec in dict.fromkeys(kinds + list(OCTREE_VARIANTS) + list(OCTREE_WALKS) + list(LAZY_SPECS)):
         raykernel.render(warm, accel=spec, resolution=8, spd=True)   # compile or load the cache first
     rows = run(scenes, kinds, args.resolution)
     lines = ["## Acceleration structures side by side", "",
              f"`{('python bench/structures.py ' + ' '.join(sys.argv[1:])).strip()}`: SPD mode at {args.resolution}x{args.resolution}, each kind with its default parameters; "
              "per-ray figures divide by all rays (eye, reflect, refract, shadow). Ray counts agree across kinds "
              "(checked by the script).", "", f"Machine: {machine()}.", ""] + table(rows)
-    if "octree" in accel.KINDS:
+    if "octree" in KINDS:
         oct_scenes = [(n, s) for n, s in scenes if n in args.octree_scenes.split(",")] or \
             [(n, load(n)) for n in args.octree_scenes.split(",")]
         lines += ["", "### Octree criteria and traversals", ""] + table(run(oct_scenes, OCTREE_VARIANTS,
                                                                           args.resolution))
+        lines += ["", "### The four octree walks over one tree", "",
+                  "The same octree (no collapse: the wall walk's quadtrees index the octants) walked by point "
+                  "location from the root (Lathrop), neighbour pointers then descent (Glassner), the parametric "
+                  "walk (Revelles et al.) and Glassner's wall quadtrees. N_TS counts the octree nodes visited; "
+                  "wall steps, the wall quadtrees' levels gone down instead; all meet the same leaves (N_ETS) "
+                  "but the parametric walk, which tests node boxes as it goes."]
+        lines += [""] + walk_table(run(oct_scenes, OCTREE_WALKS, args.resolution))
     lazy_scenes = [(n, s) for n, s in scenes if n in args.lazy_scenes.split(",")] or \
         [(n, load(n)) for n in args.lazy_scenes.split(",")]
     lines += ["", "### Lazy structures and image size", "",

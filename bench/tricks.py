@@ -19,7 +19,8 @@ import numpy as np
 from _report import machine, replace_section
 
 import raykernel
-from raykernel.scene import accel, spd
+from raykernel.aggregates.registry import KINDS
+from raykernel.scene import spd
 
 SETTINGS = [("none", "none"), ("closest", "closest"), ("+raytree", "closest,raytree"),
             ("+shadowcache", "closest,shadowcache"), ("+transparentlast", "closest,transparentlast"),
@@ -48,7 +49,7 @@ def main():
     parser = argparse.ArgumentParser()
     parser.add_argument("--resolution", type=int, default=96)
     parser.add_argument("--scenes", default=",".join(spd.NAMES))
-    parser.add_argument("--kinds", default=",".join(k for k, kind in accel.KINDS.items()
+    parser.add_argument("--kinds", default=",".join(k for k, kind in KINDS.items()
                                                     if k != "list" and not kind.operands))   # list: brute force, slow
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()

@@ -1,4 +1,5 @@
-"""Octree aggregate: builder criteria, the three walks against list and bvh, nesting, degenerate scenes, renders."""
+"""Octree aggregate: builder criteria, the four walks against list and bvh, wall quadtrees, nesting, degenerate
+scenes, renders."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from test_grid import (
     rotation_scale,
 )
 
-from raykernel.aggregates.octree import ADDRESS_BITS, build_octree
+from raykernel.aggregates.octree import ADDRESS_BITS, build_octree, wall_quadtrees
 from raykernel.aggregates.octree import CODE as OCTREE
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
@@ -25,7 +26,7 @@ from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance
 from raykernel.aggregates.registry import parse_spec
 
-WALKS = ("point", "neighbor", "parametric")
+WALKS = ("point", "neighbor", "parametric", "wall")
 CRITERIA = ["", "collapse=off", "mailbox=off", "rule60=on", "density=0.3", "vertexcount=on, leaf=8",
             "depth=3", "depth=12, leaf=1, rule60=on"]
 
@@ -149,7 +150,7 @@ def test_vertexcount_counts_polygon_vertices():
     assert by_verts["build.nodes"] > 1
 
 
-@pytest.mark.parametrize("text, allowed", [("octree(walk=sideways)", "point, neighbor, parametric"),
+@pytest.mark.parametrize("text, allowed", [("octree(walk=sideways)", "point, neighbor, parametric, wall"),
                                            ("octree(depth=30)", "depth"), ("octree(leaf=0)", "leaf"),
                                            ("octree(rule60=maybe)", "on or off"), ("octree(density=-1)", "density"),
                                            ("octree(size=3)", "depth, leaf, rule60, density, vertexcount, "
@@ -206,8 +207,8 @@ def test_walks_visit_the_same_leaves_and_mailbox_only_saves_tests():
     scene = new_scene()
     fill_group(scene.root, rng, n=40)
     o, d = random_rays(rng, 2000)
-    runs = {w: cast(scene, spec(w), o, d) for w in WALKS}
-    for w in WALKS[1:]:
+    runs = {w: cast(scene, spec(w), o, d) for w in WALKS[:3]}
+    for w in WALKS[1:3]:
         assert_same_hits(runs[w], runs["point"])
         assert runs[w][4][C.CELLS_LEAVES] == runs["point"][4][C.CELLS_LEAVES]
     # point location starts every step at the root, neighbour pointers do not
@@ -217,6 +218,58 @@ def test_walks_visit_the_same_leaves_and_mailbox_only_saves_tests():
     on = runs["neighbor"][4]
     assert on[tests].sum() + on[C.MAILBOX_SAVED] == off[4][tests].sum()
     assert on[C.CELLS_VISITED] == off[4][C.CELLS_VISITED]
+
+
+def test_wall_quadtrees_tile_every_wall_with_the_leaves_behind_it():
+    tree, _ = build_octree(random_boxes(np.random.default_rng(7)), depth=6, leaf=1, collapse=False)
+    walls, quads = wall_quadtrees(tree.first, tree.count, tree.nbr)
+    assert len(quads) > 0
+    for n in np.flatnonzero(tree.count >= 0):
+        side = 1 << (ADDRESS_BITS - tree.level[n])
+        for wall in range(6):
+            a, up = wall >> 1, wall & 1
+            entry = walls[n, wall]
+            if tree.nbr[n, wall] < 0 or tree.count[tree.nbr[n, wall]] >= 0:
+                assert entry == tree.nbr[n, wall]       # nothing behind, or one leaf: the pointer itself
+                continue
+            # the quadtree's leaves: each behind the wall, touching it, and together the whole wall
+            found, todo = [], [entry]
+            while todo:
+                e = todo.pop()
+                if e <= -2:
+                    todo += list(quads[-2 - e])
+                else:
+                    found.append(e)
+            plane = tree.loc[n, a] + side if up else tree.loc[n, a]
+            area = 0
+            for leaf in found:
+                assert tree.count[leaf] >= 0
+                lside = 1 << (ADDRESS_BITS - tree.level[leaf])
+                assert (tree.loc[leaf, a] if up else tree.loc[leaf, a] + lside) == plane
+                u, v = [k for k in range(3) if k != a]
+                for k in (u, v):
+                    assert tree.loc[n, k] <= tree.loc[leaf, k] and tree.loc[leaf, k] + lside <= tree.loc[n, k] + side
+                area += lside * lside
+            assert area == side * side and len(set(found)) == len(found)
+
+
+def test_the_wall_walk_meets_the_neighbour_walks_leaves_without_descending_in_three_dimensions():
+    rng = np.random.default_rng(9)
+    scene = new_scene()
+    fill_group(scene.root, rng, n=40)
+    o, d = random_rays(rng, 2000)
+    wall = cast(scene, spec("wall", "depth=8, leaf=1"), o, d)
+    neighbor = cast(scene, spec("neighbor", "depth=8, leaf=1, collapse=off"), o, d)
+    assert_same_hits(wall, neighbor)
+    a, b = wall[4], neighbor[4]
+    for column in (C.CELLS_LEAVES, C.CELLS_EMPTY, C.MAILBOX_SAVED, C.BOUNDS_TESTS):
+        assert a[column] == b[column]
+    assert np.array_equal(a[C.TESTS:C.TESTS + 5], b[C.TESTS:C.TESTS + 5])
+    from raykernel.aggregates.octree import WALL_STEPS
+    # the neighbour walk descends from a subdivided neighbour through inner octree nodes; the wall
+    # walk goes down the wall's quadtree instead, and visits no inner node after the first leaf
+    assert a[WALL_STEPS] > 0 and b[WALL_STEPS] == 0
+    assert a[C.CELLS_VISITED] < b[C.CELLS_VISITED]
 
 
 @pytest.mark.parametrize("walk", WALKS)

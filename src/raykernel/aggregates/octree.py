@@ -19,7 +19,8 @@ ON nodes of all octrees, O octrees:
   oct_origin   (O, 3)  float64  lower corner of the root box                   24 B
   oct_unit     (O, 3)  float64  side of one address unit                       24 B
   oct_scale    (O, 3)  float64  1 / oct_unit                                   24 B
-  oct_walk     (O,)    int64    0 point, 1 neighbor, 2 parametric               8 B
+  oct_walk     (O,)    int64    0 point, 1 neighbor, 2 parametric, 3 wall       8 B
+  oct_quad     (Q, 4)  int64    wall quadtree nodes (walk=wall; see Walls)     32 B a quad node
   oct_mailbox  (O,)    int64    1: skip refs already tested in an earlier leaf  8 B
 The aggregate's agg_start is its octree index. The point and neighbor walks
 keep the address of the point they go on from in their frame (POINT).
@@ -101,6 +102,24 @@ Neighbours
 ``nbr[n, 2 * axis + (1 if towards +axis else 0)]`` is the node whose slot is
 adjacent to n's slot across that wall and of equal or larger size (the
 deepest such node), or -1 on the root's boundary.
+
+Walls (walk=wall)
+-----------------
+Glassner's answer to a ray leaving a cell into smaller ones (Haines reports it
+in RTN 1(2), 1988: "quadtree-like structures on the cube faces of the octree
+cubes"; Kaplan's faces "immediately access the next voxel"): across a wall
+whose neighbour of the leaf's size is subdivided, a quadtree of the cells
+behind that wall. Its nodes are the neighbour's inner nodes that touch the
+wall, each with the four children on the wall's side, in order of their bits
+on the wall's two axes (lower axis first); a child is a leaf (its node) or the
+next quad node (tagged -2 - q). A wall-walk octree keeps these in nbr itself:
+the leaf's node when the neighbour is a leaf, -2 - q when it is subdivided,
+-1 at the root's boundary. The walk leaves a leaf across its nearest wall and
+reaches the next leaf from that wall alone: no descent from the root (point)
+and no descent in three dimensions from the neighbour (neighbor), two address
+bits of the exit point a quad level, counted as octree.wall_steps (the leaves
+themselves count as cells.visited). Built without collapse: the quadtrees
+index the octants themselves.
 """
 
 from __future__ import annotations
@@ -114,6 +133,7 @@ from ..errors import SceneError
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, STILL, slab
 from ..geometry.config import njit
+from ..geometry.counters import own_columns
 from ..options import number
 from .grid import grid_box
 from .memory import check, grown, memory_limit
@@ -123,7 +143,8 @@ from .walk import F_STATE, FI_AGG, START, Field, Walk, answer, entry_tag, mailbo
 __all__ = ["OctreeArrays", "build_octree", "ADDRESS_BITS", "MAX_DEPTH"]
 
 ADDRESS_BITS = 28
-TRAVERSALS = ("point", "neighbor", "parametric")   # oct_walk codes 0, 1, 2
+TRAVERSALS = ("point", "neighbor", "parametric", "wall")   # oct_walk codes 0, 1, 2, 3
+POINT_WALK, NEIGHBOR_WALK, PARAMETRIC_WALK, WALL_WALK = 0, 1, 2, 3
 MAX_DEPTH = 24             # the parametric walk keeps up to 3 siblings per level on the kernel's stack
 MAX_NODES = 20_000_000
 BUDGET_SLACK = 4096        # references a budget allows on top of budget * items (small scenes stay free)
@@ -419,6 +440,49 @@ def _finish(first, count, loc, level, lists, collapse, origin, unit):
     return n_first, n_count, n_loc, n_level, n_slot, nbr, bounds, order
 
 
+@njit
+def wall_quadtrees(first, count, nbr):
+    """The walls of an octree built without collapse (see Walls): (walls (N, 6): nbr with every
+    subdivided neighbour replaced by its wall quadtree's root, -2 - q; quads (Q, 4))."""
+    walls = nbr.copy()
+    quads = np.empty((64, 4), np.int64)
+    todo_node = np.empty(64, np.int64)
+    todo_quad = np.empty(64, np.int64)
+    nq = 0
+    for leaf in range(first.shape[0]):
+        if count[leaf] < 0:
+            continue
+        for wall in range(6):
+            s = nbr[leaf, wall]
+            if s < 0 or count[s] >= 0:
+                continue
+            axis = wall >> 1
+            near = 0 if wall & 1 else 1         # the half of the neighbour that faces the leaf
+            u = 1 if axis == 0 else 0
+            v = 1 if axis == 2 else 2
+            quads = grown(quads, nq + 1, nq)
+            walls[leaf, wall] = -2 - nq
+            todo_node[0], todo_quad[0] = s, nq
+            nq += 1
+            top = 1
+            while top > 0:
+                top -= 1
+                x, q = todo_node[top], todo_quad[top]
+                for j in range(4):
+                    y = first[x] + ((near << axis) | ((j & 1) << u) | ((j >> 1) << v))
+                    if count[y] >= 0:
+                        quads[q, j] = y
+                        continue
+                    quads = grown(quads, nq + 1, nq)
+                    quads[q, j] = -2 - nq
+                    todo_node = grown(todo_node, top + 1, top)
+                    todo_quad = grown(todo_quad, top + 1, top)
+                    todo_node[top], todo_quad[top] = y, nq
+                    nq += 1
+                    top += 1
+    return walls, quads[:nq].copy()
+
+
 def octree_frame(bounds, depth, what):
     """The frame every octree (and lazy octree) builds in: item boxes as (n, 6), which of them
     are solid (finite, lo <= hi), the root's origin and 28-bit address unit, and the boxes
@@ -493,8 +557,11 @@ FIELDS = (
     Field("oct_loc", np.int64, (3,)), Field("oct_level", np.int64, ()), Field("oct_slot", np.int64, ()),
     Field("oct_nbr", np.int64, (6,)), Field("oct_pass", np.int64, ()), Field("oct_root", np.int64, ()),
     Field("oct_origin", np.float64, (3,)), Field("oct_unit", np.float64, (3,)), Field("oct_scale", np.float64, (3,)),
-    Field("oct_walk", np.int64, ()), Field("oct_mailbox", np.int64, ()),
+    Field("oct_walk", np.int64, ()), Field("oct_mailbox", np.int64, ()), Field("oct_quad", np.int64, (4,)),
 )
+# its own counter: the wall quadtrees' nodes the wall walk went through (cost model: not priced)
+COUNTERS = (("octree.wall_steps", None),)
+WALL_STEPS, = own_columns(CODE, len(COUNTERS))
 NEXT = 1        # step: go on with the point/neighbor walk by descending from node stack_a
 PARAM = 2       # step: the parametric walk visits node stack_a, entered at stack_t
 PASS = 3        # step: a lazy octree leaf left at stack_t without a closer hit: count a pass in
@@ -509,11 +576,19 @@ def append_octree(flat, tree: OctreeArrays, refs, walk: str, mailbox: bool, box)
     first_ref = flat.add_refs(refs[tree.order])
     inner = tree.count < 0
     o = flat.size("oct_root")
+    nbr = tree.nbr
+    if walk == TRAVERSALS[WALL_WALK]:
+        nbr, quads = wall_quadtrees(tree.first, tree.count, tree.nbr)
+        q0 = flat.size("oct_quad")
+        flat.append(oct_quad=np.where(quads >= 0, quads + n0, quads - q0))
+        nbr = np.where(nbr >= 0, nbr + n0, np.where(nbr <= -2, nbr - q0, -1))
+    else:
+        nbr = np.where(nbr >= 0, nbr + n0, -1)
     flat.append(oct_bounds=tree.bounds, oct_first=np.where(inner, tree.first + n0, tree.first + first_ref),
-                oct_count=tree.count, oct_loc=tree.loc, oct_level=tree.level, oct_slot=tree.slot,
-                oct_nbr=np.where(tree.nbr >= 0, tree.nbr + n0, -1), oct_pass=np.full(len(tree.count), -1),
-                oct_root=[n0], oct_origin=tree.origin[None], oct_unit=tree.unit[None], oct_scale=1.0 / tree.unit[None],
-                oct_walk=[TRAVERSALS.index(walk)], oct_mailbox=[int(mailbox)])
+                oct_count=tree.count, oct_loc=tree.loc, oct_level=tree.level, oct_slot=tree.slot, oct_nbr=nbr,
+                oct_pass=np.full(len(tree.count), -1), oct_root=[n0], oct_origin=tree.origin[None],
+                oct_unit=tree.unit[None], oct_scale=1.0 / tree.unit[None], oct_walk=[TRAVERSALS.index(walk)],
+                oct_mailbox=[int(mailbox)])
     return flat.add_aggregate(CODE, o, len(tree.count), box)
 
 
@@ -541,23 +616,24 @@ def _address(x, origin, scale, lo, hi):
 def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
     """walk.py's step contract: the octree's walk (oct_walk) from its START, NEXT or PARAM entries."""
     sp, s, e = octree_step(geo.oct_bounds, geo.oct_count, geo.oct_first, geo.oct_level, geo.oct_loc, geo.oct_mailbox,
-                           geo.oct_nbr, geo.oct_origin, geo.oct_pass, geo.oct_root, geo.oct_scale, geo.oct_slot,
-                           geo.oct_unit, geo.oct_walk, step, a, te, geo.agg_start[ws.frame_i[f, FI_AGG]], ray,
-                           lo, best_t, ws.frame_f, f, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt)
+                           geo.oct_nbr, geo.oct_origin, geo.oct_pass, geo.oct_quad, geo.oct_root, geo.oct_scale,
+                           geo.oct_slot, geo.oct_unit, geo.oct_walk, step, a, te, geo.agg_start[ws.frame_i[f, FI_AGG]],
+                           ray, lo, best_t, ws.frame_f, f, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt)
     return answer(sp, s, e, ray, best_t)
 
 
 @njit(inline="always")   # the choice of walk only: the walks are compiled apart (their IR inlined would cost 15 s)
-def octree_step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_nbr, oct_origin, oct_pass, oct_root,
-         oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, tmin, best_t, frame_f, f, stack_a, stack_b,
-         stack_t, sp, cnt):
+def octree_step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_nbr, oct_origin, oct_pass,
+                oct_quad, oct_root, oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, tmin, best_t,
+                frame_f, f, stack_a, stack_b, stack_t, sp, cnt):
     """One step of octree `oi`'s walk; returns (sp, s, e), the references of the next
     non-empty leaf (none: s == e).
 
     point (Lathrop): the leaf holding a point is found from the root by the point's
     28-bit address, its exit distance computed, and the point moved just past the exit
     wall. neighbor: the same, but the next descent starts from the neighbour across the
-    exit wall (Glassner's pointers). Both put a NEXT entry back before a non-empty leaf's
+    exit wall (Glassner's pointers). wall: the next leaf is found from the exit wall alone, down
+    its wall quadtree (Walls, above). All three put a NEXT entry back before a non-empty leaf's
     references. A point outside a collapsed node's shrunk box lies in an empty octant the
     collapse removed; its address bits give that octant, visited as an empty leaf.
     parametric (Revelles et al. 2000): PARAM entries with their entry distance, the
@@ -573,12 +649,12 @@ def octree_step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbo
         return sp, 0, 0
     if kind_step == START and oct_mailbox[oi] != 0:
         mailbox_reset(frame_f, f)
-    if kind_step == PARAM or (kind_step == START and oct_walk[oi] == 2):
+    if kind_step == PARAM or (kind_step == START and oct_walk[oi] == PARAMETRIC_WALK):
         return _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin, oct_pass, oct_root,
                            oct_unit, a if kind_step == PARAM else oct_root[oi], oi,
                            ray, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt)
-    return _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_root, oct_scale,
-                       oct_slot, oct_unit, oct_walk, kind_step, a, te, oi,
+    return _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_quad, oct_root,
+                       oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi,
                        ray, best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
 
 
@@ -678,10 +754,27 @@ def _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin
         node = stack_a[sp]
 
 
+@njit(inline="always")
+def _across_wall(oct_nbr, oct_quad, leaf, axis, up, level, px, py, pz):
+    """The leaf behind `leaf`'s wall on `axis` (towards +axis if up), where the point p (its
+    address, just past the wall) lies: down the wall's quadtree by p's two address bits on the
+    wall's axes a level; -1 at the root's boundary. Returns (node, quad levels gone down)."""
+    entry = oct_nbr[leaf, 2 * axis + (1 if up else 0)]
+    pu = py if axis == 0 else px
+    pv = pz if axis != 2 else py
+    steps = 0
+    while entry <= -2:
+        bit = ADDRESS_BITS - 1 - level
+        entry = oct_quad[-2 - entry, ((pu >> bit) & 1) + 2 * ((pv >> bit) & 1)]
+        level += 1
+        steps += 1
+    return entry, steps
+
+
 @njit(private=True)
-def _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_root, oct_scale, oct_slot,
-                oct_unit, oct_walk, kind_step, a, te, oi, ray,
-                best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt):
+def _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_quad, oct_root,
+                oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, best_t, frame_f, f, stack_a,
+                stack_b, stack_t, sp, cnt):
     ox, oy, oz, dx, dy, dz, ix, iy, iz = ray
     # point (Lathrop) or neighbor (Glassner): find the leaf holding the point p
     # by its 28-bit address, leave it across its nearest wall, repeat
@@ -756,8 +849,14 @@ def _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, o
             pz = clz + side if dz > 0.0 else clz - 1
             out = out or pz < 0 or pz > top
             pa = pz
-        if walk == 0:
+        if walk == POINT_WALK:
             node = oct_root[oi]
+        elif walk == WALL_WALK:
+            if not out:
+                up = (dx > 0.0) if axis == 0 else ((dy > 0.0) if axis == 1 else (dz > 0.0))
+                node, steps = _across_wall(oct_nbr, oct_quad, leaf, axis, up, oct_level[leaf], px, py, pz)
+                cnt[WALL_STEPS] += steps
+                out = node < 0
         elif not out:
             # still inside the container's slot, or across its wall to the neighbour
             ssh = ADDRESS_BITS - oct_slot[node]
@@ -782,14 +881,24 @@ def _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, o
 
 def flatten(builder, params, refs, bounds, name, box):
     weights = builder.vertex_weights(refs) if params["vertexcount"] else None
+    collapse = params["collapse"] and params["walk"] != TRAVERSALS[WALL_WALK]     # walls index the octants
     tree, stats = build_octree(bounds, depth=params["depth"], leaf=params["leaf"], rule60=params["rule60"],
                                density=params["density"], vertexcount=params["vertexcount"], weights=weights,
-                               collapse=params["collapse"], budget=params["budget"], name=name,
+                               collapse=collapse, budget=params["budget"], name=name,
                                max_bytes=builder.max_bytes)
     return append_octree(builder.flat, tree, refs, params["walk"], params["mailbox"], box), dict(stats)
 
 
-WALK = Walk(code=CODE, name="octree", fields=FIELDS, step=walk_step)
+def stats_rows(stats) -> list:
+    """Its rows of the statistics table (rendering/stats.py): the wall walk's quadtree steps."""
+    n = stats.get("octree.wall_steps", 0)
+    if not n:
+        return []
+    leaves = max(1, stats.get("cells.leaves", 0))
+    return [("octree", "wall steps", f"{n:,}", f"{n / leaves:.2f} wall quadtree levels per leaf reached")]
+
+
+WALK = Walk(code=CODE, name="octree", fields=FIELDS, step=walk_step, counters=COUNTERS, stats_rows=stats_rows)
 KIND = Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
               "objects in every child their box overlaps; nodes with the most items times box area are split "
               "first, until depth, leaf, the criteria or the reference budget stop them. Defaults: depth 16 and "
@@ -810,7 +919,8 @@ KIND = Kind("octree", "octree (Glassner 1984): centre subdivision of the scene b
           "step through the removed empty octants using the address bits", bool),
     Param("walk", "neighbor", "traversal: point (top-down point location with Lathrop's 28-bit addresses), "
           "neighbor (Glassner's 6 neighbour pointers per node, then descent), parametric (Revelles, Urena and "
-          "Lastra 2000)", str, choices=("point", "neighbor", "parametric")),
+          "Lastra 2000), wall (Glassner's wall quadtrees: the next leaf found from the exit wall alone; builds "
+          "without collapse)", str, choices=TRAVERSALS),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
     Param("budget", 16.0, "the leaves together hold at most budget * items + 4096 references; a split that "
           "would exceed it is skipped (0: no limit)", float, 0.0, 1e6),

@@ -3,11 +3,11 @@
     wide = collapse(node_bounds, node_first, node_count, root)     # WideBVH of one binary tree
     wx, wy, wz, vx, vy, vz, near = wide_ray(wide.center, ox, oy, oz, ix, iy, iz)   # once per ray
     stack[0], stack_t[0], sp = 0, te, 1                            # the root, entered at te
-    while True:                                                    # the 4-wide walk, written once
+    while sp > 0:                                                  # the 4-wide walk, written once
         leaf, sp, n_nodes, n_bounds = next_leaf(wide.nodes, wx, wy, wz, vx, vy, vz, near, tmin, best_t, t4,
                                                 stack, stack_t, sp, n_nodes, n_bounds)
         if leaf == NO_CHILD:
-            break
+            continue
         first, end = leaf_range(wide.nodes, leaf)                  # test refs first..end-1, lower best_t
 
 Why: a binary node visit tests two boxes one after the other; a wide node
@@ -319,21 +319,19 @@ def leaf_range(nodes, entry):
 
 @njit(inline="always")
 def next_leaf(nodes, ox, oy, oz, ix, iy, iz, near, tmin, best_t, t4, stack, stack_t, sp, n_nodes, n_bounds):
-    """The 4-wide walk (every caller's: the fast render walk, engine/widewalk.py, and the mesh kernel,
-    casting/meshcast.py): pop entries, dropping those entered beyond the closest hit best_t (beyond
-    rounding: ties need the node), and go down the nearest children to the next leaf the ray enters.
-    Returns (that leaf as visit names it, NO_CHILD once the stack is empty; sp; n_nodes and n_bounds
-    with the nodes visited and child boxes tested added). The ray as wide_ray gives it."""
-    while sp > 0:
-        sp -= 1
-        te = load(stack_t, sp)
-        if te > best_t and te > best_t * CONSERVATIVE:
-            continue
-        v = load(stack, sp)
-        while v >= 0:
-            n_nodes += 1
-            v, sp, tested = visit(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, best_t, t4, stack, stack_t, sp)
-            n_bounds += tested
-        if v != NO_CHILD:
-            return v, sp, n_nodes, n_bounds
-    return np.int64(NO_CHILD), sp, n_nodes, n_bounds
+    """The 4-wide walk, one stack entry at a time (every caller's: the fast render walk,
+    engine/widewalk.py, and the mesh kernel, casting/meshcast.py): pop the top entry and, unless
+    it was entered beyond the closest hit best_t (beyond rounding: ties need the node), go down
+    the nearest children to a leaf the ray enters. Returns (that leaf as visit names it, or
+    NO_CHILD; sp; n_nodes and n_bounds with the nodes visited and child boxes tested added).
+    The ray as wide_ray gives it. Callers loop `while sp > 0`."""
+    sp -= 1
+    te = load(stack_t, sp)
+    if te > best_t and te > best_t * CONSERVATIVE:
+        return np.int64(NO_CHILD), sp, n_nodes, n_bounds
+    v = load(stack, sp)
+    while v >= 0:
+        n_nodes += 1
+        v, sp, tested = visit(nodes, v, ox, oy, oz, ix, iy, iz, near, tmin, best_t, t4, stack, stack_t, sp)
+        n_bounds += tested
+    return v, sp, n_nodes, n_bounds

@@ -261,11 +261,11 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
             stack_t[0] = te
             sp = 1
             n_entries += 1
-        while True:
+        while sp > 0:
             v, sp, n_nodes, n_bounds = next_leaf(nodes, wx, wy, wz, vx, vy, vz, near, lo, best, t4, stack, stack_t,
                                                  sp, n_nodes, n_bounds)
             if v == NO_CHILD:
-                break
+                continue
             n_leaves += 1
             s0, e0 = leaf_range(nodes, v)
             best, best_j, best_slot, n_all, tested, hits, done = _leaf4(blocks, load(first_block, s0), corners, ids, s0,

@@ -156,11 +156,11 @@ def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox,
     stack[0] = 0
     stack_t[0] = te
     sp = 1
-    while True:
+    while sp > 0:
         v, sp, n_nodes, n_bounds = next_leaf(nodes, wx, wy, wz, vx, vy, vz, near, tmin, best_t, t4, stack, stack_t,
                                              sp, n_nodes, n_bounds)
         if v == NO_CHILD:
-            break
+            continue
         # a leaf: its references, all primitives
         n_leaves += 1
         first, end = leaf_range(nodes, v)
