@@ -16,7 +16,6 @@ from raykernel.analysis import costmodel
 from raykernel.aggregates import rc as rc_module
 from raykernel.aggregates.bvh import walked_wide
 from raykernel.aggregates.registry import COUNTER_NAMES
-from raykernel.geometry import counters as C
 from raykernel.geometry import polybands
 
 KINDS = ["list", "bvh", "grid", "octree", "hgrid", "hybrid", "rc", "lazyoctree"]

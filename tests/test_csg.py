@@ -14,6 +14,7 @@ import json
 
 import numpy as np
 import pytest
+from support import MeshBox, Node, Placed, Sphere, box_mesh, random_tree, rays_at_solids
 
 import raykernel
 from raykernel.casting.rayscene import RayScene
@@ -21,182 +22,18 @@ from raykernel.engine.flatten import flatten
 from raykernel.errors import OptionError, SceneError
 from raykernel.aggregates import csg
 from raykernel.aggregates.registry import COUNTER_NAMES
-from raykernel.geometry import counters as C
-from raykernel.scene import Group, Instance, Material, Scene, TriangleMesh
+from raykernel.scene import Group, Material, Scene
 from raykernel.scene.jsonscene import scene_from_json, scene_to_json
 
-# ---------------------------------------------------------------- solids, with their own crossing tests
-
-
-def _box_mesh(lo, hi):
-    v = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], float)
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    return v, quads
-
-
-class Sphere:
-    def __init__(self, c, r):
-        self.c, self.r = np.asarray(c, float), float(r)
-
-    def add_to(self, g):
-        g.spheres.add(self.c, self.r, 0)
-
-    def crossings(self, o, d):
-        f = o - self.c
-        a, b, c = d @ d, 2 * f @ d, f @ f - self.r ** 2
-        disc = b * b - 4 * a * c
-        if disc < 0:
-            return []
-        s = np.sqrt(disc)
-        return [(-b - s) / (2 * a), (-b + s) / (2 * a)]
-
-
-class MeshBox:
-    """A closed triangle mesh: a box split into 12 triangles."""
-
-    def __init__(self, lo, hi):
-        self.v, quads = _box_mesh(lo, hi)
-        self.f = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))])
-
-    def add_to(self, g):
-        g.add(TriangleMesh(self.v, self.f, 0))
-
-    def crossings(self, o, d):
-        out = []
-        for a, b, c in self.v[self.f]:
-            e1, e2 = b - a, c - a
-            p = np.cross(d, e2)
-            det = e1 @ p
-            if abs(det) < 1e-300:
-                continue
-            s = o - a
-            u = s @ p / det
-            q = np.cross(s, e1)
-            v = d @ q / det
-            if u >= 0 and v >= 0 and u + v <= 1:
-                out.append(e2 @ q / det)
-        return out
-
-
-class PolygonBox:
-    """A closed polygon set: a box of six quadrilaterals."""
-
-    def __init__(self, lo, hi):
-        self.lo, self.hi = np.asarray(lo, float), np.asarray(hi, float)
-        v, quads = _box_mesh(lo, hi)
-        self.quads = [v[list(q)] for q in quads]
-
-    def add_to(self, g):
-        for q in self.quads:
-            g.polygons.add(q, 0)
-
-    def crossings(self, o, d):
-        out = []
-        for axis in range(3):
-            if d[axis] == 0:
-                continue
-            for plane in (self.lo[axis], self.hi[axis]):
-                t = (plane - o[axis]) / d[axis]
-                p = o + t * d
-                others = [k for k in range(3) if k != axis]
-                if all(self.lo[k] <= p[k] <= self.hi[k] for k in others):
-                    out.append(t)
-        return out
-
-
-class Placed:
-    """A solid seen through an affine map (an Instance): the line mapped, t unchanged."""
-
-    def __init__(self, solid, matrix):
-        self.solid, self.m = solid, matrix
-        self.inv = np.linalg.inv(matrix)
-
-    def add_to(self, g):
-        inner = Group(name="placed")
-        self.solid.add_to(inner)
-        g.add(Instance(inner, self.m))
-
-    def crossings(self, o, d):
-        return self.solid.crossings(self.inv[:3, :3] @ o + self.inv[:3, 3], self.inv[:3, :3] @ d)
-
-
-class Node:
-    """A CSG node: op over operands (solids or nodes); for difference the first `base` are the base."""
-
-    def __init__(self, op, operands, base=1):
-        self.op, self.operands, self.base = op, operands, base
-
-    def group(self, operand_spec=None):
-        g = Group(name=self.op, accel=f"difference(base={self.base})" if self.op == "difference" else self.op)
-        for x in self.operands:
-            if isinstance(x, Node):
-                g.add(x.group(operand_spec))
-            else:
-                child = Group(name="operand", accel=operand_spec)
-                x.add_to(child)
-                g.add(child)
-        return g
-
-    def inside(self, states):
-        if self.op == "difference":
-            return any(states[:self.base]) and not any(states[self.base:])
-        if self.op == "intersection":
-            return all(states)
-        return any(states)
-
-    def transitions(self, o, d):
-        """(t, entering) where the line crosses the result's surface, in order."""
-        lists = [x.transitions(o, d) if isinstance(x, Node) else [(t, None) for t in sorted(x.crossings(o, d))]
-                 for x in self.operands]
-        events = sorted((t, k) for k, lst in enumerate(lists) for t, _ in lst)
-        states = [False] * len(self.operands)
-        now, out = False, []
-        for t, k in events:
-            states[k] = not states[k]
-            new = self.inside(states)
-            if new != now:
-                out.append((t, new))
-                now = new
-        return out
-
-
-def random_solid(rng, scale=1.0, spread=1.0):
-    c = rng.uniform(-1, 1, 3) * scale * spread
-    kind = rng.integers(4)
-    if kind == 0:
-        return Sphere(c, rng.uniform(0.4, 1.2) * scale)
-    half = rng.uniform(0.3, 1.0, 3) * scale
-    if kind == 1:
-        return MeshBox(c - half, c + half)
-    if kind == 2:
-        return PolygonBox(c - half, c + half)
-    a = np.linalg.qr(rng.normal(size=(3, 3)))[0] @ np.diag(rng.uniform(0.5, 1.5, 3))
-    m = np.eye(4)
-    m[:3, :3], m[:3, 3] = a, c
-    return Placed(Sphere(np.zeros(3), rng.uniform(0.4, 1.0) * scale), m)
-
-
-def random_tree(rng, depth=2, scale=1.0, spread=1.0):
-    op = ("difference", "intersection", "union")[rng.integers(3)]
-    n = int(rng.integers(2, 4))
-    operands = [random_tree(rng, depth - 1, scale, spread) if depth > 1 and rng.uniform() < 0.35 else
-                random_solid(rng, scale, spread) for _ in range(n)]
-    return Node(op, operands, base=int(rng.integers(1, n)) if op == "difference" else n)
-
+# ---------------------------------------------------------------- scenes of the solids (support.py: Node,
+# random_tree and the solids, each with its own crossing test)
 
 def scene_of(node, operand_spec=None, root="list"):
+    """A scene whose root (structure `root`) holds the node's group, operands built with operand_spec."""
     s = Scene()
     s.root.accel = root
     s.root.add(node.group(operand_spec))
     return s
-
-
-def random_rays(rng, n, scale=1.0):
-    o = rng.normal(size=(n, 3))
-    o = 4 * scale * o / np.linalg.norm(o, axis=1)[:, None]
-    o[n // 3:2 * n // 3] = rng.uniform(-scale, scale, (2 * n // 3 - n // 3, 3))    # some start inside
-    d = rng.uniform(-0.8, 0.8, (n, 3)) * scale - o
-    return o, d
 
 
 # ---------------------------------------------------------------- against the reference
@@ -205,7 +42,7 @@ def random_rays(rng, n, scale=1.0):
 @pytest.mark.parametrize("scale", [1.0, 1e-4, 1e5])
 def test_random_csg_trees_match_the_interval_reference(seed, scale):
     rng = np.random.default_rng(seed)
-    o, d = random_rays(rng, 150, scale)
+    o, d = rays_at_solids(rng, 150, scale)
     for _ in range(50):
         # a tree worth testing: not empty (an intersection of disjoint solids is)
         node = random_tree(rng, scale=scale)
@@ -281,7 +118,7 @@ def test_counters_count_the_extra_work():
 
 def _die(pips):
     return {"difference": {
-        "base": [{"mesh": {"vertices": _box_mesh((-1, -1, -1), (1, 1, 1))[0].tolist(),
+        "base": [{"mesh": {"vertices": box_mesh((-1, -1, -1), (1, 1, 1))[0].tolist(),
                            "faces": MeshBox((-1, -1, -1), (1, 1, 1)).f.tolist()}}],
         "subtract": [{"sphere": {"center": c, "radius": 0.2}} for c in pips]}}
 

@@ -1,88 +1,26 @@
-"""Uniform grid aggregate: builder, 3D-DDA traversal, mailbox, nesting and renders."""
+"""Uniform grid aggregate: builder, 3D-DDA traversal, degenerate scenes, mailbox and counters.
+
+Grids nested in and around every other kind, and instanced, are checked against the list in
+test_nesting.py."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from support import assert_same_hits, axis_and_boundary_rays, cast, fill_group, lattice_scene, new_scene, random_rays
 
-import raykernel
 from raykernel.aggregates.grid import build_grid, grid_resolution
 from raykernel.aggregates.grid import CODE as GRID
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError, SceneError
 from raykernel.geometry import counters as C
-from raykernel.scene import Group, Instance, Scene, TriangleMesh
+from raykernel.scene import Group
 from raykernel.aggregates.registry import parse_spec
 
 GRID_SPECS = ["grid", "grid(mailbox=off)", "grid(res=woo)", "grid(res=woo, mailbox=off)",
               "grid(density=0.25)", "grid(density=8, max_res=7)", "grid(res=klimaszewski)",
               "grid(res=klimaszewski, mailbox=off, density=0.5)", "hgrid(res=klimaszewski, threshold=4)"]
-
-
-# ---------------------------------------------------------------- scenes
-
-def fill_group(group: Group, rng, n=12, spread=4.0, big=False):
-    """Spheres, cones, polygons, patches and a triangle mesh at random."""
-    size = 3.0 if big else 0.6
-    for _ in range(n):
-        group.spheres.add(rng.uniform(-spread, spread, 3), rng.uniform(0.1, size), 0)
-    for _ in range(max(1, n // 3)):
-        base = rng.uniform(-spread, spread, 3)
-        group.cones.add(base, rng.uniform(0.05, 0.5), base + rng.normal(0, 1.0, 3), rng.uniform(0.05, 0.5), 0)
-    for _ in range(max(1, n // 3)):
-        c = rng.uniform(-spread, spread, 3)
-        u, v = rng.normal(0, size, 3), rng.normal(0, size, 3)
-        angles = np.linspace(0, 2 * np.pi, rng.integers(3, 7), endpoint=False)
-        group.polygons.add(c + np.outer(np.cos(angles), u) + np.outer(np.sin(angles), v), 0)
-    for _ in range(max(1, n // 4)):
-        c = rng.uniform(-spread, spread, 3)
-        u, v = rng.normal(0, size, 3), rng.normal(0, size, 3)
-        verts = np.array([c, c + u, c + u + v, c + v])
-        group.patches.add(verts, 0, normals=rng.normal(0, 1, (4, 3)) + np.cross(u, v))
-    c = rng.uniform(-spread, spread, 3)
-    verts = c + rng.normal(0, size, (10, 3))
-    faces = rng.integers(0, 10, (8, 3))
-    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
-    if len(faces):
-        group.add(TriangleMesh(verts, faces, 0))
-    return group
-
-
-def new_scene() -> Scene:
-    scene = Scene()
-    scene.add_material(raykernel.scene.Material())
-    return scene
-
-
-def random_rays(rng, n, spread=6.0, inside=False):
-    if inside:
-        origins = rng.uniform(-spread * 0.6, spread * 0.6, (n, 3))
-    else:
-        origins = rng.normal(0, 1, (n, 3))
-        origins *= 2.5 * spread / np.linalg.norm(origins, axis=1)[:, None]
-    targets = rng.uniform(-spread * 0.7, spread * 0.7, (n, 3))
-    return origins, targets - origins
-
-
-def cast(scene, accel, origins, directions, **kw):
-    geo, _ = flatten(scene, default_accel=accel)
-    return cast_rays(geo, origins, directions, **kw)
-
-
-def assert_same_hits(a, b):
-    np.testing.assert_array_equal(a[0], b[0])
-    np.testing.assert_array_equal(a[1], b[1])
-    np.testing.assert_array_equal(a[2], b[2])
-    np.testing.assert_array_equal(a[3], b[3])
-
-
-def rotation_scale(rng):
-    q, _ = np.linalg.qr(rng.normal(0, 1, (3, 3)))
-    m = np.eye(4)
-    m[:3, :3] = q @ np.diag(rng.uniform(0.3, 2.5, 3))
-    m[:3, 3] = rng.uniform(-3, 3, 3)
-    return m
 
 
 # ---------------------------------------------------------------- builder
@@ -256,45 +194,6 @@ def test_random_scenes_match_bvh_and_list(spec, seed):
     np.testing.assert_array_equal(np.isfinite(shadow[0]), np.isfinite(cast(scene, "list", o, d, tmax=0.5)[0]))
 
 
-def axis_and_boundary_rays():
-    """Rays along the axes and exactly along dyadic cell boundaries of a [0, 8]^3 grid."""
-    origins, dirs = [], []
-    for a in range(3):
-        for u in (0.0, 1.0, 2.0, 4.0, 0.5, 3.25, 8.0):
-            for v in (0.0, 2.0, 4.0, 6.5, 8.0):
-                for sign in (1.0, -1.0):
-                    o = np.zeros(3)
-                    o[a] = -3.0 if sign > 0 else 11.0
-                    o[(a + 1) % 3] = u
-                    o[(a + 2) % 3] = v
-                    d = np.zeros(3)
-                    d[a] = sign
-                    origins.append(o)
-                    dirs.append(d)
-    # diagonals through cell corners and rays from inside the grid
-    for k in range(9):
-        origins.append([k * 0.5, 0.0, -2.0])
-        dirs.append([0.0, 1.0, 1.0])
-        origins.append([4.0, 4.0, 4.0])
-        dirs.append([np.cos(k), np.sin(k), 0.0])
-    origins.append([-1.0, -1.0, -1.0])
-    dirs.append([1.0, 1.0, 1.0])
-    return np.array(origins), np.array(dirs)
-
-
-def lattice_scene():
-    """Unit spheres and axis-aligned squares on dyadic positions: edges fall on cell boundaries."""
-    scene = new_scene()
-    for x in range(1, 8, 2):
-        for y in range(1, 8, 3):
-            for z in range(1, 8, 2):
-                scene.root.spheres.add((x, y, z), 0.5, 0)
-    for x in range(4):
-        scene.root.polygons.add([(2 * x, 0, 2), (2 * x + 2, 0, 2), (2 * x + 2, 8, 2), (2 * x, 8, 2)], 0)
-    scene.root.polygons.add([(0, 4, 0), (8, 4, 0), (8, 4, 8), (0, 4, 8)], 0)
-    return scene
-
-
 @pytest.mark.parametrize("spec, res", [("grid(density=64, max_res=8)", 8), ("grid(density=64, max_res=4)", 4),
                                        ("grid(density=64, max_res=8, mailbox=off)", 8),
                                        ("grid", None), ("grid(res=woo)", None), ("grid(density=0.1)", None),
@@ -334,64 +233,6 @@ def test_ray_inside_grid_stops_at_the_first_hit():
     assert index[0] == 5 and t[0] == pytest.approx(0.2)
     assert cnt[C.TESTS + 0] <= 3
     assert cnt[C.CELLS_VISITED] < 10
-
-
-# ---------------------------------------------------------------- nesting
-
-def nested_scene(rng, outer, inner, instanced=False):
-    scene = new_scene()
-    scene.root.accel = outer
-    fill_group(scene.root, rng, n=6)
-    for k in range(4):
-        child = fill_group(Group(name=f"child{k}", accel=inner), rng, n=8, spread=1.5)
-        if instanced:
-            scene.root.add(Instance(child, rotation_scale(rng)))
-            scene.root.add(Instance(child, rotation_scale(rng)))
-        else:
-            shift = Group(name=f"moved{k}", accel=inner)
-            fill_group(shift, rng, n=5, spread=3.0)
-            child.add(shift)
-            scene.root.add(child)
-    return scene
-
-
-@pytest.mark.parametrize("outer, inner, instanced", [
-    ("grid", "bvh", False), ("bvh", "grid", False), ("grid", "grid", False),
-    ("grid(mailbox=off)", "grid(res=woo)", False), ("list", "grid", False),
-    ("grid(res=klimaszewski)", "grid(res=klimaszewski)", True),
-    ("grid", "grid", True), ("bvh", "grid(mailbox=off)", True), ("grid", "list", True)])
-def test_nested_grids_match_list(outer, inner, instanced):
-    rng = np.random.default_rng(7)
-    scene = nested_scene(rng, outer, inner, instanced)
-    o, d = random_rays(rng, 1500)
-    oi, di = random_rays(rng, 300, inside=True)
-    o, d = np.vstack([o, oi]), np.vstack([d, di])
-    got = cast(scene, "bvh", o, d)
-    plain = nested_scene(np.random.default_rng(7), "list", "list", instanced)
-    ref = cast(plain, "list", o, d)
-    assert np.isfinite(ref[0]).sum() > 300
-    assert_same_hits(got, ref)
-    if instanced:
-        assert np.any(ref[3] >= 0)
-
-
-def test_grid_inside_instance_inside_grid_deep():
-    rng = np.random.default_rng(11)
-    leaf = fill_group(Group(name="leaf", accel="grid"), rng, n=10, spread=1.0)
-    level = leaf
-    for k in range(5):
-        up = Group(name=f"l{k}", accel="grid" if k % 2 else "bvh")
-        up.add(Instance(level, rotation_scale(rng)))
-        up.add(Instance(level, rotation_scale(rng)))
-        level = up
-    scene = new_scene()
-    scene.root.accel = "grid"
-    scene.root.add(level)
-    o, d = random_rays(rng, 2000, spread=12.0)
-    got = cast(scene, "grid", o, d)
-    ref = cast(scene, "list", o, d)
-    assert np.isfinite(ref[0]).sum() > 50
-    assert_same_hits(got, ref)
 
 
 # ---------------------------------------------------------------- degenerate scenes
@@ -480,7 +321,3 @@ def test_counters_identical_across_runs_and_chunkings():
     # ray by ray, the counts add up to the batch's
     parts = [cast_rays(geo, o[k:k + 700], d[k:k + 700])[4] for k in range(0, 3000, 700)]
     np.testing.assert_array_equal(np.sum(parts, axis=0)[:C.RAYS_CAST], a[4][:C.RAYS_CAST])
-
-
-# ---------------------------------------------------------------- renders
-

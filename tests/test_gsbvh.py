@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
+from support import box_area, fill_group_large, new_scene, rays_outside_and_inside, same_arrays
 
 from raykernel.aggregates.bvh import BVHArrays, build_bvh, is_leaf
 from raykernel.aggregates.gsbvh import MAX_DEPTH, ORDERS, build_gs, insertion_order, morton_codes
@@ -13,7 +15,7 @@ from raykernel.aggregates.bvh import CODE as BVH
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
-from raykernel.scene import Group, Material, Scene, TriangleMesh
+from raykernel.scene import Group
 from raykernel.aggregates.registry import parse_spec
 
 EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
@@ -26,8 +28,16 @@ def random_boxes(rng, n, size=0.02, span=1.0):
     return np.hstack([lo, lo + rng.random((n, 3)) * size])
 
 
-def check_tree(bvh, stats, items):
-    """The layout's invariants for a tree with one item per leaf."""
+def built(items, *args, **kw):
+    """build_gs(items, ...) and the wall-clock seconds measured around the call."""
+    t0 = time.perf_counter()
+    bvh, stats = build_gs(items, *args, **kw)
+    return bvh, stats, time.perf_counter() - t0
+
+
+def check_tree(bvh, stats, items, wall=None):
+    """The layout's invariants for a tree with one item per leaf; the statistics (if given) those of
+    the tree, built in `wall` seconds."""
     items = np.asarray(items, np.float64).reshape(-1, 6)
     n = len(items)
     bounds, first, count, order = bvh
@@ -61,16 +71,7 @@ def check_tree(bvh, stats, items):
         assert stats["empty_leaves"] == int(n == 0) and stats["refs"] == n
         assert stats["bytes"] == sum(a.nbytes for a in bvh)
         assert stats["max_depth"] == int(depth.max()) <= MAX_DEPTH
-        assert stats["seconds"] >= 0.0
-
-
-def same_arrays(a, b):
-    return all(x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes() for x, y in zip(a, b))
-
-
-def box_area(b):
-    e = b[..., 3:] - b[..., :3]
-    return 2.0 * (e[..., 0] * e[..., 1] + e[..., 1] * e[..., 2] + e[..., 2] * e[..., 0])
+        assert 0.0 < stats["seconds"] <= wall
 
 
 def sah_cost(bvh):
@@ -106,16 +107,16 @@ def test_structure_on_random_scenes(order, kind):
         items = np.hstack([lo, lo + ext])
     else:
         items = random_boxes(rng, n, size=1.0) * rng.choice([1e-3, 1.0, 1e3], (n, 1))
-    bvh, stats = build_gs(items, order, seed=3)
-    check_tree(bvh, stats, items)
+    bvh, stats, wall = built(items, order, seed=3)
+    check_tree(bvh, stats, items, wall)
     assert stats["order"] == order
 
 
 @pytest.mark.parametrize("n", [0, 1, 2, 3, 17])
 def test_small_inputs(n):
     items = random_boxes(np.random.default_rng(n), n)
-    bvh, stats = build_gs(items, "shuffle")
-    check_tree(bvh, stats, items)
+    bvh, stats, wall = built(items, "shuffle")
+    check_tree(bvh, stats, items, wall)
     if n == 1:
         assert stats["nodes"] == 1 and bvh.count[0] == 1
         assert np.array_equal(bvh.bounds[0], items[0])
@@ -128,8 +129,8 @@ def test_small_inputs(n):
 ], ids=["identical", "points", "collinear"])
 def test_degenerate_input_stays_balanced(items):
     for order in ORDERS:
-        bvh, stats = build_gs(items, order)
-        check_tree(bvh, stats, items)
+        bvh, stats, wall = built(items, order)
+        check_tree(bvh, stats, items, wall)
         assert stats["max_depth"] <= 3 * math.ceil(math.log2(len(items)))
 
 
@@ -137,8 +138,8 @@ def test_depth_guard_on_nested_boxes():
     """Boxes around one centre, inserted from small to large, would make a chain 100 deep."""
     r = np.arange(1, 201, dtype=np.float64)[:, None]
     items = np.hstack([-r * np.ones(3), r * np.ones(3)])
-    bvh, stats = build_gs(items, "file")
-    check_tree(bvh, stats, items)
+    bvh, stats, wall = built(items, "file")
+    check_tree(bvh, stats, items, wall)
     assert stats["max_depth"] == MAX_DEPTH
     _, small = build_gs(items, "file", max_depth=12)
     assert small["max_depth"] <= 12
@@ -151,8 +152,8 @@ def test_extreme_magnitudes(magnitude):
     rng = np.random.default_rng(4)
     c = (rng.random((300, 3)) * 2 - 1) * magnitude
     items = np.hstack([c, c + np.abs(c) * 0.1])
-    bvh, stats = build_gs(items, "shuffle")
-    check_tree(bvh, stats, items)
+    bvh, stats, wall = built(items, "shuffle")
+    check_tree(bvh, stats, items, wall)
     assert stats["max_depth"] <= 40
 
 
@@ -235,46 +236,9 @@ def test_spec_parameters():
             parse_spec(bad)
 
 
-def new_scene() -> Scene:
-    scene = Scene()
-    scene.add_material(Material())
-    return scene
-
-
-def fill_group(group, rng, n=30, spread=4.0):
-    """Spheres, cones, polygons, patches and a triangle mesh at random."""
-    for _ in range(n):
-        group.spheres.add(rng.uniform(-spread, spread, 3), rng.uniform(0.1, 0.8), 0)
-    for _ in range(n // 3):
-        base = rng.uniform(-spread, spread, 3)
-        group.cones.add(base, rng.uniform(0.05, 0.5), base + rng.normal(0, 1.0, 3), rng.uniform(0.05, 0.5), 0)
-    for _ in range(n // 3):
-        c = rng.uniform(-spread, spread, 3)
-        u, v = rng.normal(0, 0.6, 3), rng.normal(0, 0.6, 3)
-        angles = np.linspace(0, 2 * np.pi, rng.integers(3, 7), endpoint=False)
-        group.polygons.add(c + np.outer(np.cos(angles), u) + np.outer(np.sin(angles), v), 0)
-    for _ in range(n // 4):
-        c = rng.uniform(-spread, spread, 3)
-        u, v = rng.normal(0, 0.6, 3), rng.normal(0, 0.6, 3)
-        group.patches.add(np.array([c, c + u, c + u + v, c + v]), 0, normals=rng.normal(0, 1, (4, 3)) + np.cross(u, v))
-    verts = rng.uniform(-spread, spread, 3) + rng.normal(0, 0.8, (30, 3))
-    faces = np.array([f for f in rng.integers(0, 30, (40, 3)) if len(set(f)) == 3])
-    group.add(TriangleMesh(verts, faces, 0))
-    return group
-
-
-def random_rays(rng, n, spread=6.0):
-    origins = rng.normal(0, 1, (n, 3))
-    origins *= 2.5 * spread / np.linalg.norm(origins, axis=1)[:, None]
-    inside = rng.uniform(-spread * 0.6, spread * 0.6, (n // 4, 3))
-    origins = np.vstack([origins, inside])
-    targets = rng.uniform(-spread * 0.7, spread * 0.7, (len(origins), 3))
-    return origins, targets - origins
-
-
 def test_flatten_uses_the_gs_build():
     scene = new_scene()
-    fill_group(scene.root, np.random.default_rng(12))
+    fill_group_large(scene.root, np.random.default_rng(12))
     geo, stats = flatten(scene, default_accel="bvh(build=gs, order=shuffle, seed=4)")
     assert geo.agg_kind[geo.root] == BVH
     agg = stats["aggregates"][0]
@@ -288,10 +252,10 @@ def test_flatten_uses_the_gs_build():
 def test_cast_rays_match_list(order, seed):
     rng = np.random.default_rng(100 + seed)
     scene = new_scene()
-    fill_group(scene.root, rng)
-    inner = fill_group(Group(name="inner", accel=f"bvh(build=gs, order={order})"), rng, n=12, spread=2.0)
+    fill_group_large(scene.root, rng)
+    inner = fill_group_large(Group(name="inner", accel=f"bvh(build=gs, order={order})"), rng, n=12, spread=2.0)
     scene.root.add(inner)
-    o, d = random_rays(rng, 2000)
+    o, d = rays_outside_and_inside(rng, 2000)
     ref = cast_rays(flatten(scene, "list")[0], o, d)
     assert np.isfinite(ref[0]).sum() > 300
     got = cast_rays(flatten(scene, f"bvh(build=gs, order={order}, seed={seed})")[0], o, d)

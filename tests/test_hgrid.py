@@ -1,9 +1,13 @@
-"""Hierarchical grid: sub-grids in crowded cells, depth limits, hits against the list, renders."""
+"""Hierarchical grid: sub-grids in crowded cells, depth limits, hits against the list.
+
+Hierarchical grids nested in and around every other kind, and instanced, are checked against the
+list in test_nesting.py."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from support import assert_same_hits, fill_group_large, new_scene, rays_outside_and_inside
 
 from raykernel.aggregates.grid import build_grid
 from raykernel.aggregates.hgrid import clipped_bounds, dense_cells, replace_cells
@@ -13,50 +17,8 @@ from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError, SceneError
 from raykernel.geometry import counters as C
-from raykernel.scene import Group, Instance, Material, Scene, TriangleMesh
+from raykernel.scene import Group
 from raykernel.aggregates.registry import parse_spec
-
-
-def new_scene() -> Scene:
-    scene = Scene()
-    scene.add_material(Material())
-    return scene
-
-
-def fill_group(group, rng, n=30, spread=4.0):
-    for _ in range(n):
-        group.spheres.add(rng.uniform(-spread, spread, 3), rng.uniform(0.1, 0.8), 0)
-    for _ in range(n // 3):
-        base = rng.uniform(-spread, spread, 3)
-        group.cones.add(base, rng.uniform(0.05, 0.5), base + rng.normal(0, 1.0, 3), rng.uniform(0.05, 0.5), 0)
-    for _ in range(n // 3):
-        c = rng.uniform(-spread, spread, 3)
-        u, v = rng.normal(0, 0.6, 3), rng.normal(0, 0.6, 3)
-        angles = np.linspace(0, 2 * np.pi, rng.integers(3, 7), endpoint=False)
-        group.polygons.add(c + np.outer(np.cos(angles), u) + np.outer(np.sin(angles), v), 0)
-    verts = rng.uniform(-spread, spread, 3) + rng.normal(0, 0.8, (30, 3))
-    faces = np.array([f for f in rng.integers(0, 30, (40, 3)) if len(set(f)) == 3])
-    group.add(TriangleMesh(verts, faces, 0))
-    # a crowd: many small spheres in a small region, so that cells overflow
-    centre = rng.uniform(-spread / 2, spread / 2, 3)
-    for _ in range(3 * n):
-        group.spheres.add(centre + rng.normal(0, 0.3, 3), rng.uniform(0.02, 0.1), 0)
-    group.polygons.add([(-9, -9, -spread), (9, -9, -spread), (9, 9, -spread), (-9, 9, -spread)], 0)
-    return group
-
-
-def random_rays(rng, n, spread=6.0):
-    origins = rng.normal(0, 1, (n, 3))
-    origins *= 2.5 * spread / np.linalg.norm(origins, axis=1)[:, None]
-    inside = rng.uniform(-spread * 0.6, spread * 0.6, (n // 4, 3))
-    origins = np.vstack([origins, inside])
-    targets = rng.uniform(-spread * 0.7, spread * 0.7, (len(origins), 3))
-    return origins, targets - origins
-
-
-def assert_same_hits(a, b):
-    for x, y in zip(a[:4], b[:4]):
-        np.testing.assert_array_equal(x, y)
 
 
 def subgrids(stats, level=None):
@@ -147,7 +109,7 @@ def test_subgrid_counts_on_a_dense_cluster():
     held = geo.refs[geo.grid_cells[cell]:geo.grid_cells[cell + 1]]
     assert len(held) == 1
 
-    o, d = random_rays(np.random.default_rng(4), 1500, spread=4.0)
+    o, d = rays_outside_and_inside(np.random.default_rng(4), 1500, spread=4.0)
     o = o + 4.0
     aim = np.vstack([np.full((300, 3), 2.53) + np.random.default_rng(5).normal(0, 0.01, (300, 3)),
                      np.full((200, 3), 2.5) + np.random.default_rng(6).normal(0, 0.2, (200, 3))])
@@ -225,8 +187,8 @@ def test_depth_clamp_counts_the_levels_above():
 def test_random_scenes_match_list(spec, seed):
     rng = np.random.default_rng(20 + seed)
     scene = new_scene()
-    fill_group(scene.root, rng)
-    o, d = random_rays(rng, 2000)
+    fill_group_large(scene.root, rng, patches=False, crowd=True)
+    o, d = rays_outside_and_inside(rng, 2000)
     ref = cast_rays(flatten(scene, "list")[0], o, d)
     assert np.isfinite(ref[0]).sum() > 300
     geo, stats = flatten(scene, spec)
@@ -238,28 +200,4 @@ def test_random_scenes_match_list(spec, seed):
     shadow = cast_rays(geo, o, d, tmax=0.5, any_hit=True)
     np.testing.assert_array_equal(np.isfinite(shadow[0]),
                                   np.isfinite(cast_rays(flatten(scene, "list")[0], o, d, tmax=0.5)[0]))
-
-
-def test_nested_groups_and_instances_match_list():
-    rng = np.random.default_rng(30)
-    scene = new_scene()
-    scene.root.accel = "hgrid(threshold=3)"
-    fill_group(scene.root, rng, n=10)
-    child = fill_group(Group(name="child", accel="hgrid(threshold=3, depth=3)"), rng, n=10, spread=1.5)
-    scene.root.add(child)
-    m = np.eye(4)
-    m[:3, 3] = (2.0, -1.0, 0.5)
-    scene.root.add(Instance(child, m))
-    o, d = random_rays(rng, 2000)
-    got = cast_rays(flatten(scene, "bvh")[0], o, d)
-    plain = new_scene()
-    rng = np.random.default_rng(30)
-    fill_group(plain.root, rng, n=10)
-    pchild = fill_group(Group(name="child", accel="list"), rng, n=10, spread=1.5)
-    plain.root.add(pchild)
-    plain.root.add(Instance(pchild, m))
-    ref = cast_rays(flatten(plain, "list")[0], o, d)
-    assert np.isfinite(ref[0]).sum() > 300
-    assert_same_hits(got, ref)
-
 

@@ -9,9 +9,17 @@ import importlib
 
 import numpy as np
 import pytest
-from support import ray_counts
-from test_grid import assert_same_hits, fill_group, nested_scene, new_scene, random_rays, rotation_scale
-from test_pathological import child, points
+from support import (
+    child,
+    fill_group,
+    nested_scene,
+    new_scene,
+    points,
+    random_rays,
+    ray_counts,
+    rotation_scale,
+    same_hits_as_list,
+)
 
 import raykernel
 from raykernel import RayScene
@@ -22,7 +30,6 @@ from raykernel.aggregates.octree import ADDRESS_BITS, BUDGET_SLACK
 from raykernel.casting.rayscene import CHUNK, coarse_to_fine
 from raykernel.aggregates.octree import CODE as OCTREE
 from raykernel.engine.flatten import flatten
-from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
 from raykernel.geometry import counters as C
 from raykernel.scene import Group, Instance
@@ -78,29 +85,6 @@ def lattice_rays(lo, hi, n):
                 o.append(p)
                 d.append(np.eye(3)[a])
     return np.array(o), np.array(d)
-
-
-def same_hits_as_list(scene, spec, o, d, repeats=1, plain=None):
-    """RayScene(spec) against RayScene(list) (of `plain`, the same scene with list specs, if given):
-    closest, any and all hits, `repeats` times (the tree refines during and between the
-    queries). Returns the lazy RayScene."""
-    ref = RayScene.from_scene(scene if plain is None else plain, "list")
-    got = RayScene.from_scene(scene, spec)
-    want = ref.intersect(o, d)
-    want_any = ref.occluded(o, d, tmax=0.5)
-    want_all = ref.intersect_all(o, d, ids=True)
-    assert np.isfinite(want.t).sum() > len(o) // 20
-    for _ in range(repeats):
-        h = got.intersect(o, d)
-        for name in ("t", "prim_id", "geom_id", "inst_id"):
-            np.testing.assert_array_equal(getattr(h, name), getattr(want, name))
-        np.testing.assert_array_equal(h.normal, want.normal)
-        np.testing.assert_array_equal(got.occluded(o, d, tmax=0.5), want_any)
-        for a, b in zip(got.intersect_all(o, d, ids=True), want_all):
-            np.testing.assert_array_equal(a, b)
-    # the refined tree through the plain traversal too
-    assert_same_hits(cast_rays(got.geo, o, d), cast_rays(ref.geo, o, d))
-    return got
 
 
 # ---------------------------------------------------------------- parameters

@@ -15,7 +15,7 @@ import copy
 import numpy as np
 import pytest
 from numba import njit
-from test_watertight import MESHES, rays_through, targets
+from support import MESHES, rays_through, targets
 
 from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
 from raykernel.aggregates.widebvh import CHILD, COUNT, box4_entries, collapse, wide_ray

@@ -22,8 +22,8 @@ Kinds registered later are covered without editing this file. The quick
 part tries every spec alone on a few random scenes, every ordered pair of
 kinds on one scene, the stadium and the SPD scenes at size factor 1; the
 full matrix of specs on more random scenes and the SPD scenes at their
-default sizes are marked slow. The last section checks that the octree's
-defaults keep it small on every SPD scene and the stadium.
+default sizes are marked slow. Each kind's own tests (its builder, its walk's
+special cases, its counters) are in its own file (test_octree.py, ...).
 """
 
 from __future__ import annotations
@@ -33,23 +33,30 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import pytest
-from support import ray_counts, work_counts
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_csg import Node, random_solid, random_tree
-from test_intersect import affine, fill_group, similarity
+from support import (
+    Node,
+    affine,
+    fill_box,
+    random_solid,
+    random_tree,
+    ray_counts,
+    similarity,
+    stadium_rays,
+    work_counts,
+    world_corners,
+)
 
 import raykernel
 from raykernel.aggregates import csg
-from raykernel.aggregates.octree import BUDGET_SLACK, build_octree
 from raykernel.casting.rayscene import RayScene
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
-from raykernel.errors import OptionError
 from raykernel.geometry import counters as C
 from raykernel.geometry.primitives import PATCH
 from raykernel.aggregates import registry as accel
-from raykernel.scene import Group, Instance, Polygons, Scene, TriangleMesh, pathological, spd
+from raykernel.scene import Group, Instance, Scene, pathological, spd
 
 VARIANTS = ("bvh(build=gs)", "bvh(split=16)", "bvh(split=4, width=2)", "octree(walk=point)", "octree(walk=parametric)", "octree(mailbox=off)",
             "grid(mailbox=off)", "hgrid(threshold=2)")
@@ -69,7 +76,7 @@ SPD_RESOLUTION = 24
 @dataclass(frozen=True)
 class Layout:
     """What a random scene is made of: the seed of every position, the primitives per group
-    (spheres, cones, polygons, patches, mesh triangles: fill_group of test_intersect, with
+    (spheres, cones, polygons, patches, mesh triangles: support.fill_box, with
     negative spheres, cylinders, concave polygons and a closed octahedron), the scale of the
     whole scene, and how far the child groups spread (small: disjoint, 1: all overlapping)."""
 
@@ -94,7 +101,7 @@ def mixed_scene(layout: Layout, outer: str, inner: str | None = None) -> Scene:
     e = layout.extent
     scene = Scene()
     scene.root.accel = outer
-    fill_group(scene.root, rng, layout.counts, extent=e)
+    fill_box(scene.root, rng, layout.counts, extent=e)
     if inner is None:
         return scene
     small = tuple((c + 1) // 2 for c in layout.counts)
@@ -103,38 +110,18 @@ def mixed_scene(layout: Layout, outer: str, inner: str | None = None) -> Scene:
     def somewhere():
         return rng.uniform(-1.0, 1.0, 3) * (e - 0.5 * part)
 
-    child = fill_group(Group(name="child", accel=inner), rng, small, center=somewhere(), extent=part)
-    child.add(fill_group(Group(name="merged"), rng, small, center=somewhere(), extent=0.5 * part))
-    child.add(fill_group(Group(name="grandchild", accel=outer), rng, small, center=somewhere(), extent=0.5 * part))
+    child = fill_box(Group(name="child", accel=inner), rng, small, center=somewhere(), extent=part)
+    child.add(fill_box(Group(name="merged"), rng, small, center=somewhere(), extent=0.5 * part))
+    child.add(fill_box(Group(name="grandchild", accel=outer), rng, small, center=somewhere(), extent=0.5 * part))
     scene.root.add(child)
-    shape = fill_group(Group(name="shape", accel=inner), rng, small, extent=1.0)
+    shape = fill_box(Group(name="shape", accel=inner), rng, small, extent=1.0)
     mirror = np.diag([1.0, -1.0, 1.0, 1.0])
     for m in (similarity(rng), affine(rng), similarity(rng) @ mirror):
         scene.root.add(Instance(shape, scaled(m, 0.4 * part)))
-    holder = fill_group(Group(name="holder", accel=outer), rng, small, extent=1.0)
+    holder = fill_box(Group(name="holder", accel=outer), rng, small, extent=1.0)
     holder.add(Instance(shape, affine(rng, shift=1.0)))
     scene.root.add(Instance(holder, scaled(similarity(rng), 0.4 * part)))
     return scene
-
-
-def world_corners(group: Group, matrix=None, out=None) -> list:
-    """Vertices of every polygon, patch and mesh triangle reachable from `group`, in world space,
-    as (k, 3) arrays of one polygon or triangle each."""
-    out = [] if out is None else out
-    m = np.eye(4) if matrix is None else matrix
-    for s in group.primitive_sets():
-        if isinstance(s, Polygons):
-            for i in range(len(s)):
-                out.append(s.polygon(i)[0] @ m[:3, :3].T + m[:3, 3])
-        elif isinstance(s, TriangleMesh):
-            for f in s.faces:
-                out.append(s.vertices[f] @ m[:3, :3].T + m[:3, 3])
-    for c in group.children:
-        if isinstance(c, Instance):
-            world_corners(c.group, m @ c.matrix, out)
-        else:
-            world_corners(c, m, out)
-    return out
 
 
 def probe_rays(scene: Scene, rng, n: int, extent: float, center=(0.0, 0.0, 0.0)):
@@ -261,6 +248,36 @@ def test_specs_cover_every_registered_kind_and_parse():
         assert name in accel.KINDS and accel.parse_spec(accel.format_spec(name, params)) == (name, params)
 
 
+def described_defaults() -> dict:
+    """kind -> {parameter: its default as written} of the text registry.describe() prints: a line
+    "kind: help" for every kind, then a line "    name=default  (values) help" for each parameter."""
+    out, kind = {}, None
+    for line in accel.describe().splitlines():
+        if line.startswith("    "):
+            key, value = line.strip().split("  ")[0].split("=", 1)
+            assert key not in out[kind], f"{kind}: {key} described twice"
+            out[kind][key] = value
+        else:
+            kind = line.split(":")[0]
+            out[kind] = {}
+    return out
+
+
+@pytest.mark.parametrize("name", list(accel.KINDS))
+def test_every_kinds_defaults_are_described_and_parsed(name):
+    """describe() lists every parameter of every registered kind, in order, as name=default; that
+    text read back as a spec, and the bare kind name, parse to the parameters' declared defaults."""
+    params = accel.KINDS[name].params
+    shown = described_defaults()[name]
+    assert list(shown) == [p.name for p in params]
+    assert shown == {p.name: ("on" if p.default else "off") if isinstance(p.default, bool) else str(p.default)
+                     for p in params}
+    text = f"{name}({', '.join(f'{k}={v}' for k, v in shown.items())})" if shown else name
+    defaults = (name, {p.name: p.default for p in params})
+    assert accel.parse_spec(text) == defaults
+    assert accel.parse_spec(name) == defaults
+
+
 @pytest.mark.parametrize("spec", SPECS)
 @QUICK
 @given(layout=layouts)
@@ -305,7 +322,7 @@ def csg_scene(seed: int, op: str, outer: str, inner: str) -> Scene:
                      random_solid(rng, spread=spread), random_tree(rng, 1, spread=spread)], base=2)
     scene = Scene()
     scene.root.accel = outer
-    fill_group(scene.root, rng, (4, 2, 3, 1, 6), extent=3.0)
+    fill_box(scene.root, rng, (4, 2, 3, 1, 6), extent=3.0)
     group = node.group(inner)
     scene.root.add(group)
     scene.root.add(Instance(group, scaled(similarity(rng), 0.7)))
@@ -361,32 +378,6 @@ def test_the_comparison_catches_a_wrong_answer():
 
 
 # ---------------------------------------------------------------- the teapot in a stadium
-
-def stadium_rays(scene: Scene, rng, n: int):
-    """Camera rays over the view, rays from the stands and the sky aimed at teapot vertices and
-    edge midpoints, and axis-parallel rays down onto the teapot and along the field."""
-    teapot = next(g for g in scene.root.children if isinstance(g, Group) and g.name == "teapot")
-    corners = world_corners(teapot)
-    pts = np.array([p[j] for p in corners for j in range(len(p))])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    k = n // 4
-    cam = scene.camera
-    forward, right, up = cam.basis()
-    spread = np.tan(np.radians(cam.angle) / 2)
-    u, v = rng.uniform(-spread, spread, (2, k))
-    d1 = forward + u[:, None] * right + v[:, None] * up
-    o1 = np.tile(cam.eye, (k, 1))
-    pick = [corners[j] for j in rng.integers(0, len(corners), k)]
-    target = np.array([0.5 * (p[0] + p[j]) if j else p[0] for p in pick for j in [rng.integers(len(p))]])
-    o2 = rng.uniform([-150, -210, 0.5], [450, 210, 80], (k, 3))
-    d2 = target - o2
-    o3 = np.column_stack([rng.uniform(lo[0], hi[0], k), rng.uniform(lo[1], hi[1], k), np.full(k, 200.0)])
-    d3 = np.tile([0.0, 0.0, -1.0], (k, 1))
-    o4 = np.column_stack([np.full(n - 3 * k, -149.0), rng.uniform(lo[1], hi[1], n - 3 * k),
-                          rng.uniform(lo[2], hi[2], n - 3 * k)])
-    d4 = np.tile([1.0, 0.0, 0.0], (n - 3 * k, 1))
-    return np.vstack([o1, o2, o3, o4]), np.vstack([d1, d2, d3, d4]), 0.0, np.inf
-
 
 @pytest.mark.parametrize("ratio", [1.0, 1e6])
 def test_stadium_every_kind_matches_list(ratio):
@@ -463,77 +454,3 @@ def test_every_kind_is_the_same_at_one_and_two_threads(spec):
     np.testing.assert_array_equal(one[4], two[4])
     if spec.startswith(("lazyoctree", "rc")) and "lazy=off" not in spec:
         assert one[1]["build.subdivisions"] > 0     # the lazy trees refined, the same way
-
-
-# ---------------------------------------------------------------- the octree's defaults stay sane
-
-@pytest.mark.parametrize("text, words", [("octree(budget=-1)", "budget must be a number in"),
-                                         ("octree(budget=lots)", "budget must be a number"),
-                                         ("octree(depth=25)", "depth must be an integer in")])
-def test_octree_budget_and_depth_are_checked(text, words):
-    with pytest.raises(OptionError, match=words):
-        accel.parse_spec(text)
-    with pytest.raises(OptionError, match="budget"):
-        build_octree(np.zeros((1, 6)), budget=-1.0)
-
-
-def test_octree_defaults_are_documented():
-    _, params = accel.parse_spec("octree")
-    assert params["depth"] == 16 and params["budget"] == 16.0 and params["leaf"] == 3 and not params["rule60"]
-    assert "budget=16.0" in accel.describe() and "depth=16" in accel.describe()
-
-
-def test_octree_budget_caps_references_where_no_split_separates_the_items():
-    """400 boxes around one point: every split keeps them all together in 8 children,
-    so without a budget the tree would grow as 8**depth."""
-    rng = np.random.default_rng(3)
-    boxes = np.hstack([rng.uniform(-1.0, -0.5, (400, 3)), rng.uniform(0.5, 1.0, (400, 3))])
-    boxes = np.vstack([boxes, [[-8, -8, -8, -7, -7, -7], [7, 7, 7, 8, 8, 8]]])
-    tree, stats = build_octree(boxes, depth=24, budget=2.0)
-    assert stats["budget_refs"] == 2 * len(boxes) + BUDGET_SLACK
-    assert stats["refs"] <= stats["budget_refs"] and stats["nodes"] < 20 * stats["budget_refs"]
-    again, _ = build_octree(boxes, depth=24, budget=2.0)
-    assert all(np.array_equal(a, b) for a, b in zip(tree, again))
-    # every leaf still holds every item its box overlaps
-    for n in np.flatnonzero(tree.count >= 0):
-        b = tree.bounds[n]
-        overlap = set(np.flatnonzero(np.all((boxes[:, :3] <= b[3:]) & (boxes[:, 3:] >= b[:3]), axis=1)).tolist())
-        assert overlap <= set(tree.order[tree.first[n]:tree.first[n] + tree.count[n]].tolist())
-
-
-def test_a_budget_that_does_not_bind_changes_nothing():
-    rng = np.random.default_rng(4)
-    lo = rng.uniform(-5, 5, (1000, 3))
-    boxes = np.hstack([lo, lo + rng.uniform(0, 1.0, (1000, 3))])
-    free, s_free = build_octree(boxes, depth=6, leaf=2, budget=0.0)
-    loose, s_loose = build_octree(boxes, depth=6, leaf=2, budget=1e6)
-    assert s_free["budget_refs"] == 0 and s_loose["refs"] < s_loose["budget_refs"]
-    assert all(np.array_equal(a, b) for a, b in zip(free, loose))
-    tight, s_tight = build_octree(boxes, depth=6, leaf=2, budget=1.0)
-    assert s_tight["refs"] <= s_tight["budget_refs"] == 1000 + BUDGET_SLACK < s_free["refs"]
-    assert s_tight["nodes"] < s_free["nodes"]
-
-
-@pytest.mark.parametrize("name", [f"spd:{n}" for n in spd.NAMES] + ["scene:stadium", "scene:stadium:ratio=1"])
-def test_default_octree_stays_small_on_every_spd_scene_and_the_stadium(name):
-    scene = raykernel.load(name)
-    _, stats = flatten(scene, "octree")
-    a = stats["aggregates"][0]
-    assert a["kind"] == "octree" and a["items"] == scene.count_primitives()
-    assert a["refs"] <= 16 * a["items"] + BUDGET_SLACK == a["budget_refs"]
-    assert a["bytes"] < 20 * 2 ** 20 and a["nodes"] < a["refs"]
-
-
-def test_default_octree_resolves_the_teapot_in_the_stadium():
-    """Depth 16 with the budget reaches the teapot at the default ratio; depth 8 leaves it
-    in a few cells of hundreds of facets (Haines's problem voxel)."""
-    scene = pathological.stadium()
-    o, d, *_ = stadium_rays(scene, np.random.default_rng(8), 400)
-    tests = slice(C.TESTS, C.TESTS + 5)
-    per_ray = {}
-    for spec in ("octree", "octree(depth=8)"):
-        geo, stats = flatten(scene, spec)
-        counts = cast_rays(geo, o, d)[4]
-        per_ray[spec] = counts[tests].sum() / len(o)
-    assert stats["aggregates"][0]["max_depth"] == 8
-    assert per_ray["octree"] < 30 < 300 < per_ray["octree(depth=8)"]

@@ -1,29 +1,31 @@
-"""Octree aggregate: builder criteria, the four walks against list and bvh, wall quadtrees, nesting, degenerate
-scenes, renders."""
+"""Octree aggregate: builder criteria, the four walks against list and bvh, wall quadtrees, each walk in
+rotated and scaled instances, degenerate scenes, the reference budget, and the defaults on every SPD
+scene and the stadium. Octrees nested in and around every other kind are checked in test_nesting.py."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_grid import (
+from support import (
     assert_same_hits,
     axis_and_boundary_rays,
     cast,
     fill_group,
     lattice_scene,
-    nested_scene,
     new_scene,
     random_rays,
     rotation_scale,
+    stadium_rays,
 )
 
-from raykernel.aggregates.octree import ADDRESS_BITS, build_octree, wall_quadtrees
+import raykernel
+from raykernel.aggregates.octree import ADDRESS_BITS, BUDGET_SLACK, build_octree, wall_quadtrees
 from raykernel.aggregates.octree import CODE as OCTREE
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
 from raykernel.geometry import counters as C
-from raykernel.scene import Group, Instance
+from raykernel.scene import Group, Instance, pathological, spd
 from raykernel.aggregates.registry import parse_spec
 
 WALKS = ("point", "neighbor", "parametric", "wall")
@@ -297,25 +299,7 @@ def test_rays_starting_inside_stop_at_the_first_hit(walk):
     assert cnt[C.TESTS + 0] <= 8    # of 40 for a list
 
 
-# ---------------------------------------------------------------- nesting
-
-@pytest.mark.parametrize("outer, inner, instanced", [
-    ("octree", "bvh", False), ("bvh", "octree", False), ("octree(walk=point)", "octree(walk=parametric)", False),
-    ("octree(walk=parametric)", "octree(walk=neighbor, mailbox=off)", True), ("grid", "octree(walk=point)", True),
-    ("octree(walk=neighbor)", "list", True), ("octree(walk=point)", "bvh", True)])
-def test_nested_octrees_match_list(outer, inner, instanced):
-    rng = np.random.default_rng(7)
-    scene = nested_scene(rng, outer, inner, instanced)
-    o, d = random_rays(rng, 1200)
-    oi, di = random_rays(rng, 300, inside=True)
-    o, d = np.vstack([o, oi]), np.vstack([d, di])
-    got = cast(scene, "bvh", o, d)
-    ref = cast(nested_scene(np.random.default_rng(7), "list", "list", instanced), "list", o, d)
-    assert np.isfinite(ref[0]).sum() > 300
-    assert_same_hits(got, ref)
-    if instanced:
-        assert np.any(ref[3] >= 0)
-
+# ---------------------------------------------------------------- instances
 
 @pytest.mark.parametrize("walk", WALKS)
 def test_octree_in_rotated_scaled_instances(walk):
@@ -393,5 +377,69 @@ def test_counts_do_not_depend_on_chunking():
         np.testing.assert_array_equal(np.sum(parts, axis=0)[:C.RAYS_CAST], a[:C.RAYS_CAST])
 
 
-# ---------------------------------------------------------------- renders
+# ---------------------------------------------------------------- the reference budget and the defaults
 
+@pytest.mark.parametrize("text, words", [("octree(budget=-1)", "budget must be a number in"),
+                                         ("octree(budget=lots)", "budget must be a number"),
+                                         ("octree(depth=25)", "depth must be an integer in")])
+def test_octree_budget_and_depth_are_checked(text, words):
+    with pytest.raises(OptionError, match=words):
+        parse_spec(text)
+    with pytest.raises(OptionError, match="budget"):
+        build_octree(np.zeros((1, 6)), budget=-1.0)
+
+
+def test_octree_budget_caps_references_where_no_split_separates_the_items():
+    """400 boxes around one point: every split keeps them all together in 8 children,
+    so without a budget the tree would grow as 8**depth."""
+    rng = np.random.default_rng(3)
+    boxes = np.hstack([rng.uniform(-1.0, -0.5, (400, 3)), rng.uniform(0.5, 1.0, (400, 3))])
+    boxes = np.vstack([boxes, [[-8, -8, -8, -7, -7, -7], [7, 7, 7, 8, 8, 8]]])
+    tree, stats = build_octree(boxes, depth=24, budget=2.0)
+    assert stats["budget_refs"] == 2 * len(boxes) + BUDGET_SLACK
+    assert stats["refs"] <= stats["budget_refs"] and stats["nodes"] < 20 * stats["budget_refs"]
+    again, _ = build_octree(boxes, depth=24, budget=2.0)
+    assert all(np.array_equal(a, b) for a, b in zip(tree, again))
+    # every leaf still holds every item its box overlaps
+    for n in np.flatnonzero(tree.count >= 0):
+        b = tree.bounds[n]
+        overlap = set(np.flatnonzero(np.all((boxes[:, :3] <= b[3:]) & (boxes[:, 3:] >= b[:3]), axis=1)).tolist())
+        assert overlap <= set(tree.order[tree.first[n]:tree.first[n] + tree.count[n]].tolist())
+
+
+def test_a_budget_that_does_not_bind_changes_nothing():
+    rng = np.random.default_rng(4)
+    lo = rng.uniform(-5, 5, (1000, 3))
+    boxes = np.hstack([lo, lo + rng.uniform(0, 1.0, (1000, 3))])
+    free, s_free = build_octree(boxes, depth=6, leaf=2, budget=0.0)
+    loose, s_loose = build_octree(boxes, depth=6, leaf=2, budget=1e6)
+    assert s_free["budget_refs"] == 0 and s_loose["refs"] < s_loose["budget_refs"]
+    assert all(np.array_equal(a, b) for a, b in zip(free, loose))
+    tight, s_tight = build_octree(boxes, depth=6, leaf=2, budget=1.0)
+    assert s_tight["refs"] <= s_tight["budget_refs"] == 1000 + BUDGET_SLACK < s_free["refs"]
+    assert s_tight["nodes"] < s_free["nodes"]
+
+
+@pytest.mark.parametrize("name", [f"spd:{n}" for n in spd.NAMES] + ["scene:stadium", "scene:stadium:ratio=1"])
+def test_default_octree_stays_small_on_every_spd_scene_and_the_stadium(name):
+    scene = raykernel.load(name)
+    _, stats = flatten(scene, "octree")
+    a = stats["aggregates"][0]
+    assert a["kind"] == "octree" and a["items"] == scene.count_primitives()
+    assert a["refs"] <= 16 * a["items"] + BUDGET_SLACK == a["budget_refs"]
+    assert a["bytes"] < 20 * 2 ** 20 and a["nodes"] < a["refs"]
+
+
+def test_default_octree_resolves_the_teapot_in_the_stadium():
+    """Depth 16 with the budget reaches the teapot at the default ratio; depth 8 leaves it
+    in a few cells of hundreds of facets (Haines's problem voxel)."""
+    scene = pathological.stadium()
+    o, d, *_ = stadium_rays(scene, np.random.default_rng(8), 400)
+    tests = slice(C.TESTS, C.TESTS + 5)
+    per_ray = {}
+    for accel in ("octree", "octree(depth=8)"):
+        geo, stats = flatten(scene, accel)
+        counts = cast_rays(geo, o, d)[4]
+        per_ray[accel] = counts[tests].sum() / len(o)
+    assert stats["aggregates"][0]["max_depth"] == 8
+    assert per_ray["octree"] < 30 and per_ray["octree(depth=8)"] > 300

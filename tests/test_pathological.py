@@ -8,50 +8,18 @@ import math
 import numpy as np
 import pytest
 from PIL import Image
+from support import child, groups, points
 
 import raykernel
 from raykernel.cli import main
 from raykernel.engine.flatten import flatten
 from raykernel.errors import OptionError
-from raykernel.scene import Group, Instance
+from raykernel.scene import Group
 from raykernel.scene import pathological as P
 from raykernel.scene.jsonscene import read_json, write_json
 from raykernel.scene.nff import read_nff, write_nff
 
 FT = P.FEET_PER_MILE
-
-
-def child(group: Group, name: str) -> Group:
-    found = [c for c in group.children if isinstance(c, Group) and c.name == name]
-    assert len(found) == 1, f"no single child group {name!r} in {[c.name for c in group.children]}"
-    return found[0]
-
-
-def groups(group: Group, seen=None):
-    """The group and every group below it, instanced ones once (the park instances some)."""
-    seen = set() if seen is None else seen
-    yield group
-    for c in group.children:
-        g = c.group if isinstance(c, Instance) else c
-        if id(g) not in seen:
-            seen.add(id(g))
-            yield from groups(g, seen)
-
-
-def points(group: Group) -> np.ndarray:
-    """Every vertex, and the extreme points of spheres and cones, of `group` and below."""
-    out = [np.zeros((0, 3))]
-    for g in groups(group):
-        s = g.spheres.freeze()
-        for c, r in zip(s.center, np.abs(s.radius)):
-            out.append(c + r * np.vstack([np.eye(3), -np.eye(3)]))
-        c = g.cones.freeze()
-        r = np.maximum(np.abs(c.base_radius), np.abs(c.apex_radius))[:, None]
-        for box in (c.base - r, c.base + r, c.apex - r, c.apex + r):
-            out.append(box)
-        out += [g.polygons.freeze().vertices, g.patches.freeze().vertices]
-        out += [m.vertices for m in g.meshes]
-    return np.vstack(out)
 
 
 def extent(group: Group) -> np.ndarray:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from reference import all_hits, world_primitives
+from support import rays_into_box
 
 from raykernel import Group, Instance, RayInputError, RayScene, Scene, TriangleMesh
 from raykernel.casting.rayscene import check_rays
@@ -14,12 +15,6 @@ from raykernel.geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 def random_mesh(rng, n=150):
     v = rng.uniform(-1, 1, (3 * n, 3))
     return v, np.arange(3 * n).reshape(-1, 3)
-
-
-def random_rays(rng, n=400, extent=2.0):
-    o = rng.uniform(-extent, extent, (n, 3))
-    target = rng.uniform(-1, 1, (n, 3))
-    return o, target - o
 
 
 def reference_hits(scene: RayScene, o, d, tmin=0.0, tmax=np.inf):
@@ -95,7 +90,7 @@ def test_random_mesh_all_queries(accel):
     rng = np.random.default_rng(1)
     v, f = random_mesh(rng)
     scene = RayScene.from_mesh(v, f, accel=accel)
-    o, d = random_rays(rng)
+    o, d = rays_into_box(rng)
     h = check_all_queries(scene, o, d)
     assert np.all(h.kind[np.isfinite(h.t)] == TRIANGLE) and np.all(h.geom_id[np.isfinite(h.t)] == 0)
     assert scene.last_stats["rays.cast"] == len(o)
@@ -106,7 +101,7 @@ def test_random_mesh_with_intervals():
     rng = np.random.default_rng(2)
     v, f = random_mesh(rng)
     scene = RayScene.from_mesh(v, f)
-    o, d = random_rays(rng)
+    o, d = rays_into_box(rng)
     tmin = rng.uniform(0, 0.5, len(o))
     tmax = tmin + rng.uniform(0, 1.0, len(o))
     check_all_queries(scene, o, d, tmin, tmax)
@@ -117,7 +112,7 @@ def test_random_spheres_all_queries():
     c = rng.uniform(-1, 1, (80, 3))
     r = rng.uniform(0.02, 0.2, 80)
     scene = RayScene.from_spheres(c, r)
-    o, d = random_rays(rng)
+    o, d = rays_into_box(rng)
     h = check_all_queries(scene, o, d)
     assert np.all(h.kind[np.isfinite(h.t)] == SPHERE) and np.all(h.geom_id[np.isfinite(h.t)] == 0)
 
@@ -137,7 +132,7 @@ def test_scene_with_instances():
     m2[:3, 3] = (-0.5, 0.2, -0.3)
     scene.root.add(Instance(g, m2))
     rs = RayScene.from_scene(scene)
-    o, d = random_rays(rng)
+    o, d = rays_into_box(rng)
     h = check_all_queries(rs, o, d)
     assert set(h.inst_id[np.isfinite(h.t)]) == {0, 1}
 
@@ -178,7 +173,7 @@ def test_float32_geometry_and_rays():
     rng = np.random.default_rng(5)
     v, f = random_mesh(rng)
     v32 = v.astype(np.float32)
-    o, d = random_rays(rng)
+    o, d = rays_into_box(rng)
     a = RayScene.from_mesh(v32, f.astype(np.int32)).intersect(o.astype(np.float32), d.astype(np.float32))
     b = RayScene.from_mesh(v32.astype(np.float64), f).intersect(o.astype(np.float32).astype(float),
                                                                 d.astype(np.float32).astype(float))
@@ -316,7 +311,7 @@ def test_large_coordinates_stay_exact():
     """A unit mesh 1e7 away from the origin and rays from near it: t as precise as near the origin."""
     rng = np.random.default_rng(6)
     v, f = random_mesh(rng, 60)
-    o, d = random_rays(rng, 200)
+    o, d = rays_into_box(rng, 200)
     near = RayScene.from_mesh(v, f).intersect(o, d)
     shift = np.array([1e7, -3e7, 2e7])
     far = RayScene.from_mesh(v + shift, f).intersect(o + shift, d)
@@ -387,7 +382,7 @@ def test_a_rayscene_pickles_and_copies():
     import pickle
     v, f = random_mesh(np.random.default_rng(2))
     rs = RayScene.from_mesh(v, f, accel="bvh")
-    o, d = random_rays(np.random.default_rng(3))
+    o, d = rays_into_box(np.random.default_rng(3))
     for other in (pickle.loads(pickle.dumps(rs)), copy.deepcopy(rs)):
         np.testing.assert_array_equal(other.intersect(o, d).t, rs.intersect(o, d).t)
 
@@ -440,7 +435,7 @@ def test_threads_per_call_give_the_same_answers(accel):
     scene.root.accel = accel
     v, f = random_mesh(np.random.default_rng(4))
     scene.root.add(TriangleMesh(v, f))
-    o, d = random_rays(np.random.default_rng(5), 3000)
+    o, d = rays_into_box(np.random.default_rng(5), 3000)
     one = RayScene(scene, accel)
     two = RayScene(scene, accel)
     a, b = one.intersect(o, d, threads=1), two.intersect(o, d, threads=2)
@@ -481,7 +476,7 @@ QUERY_SCENES = {
                                     ("shading_normal", "prim_id")])
 def test_fields_computes_only_what_is_asked_and_the_same(which, fields):
     scene = QUERY_SCENES[which]()
-    o, d = random_rays(np.random.default_rng(2), 600)
+    o, d = rays_into_box(np.random.default_rng(2), 600)
     full = scene.intersect(o, d)
     part = scene.intersect(o, d, fields=fields)
     assert np.isfinite(full.t).sum() > 50
@@ -496,7 +491,7 @@ def test_fields_computes_only_what_is_asked_and_the_same(which, fields):
 @pytest.mark.parametrize("which", list(QUERY_SCENES))
 def test_float32_outputs_are_the_double_results_rounded(which):
     scene = QUERY_SCENES[which]()
-    o, d = random_rays(np.random.default_rng(3), 500)
+    o, d = rays_into_box(np.random.default_rng(3), 500)
     full = scene.intersect(o, d)
     small = scene.intersect(o, d, dtype="float32")
     for name in ("t", "uv", "normal", "shading_normal"):
@@ -512,8 +507,8 @@ def test_float32_outputs_are_the_double_results_rounded(which):
 def test_out_fills_the_given_arrays_in_place(which, dtype):
     scene = QUERY_SCENES[which]()
     rng = np.random.default_rng(4)
-    o1, d1 = random_rays(rng, 300)
-    o2, d2 = random_rays(rng, 300)
+    o1, d1 = rays_into_box(rng, 300)
+    o2, d2 = rays_into_box(rng, 300)
     hits = scene.intersect(o1, d1, fields=("t", "prim_id", "normal"), dtype=dtype)
     arrays = (hits.t, hits.prim_id, hits.normal)
     again = scene.intersect(o2, d2, fields=("t", "prim_id", "normal"), dtype=dtype, out=hits)
@@ -549,7 +544,7 @@ def test_out_of_another_shape_dtype_or_fields_is_refused():
 @pytest.mark.parametrize("which", list(QUERY_SCENES))
 def test_one_bound_for_every_ray_equals_a_bound_per_ray(which):
     scene = QUERY_SCENES[which]()
-    o, d = random_rays(np.random.default_rng(6), 400)
+    o, d = rays_into_box(np.random.default_rng(6), 400)
     n = len(o)
     for lo, hi in ((0.3, 0.9), (0.0, np.inf), (0.5, 0.5)):
         one = scene.intersect(o, d, tmin=lo, tmax=hi)

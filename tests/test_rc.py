@@ -1,24 +1,26 @@
 """Ray classification aggregate, eager and lazy: builder, beam test, traversal against list and bvh,
-lazy refinement where rays arrive, nesting, budget, renders and thread counts."""
+lazy refinement where rays arrive (nested and instanced too), budget, renders. Every kind nested in
+and around rc, and at one and two threads, is checked in test_nesting.py."""
 
 from __future__ import annotations
 
+import time
 import warnings
 
 import numpy as np
 import pytest
-from support import ray_counts
-from test_grid import (
+from support import (
     assert_same_hits,
     axis_and_boundary_rays,
+    cast_grown,
     fill_group,
     lattice_scene,
     nested_scene,
     new_scene,
     random_rays,
-    rotation_scale,
+    ray_counts,
+    same_hits_as_list,
 )
-from test_lazyoctree import same_hits_as_list
 
 import raykernel
 from raykernel import RayScene
@@ -30,7 +32,7 @@ from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError
 from raykernel.geometry import counters as C
-from raykernel.scene import Group, Instance
+from raykernel.scene import Group
 from raykernel.aggregates.registry import parse_spec
 
 # lazy (the default) and eager alike
@@ -38,19 +40,6 @@ RC_SPECS = ["rc", "rc(lazy=off)", "rc(leaf=2, depth=30)", "rc(leaf=2, depth=30, 
             "rc(leaf=1, depth=6, lazy=off)", "rc(depth=0)", "rc(depth=0, lazy=off)"]
 TESTS = slice(C.TESTS, C.TESTS + 5)
 PASS = PASS_CHUNKS * CHUNK          # rays of one RayScene pass
-
-
-def cast(scene, accel, origins, directions, **kw):
-    """cast_rays against the scene built with `accel`. Where that makes lazy rc trees, they are
-    first grown by three RayScene queries with the same rays, so that the cast meets refined trees."""
-    geo, build = flatten(scene, default_accel=accel)
-    if build.get("lazy") is not None:
-        rs = RayScene.from_scene(scene, accel)
-        for _ in range(3):
-            rs.count_hits(origins, directions)
-        assert rs.build_stats["build.refine_passes"] >= 3
-        geo = rs.geo
-    return cast_rays(geo, origins, directions, **kw)
 
 
 def random_boxes(rng, n=60):
@@ -129,22 +118,24 @@ def test_face_classification_ties_go_to_the_lower_axis():
 
 def test_stats_are_consistent():
     boxes = random_boxes(np.random.default_rng(2), 80)
+    t0 = time.perf_counter()
     tree, stats = build_rc(boxes, leaf=4, depth=12)
+    wall = time.perf_counter() - t0
     leaves = tree.node_b >= 0
     assert stats["leaves"] == leaves.sum() and stats["inner"] == (~leaves).sum()
     assert stats["nodes"] == stats["leaves"] + stats["inner"] == 6 + 2 * stats["inner"]
     assert stats["empty_leaves"] == (tree.node_b == 0).sum()
     assert stats["refs"] == tree.node_b[leaves].sum() == len(tree.items) == len(tree.keys)
     assert stats["bytes"] == NODE_BYTES * stats["nodes"] + 16 * stats["refs"]
-    assert stats["seconds"] >= 0 and not stats["budget_exceeded"]
+    assert 0.0 < stats["seconds"] <= wall and not stats["budget_exceeded"]
     # children come after their parents, leaf lists tile the candidate array
     inner = np.flatnonzero(~leaves)
     assert np.all(tree.node_a[inner] > inner)
     order = np.argsort(tree.node_a[leaves])
     starts, counts = tree.node_a[leaves][order], tree.node_b[leaves][order]
     assert starts[0] == 0 and np.all(starts[1:] == starts[:-1] + counts[:-1])
-    # a deeper tree never holds more candidates per leaf than leaf, unless it ran out of depth or progress
-    again, stats2 = build_rc(boxes, leaf=4, depth=12)
+    # the same boxes build the same trees
+    again, _ = build_rc(boxes, leaf=4, depth=12)
     assert all(np.array_equal(x, y) for x, y in zip(tree, again))
 
 
@@ -152,14 +143,16 @@ def test_stats_are_consistent():
 def test_flatten_stores_rc_and_reports_stats(spec):
     scene = new_scene()
     fill_group(scene.root, np.random.default_rng(2))
+    t0 = time.perf_counter()
     geo, stats = flatten(scene, default_accel=spec)
+    wall = time.perf_counter() - t0
     assert geo.agg_kind[geo.root] == RC
     agg = stats["aggregates"][0]
     assert agg["kind"] == spec
     assert stats["build.nodes"] == agg["nodes"] == len(geo.rc_node_a) == len(geo.rc_pass)
     assert stats["build.refs"] == agg["refs"] == len(geo.keyed_key) == len(geo.keyed_ref)
     assert agg["empty_leaves"] == stats["build.empty_leaves"]
-    assert agg["bytes"] > 0 and agg["seconds"] >= 0
+    assert agg["bytes"] > 0 and 0.0 < agg["seconds"] <= stats["build.seconds"] <= wall
     # the candidates are the tagged references of the group's primitives, as the list holds them
     listed, _ = flatten(scene, default_accel="list")
     assert set(geo.keyed_ref.tolist()) == set(listed.refs.tolist()) and len(listed.refs) == agg["items"]
@@ -207,18 +200,18 @@ def test_random_scenes_match_bvh_and_list(spec, seed):
     o, d = random_rays(rng, 1500)
     oi, di = random_rays(rng, 500, inside=True)
     o, d = np.vstack([o, oi]), np.vstack([d, di])
-    ref = cast(scene, "list", o, d)
+    ref = cast_grown(scene, "list", o, d)
     assert np.isfinite(ref[0]).sum() > 200
-    assert_same_hits(cast(scene, "bvh", o, d), ref)
-    got = cast(scene, spec, o, d)
+    assert_same_hits(cast_grown(scene, "bvh", o, d), ref)
+    got = cast_grown(scene, spec, o, d)
     assert_same_hits(got, ref)
     cnt = got[4]
     assert cnt[C.CELLS_LEAVES] > 0 and cnt[C.CELLS_VISITED] >= cnt[C.CELLS_LEAVES] >= cnt[C.CELLS_EMPTY]
     assert cnt[TESTS].sum() < ref[4][TESTS].sum()
-    shadow = cast(scene, spec, o, d, tmax=0.5, any_hit=True)
-    np.testing.assert_array_equal(np.isfinite(shadow[0]), np.isfinite(cast(scene, "list", o, d, tmax=0.5)[0]))
-    tmin = cast(scene, spec, o, d, tmin=0.3)
-    assert_same_hits(tmin, cast(scene, "list", o, d, tmin=0.3))
+    shadow = cast_grown(scene, spec, o, d, tmax=0.5, any_hit=True)
+    np.testing.assert_array_equal(np.isfinite(shadow[0]), np.isfinite(cast_grown(scene, "list", o, d, tmax=0.5)[0]))
+    tmin = cast_grown(scene, spec, o, d, tmin=0.3)
+    assert_same_hits(tmin, cast_grown(scene, "list", o, d, tmin=0.3))
 
 
 def face_boundary_rays(rng, n=400):
@@ -237,17 +230,17 @@ def test_axis_parallel_and_face_boundary_rays(spec):
     o, d = axis_and_boundary_rays()
     ob, db = face_boundary_rays(np.random.default_rng(3))
     o, d = np.vstack([o, ob]), np.vstack([d, db])
-    ref = cast(scene, "list", o, d)
+    ref = cast_grown(scene, "list", o, d)
     assert np.isfinite(ref[0]).sum() > 100
-    assert_same_hits(cast(scene, spec, o, d), ref)
-    assert_same_hits(cast(scene, "bvh", o, d), ref)
+    assert_same_hits(cast_grown(scene, spec, o, d), ref)
+    assert_same_hits(cast_grown(scene, "bvh", o, d), ref)
     rng = np.random.default_rng(4)
     mixed = new_scene()
     fill_group(mixed.root, rng, n=20)
     o, d = face_boundary_rays(rng, 1500)
-    ref = cast(mixed, "list", o, d)
+    ref = cast_grown(mixed, "list", o, d)
     assert np.isfinite(ref[0]).sum() > 100
-    assert_same_hits(cast(mixed, spec, o, d), ref)
+    assert_same_hits(cast_grown(mixed, spec, o, d), ref)
 
 
 def test_early_exit_stops_at_the_first_hit():
@@ -268,11 +261,11 @@ def test_one_item_empty_groups_and_misses():
     scene.root.add(Group(name="empty", accel="rc"))
     o = np.array([[1, 2, -5.0], [1, 2, 3.0], [5, 5, 5.0], [-9, -9, -9.0]])
     d = np.array([[0, 0, 1.0], [0, 1, 0.0], [1, 0, 0.0], [-1, 0, 0.0]])
-    t, *_, cnt = cast(scene, "rc", o, d)
+    t, *_, cnt = cast_grown(scene, "rc", o, d)
     assert t[0] == pytest.approx(7.0) and t[1] == pytest.approx(1.0) and np.isinf(t[2:]).all()
     empty = new_scene()
     empty.root.accel = "rc"
-    assert np.all(np.isinf(cast(empty, "rc", o, d)[0]))
+    assert np.all(np.isinf(cast_grown(empty, "rc", o, d)[0]))
 
 
 def test_planar_and_huge_extent_scenes():
@@ -282,56 +275,18 @@ def test_planar_and_huge_extent_scenes():
         c = np.append(rng.uniform(-4, 4, 2), 1.0)
         flat.root.polygons.add([c, c + [1, 0, 0], c + [0.5, 1, 0]], 0)
     o, d = random_rays(rng, 1000, spread=4.0)
-    ref = cast(flat, "list", o, d)
+    ref = cast_grown(flat, "list", o, d)
     assert np.isfinite(ref[0]).sum() > 20
-    assert_same_hits(cast(flat, "rc", o, d), ref)
+    assert_same_hits(cast_grown(flat, "rc", o, d), ref)
     huge = new_scene()
     fill_group(huge.root, rng, n=20, spread=2.0)
     huge.root.spheres.add((1e9, 3e8, -2e8), 1e7, 0)
     o, d = random_rays(rng, 1500, spread=2.0)
     o = np.vstack([o, np.zeros((2, 3))])
     d = np.vstack([d, [[1e9, 3e8, -2e8], [1e9, 3e8 + 5e6, -2e8]]])
-    ref = cast(huge, "list", o, d)
+    ref = cast_grown(huge, "list", o, d)
     assert np.isfinite(ref[0][-2:]).all()
-    assert_same_hits(cast(huge, "rc", o, d), ref)
-
-
-# ---------------------------------------------------------------- nesting
-
-@pytest.mark.parametrize("outer, inner, instanced", [
-    ("rc", "bvh", False), ("bvh", "rc", False), ("rc", "rc", False), ("grid", "rc", False),
-    ("rc", "grid", True), ("rc", "rc(leaf=2)", True), ("bvh", "rc", True), ("list", "rc", True)])
-def test_nested_rc_matches_list(outer, inner, instanced):
-    rng = np.random.default_rng(7)
-    scene = nested_scene(rng, outer, inner, instanced)
-    o, d = random_rays(rng, 1500)
-    oi, di = random_rays(rng, 300, inside=True)
-    o, d = np.vstack([o, oi]), np.vstack([d, di])
-    got = cast(scene, "bvh", o, d)
-    plain = nested_scene(np.random.default_rng(7), "list", "list", instanced)
-    ref = cast(plain, "list", o, d)
-    assert np.isfinite(ref[0]).sum() > 300
-    assert_same_hits(got, ref)
-    if instanced:
-        assert np.any(ref[3] >= 0)
-
-
-def test_rc_inside_instances_deep():
-    rng = np.random.default_rng(11)
-    leaf = fill_group(Group(name="leaf", accel="rc"), rng, n=10, spread=1.0)
-    level = leaf
-    for k in range(4):
-        up = Group(name=f"l{k}", accel="rc" if k % 2 else "bvh")
-        up.add(Instance(level, rotation_scale(rng)))
-        up.add(Instance(level, rotation_scale(rng)))
-        level = up
-    scene = new_scene()
-    scene.root.accel = "rc"
-    scene.root.add(level)
-    o, d = random_rays(rng, 2000, spread=12.0)
-    ref = cast(scene, "list", o, d)
-    assert np.isfinite(ref[0]).sum() > 50
-    assert_same_hits(cast(scene, "rc", o, d), ref)
+    assert_same_hits(cast_grown(huge, "rc", o, d), ref)
 
 
 # ---------------------------------------------------------------- memory budget
@@ -348,7 +303,7 @@ def test_tiny_budget_warns_once_and_stays_exact():
     assert len(budget) == 1 and "memory budget of 0.01 MiB" in str(budget[0].message)
     agg = stats["aggregates"][0]
     assert agg["budget_exceeded"] and agg["bytes"] <= 0.01 * 2 ** 20
-    assert_same_hits(cast_rays(geo, o, d), cast(scene, "list", o, d))
+    assert_same_hits(cast_rays(geo, o, d), cast_grown(scene, "list", o, d))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _, full = flatten(scene, default_accel="rc(lazy=off)")
@@ -364,8 +319,6 @@ def test_zero_budget_keeps_the_roots():
         tree, stats, _, _ = start_rc(boxes, budget_mb=0)
     assert stats["nodes"] == 6 and stats["refs"] == 6 * 30 and stats["budget_exceeded"]
 
-
-# ---------------------------------------------------------------- renders
 
 # ---------------------------------------------------------------- lazy subdivision (Arvo and Kirk)
 
@@ -640,7 +593,7 @@ def test_lazy_nested_and_instanced_match_list(outer, inner, instanced):
     assert rs.build_stats["build.subdivisions"] == sum(a["subdivisions"] for a in lazy)
 
 
-# ---------------------------------------------------------------- renders and thread counts
+# ---------------------------------------------------------------- renders
 
 @pytest.mark.parametrize("name", ["spd:balls:1", "spd:gears:1"])
 def test_lazy_spd_render_matches_bvh(name):

@@ -4,7 +4,6 @@ the reference NFF files, and their primitive counts at other size factors."""
 from __future__ import annotations
 
 from collections import Counter
-from pathlib import Path
 
 import pytest
 

@@ -5,7 +5,8 @@ Every mesh has dyadic coordinates and every ray has a dyadic origin and
 direction chosen so that the ray passes exactly (in real arithmetic) through
 its target vertex or edge point, heading into the solid: a ray entering a
 closed surface crosses it an even number of times, exactly twice for a
-convex one, and its first crossing is the target itself.
+convex one, and its first crossing is the target itself. The meshes (MESHES, in
+support.py) have their vertex coordinates on multiples of 2^-20.
 """
 
 from __future__ import annotations
@@ -13,94 +14,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from reference import all_hits, world_primitives
+from support import MESHES, lumpy_sphere, rays_through, targets
 
 from raykernel import RayScene
 from raykernel.geometry.primitives import hit_triangle
 
-GRID = 2.0 ** -20     # vertex coordinates are multiples of this
-
-
-def dyadic(x):
-    return np.round(np.asarray(x, float) / GRID) * GRID
-
-
-def icosphere(level: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit icosphere (subdivided icosahedron), outward winding, vertices rounded to dyadic numbers."""
-    p = (1 + 5 ** 0.5) / 2
-    v = [(-1, p, 0), (1, p, 0), (-1, -p, 0), (1, -p, 0), (0, -1, p), (0, 1, p), (0, -1, -p), (0, 1, -p),
-         (p, 0, -1), (p, 0, 1), (-p, 0, -1), (-p, 0, 1)]
-    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
-         (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
-         (8, 6, 7), (9, 8, 1)]
-    verts = [np.array(x, float) / np.linalg.norm(x) for x in v]
-    faces = f
-    for _ in range(level):
-        mid = {}
-
-        def middle(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in mid:
-                m = verts[a] + verts[b]
-                verts.append(m / np.linalg.norm(m))
-                mid[key] = len(verts) - 1
-            return mid[key]
-        new = []
-        for a, b, c in faces:
-            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
-            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new
-    return dyadic(np.array(verts)), np.array(faces, np.int64)
-
-
-def cube() -> tuple[np.ndarray, np.ndarray]:
-    """The cube [-1, 1]^3 as 12 outward-wound triangles (each face split along a diagonal)."""
-    v = np.array([(x, y, z) for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
-    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
-    faces = []
-    for a, b, c, d in quads:
-        faces += [(a, b, c), (a, c, d)]
-    faces = np.array(faces, np.int64)
-    n = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
-    centroid = v[faces].mean(axis=1)
-    flip = np.einsum("ij,ij->i", n, centroid) < 0
-    faces[flip] = faces[flip][:, ::-1]
-    return v, faces
-
-
-def lumpy_sphere(seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """A closed, non-convex, star-shaped mesh: an icosphere with random radii."""
-    v, f = icosphere(2)
-    r = np.random.default_rng(seed).uniform(0.6, 1.4, len(v))
-    return dyadic(v * r[:, None]), f
-
 
 def assert_closed(faces):
+    """Every edge of the faces is met once in each direction: a closed, consistently wound surface."""
     edges = {}
     for a, b, c in faces:
         for e in ((a, b), (b, c), (c, a)):
             edges[e] = edges.get(e, 0) + 1
     assert all(n == 1 and edges.get((b, a)) == 1 for (a, b), n in edges.items())
-
-
-def targets(v, f, rng, n_edge_points=3):
-    """Every vertex, and points on every edge at dyadic fractions (exactly representable)."""
-    pts = [v]
-    edges = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
-    for _ in range(n_edge_points):
-        s = rng.integers(1, 16, len(edges)) / 16.0
-        pts.append(v[edges[:, 0]] + s[:, None] * (v[edges[:, 1]] - v[edges[:, 0]]))
-    return np.vstack(pts)
-
-
-def rays_through(points, inside, scale=2.0):
-    """Rays through each point towards `inside`, starting `scale` direction-lengths before it."""
-    d = inside - points
-    o = points - scale * d
-    assert np.all(o + scale * d == points), "targets must be exactly on the rays"
-    return o, d
-
-
-MESHES = {"cube": cube(), "icosphere": icosphere(3), "lumpy-0": lumpy_sphere(0), "lumpy-1": lumpy_sphere(1)}
 
 
 @pytest.mark.parametrize("accel", ["bvh", "list", "grid", "bvh(split=8)"])
