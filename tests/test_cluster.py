@@ -125,3 +125,14 @@ def test_sweep_on_the_cluster_equals_one_process(two_workers):
     assert [r.params for r in here.runs] == [r.params for r in there.runs] == [{"sf": "1"}, {"sf": "2"}]
     for a, b in zip(here.runs, there.runs):
         assert a.stats["rays.total"] == b.stats["rays.total"] and a.stats["tests.total"] == b.stats["tests.total"]
+
+
+def test_work_layers_on_the_cluster_equal_one_process(two_workers):
+    scene = load("spd:balls:1")
+    alone = render(scene, accel="lazyoctree", resolution=40, work=True)
+    spread = two_workers.render(scene, accel="lazyoctree", resolution=40, work=True)
+    assert_same(alone, spread)
+    assert alone.work.keys() == spread.work.keys()
+    for name in alone.work:
+        assert np.array_equal(alone.work[name], spread.work[name]), name
+    assert int(spread.work["tests.total"].sum()) == spread.stats["tests.total"]

@@ -181,6 +181,7 @@ class Workspace(NamedTuple):
     buf_m: np.ndarray
     buf_n: np.ndarray
     t4: np.ndarray          # the 4-wide walk's entry distances (widebvh.py)
+    work: object            # None, or what a render asked for work layers keeps per sample (engine/work.py)
 
 
 @njit(inline="always")

@@ -83,6 +83,7 @@ from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, fo
 from .parallel import for_ranges
 from .transforms import compose_map, map_ray
 from .widewalk import intersect_wide
+from .work import level_charge, level_mark
 
 # stack entry: go on with the frame's keyed list at stack_a (py_func: calling the kernel would load it at import)
 KEYED = entry_tag.py_func(DRIVER, KEYED_STEP)
@@ -90,14 +91,15 @@ DONE = np.int64(-2)          # _finish's sink when an ANY_HIT query is answered
 
 
 @njit
-def workspace(hits=0):
+def workspace(hits=0, work=None):
     """Scratch arrays for one thread, allocated once per tile or chunk (walk.Workspace); `hits`:
-    room in the hit record for as many hits of an ALL_HITS query (hitrule.take)."""
+    room in the hit record for as many hits of an ALL_HITS query (hitrule.take); `work`: a
+    render's per-sample work (engine/work.py), None without work layers."""
     buf_t, buf_i, buf_m, buf_n = collect.buffers()
     return Workspace(np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
-                     np.zeros(STACK_SIZE), np.zeros((MAX_NESTING + 1, FRAME_F)), np.zeros((MAX_NESTING + 1, FRAME_I), np.int64),
-                     np.zeros(HIT_F + max(3, hits)), np.zeros(HIT_I + 3 * hits, np.int64), buf_t, buf_i, buf_m,
-                     buf_n, np.empty(4))
+                     np.zeros(STACK_SIZE), np.zeros((MAX_NESTING + 1, FRAME_F)),
+                     np.zeros((MAX_NESTING + 1, FRAME_I), np.int64), np.zeros(HIT_F + max(3, hits)),
+                     np.zeros(HIT_I + 3 * hits, np.int64), buf_t, buf_i, buf_m, buf_n, np.empty(4), work)
 
 
 @njit(inline="always")
@@ -218,6 +220,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     base = 0
     sp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.root, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a,
                 stack_b, stack_t, base, cnt)
+    level_mark(ws.work, cnt)        # work layers by nesting level (engine/work.py); nothing without them
     while True:
         if sp == base:
             if frame_i[f, FI_SINK] == f:
@@ -225,10 +228,12 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 found, best_t, best_ref, best_inst, sink = _finish(geo, f, ws, tmin, mode, found, best_ref,
                                                                    best_inst, cnt)
                 if sink == DONE:
+                    level_charge(ws.work, f, cnt)
                     return True
             if f == 0:
                 break
             # this frame is done: back to the parent's ray
+            level_charge(ws.work, f, cnt)
             f -= 1
             base = frame_i[f, FI_BASE]
             ox, oy, oz = frame_f[f, F_ORIGIN], frame_f[f, F_ORIGIN + 1], frame_f[f, F_ORIGIN + 2]
@@ -308,6 +313,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 frame_i[g, FI_SINK] = sink
                 frame_i[g, FI_OPERAND] = collect.operand(frame_f, frame_i, f, sink, i - 1)
                 frame_f[g, F_MBOX_ON] = 0.0
+                level_charge(ws.work, f, cnt)
                 f = g
                 base = sp
                 sp = nsp
@@ -333,9 +339,11 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                                                           frame_f, f, np.int64(F_MAP), ws.hit_f, ws.hit_i, found,
                                                           best_t, best_ref, best_inst)
                 if found and (mode == ANY_HIT or mode == ANY_OPAQUE):
+                    level_charge(ws.work, f, cnt)
                     return True
                 if mode == CLOSEST_EAGER and best_t == t and ws.hit_i[0] == kind and ws.hit_i[1] == idx:
                     eager_normal(geo, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, ws.hit_f, cnt)
+    level_charge(ws.work, f, cnt)
     return found
 
 

@@ -33,6 +33,7 @@ from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
 from ..geometry.surface import dot, hit_normals
+from ..engine.work import SHADOW, charge_type, work_figures
 from .shadows import filter_by_distance, light_through
 from .tricks import ORIGIN, closest, hold_origin, shadow_slot
 from .whitted import pop, seen_side, shadow_reach, spawn
@@ -72,7 +73,9 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
     top = 1
     while top > 0:
         top, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, ray_kind, inside, node = pop(rays, top, cnt)
+        before = work_figures(ws.work, cnt)
         found = closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt)
+        charge_type(ws.work, ray_kind, before, cnt)
         hit_f, hit_i = ws.hit_f, ws.hit_i
         t = hit_f[0] if found else np.inf
         wr, wg, wb = filter_by_distance(mats, inside, t * math.sqrt(dot(dx, dy, dz, dx, dy, dz)), wr, wg, wb)
@@ -113,6 +116,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
         dr, dg, db = 0.0, 0.0, 0.0
         hr, hg, hb = 0.0, 0.0, 0.0
         n_lights = lights.shape[0]
+        before = work_figures(ws.work, cnt)
         for li in range(n_lights):
             near_side = True
             lx, ly, lz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
@@ -159,6 +163,7 @@ def trace(geo, mats, lights, background, ox, oy, oz, dx, dy, dz, max_depth, cuto
                     hr += spec * lr
                     hg += spec * lg
                     hb += spec * lb
+        charge_type(ws.work, SHADOW, before, cnt)
         r_out += wr * (kd * cr * dr + hr + kl * cr)
         g_out += wg * (kd * cg * dg + hg + kl * cg)
         b_out += wb * (kd * cb * db + hb + kl * cb)

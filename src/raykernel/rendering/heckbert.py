@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from ..engine.traverse import ANY_HIT, CLOSEST, intersect
+from ..engine.work import SHADOW, charge_type, work_figures
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.surface import dot, hit_normals
@@ -65,7 +66,10 @@ def trace(geo, mats, lights, ambient, ox, oy, oz, dx, dy, dz, max_depth, rays, w
     top = 1
     while top > 0:
         top, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, ray_kind, _, _ = pop(rays, top, cnt)
-        if not intersect(geo, ox, oy, oz, dx, dy, dz, T_MIN, np.inf, CLOSEST, ws, cnt):
+        before = work_figures(ws.work, cnt)
+        found = intersect(geo, ox, oy, oz, dx, dy, dz, T_MIN, np.inf, CLOSEST, ws, cnt)
+        charge_type(ws.work, ray_kind, before, cnt)
+        if not found:
             r_out += wr * ambient[0]
             g_out += wg * ambient[1]
             b_out += wb * ambient[2]
@@ -84,6 +88,7 @@ def trace(geo, mats, lights, ambient, ox, oy, oz, dx, dy, dz, max_depth, rays, w
             eta = 1.0 / ior
             d = -d
         cr, cg, cb = ambient[0], ambient[1], ambient[2]
+        before = work_figures(ws.work, cnt)
         for li in range(lights.shape[0]):
             lx, ly, lz = lights[li, 0] - px, lights[li, 1] - py, lights[li, 2] - pz
             distance = math.sqrt(dot(lx, ly, lz, lx, ly, lz))
@@ -101,6 +106,7 @@ def trace(geo, mats, lights, ambient, ox, oy, oz, dx, dy, dz, max_depth, rays, w
             cr += e * lights[li, 3]
             cg += e * lights[li, 4]
             cb += e * lights[li, 5]
+        charge_type(ws.work, SHADOW, before, cnt)
         sr, sg, sb = mats[mat, 0], mats[mat, 1], mats[mat, 2]
         kd, ks, kt, kl = mats[mat, 3], mats[mat, 4], mats[mat, 6], mats[mat, 8]
         r_out += wr * (kd * cr * sr + kl * sr)

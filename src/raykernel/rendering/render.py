@@ -44,6 +44,9 @@ from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..engine.widewalk import count_misses, with_driver
+from ..aggregates.memory import check, memory_limit
+from ..engine.work import charge_type, record_sample, sample_work, start_samples, work_figures
+from ..engine.work import columns as work_columns
 from ..errors import OptionError
 from ..options import choice, number
 from ..geometry import counters as C
@@ -60,6 +63,7 @@ from .tricks import LEAN, STARTLISTS, memo
 from .tricks import names as tricks_names
 from .tricks import parse as parse_tricks
 from .whitted import RAY_COLUMNS, RAY_STACK, trace
+from .worklayers import work_layers
 
 TILE = 16
 THREAD_SAMPLES = 512        # samples a thread must have at least: fewer cost more to hand over than to trace
@@ -68,14 +72,16 @@ CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change 
 
 @njit
 def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, counter, last, row0,
-                  max_depth, cutoff, filtered, tricks, starts, out, counters, passes, step, coarse, cull):
+                  max_depth, cutoff, filtered, tricks, starts, out, counters, passes, step, coarse, cull, layer,
+                  levels):
     """Trace tiles of the sample grid into `out`, adding into one counter row per tile: those
     claimed from `counter` (parallel.claim: every thread of a pass calls this once) below `last`.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
     Within each tile only the samples on the lattice of `step` (every step-th row and column),
     less those on the coarser lattice of `coarse` (0: none) traced before.
     passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py).
-    cull: a tile none of whose eye rays can enter the scene's box is not traced (_culled)."""
+    cull: a tile none of whose eye rays can enter the scene's box is not traced (_culled).
+    layer: None, or each sample's record of its work (engine/work.py), `levels` nesting levels split."""
     eyes = np.zeros((TILE * TILE, 5))      # direction, then the sample's row and column
     colors = np.zeros((TILE * TILE, 3))
     while True:
@@ -84,10 +90,11 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
             break
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         x0, y0 = tile_x[tile], tile_y[tile]
+        work = sample_work(layer, levels)
         if starts is None and cull and _culled(geo, cam, samples_w, samples_h, x0, y0):
-            _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, cnt)
+            _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, work, cnt)
         else:
-            ws = workspace()        # each tile starts from the same state, whichever thread claims it
+            ws = workspace(0, work)     # each tile starts from the same state, whichever thread claims it
             rays = np.zeros((RAY_STACK, RAY_COLUMNS))
             if starts is None:      # tricks.LEAN: no trick needs a memory, and numba compiles none of their code
                 _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff,
@@ -123,20 +130,24 @@ def _culled(geo, cam, samples_w, samples_h, x0, y0):
 
 
 @njit(private=True)
-def _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, cnt):
+def _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, work, cnt):
     """What tracing a culled tile's eye rays would have given: each sample the background as
     trace adds it for a missed eye ray (0.0 + 1.0 * background), and each ray the counts of an
-    eye ray that missed the scene's box; frustum.culled counts them too (they cost less)."""
-    missed = 0
+    eye ray that missed the scene's box; frustum.culled counts them too (they cost less).
+    work: the samples' records (engine/work.py), None without work layers."""
+    one = np.int64(1)
+    start_samples(work, cnt)
     for j in range(y0, min(y0 + TILE, samples_h), step):
         for i in range(x0, min(x0 + TILE, samples_w), step):
             if not _skipped(i, j, x0, y0, coarse):
                 out[j, i, 0], out[j, i, 1], out[j, i, 2] = 0.0 + background[0], 0.0 + background[1], \
                     0.0 + background[2]
-                missed += 1
-    cnt[C.RAYS_EYE] += missed
-    cnt[C.FRUSTUM_CULLED] += missed
-    count_misses(cnt, np.int64(missed))
+                before = work_figures(work, cnt)
+                cnt[C.RAYS_EYE] += 1
+                cnt[C.FRUSTUM_CULLED] += 1
+                count_misses(cnt, one)
+                charge_type(work, 0, before, cnt)
+                record_sample(work, j, i, cnt)
 
 
 @njit(private=True)     # one call per tile: the call into trace counts no references
@@ -240,6 +251,7 @@ def light_table(scene: Scene, eye_light: float | None = None, eye_light_shadows:
 class RenderResult:
     image: np.ndarray       # (height, width, 3) float RGB
     stats: Stats
+    work: dict | None = None    # render(work=True): counter name -> its layer (worklayers.py)
 
     def to_uint8(self) -> np.ndarray:
         from .imageio import to_uint8
@@ -258,7 +270,7 @@ class RenderResult:
 
 def render_options(scene: Scene, accel="bvh", resolution=None, spd=False, max_depth=5, threads=None, max_memory=None,
              shading="whitted", aa=None, samples=4, seed=0, aa_threshold=0.1, aa_depth=2, cutoff=None,
-             shadows="opaque", eye_light=None, eye_light_shadows="skip", tricks="default") -> dict:
+             shadows="opaque", eye_light=None, eye_light_shadows="skip", tricks="default", work=False) -> dict:
     """render()'s arguments checked (OptionError names the bad one), with the defaults resolved."""
     max_depth = number(max_depth, "max_depth", 1, 32, integer=True)
     if resolution is not None:
@@ -300,10 +312,12 @@ def render_options(scene: Scene, accel="bvh", resolution=None, spd=False, max_de
         raise OptionError(f"the camera's medium is material {scene.camera.medium}, which the scene does not have")
     if cutoff is None:
         cutoff = 0.0 if spd else CUTOFF
+    if not isinstance(work, (bool, np.bool_)):
+        raise OptionError(f"work must be True or False, got {work!r}")
     return dict(accel=accel, resolution=resolution, spd=bool(spd), max_depth=max_depth, threads=threads,
                 max_memory=max_memory, shading=shading, aa=aa, samples=samples, seed=seed, aa_threshold=aa_threshold,
                 aa_depth=aa_depth, cutoff=cutoff, shadows=shadows, eye_light=eye_light,
-                eye_light_shadows=eye_light_shadows, tricks=tricks, trick_bits=trick_bits)
+                eye_light_shadows=eye_light_shadows, tricks=tricks, trick_bits=trick_bits, work=bool(work))
 
 
 def _faulted_zeros(shape, dtype) -> np.ndarray:
@@ -377,6 +391,14 @@ class RenderJob:
         t0 = time.perf_counter()
         self.values = _faulted_zeros((self.sh, self.sw, 3), np.float64)      # the samples' colours
         self.counts = _faulted_zeros((n_tiles, C.N_COUNTERS), np.int64)
+        # the samples' records of their work (engine/work.py), by nesting level where aggregates nest
+        self.levels = int(self.build.get("build.nesting", 1))
+        self.layer = None
+        if o["work"]:
+            shape = (self.sh, self.sw, work_columns(self.levels))
+            check(int(np.prod(shape)) * 4, memory_limit(o["max_memory"]), "the work layers",
+                  "lower the resolution, or render without work layers")
+            self.layer = _faulted_zeros(shape, np.int32)
         self.preprocess += time.perf_counter() - t0
         if o["shading"] == "heckbert":
             self.cam = heckbert.camera_vectors(scene.camera, self.width, self.height)
@@ -434,7 +456,7 @@ class RenderJob:
                               self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
                               True if self.filtered else None, self.trick_bits,
                               None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
-                              self.pass_counts[p], step, coarse, self.frustum_culling)
+                              self.pass_counts[p], step, coarse, self.frustum_culling, self.layer, self.levels)
         else:
             whitted_on, heckbert_on, medium = model_arguments(o["shading"], self.medium)
 
@@ -443,7 +465,8 @@ class RenderJob:
                                self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
                                self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
                                whitted_on, heckbert_on, self.filtered, self.trick_bits, self.starts, medium,
-                               SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"])
+                               SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"],
+                               self.layer, self.levels)
         start = first + lo
         samples = self.work[p] * (hi - lo) // max(1, last - first)
         threads = max(1, min(threads, hi - lo, -(-samples // THREAD_SAMPLES)))
@@ -474,18 +497,22 @@ class RenderJob:
 
     def tile_block(self, p: int, lo: int, hi: int):
         """What tiles lo..hi-1 of pass p traced: their samples (zero where the pass traced none),
-        counter rows and lazy pass counts, for put_block in another process."""
+        counter rows, lazy pass counts and the samples' work records (None without work
+        layers), for put_block in another process."""
         step, coarse, first, last = self.passes[p]
         block = np.zeros((hi - lo, TILE, TILE, 3))
+        work = None if self.layer is None else np.zeros((hi - lo, TILE, TILE, self.layer.shape[2]), np.int32)
         for k, tile in enumerate(range(first + lo, first + hi)):
             y, x = self.tile_y[tile], self.tile_x[tile]
             part = self.values[y:y + TILE, x:x + TILE]
             mask = _lattice(part.shape[0], part.shape[1], step, coarse)
             block[k, :part.shape[0], :part.shape[1]][mask] = part[mask]
+            if work is not None:
+                work[k, :part.shape[0], :part.shape[1]][mask] = self.layer[y:y + TILE, x:x + TILE][mask]
         rows = self.pass_counts[p][lo:hi]
-        return block, self.counts[first + lo:first + hi].copy(), rows.copy()
+        return block, self.counts[first + lo:first + hi].copy(), rows.copy(), work
 
-    def put_block(self, p: int, lo: int, block, counts, rows) -> None:
+    def put_block(self, p: int, lo: int, block, counts, rows, work=None) -> None:
         step, coarse, first, last = self.passes[p]
         hi = lo + len(block)
         if self.pass_counts[p] is None:
@@ -495,6 +522,8 @@ class RenderJob:
             part = self.values[y:y + TILE, x:x + TILE]
             mask = _lattice(part.shape[0], part.shape[1], step, coarse)
             part[mask] = block[k, :part.shape[0], :part.shape[1]][mask]
+            if work is not None:
+                self.layer[y:y + TILE, x:x + TILE][mask] = work[k, :part.shape[0], :part.shape[1]][mask]
         self.counts[first + lo:first + hi] += counts
         self.pass_counts[p][lo:hi] = rows
 
@@ -527,7 +556,8 @@ class RenderJob:
                   "threads": self.threads if threads is None else threads,
                   "primitives": self.scene.count_primitives(),
                   **({"anneal": self.annealed["groups"]} if self.annealed else {})})
-        return RenderResult(image=image, stats=stats)
+        return RenderResult(image=image, stats=stats,
+                            work=None if self.layer is None else work_layers(self.layer, self.levels))
 
 
 def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:
@@ -550,7 +580,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
            shading: str = "whitted", aa: str | None = None, samples: int = 4, seed: int = 0,
            aa_threshold: float = 0.1, aa_depth: int = 2, cutoff: float | None = None, shadows: str = "opaque",
            eye_light: float | None = None, eye_light_shadows: str = "skip", tricks="default",
-           builder=None, annealed: dict | None = None) -> RenderResult:
+           builder=None, annealed: dict | None = None, work: bool = False) -> RenderResult:
     """Render `scene`; returns the float image and the statistics.
 
     accel: the default accelerator spec for groups that name none.
@@ -581,12 +611,14 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
     engine.incremental.Hierarchy keeps them between the frames of an animation.
     annealed: what annealing found for the scene's auto specs, for the statistics (a render
     with auto specs is raykernel.render's, analysis/auto.py, which anneals first).
+    work: True gives result.work, the work of every sample's whole ray tree, counter by counter,
+    ray type by ray type and nesting level by level (worklayers.py); off, nothing is recorded.
     """
     job = RenderJob(scene, builder=builder, annealed=annealed, accel=accel, resolution=resolution, spd=spd,
                     max_depth=max_depth, threads=threads, max_memory=max_memory, shading=shading, aa=aa,
                     samples=samples, seed=seed,
                     aa_threshold=aa_threshold, aa_depth=aa_depth, cutoff=cutoff, shadows=shadows,
-                    eye_light=eye_light, eye_light_shadows=eye_light_shadows, tricks=tricks)
+                    eye_light=eye_light, eye_light_shadows=eye_light_shadows, tricks=tricks, work=work)
     n_threads = job.threads
     t1 = time.perf_counter()
     done, total = 0, sum(job.work)

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..engine.parallel import claim, finished
 from ..engine.traverse import workspace
+from ..engine.work import record_sample, sample_work, start_samples
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
@@ -85,10 +86,11 @@ def _sample(geo, mats, lights, background, cam, u, v, whitted_on, heckbert_on, m
 @njit
 def render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, counter, last, row0, max_depth,
                    cutoff, out, counters, passes, step, coarse, tile_size, whitted_on, heckbert_on, filtered, tricks,
-                   starts, medium, sampler, samples, seed, threshold, aa_depth):
+                   starts, medium, sampler, samples, seed, threshold, aa_depth, layer, levels):
     """render._render_tiles over pixels (tiles of tile_size), each from `sampler`'s samples
     under the model whose argument (whitted_on, heckbert_on or medium) is not None
-    (model_arguments); filtered shadows or not."""
+    (model_arguments); filtered shadows or not. layer: None, or each pixel's record of the work
+    of all its samples (engine/work.py), `levels` nesting levels split."""
     cells = tile_size << aa_depth if sampler == ADAPTIVE else 0
     eye = np.zeros((1, 3))      # whitted.trace's batch of one ray
     color = np.zeros((1, 3))
@@ -96,7 +98,7 @@ def render_pixels(geo, mats, lights, background, cam, width, height, tile_x, til
         tile = claim(counter)
         if tile >= last:
             break
-        ws = workspace()
+        ws = workspace(0, sample_work(layer, levels))
         rays = np.zeros((whitted.RAY_STACK, whitted.RAY_COLUMNS))
         state = tricks_memo(lights.shape[0], starts)
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
@@ -123,6 +125,7 @@ def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile
     k = 1
     while k * k < samples:
         k += 1
+    start_samples(ws.work, cnt)
     for j in range(y0, min(y0 + tile_size, height), step):
         for i in range(x0, min(x0 + tile_size, width), step):
             if coarse > 0 and (i - x0) % coarse == 0 and (j - y0) % coarse == 0:
@@ -149,6 +152,7 @@ def _render_tile(geo, mats, lights, background, cam, width, height, x0, y0, tile
             out[j, i, 0] = r
             out[j, i, 1] = g
             out[j, i, 2] = b
+            record_sample(ws.work, j, i, cnt)
 
 
 @njit(inline="always")

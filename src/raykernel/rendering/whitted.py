@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from ..engine.traverse import ANY_HIT, CLOSEST, intersect
+from ..engine.work import SHADOW, charge_type, record_sample, start_samples, work_figures
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
@@ -102,10 +103,15 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
     r_out, g_out, b_out = 0.0, 0.0, 0.0
     e = 0
     top = 0
+    samples = eyes.shape[1] > 3         # eyes[:, 3:5] the sample each eye ray is: its work is recorded there
+    if samples:
+        start_samples(ws.work, cnt)
     while True:     # one loop over the eye rays and their trees (a loop nest compiles slower)
         if top == 0:
             if e > 0:
                 colors[e - 1, 0], colors[e - 1, 1], colors[e - 1, 2] = r_out, g_out, b_out
+                if samples:
+                    record_sample(ws.work, int(eyes[e - 1, 3]), int(eyes[e - 1, 4]), cnt)
             if e == n:
                 break
             r_out, g_out, b_out = 0.0, 0.0, 0.0
@@ -116,10 +122,12 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
         top, ox, oy, oz, dx, dy, dz, wr, wg, wb, depth, ray_kind, _, node = pop(rays, top, cnt)
         # `state is None` tested here, on trace's own argument: numba then prunes the tricks'
         # calls before it would inline them (it inlines before it prunes the callees' tests)
+        before = work_figures(ws.work, cnt)
         if state is None:
             found = intersect(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, CLOSEST, ws, cnt)
         else:
             found = closest(geo, ox, oy, oz, dx, dy, dz, 0.0, np.inf, node, tricks, state, rays, top, ws, cnt)
+        charge_type(ws.work, ray_kind, before, cnt)
         if not found:
             r_out += wr * background[0]
             g_out += wg * background[1]
@@ -143,6 +151,7 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
         rx, ry, rz = ndx + 2.0 * cos_i * sx, ndy + 2.0 * cos_i * sy, ndz + 2.0 * cos_i * sz
         dr, dg, db = 0.0, 0.0, 0.0
         hr, hg, hb = 0.0, 0.0, 0.0
+        before = work_figures(ws.work, cnt)
         for li in range(n_lights):
             tlx, tly, tlz = lights[li, 0] - ax, lights[li, 1] - ay, lights[li, 2] - az
             ulx, uly, ulz = normalize(tlx, tly, tlz)
@@ -183,6 +192,7 @@ def trace(geo, mats, lights, background, ex, ey, ez, eyes, n, colors, max_depth,
                     hr += spec * lr
                     hg += spec * lg
                     hb += spec * lb
+        charge_type(ws.work, SHADOW, before, cnt)
         kl = mats[mat, 8]
         r_out += wr * (kd * cr * dr + hr + kl * cr)
         g_out += wg * (kd * cg * dg + hg + kl * cg)

@@ -1,0 +1,188 @@
+"""What a render asked for work layers keeps per sample, in the workspace (ws.work): the counter
+row at the sample's start, and the sample's work split by ray type and by nesting level.
+
+    work = sample_work(layer, levels)            # a tile's: layer (h, w, COLUMNS + split) int32
+    ws = workspace(0, work)                      # ws.work is None when no layers are asked for
+    figures = work_figures(ws.work, cnt)         # (tests, bounds, visited) now: around a search
+    charge_type(ws.work, ray_kind, figures, cnt) # what the search did, to its ray type
+    record_sample(ws.work, j, i, cnt)            # the sample's record into layer[j, i]
+
+Every helper is an overload that does nothing when ws.work is None: a render without layers
+compiles none of this and runs as before.
+
+A sample's record (one row of the layer, int32):
+  [0, N_COUNTERS)           every counter of the counter row: what the sample's ray tree counted
+  SPLIT + 3 * type + f      for each ray type (eye, reflect, refract, shadow) the figure f (tests,
+                            bounds.tests, cells.visited) of that type's searches: an eye, reflection
+                            or refraction ray's own search, and the shadow rays of its hit
+  SPLIT + 12 + 3 * level + f  the same by nesting level: the work the driver did in frames that
+                            deep (level 0 the root aggregate, and whatever was counted outside a
+                            driver's frame: the rest of the sample's figures)
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba.core import types
+from numba.extending import overload
+
+from ..geometry import counters as C
+from ..geometry.config import njit
+
+SPLIT = C.N_COUNTERS                 # the first column of the splits
+RAY_TYPES = ("eye", "reflect", "refract", "shadow")
+SHADOW = 3
+FIGURES = ("tests.total", "bounds.tests", "cells.visited")
+BY_LEVEL = SPLIT + 3 * len(RAY_TYPES)
+
+
+def columns(levels: int) -> int:
+    """A record's columns for a scene whose aggregates nest `levels` deep (1: no level split)."""
+    return BY_LEVEL + (3 * levels if levels > 1 else 0)
+
+
+class SampleWork(NamedTuple):
+    layer: np.ndarray    # (h, w, columns) int32: the samples' records
+    mark: np.ndarray     # (N_COUNTERS,) int64: the counter row when the sample began
+    split: np.ndarray    # (columns - SPLIT,) int64: the sample's splits so far
+    level_mark: np.ndarray   # (3,) int64: the figures at the driver's last change of frame
+    levels: int          # nesting levels split (0: none)
+
+
+def sample_work(layer, levels):
+    """A tile's per-sample work over `layer` (None: no layers, and so None), `levels` nesting
+    levels split (engine/work.columns)."""
+
+
+@overload(sample_work)
+def _sample_work(layer, levels):
+    if isinstance(layer, types.NoneType):
+        return lambda layer, levels: None
+    return lambda layer, levels: SampleWork(layer, np.zeros(C.N_COUNTERS, np.int64),
+                                            np.zeros(layer.shape[2] - SPLIT, np.int64), np.zeros(3, np.int64),
+                                            np.int64(levels if levels > 1 else 0))
+
+
+@njit(inline="always")
+def _figures(cnt):
+    tests = cnt[C.TESTS] + cnt[C.TESTS + 1] + cnt[C.TESTS + 2] + cnt[C.TESTS + 3] + cnt[C.TESTS + 4]
+    return tests, cnt[C.BOUNDS_TESTS], cnt[C.CELLS_VISITED]
+
+
+def work_figures(work, cnt):
+    """(tests, bounds.tests, cells.visited) of the counter row now; zeros without layers."""
+
+
+@overload(work_figures, inline="always")
+def _work_figures(work, cnt):
+    if isinstance(work, types.NoneType):
+        return lambda work, cnt: (np.int64(0), np.int64(0), np.int64(0))
+    return lambda work, cnt: _figures(cnt)
+
+
+def charge_type(work, ray_type, before, cnt):
+    """Charge what was counted since `before` (work_figures) to ray type `ray_type`."""
+
+
+@overload(charge_type, inline="always")
+def _charge_type(work, ray_type, before, cnt):
+    if isinstance(work, types.NoneType):
+        return lambda work, ray_type, before, cnt: None
+
+    def charge(work, ray_type, before, cnt):
+        now = _figures(cnt)
+        for k in range(3):
+            work.split[3 * ray_type + k] += now[k] - before[k]
+    return charge
+
+
+def level_mark(work, cnt):
+    """The driver starts a walk: its frame changes are charged from here."""
+
+
+@overload(level_mark, inline="always")
+def _level_mark(work, cnt):
+    if isinstance(work, types.NoneType):
+        return lambda work, cnt: None
+
+    def mark(work, cnt):
+        if work.levels:
+            now = _figures(cnt)
+            for k in range(3):
+                work.level_mark[k] = now[k]
+    return mark
+
+
+def level_charge(work, level, cnt):
+    """The driver leaves frame depth `level` (for a child, its parent or the caller): what it
+    counted there since the last change is charged to that level (level 0: left to the rest)."""
+
+
+@overload(level_charge, inline="always")
+def _level_charge(work, level, cnt):
+    if isinstance(work, types.NoneType):
+        return lambda work, level, cnt: None
+
+    def charge(work, level, cnt):
+        if work.levels:
+            now = _figures(cnt)
+            for k in range(3):
+                if 0 < level < work.levels:
+                    work.split[BY_LEVEL - SPLIT + 3 * level + k] += now[k] - work.level_mark[k]
+                work.level_mark[k] = now[k]
+    return charge
+
+
+def start_samples(work, cnt):
+    """The samples that follow begin from the counter row as it is now."""
+
+
+@overload(start_samples, inline="always")
+def _start_samples(work, cnt):
+    if isinstance(work, types.NoneType):
+        return lambda work, cnt: None
+
+    def start(work, cnt):
+        for k in range(C.N_COUNTERS):
+            work.mark[k] = cnt[k]
+        for k in range(work.split.shape[0]):
+            work.split[k] = 0
+    return start
+
+
+def record_sample(work, j, i, cnt):
+    """Write the sample's record at row j, column i of the layer; the next sample begins now."""
+
+
+@overload(record_sample, inline="always")
+def _record_sample(work, j, i, cnt):
+    if isinstance(work, types.NoneType):
+        return lambda work, j, i, cnt: None
+
+    def record(work, j, i, cnt):
+        row = work.layer[j, i]
+        for k in range(C.N_COUNTERS):
+            row[k] = cnt[k] - work.mark[k]
+            work.mark[k] = cnt[k]
+        for k in range(work.split.shape[0]):
+            row[SPLIT + k] = work.split[k]
+            work.split[k] = 0
+        if work.levels:     # level 0: the sample's figures the deeper levels do not hold
+            total = (np.int64(row[C.TESTS]) + row[C.TESTS + 1] + row[C.TESTS + 2] + row[C.TESTS + 3]
+                     + row[C.TESTS + 4], np.int64(row[C.BOUNDS_TESTS]), np.int64(row[C.CELLS_VISITED]))
+            for k in range(3):
+                deeper = 0
+                for level in range(1, work.levels):
+                    deeper += row[BY_LEVEL + 3 * level + k]
+                row[BY_LEVEL + k] = total[k] - deeper
+    return record
+
+
+def names(levels: int) -> list[str]:
+    """The names of a record's split columns, in order."""
+    out = [f"{figure}.{t}" for t in RAY_TYPES for figure in FIGURES]
+    if levels > 1:
+        out += [f"{figure}.level{level}" for level in range(levels) for figure in FIGURES]
+    return out
