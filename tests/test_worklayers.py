@@ -173,3 +173,33 @@ def test_picture(balls, tmp_path):
     with pytest.raises(OptionError, match="scale"):
         worklayers.picture(result.work, "tests.total", tmp_path / "x.png", scale="cubic")
     assert not (tmp_path / "x.png").exists()
+
+
+def test_command_line(tmp_path, capsys):
+    from raykernel.cli import main
+    out = tmp_path / "balls.png"
+    assert main(["render", "spd:balls:1", "--resolution", "16", "--accel", "grid", "-o", str(out),
+                 "--work", str(tmp_path / "w.npz"), "--work-image", "tests.total", "--work-image",
+                 f"cells.visited.shadow={tmp_path / 'v.png'}", "--work-scale", "log"]) == 0
+    saved = np.load(tmp_path / "w.npz")
+    assert saved["tests.total"].shape == (16, 16)
+    direct = render(load("spd:balls:1"), accel="grid", resolution=16, work=True)
+    for name in ("tests.total", "cells.visited", "rays.shadow", "walk.grid.steps"):
+        assert np.array_equal(saved[name], direct.work[name]), name
+    assert (tmp_path / "balls.tests.total.png").stat().st_size > 1000
+    assert (tmp_path / "v.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--work", "w.txt"], ".npz or .exr"),
+    (["--work-image", "tests.bogus"], "no work layer 'tests.bogus'"),
+    (["--work-image", "tests.total=w.jpg"], "written as .png"),
+    (["--work-image", "=w.png"], "expected COUNTER"),
+])
+def test_command_line_refuses_bad_work_options_before_rendering(tmp_path, capsys, monkeypatch, argv, message):
+    from raykernel.cli import main
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "spd:balls:1", "--resolution", "16", "-o", "b.png"] + argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    assert not (tmp_path / "b.png").exists()

@@ -84,6 +84,7 @@ def cmd_render(args, console) -> int:
     from .aggregates.registry import parse_spec
     from .aggregates.spec import is_auto
     from .scene.loading import load
+    from .rendering.worklayers import picture, save_layers, work_file_format
 
     scene = load(args.scene)
     options = {}
@@ -99,6 +100,14 @@ def cmd_render(args, console) -> int:
     check_output_directory(out)
     if args.stats_json:
         check_output_directory(args.stats_json)
+    work_images = _work_images(args.work_image, out)
+    if args.work:
+        work_file_format(args.work)
+        check_output_directory(args.work)
+    for path in work_images.values():
+        check_output_directory(path)
+    if args.work or work_images:
+        options["work"] = True
     _, auto = parse_spec(args.accel)
     if is_auto(args.accel):
         console.print(f"Annealing a hierarchy for this render first (auto: up to {auto['seconds']:g} s; "
@@ -121,10 +130,33 @@ def cmd_render(args, console) -> int:
     result.save(out)
     if args.stats_json:
         result.stats.to_json(args.stats_json)
+    if args.work:
+        save_layers(result.work, args.work)
+    title = f"{args.scene}, {args.accel}{', SPD' if args.spd else ''}"
+    for counter, path in work_images.items():
+        picture(result.work, counter, path, title=title, scale=args.work_scale)
     w, h = result.image.shape[1], result.image.shape[0]
     console.print(result.stats.table(title=f"{args.scene}: {scene.count_primitives():,} primitives, "
                                            f"{w}x{h}, accel {args.accel}{', SPD' if args.spd else ''} -> {out}"))
     return 0
+
+
+def _work_images(items, out: str) -> dict:
+    """--work-image COUNTER[=PATH] arguments as {counter: path}; the path defaults to the
+    image's name with the counter added (balls.png -> balls.tests.total.png)."""
+    from .errors import OptionError
+    from .rendering.worklayers import check_layer_name
+    images = {}
+    for item in items or ():
+        counter, _, path = item.partition("=")
+        if not counter:
+            raise OptionError(f"--work-image {item!r}: expected COUNTER or COUNTER=PATH, e.g. tests.total=work.png")
+        check_layer_name(counter)
+        path = path or str(Path(out).with_suffix(f".{counter}.png"))
+        if not path.lower().endswith(".png"):
+            raise OptionError(f"--work-image {item!r}: work images are written as .png")
+        images[counter] = path
+    return images
 
 
 @contextlib.contextmanager
@@ -405,6 +437,14 @@ def _add_render(sub) -> None:
                    "list of closest, raytree, shadowcache, transparentlast, lazynormals, startlists (default: "
                    "closest,lazynormals); they change the work, not the image")
     r.add_argument("--stats-json", help="write every counter to this JSON file")
+    r.add_argument("--work", metavar="OUT", help="write the work layers (each sample's work, counter by counter, "
+                   "by ray type and nesting level) to OUT.npz (np.load(OUT)[\"tests.total\"]) or OUT.exr "
+                   "(pip install 'raykernel[exr]')")
+    r.add_argument("--work-image", action="append", metavar="COUNTER[=PATH]", help="a false-colour PNG of one "
+                   "work layer with its legend, e.g. tests.total or cells.visited.shadow (default PATH: the "
+                   "image's name + .COUNTER.png); may be given more than once")
+    r.add_argument("--work-scale", choices=["linear", "log"], default="linear", help="--work-image's colour "
+                   "scale (default linear)")
     r.add_argument("--max-memory", help="memory budget of every build, e.g. 8G or 512M (default: half of this "
                    "machine's memory); a structure that needs more stops with an error")
     r.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "

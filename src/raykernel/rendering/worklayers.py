@@ -10,7 +10,7 @@ A layer holds, for every sample, the work of its whole ray tree: the eye ray and
 reflection, refraction and shadow ray it led to (with antialiasing, all of a pixel's samples).
 A sample is a pixel, or in SPD mode a pixel corner: the layers of an SPD render are
 (height + 1, width + 1), like its traced samples. Layers are named as the statistics table's
-counters (every counter the render counted: `tests.sphere`, `bounds.tests`, `cells.visited`,
+counters (every counter: `tests.sphere`, `bounds.tests`, `cells.visited`,
 `rays.shadow`, `walk.grid.steps`, ...), with the totals the table shows (`tests.total`,
 `hits.total`, `rays.total`), and the three main figures (`tests.total`, `bounds.tests`,
 `cells.visited`) split by ray type (`tests.total.shadow`, ...) and, where aggregates nest, by
@@ -27,7 +27,7 @@ import numpy as np
 
 from ..aggregates.registry import COUNTER_NAMES
 from ..atomicfile import write_bytes
-from ..engine.work import FIGURES, SPLIT
+from ..engine.work import FIGURES, RAY_TYPES, SPLIT
 from ..engine.work import names as split_names
 from ..errors import OptionError
 from ..geometry import counters as C
@@ -44,8 +44,7 @@ def work_layers(layer: np.ndarray, levels: int) -> dict:
     counters it counted, int64 arrays for the totals."""
     out = {}
     for column, name in sorted(COUNTER_NAMES.items()):
-        if name in FIGURES or layer[:, :, column].any():
-            out[name] = layer[:, :, column]
+        out[name] = layer[:, :, column]
     for name, cols in TOTALS.items():
         out[name] = layer[:, :, list(cols)].sum(axis=2, dtype=np.int64)
     for k, name in enumerate(split_names(levels)):
@@ -53,23 +52,39 @@ def work_layers(layer: np.ndarray, levels: int) -> dict:
     return out
 
 
+def check_layer_name(name: str) -> None:
+    """An OptionError unless a render with work layers can have a layer called `name`."""
+    figure, _, part = name.rpartition(".")
+    if name in COUNTER_NAMES.values() or name in TOTALS or (
+            figure in FIGURES and (part in RAY_TYPES or (part.startswith("level") and part[5:].isdigit()))):
+        return
+    known = sorted(set(COUNTER_NAMES.values()) | set(TOTALS))
+    raise OptionError(f"no work layer {name!r}; layers: {', '.join(known)}, and FIGURE.TYPE or FIGURE.levelN for "
+                      f"FIGURE one of {', '.join(FIGURES)} and TYPE one of {', '.join(RAY_TYPES)}")
+
+
 def unit_of(name: str) -> str:
     return UNITS.get(name.split(".")[0], "counts")
+
+
+def work_file_format(path) -> str:
+    """"npz" or "exr" by the name of `path`, else an OptionError (checked before a render)."""
+    suffix = str(path).lower().rsplit(".", 1)[-1]
+    if suffix not in ("npz", "exr"):
+        raise OptionError(f"{path}: work layers are written as .npz or .exr")
+    return suffix
 
 
 def save_layers(layers: dict, path) -> None:
     """Every layer into `path`: .npz (np.load(path)[name]) or .exr (one 32-bit float channel a
     layer, OpenEXR: the exr extra), written atomically."""
     path = str(path)
-    if path.endswith(".npz"):
+    if work_file_format(path) == "npz":
         buf = io.BytesIO()
         np.savez_compressed(buf, **{k: np.asarray(v) for k, v in layers.items()})
         write_bytes(path, buf.getvalue())
-        return
-    if path.endswith(".exr"):
+    else:
         _save_exr(layers, path)
-        return
-    raise OptionError(f"{path}: work layers are written as .npz or .exr")
 
 
 def _save_exr(layers: dict, path: str) -> None:
