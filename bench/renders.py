@@ -28,6 +28,11 @@ ray per pixel) against raykernel's own antialiasing, `--aa jitter --samples 9
 --cutoff 0` (9 jittered rays per pixel, every ray cast to depth 5). The two
 samplers differ (a grid against jittered strata, and POV-Ray's extra first
 ray), so both sides' ray counts are printed; it is not the SPD procedure.
+
+    .venv/bin/python bench/renders.py --work-layers balls,teapot,tetra
+
+writes the `work_layers` section: the same SPD renders with and without `--work` (the cost of
+work layers).
 """
 
 from __future__ import annotations
@@ -162,13 +167,67 @@ def antialiased(args) -> None:
     print(f"wrote the renders_aa section of {ROOT / 'BENCHMARKS.md'}")
 
 
+def work_layers(args) -> None:
+    """The cost of work layers (the work_layers section): each scene rendered as in the renders
+    section, with and without `--work`, alternating, best of --repeat."""
+    rows = []
+    compile_bytecode()
+    with tempfile.TemporaryDirectory() as tmp:
+        for extra in ([], ["--work", f"{tmp}/warm.npz"]):     # both kernels compiled before timing
+            timed(RAYKERNEL + ["render", "spd:balls:1", "--spd", "--resolution", "8", "-o", f"{tmp}/warm.png"] + extra,
+                  tmp)
+        for stem, nff, _ in spd_files(args.work_layers, tmp):
+            base = RAYKERNEL + ["render", str(nff), "--spd", "--resolution", "512", "--threads", str(args.threads),
+                                "-o", f"{tmp}/{stem}.png", "--stats-json", f"{tmp}/{stem}.json"]
+            sides = {"plain": base, "work": base + ["--work", f"{tmp}/{stem}.npz"]}
+            best = {k: (float("inf"), float("inf")) for k in sides}
+            rays = {}
+            for _ in range(args.repeat):
+                for side, cmd in sides.items():
+                    wall = timed(cmd, tmp)[0]
+                    stats = json.loads(Path(f"{tmp}/{stem}.json").read_text())["counters"]
+                    best[side] = (min(best[side][0], wall), min(best[side][1], stats["time.trace"]))
+                    rays[side] = stats["rays.total"]
+            if rays["plain"] != rays["work"]:
+                sys.exit(f"{stem}: the renders cast different rays: {rays}")
+            rows.append((stem, rays["plain"], best["plain"], best["work"]))
+            print(f"{stem}: rays {rays['plain']:,}; trace {best['plain'][1]:.3f} s plain, {best['work'][1]:.3f} s "
+                  f"with layers", flush=True)
+    lines = [
+        "## The cost of work layers",
+        "",
+        f"Machine: {machine()}.",
+        "",
+        f"Command: `.venv/bin/python bench/renders.py --work-layers {args.work_layers} --threads {args.threads} "
+        f"--repeat {args.repeat}`",
+        "",
+        f"`raykernel render X.nff --spd --resolution 512 --threads {args.threads}`, without and with `--work X.npz`, "
+        f"fresh processes, alternating, best of {args.repeat}; both cast the same rays (rays.total, printed). trace: "
+        "time.trace of the statistics; wall: the whole process, the compressed .npz written included. cost = with "
+        "/ without (1.00: free). Whether a render without layers is as fast as before the layers existed is "
+        "bench/against.py's table (the same renders against an earlier revision).",
+        "",
+        "| scene | rays | trace s | trace s with layers | cost (trace) | wall s | wall s with layers | cost (wall) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for stem, rays, (pw, pt), (ww, wt) in rows:
+        lines.append(f"| {stem} | {rays:,} | {pt:.3f} | {wt:.3f} | {wt / pt:.2f} | {pw:.2f} | {ww:.2f} | {ww / pw:.2f} |")
+    replace_section("work_layers", "\n".join(lines))
+    print(f"wrote the work_layers section of {ROOT / 'BENCHMARKS.md'}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", default=",".join(spd.NAMES))
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--antialiased", help="comma-separated SPD names: only the labelled antialiased comparison")
+    ap.add_argument("--work-layers", metavar="SCENES", help="comma-separated SPD names: only the cost of work "
+                    "layers (no POV-Ray)")
     args = ap.parse_args()
+    if args.work_layers:
+        work_layers(args)
+        return
     if shutil.which("povray") is None:
         sys.exit("povray is not installed (Debian: apt-get install povray)")
     if args.antialiased:
