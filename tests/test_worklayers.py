@@ -85,7 +85,7 @@ def nested(scene, outer, inner):
 
 
 @pytest.mark.parametrize("outer, inner", [("grid", "bvh"), ("octree", "grid"), ("bvh", "octree"), ("hybrid", "bvh"),
-                                          ("kdtree", "list"), ("hgrid", "kdtree")])
+                                          ("list", "hgrid"), ("rc", "list")])
 def test_nested_layers_split_by_level(stadium, outer, inner):
     result = render(nested(stadium, outer, inner), accel=outer, resolution=24, work=True)
     layers = assert_layers_sum(result)
