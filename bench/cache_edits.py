@@ -41,7 +41,7 @@ from raykernel.aggregates.registry import KINDS
 scene = raykernel.load("spd:balls:1")
 for accel in ["bvh(width=2)"] + [name for name, kind in KINDS.items() if not kind.operands]:
     add(raykernel.render(scene, accel=accel, resolution=8).stats)
-add(raykernel.render(raykernel.load("example:csg"), resolution=8).stats)
+add(raykernel.render(raykernel.load(CSG), resolution=8).stats)
 add(raykernel.render(scene, resolution=8, shading="hall", aa="jitter", samples=4, tricks="all").stats)
 mesh = raykernel.load("spd:tetra:2")
 rs = raykernel.RayScene(mesh)
@@ -68,7 +68,8 @@ def retext(source: str) -> str:
 
 def probe(src: Path, cache: Path) -> dict:
     env = dict(os.environ, PYTHONPATH=str(src), NUMBA_CACHE_DIR=str(cache))
-    out = subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True)
+    code = f"CSG = {str(ROOT / 'examples' / 'csg.json')!r}\n" + PROBE       # a scene of CSG nodes
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
     if out.returncode:
         sys.exit(out.stderr[-3000:])
     return json.loads(out.stdout.strip().splitlines()[-1])
