@@ -90,10 +90,7 @@ def cmd_render(args, console) -> int:
     options = {}
     if args.scene.startswith("example:"):
         options.update(examples.render_defaults(args.scene.split(":", 1)[1]))
-    for name in ("max_depth", "shading", "aa", "samples", "seed", "aa_threshold", "aa_depth", "cutoff", "shadows",
-                 "eye_light", "eye_light_shadows", "tricks"):
-        if getattr(args, name) is not None:
-            options[name] = getattr(args, name)
+    options.update(_trace_options(args))
     out = args.output or _default_output(args.scene)
     # refuse what would fail after the work before it (and before saying it will compile)
     image_format(out)
@@ -157,6 +154,34 @@ def _work_images(items, out: str) -> dict:
             raise OptionError(f"--work-image {item!r}: work images are written as .png")
         images[counter] = path
     return images
+
+
+def cmd_explain(args, console) -> int:
+    from .atomicfile import check_output_directory
+    from .rendering.explain import explain, text, write_json
+    from .scene import examples
+    from .scene.loading import load
+    if args.json:
+        check_output_directory(args.json)
+    scene = load(args.scene)
+    options = {}
+    if args.scene.startswith("example:"):
+        options.update(examples.render_defaults(args.scene.split(":", 1)[1]))
+    options.update(_trace_options(args))
+    x, y = args.pixel
+    ex = explain(scene, x, y, accel=args.accel, resolution=args.resolution, spd=args.spd, threads=args.threads,
+                 max_memory=args.max_memory, **options)
+    console.print(text(ex), markup=False, highlight=False)
+    if args.json:
+        write_json(ex, args.json)
+    return 0
+
+
+def _trace_options(args) -> dict:
+    """The shading and sampling options given on the command line (render_options' names)."""
+    return {name: getattr(args, name) for name in ("max_depth", "shading", "aa", "samples", "seed", "aa_threshold",
+                                                   "aa_depth", "cutoff", "shadows", "eye_light", "eye_light_shadows",
+                                                   "tricks") if getattr(args, name) is not None}
 
 
 @contextlib.contextmanager
@@ -397,15 +422,13 @@ def build_parser() -> argparse.ArgumentParser:
                                      "structures and exact statistics.")
     sub = parser.add_subparsers(dest="command", required=True)
     _add_render(sub)
+    _add_explain(sub)
     _add_others(sub)
     return parser
 
 
-def _add_render(sub) -> None:
-    r = sub.add_parser("render", help="render a scene to PNG and print its statistics")
-    r.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
-    r.add_argument("-o", "--output", help="output image: .png, .jpg, .tif, .webp (8-bit) or .npy, .pfm, .exr "
-                   "(float); default: the scene's name + .png")
+def _add_trace_options(r) -> None:
+    """The options that say how a scene is traced: render's and explain's."""
     r.add_argument("--resolution", type=_positive_int, help="square image size (default: the scene's)")
     r.add_argument("--accel", default="bvh", help="accelerator spec for groups that name none (default bvh); "
                    "see `raykernel accels`")
@@ -436,6 +459,16 @@ def _add_render(sub) -> None:
     r.add_argument("--tricks", metavar="LIST", help="Haines's efficiency tricks: all, none or a comma-separated "
                    "list of closest, raytree, shadowcache, transparentlast, lazynormals, startlists (default: "
                    "closest,lazynormals); they change the work, not the image")
+    r.add_argument("--max-memory", help="memory budget of every build, e.g. 8G or 512M (default: half of this "
+                   "machine's memory); a structure that needs more stops with an error")
+
+
+def _add_render(sub) -> None:
+    r = sub.add_parser("render", help="render a scene to PNG and print its statistics")
+    r.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
+    r.add_argument("-o", "--output", help="output image: .png, .jpg, .tif, .webp (8-bit) or .npy, .pfm, .exr "
+                   "(float); default: the scene's name + .png")
+    _add_trace_options(r)
     r.add_argument("--stats-json", help="write every counter to this JSON file")
     r.add_argument("--work", metavar="OUT", help="write the work layers (each sample's work, counter by counter, "
                    "by ray type and nesting level) to OUT.npz (np.load(OUT)[\"tests.total\"]) or OUT.exr "
@@ -445,11 +478,21 @@ def _add_render(sub) -> None:
                    "image's name + .COUNTER.png); may be given more than once")
     r.add_argument("--work-scale", choices=["linear", "log"], default="linear", help="--work-image's colour "
                    "scale (default linear)")
-    r.add_argument("--max-memory", help="memory budget of every build, e.g. 8G or 512M (default: half of this "
-                   "machine's memory); a structure that needs more stops with an error")
     r.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "
                    "tcp://HOST:PORT joins a running scheduler (pip install 'raykernel[distributed]')")
     r.set_defaults(func=cmd_render)
+
+
+def _add_explain(sub) -> None:
+    e = sub.add_parser("explain", help="re-trace one pixel and print its ray tree: every ray, the cells or nodes "
+                       "it visited and the objects it tested, level by level, with the pixel's work layers")
+    e.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
+    e.add_argument("--pixel", nargs=2, type=int, metavar=("X", "Y"), required=True,
+                   help="the pixel: X the column, Y the row from the top (in --spd, the corner sample X, Y)")
+    e.add_argument("--json", metavar="FILE", help="also write the explanation as JSON (its `totals`: each counter's "
+                   "value at this pixel)")
+    _add_trace_options(e)
+    e.set_defaults(func=cmd_explain)
 
 
 def _add_others(sub) -> None:

@@ -83,7 +83,7 @@ from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, fo
 from .parallel import for_ranges
 from .transforms import compose_map, map_ray
 from .widewalk import intersect_wide
-from .work import level_charge, level_mark
+from .work import ENTER, STEP, TEST, level_charge, level_mark, note, note_found, note_search
 
 # stack entry: go on with the frame's keyed list at stack_a (py_func: calling the kernel would load it at import)
 KEYED = entry_tag.py_func(DRIVER, KEYED_STEP)
@@ -167,12 +167,16 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     bounds tests and steps into cnt. ALL_HITS records every hit instead (see take).
     A scene that is one BVH over primitives goes to its fast walk (widewalk.py), which
     takes only the arrays it reads; every other to the general one, `walk`."""
+    note_search(ws.work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)     # nothing unless one sample is probed
     if geo.wide_nodes.shape[0] and mode != CLOSEST_EAGER:
-        return intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
-                              geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges, ox, oy, oz,
-                              dx, dy, dz, tmin, tmax, mode, ws.stack_a, ws.stack_t, ws.frame_f, ws.hit_f, ws.hit_i,
-                              ws.t4, cnt)
-    return _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
+        found = intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
+                               geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges, ox, oy,
+                               oz, dx, dy, dz, tmin, tmax, mode, ws.stack_a, ws.stack_t, ws.frame_f, ws.hit_f, ws.hit_i,
+                               ws.t4, cnt, ws.work)
+    else:
+        found = _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
+    note_found(ws.work, found, ws.hit_f, ws.hit_i, cnt)
+    return found
 
 
 def _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
@@ -220,6 +224,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     base = 0
     sp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.root, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a,
                 stack_b, stack_t, base, cnt)
+    note(ws.work, ENTER, 0, geo.root, -1, 1 if sp > base else 0, 0, 0, 0, 0, 0)
     level_mark(ws.work, cnt)        # work layers by nesting level (engine/work.py); nothing without them
     while True:
         if sp == base:
@@ -264,6 +269,8 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 sink, lo = f, -INF      # an operator's START: this frame collects crossings from now on
             cnt[C.WALK_STEPS + kind] += cnt[C.CELLS_VISITED] - visited
             cnt[C.WALK_BOUNDS + kind] += cnt[C.BOUNDS_TESTS] - tested
+            note(ws.work, STEP, f, frame_i[f, FI_AGG], kind, cnt[C.CELLS_VISITED] - visited,
+                 cnt[C.BOUNDS_TESTS] - tested, s, e, 1 if keyed else 0, 0)
         mbox = frame_f[f, F_MBOX_ON] != 0.0
         # the reference loop
         i = s
@@ -303,6 +310,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 nix, niy, niz = inverse(ndx), inverse(ndy), inverse(ndz)
                 nsp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, child, nox, noy, noz, nix, niy, niz, lo,
                              best_t, stack_a, stack_b, stack_t, sp, cnt)
+                note(ws.work, ENTER, g, child, inst, 1 if nsp > sp else 0, 0, 0, 0, 0, 0)
                 if nsp == sp:
                     break       # missed the child's bounds
                 frame_f[g, F_ORIGIN], frame_f[g, F_ORIGIN + 1], frame_f[g, F_ORIGIN + 2] = nox, noy, noz
@@ -322,12 +330,14 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
                 break
             cnt[C.TESTS + kind] += 1
             if kind == SPHERE and sink >= 0:
-                # below a sink a sphere records both of the line's crossings
+                # below a sink a sphere records both of the line's crossings (logged with t = -inf)
+                note(ws.work, TEST, f, frame_i[f, FI_AGG], kind, idx, -INF, frame_i[f, FI_INST], 0, 0, 0)
                 _record_sphere(geo, idx, ox, oy, oz, dx, dy, dz, best_t,
                                collect.operand(frame_f, frame_i, f, sink, i - 1), frame_i[f, FI_INST], frame_f, f,
                                ws.buf_t, ws.buf_i, ws.buf_m, ws.buf_n, cnt, np.int64(CROSSINGS))
                 continue
             t = hit_primitive(geo, kind, idx, ox, oy, oz, dx, dy, dz, lo, best_t, cnt)
+            note(ws.work, TEST, f, frame_i[f, FI_AGG], kind, idx, t, frame_i[f, FI_INST], 0, 0, 0)
             if t != INF:
                 cnt[C.HITS + kind] += 1
                 if sink >= 0:

@@ -5,7 +5,7 @@
         found = intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root,
                                geo.refs, geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i,
                                geo.tri_edges, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f,
-                               hit_i, t4, cnt)
+                               hit_i, t4, cnt, ws.work)
 
 Why a walk of its own: the general driver carries frames, instances, mailboxes and CSG, and
 every call that takes the scene's Geometry (about 75 arrays, which numba passes as some 650
@@ -41,6 +41,7 @@ from ..geometry.boxes import INF, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import CONE, INDEX_MASK, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE
 from .hitrule import ANY_HIT, ANY_OPAQUE, CLEAR, RECORD_COLUMNS, hit, take
+from .work import ENTER, STEP, TEST, note
 
 # the wide_* fields of every other scene: nothing to walk
 NO_WALK = dict(wide_nodes=NO_WIDE.nodes, wide_center=NO_WIDE.center,
@@ -124,25 +125,27 @@ def count_misses(cnt, n):
 
 @njit(inline="always")
 def intersect_wide(nodes, center, agg_bounds, root, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz,
-                   dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
+                   dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt, work):
     """traverse.intersect (modes CLOSEST, ANY_HIT, ALL_HITS, ANY_OPAQUE) on the arrays prepare()
     made, with the workspace's stack, frames, hit record and t4. The scene's box is tested
     here, in the caller's body: a ray that misses the whole scene (most eye rays of a small
     one) pays no call of the walk, which passes some 150 numbers."""
     ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
     te = box_entry(agg_bounds, root, ox, oy, oz, ix, iy, iz, tmin, tmax)
+    note(work, ENTER, 0, root, -1, 0 if te == INF else 1, 0, 0, 0, 0, 0)      # nothing unless a sample is probed
     if te == INF:
         count_misses(cnt, np.int64(1))
         return False
     return _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz,
-                      ix, iy, iz, te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt)
+                      ix, iy, iz, te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt, root, work)
 
 
 @njit(private=True)
 def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz, ix, iy, iz,
-               te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt):
+               te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt, root, work):
     """intersect_wide below the scene's box, which the ray enters at te. Stack entries as
-    widebvh.visit pushes them: v >= 0 a wide node to visit, v < 0 a leaf."""
+    widebvh.visit pushes them: v >= 0 a wide node to visit, v < 0 a leaf. work: the render's
+    per-sample work (engine/work.py), for a probed sample's log; None otherwise."""
     for k in range(12):     # the hit's frame is the world: an identity map for take
         frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
     found = np.bool_(False)      # typed, not literal: numba compiles a private callee once per literal
@@ -151,6 +154,7 @@ def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox,
     best_inst = np.int64(-1)
     edges = tri_edges[0]
     n_bounds, n_nodes, n_leaves = np.int64(1), np.int64(0), np.int64(0)
+    logged_nodes, logged_bounds = np.int64(0), np.int64(1)     # a probed sample's log: counted so far (the box: ENTER)
     cnt[C.WALK_ENTRIES + BVH] += 1
     wx, wy, wz, vx, vy, vz, near = wide_ray(center, ox, oy, oz, ix, iy, iz)
     stack[0] = 0
@@ -160,10 +164,14 @@ def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox,
         v, sp, n_nodes, n_bounds = next_leaf(nodes, wx, wy, wz, vx, vy, vz, near, tmin, best_t, t4, stack, stack_t,
                                              sp, n_nodes, n_bounds)
         if v == NO_CHILD:
+            note(work, STEP, 0, root, BVH, n_nodes - logged_nodes, n_bounds - logged_bounds, 0, 0, 0, 0)
+            logged_nodes, logged_bounds = n_nodes, n_bounds
             continue
         # a leaf: its references, all primitives
         n_leaves += 1
         first, end = leaf_range(nodes, v)
+        note(work, STEP, 0, root, BVH, n_nodes - logged_nodes, n_bounds - logged_bounds, first, end, 0, 0)
+        logged_nodes, logged_bounds = n_nodes, n_bounds
         for i in range(first, end):
             if mode == ANY_OPAQUE and prims[i, CLEAR] != 0.0:
                 continue        # transparent: left to the walk that filters light through it
@@ -171,6 +179,7 @@ def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox,
             kind = ref >> KIND_SHIFT
             cnt[C.TESTS + kind] += 1
             t = hit(kind, prims, i, verts, band_f, band_i, edges, ox, oy, oz, dx, dy, dz, tmin, best_t, cnt)
+            note(work, TEST, 0, root, kind, ref & INDEX_MASK, t, -1, 0, 0, 0)
             if t == INF:
                 continue
             cnt[C.HITS + kind] += 1

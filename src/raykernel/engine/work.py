@@ -1,14 +1,15 @@
 """What a render asked for work layers keeps per sample, in the workspace (ws.work): the counter
 row at the sample's start, and the sample's work split by ray type and by nesting level.
 
-    work = sample_work(layer, levels)            # a tile's: layer (h, w, COLUMNS + split) int32
+    work = sample_work(layer, levels, None, x0, y0, TILE)   # a tile's: layer (h, w, columns(levels)) int32
     ws = workspace(0, work)                      # ws.work is None when no layers are asked for
     figures = work_figures(ws.work, cnt)         # (tests, bounds, visited) now: around a search
     charge_type(ws.work, ray_kind, figures, cnt) # what the search did, to its ray type
     record_sample(ws.work, j, i, cnt)            # the sample's record into layer[j, i]
+    note(ws.work, STEP, ...)                     # an event of the probed sample (Probe), if any
 
-Every helper is an overload that does nothing when ws.work is None: a render without layers
-compiles none of this and runs as before.
+Every helper is an overload that does nothing when ws.work is None (and every `note` nothing
+without a probe): a render without layers compiles none of this and runs as before.
 
 A sample's record (one row of the layer, int32):
   [0, N_COUNTERS)           every counter of the counter row: what the sample's ray tree counted
@@ -26,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numba.core import types
+from numba.core.types import NamedTuple as NamedTupleType
 from numba.extending import overload
 
 from ..geometry import counters as C
@@ -49,20 +51,128 @@ class SampleWork(NamedTuple):
     split: np.ndarray    # (columns - SPLIT,) int64: the sample's splits so far
     level_mark: np.ndarray   # (3,) int64: the figures at the driver's last change of frame
     levels: int          # nesting levels split (0: none)
+    probe: object        # None, or the event log of one probed sample (Probe; explain.py)
 
 
-def sample_work(layer, levels):
+# A probe logs the events of one sample (rendering/explain.py): one float64 row an event, its
+# first column the event's code. The log of every other sample of the probed sample's tile is
+# dropped when that sample is recorded; tiles without the probed sample log nothing.
+SEARCH, FOUND, STEP, ENTER, TEST, TYPE, CULLED = range(7)
+LOG_COLUMNS = 10
+EVENTS, OVERFLOW, TARGET_ROW, TARGET_COL, DONE, MARKS = 0, 1, 2, 3, 4, 5      # Probe.state
+STATE = MARKS + 3
+
+
+class Probe(NamedTuple):
+    log: np.ndarray      # (capacity, LOG_COLUMNS) float64; (0, LOG_COLUMNS) in the tiles not probed
+    state: np.ndarray    # (STATE,) int64: events, overflow, the sample's row and column, done, figure marks
+
+
+def probe(row: int, col: int, capacity: int) -> Probe:
+    """A probe of the sample at (row, col), room for `capacity` events."""
+    state = np.zeros(STATE, np.int64)
+    state[TARGET_ROW], state[TARGET_COL] = row, col
+    return Probe(np.zeros((capacity, LOG_COLUMNS)), state)
+
+
+def sample_work(layer, levels, probe, x0, y0, size):
     """A tile's per-sample work over `layer` (None: no layers, and so None), `levels` nesting
-    levels split (engine/work.columns)."""
+    levels split (engine/work.columns); `probe` (None or a Probe) logs the events of its sample
+    if the tile at column x0, row y0, `size` samples square, holds it."""
 
 
 @overload(sample_work)
-def _sample_work(layer, levels):
+def _sample_work(layer, levels, probe, x0, y0, size):
     if isinstance(layer, types.NoneType):
-        return lambda layer, levels: None
-    return lambda layer, levels: SampleWork(layer, np.zeros(C.N_COUNTERS, np.int64),
-                                            np.zeros(layer.shape[2] - SPLIT, np.int64), np.zeros(3, np.int64),
-                                            np.int64(levels if levels > 1 else 0))
+        return lambda layer, levels, probe, x0, y0, size: None
+    if isinstance(probe, types.NoneType):
+        def no_probe(layer, levels, probe, x0, y0, size):
+            return SampleWork(layer, np.zeros(C.N_COUNTERS, np.int64), np.zeros(layer.shape[2] - SPLIT, np.int64),
+                              np.zeros(3, np.int64), np.int64(levels if levels > 1 else 0), None)
+        return no_probe
+
+    def probed(layer, levels, probe, x0, y0, size):
+        j, i = probe.state[TARGET_ROW], probe.state[TARGET_COL]
+        mine = y0 <= j < y0 + size and x0 <= i < x0 + size
+        p = probe if mine else Probe(np.zeros((0, LOG_COLUMNS)), probe.state.copy())
+        return SampleWork(layer, np.zeros(C.N_COUNTERS, np.int64), np.zeros(layer.shape[2] - SPLIT, np.int64),
+                          np.zeros(3, np.int64), np.int64(levels if levels > 1 else 0), p)
+    return probed
+
+
+def _probed(work) -> bool:
+    """Whether a kernel's `work` (its numba type) carries a probe: no log code compiles otherwise."""
+    return isinstance(work, NamedTupleType) and not isinstance(work.types[work.fields.index("probe")],
+                                                                   types.NoneType)
+
+
+def note(work, code, a, b, c, d, e, f, g, h, i):
+    """Log an event (code, then up to nine numbers) for the probed sample; nothing otherwise."""
+
+
+@overload(note, inline="always")
+def _note(work, code, a, b, c, d, e, f, g, h, i):
+    if not _probed(work):
+        return lambda work, code, a, b, c, d, e, f, g, h, i: None
+
+    def log(work, code, a, b, c, d, e, f, g, h, i):
+        _log(work.probe, code, a, b, c, d, e, f, g, h, i)
+    return log
+
+
+@njit(inline="always")
+def _log(probe, code, a, b, c, d, e, f, g, h, i):
+    log, state = probe.log, probe.state
+    if log.shape[0] == 0 or state[DONE]:
+        return
+    n = state[EVENTS]
+    if n == log.shape[0]:
+        state[OVERFLOW] = 1
+        return
+    row = log[n]
+    row[0], row[1], row[2], row[3], row[4], row[5], row[6], row[7], row[8], row[9] = code, a, b, c, d, e, f, g, h, i
+    state[EVENTS] = n + 1
+
+
+def note_search(work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    """A search begins (traverse.intersect): logged with the figures counted so far."""
+
+
+@overload(note_search, inline="always")
+def _note_search(work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    if not _probed(work):
+        return lambda work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt: None
+
+    def log(work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+        now = _figures(cnt)
+        for k in range(3):
+            work.probe.state[MARKS + k] = now[k]
+        _log(work.probe, SEARCH, mode, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    return log
+
+
+def note_found(work, found, hit_f, hit_i, cnt):
+    """The search ends: whether it found a hit, the hit, and what it counted."""
+
+
+@overload(note_found, inline="always")
+def _note_found(work, found, hit_f, hit_i, cnt):
+    if not _probed(work):
+        return lambda work, found, hit_f, hit_i, cnt: None
+
+    def log(work, found, hit_f, hit_i, cnt):
+        _log_found(work.probe, found, hit_f, hit_i, cnt)
+    return log
+
+
+@njit
+def _log_found(probe, found, hit_f, hit_i, cnt):
+    now = _figures(cnt)
+    marks = probe.state[MARKS:MARKS + 3]
+    t, kind, idx, inst = np.inf, -1, -1, -1
+    if found:
+        t, kind, idx, inst = hit_f[0], hit_i[0], hit_i[1], hit_i[2]
+    _log(probe, FOUND, found, t, kind, idx, inst, now[0] - marks[0], now[1] - marks[1], now[2] - marks[2], 0)
 
 
 @njit(inline="always")
@@ -95,6 +205,7 @@ def _charge_type(work, ray_type, before, cnt):
         now = _figures(cnt)
         for k in range(3):
             work.split[3 * ray_type + k] += now[k] - before[k]
+        note(work, TYPE, ray_type, 0, 0, 0, 0, 0, 0, 0, 0)
     return charge
 
 
@@ -149,7 +260,43 @@ def _start_samples(work, cnt):
             work.mark[k] = cnt[k]
         for k in range(work.split.shape[0]):
             work.split[k] = 0
+        _drop_log(work)
     return start
+
+
+def _drop_log(work):
+    """The events logged since the last sample are not the probed sample's: forget them."""
+
+
+@overload(_drop_log, inline="always")
+def _drop_log_impl(work):
+    if not _probed(work):
+        return lambda work: None
+
+    def drop(work):
+        state = work.probe.state
+        if not state[DONE]:
+            state[EVENTS], state[OVERFLOW] = 0, 0
+    return drop
+
+
+def _end_log(work, j, i):
+    """The sample at row j, column i is recorded: its log is kept if it is the probed one."""
+
+
+@overload(_end_log, inline="always")
+def _end_log_impl(work, j, i):
+    if not _probed(work):
+        return lambda work, j, i: None
+
+    def end(work, j, i):
+        state = work.probe.state
+        if work.probe.log.shape[0] and not state[DONE]:
+            if j == state[TARGET_ROW] and i == state[TARGET_COL]:
+                state[DONE] = 1
+            else:
+                state[EVENTS], state[OVERFLOW] = 0, 0
+    return end
 
 
 def record_sample(work, j, i, cnt):
@@ -177,6 +324,7 @@ def _record_sample(work, j, i, cnt):
                 for level in range(1, work.levels):
                     deeper += row[BY_LEVEL + 3 * level + k]
                 row[BY_LEVEL + k] = total[k] - deeper
+        _end_log(work, j, i)
     return record
 
 

@@ -45,7 +45,7 @@ from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..engine.widewalk import count_misses, with_driver
 from ..aggregates.memory import check, memory_limit
-from ..engine.work import charge_type, record_sample, sample_work, start_samples, work_figures
+from ..engine.work import CULLED, charge_type, note, record_sample, sample_work, start_samples, work_figures
 from ..engine.work import columns as work_columns
 from ..errors import OptionError
 from ..options import choice, number
@@ -73,7 +73,7 @@ CUTOFF = 1.0 / 512.0       # outside SPD mode: rays weighing less cannot change 
 @njit
 def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile_x, tile_y, counter, last, row0,
                   max_depth, cutoff, filtered, tricks, starts, out, counters, passes, step, coarse, cull, layer,
-                  levels):
+                  levels, probe):
     """Trace tiles of the sample grid into `out`, adding into one counter row per tile: those
     claimed from `counter` (parallel.claim: every thread of a pass calls this once) below `last`.
     cam = eye(3), direction to sample (0, 0) (3), step right (3), step down (3).
@@ -81,7 +81,8 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
     less those on the coarser lattice of `coarse` (0: none) traced before.
     passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py).
     cull: a tile none of whose eye rays can enter the scene's box is not traced (_culled).
-    layer: None, or each sample's record of its work (engine/work.py), `levels` nesting levels split."""
+    layer: None, or each sample's record of its work (engine/work.py), `levels` nesting levels split;
+    probe: None, or the event log of one sample (rendering/explain.py)."""
     eyes = np.zeros((TILE * TILE, 5))      # direction, then the sample's row and column
     colors = np.zeros((TILE * TILE, 3))
     while True:
@@ -90,7 +91,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
             break
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
         x0, y0 = tile_x[tile], tile_y[tile]
-        work = sample_work(layer, levels)
+        work = sample_work(layer, levels, probe, x0, y0, TILE)
         if starts is None and cull and _culled(geo, cam, samples_w, samples_h, x0, y0):
             _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, work, cnt)
         else:
@@ -143,6 +144,7 @@ def _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, wo
                 out[j, i, 0], out[j, i, 1], out[j, i, 2] = 0.0 + background[0], 0.0 + background[1], \
                     0.0 + background[2]
                 before = work_figures(work, cnt)
+                note(work, CULLED, 0, 0, 0, 0, 0, 0, 0, 0, 0)
                 cnt[C.RAYS_EYE] += 1
                 cnt[C.FRUSTUM_CULLED] += 1
                 count_misses(cnt, one)
@@ -394,6 +396,7 @@ class RenderJob:
         # the samples' records of their work (engine/work.py), by nesting level where aggregates nest
         self.levels = int(self.build.get("build.nesting", 1))
         self.layer = None
+        self.probe = None       # the event log of one sample (rendering/explain.py)
         if o["work"]:
             shape = (self.sh, self.sw, work_columns(self.levels))
             check(int(np.prod(shape)) * 4, memory_limit(o["max_memory"]), "the work layers",
@@ -456,7 +459,8 @@ class RenderJob:
                               self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
                               True if self.filtered else None, self.trick_bits,
                               None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
-                              self.pass_counts[p], step, coarse, self.frustum_culling, self.layer, self.levels)
+                              self.pass_counts[p], step, coarse, self.frustum_culling, self.layer, self.levels,
+                              self.probe)
         else:
             whitted_on, heckbert_on, medium = model_arguments(o["shading"], self.medium)
 
@@ -466,7 +470,7 @@ class RenderJob:
                                self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
                                whitted_on, heckbert_on, self.filtered, self.trick_bits, self.starts, medium,
                                SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"],
-                               self.layer, self.levels)
+                               self.layer, self.levels, self.probe)
         start = first + lo
         samples = self.work[p] * (hi - lo) // max(1, last - first)
         threads = max(1, min(threads, hi - lo, -(-samples // THREAD_SAMPLES)))

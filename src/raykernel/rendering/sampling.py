@@ -86,11 +86,12 @@ def _sample(geo, mats, lights, background, cam, u, v, whitted_on, heckbert_on, m
 @njit
 def render_pixels(geo, mats, lights, background, cam, width, height, tile_x, tile_y, counter, last, row0, max_depth,
                    cutoff, out, counters, passes, step, coarse, tile_size, whitted_on, heckbert_on, filtered, tricks,
-                   starts, medium, sampler, samples, seed, threshold, aa_depth, layer, levels):
+                   starts, medium, sampler, samples, seed, threshold, aa_depth, layer, levels, probe):
     """render._render_tiles over pixels (tiles of tile_size), each from `sampler`'s samples
     under the model whose argument (whitted_on, heckbert_on or medium) is not None
     (model_arguments); filtered shadows or not. layer: None, or each pixel's record of the work
-    of all its samples (engine/work.py), `levels` nesting levels split."""
+    of all its samples (engine/work.py), `levels` nesting levels split; probe: None, or the
+    event log of one pixel (rendering/explain.py)."""
     cells = tile_size << aa_depth if sampler == ADAPTIVE else 0
     eye = np.zeros((1, 3))      # whitted.trace's batch of one ray
     color = np.zeros((1, 3))
@@ -98,7 +99,7 @@ def render_pixels(geo, mats, lights, background, cam, width, height, tile_x, til
         tile = claim(counter)
         if tile >= last:
             break
-        ws = workspace(0, sample_work(layer, levels))
+        ws = workspace(0, sample_work(layer, levels, probe, tile_x[tile], tile_y[tile], tile_size))
         rays = np.zeros((whitted.RAY_STACK, whitted.RAY_COLUMNS))
         state = tricks_memo(lights.shape[0], starts)
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
