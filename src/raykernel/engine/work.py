@@ -144,11 +144,18 @@ def _note_search(work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
         return lambda work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt: None
 
     def log(work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
-        now = _figures(cnt)
-        for k in range(3):
-            work.probe.state[MARKS + k] = now[k]
-        _log(work.probe, SEARCH, mode, ox, oy, oz, dx, dy, dz, tmin, tmax)
+        _log_search(work.probe, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
     return log
+
+
+@njit
+def _log_search(probe, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    # a call, not inlined: only a probed render makes it, and inlining a loop that writes the
+    # probe's state into the sampling kernels gives numba's IR checks variables out of scope
+    tests, bounds, visited = _figures(cnt)
+    state = probe.state
+    state[MARKS], state[MARKS + 1], state[MARKS + 2] = tests, bounds, visited
+    _log(probe, SEARCH, mode, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
 def note_found(work, found, hit_f, hit_i, cnt):
