@@ -70,7 +70,7 @@ from ..geometry.boxes import CONSERVATIVE, INF, slab
 from ..geometry.config import njit
 from ..options import number
 from .memory import check, grown, memory_limit
-from .spec import Kind, Param
+from .spec import Kind, Param, Search
 from .walk import MAX_TREE_DEPTH, START, Field, Walk, answer, entry_tag, mailbox_reset, push
 
 __all__ = ["KdArrays", "build_kdtree"]
@@ -369,4 +369,4 @@ KIND = Kind("kdtree", "k-d tree: axis-aligned planes placed by the surface-area 
     Param("traversal", 1.0, "the SAH's cost of a node visited", float, 0.0, 1e9),
     Param("empty_bonus", 0.5, "the share of a plane's cost forgiven when one side holds no item", float, 0.0, 1.0),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
-), flatten=flatten, walk=WALK)
+), flatten=flatten, walk=WALK, search=Search(start=True, candidates=("kdtree", "kdtree(leaf=4)")))
