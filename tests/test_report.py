@@ -87,3 +87,46 @@ def test_report_in_headless_chromium(report, tmp_path):
     from PIL import Image
     pixels = np.asarray(Image.open(shot).convert("RGB")).reshape(-1, 3)
     assert len(np.unique(pixels, axis=0)) > 50       # text, table, plot and renders, not a blank page
+
+
+@pytest.fixture(scope="module")
+def work_report(tmp_path_factory):
+    cmp = cm.compare(["scene:stadium:ratio=50"], ["list", "grid", "bvh"], resolution=12, threads=1, model=None,
+                     warm_up=False, command="raykernel compare --work tests.total", work="tests.total")
+    path = tmp_path_factory.mktemp("work") / "work.html"
+    write_report(cmp, path)
+    return cmp, path
+
+
+def test_work_section_carries_every_layer(work_report):
+    cmp, path = work_report
+    text = path.read_text()
+    assert text.count("<section class='work'") == 1
+    data = re.search(r"<script type='application/json' class='work-data'>(.*?)</script>", text).group(1)
+    import base64
+    import json
+    d = json.loads(data)
+    assert d["accels"] == ["list", "grid", "bvh"] and (d["width"], d["height"]) == (12, 12)
+    for run, layer in zip(cmp.runs, d["layers"]):
+        decoded = np.frombuffer(base64.b64decode(layer), "<u4").reshape(12, 12)
+        assert np.array_equal(decoded, run.work)
+
+
+@needs_chromium
+@pytest.mark.parametrize("x, y", [(0, 0), (7, 3), (11, 11)])
+def test_work_section_in_headless_chromium(work_report, tmp_path, x, y):
+    cmp, path = work_report
+    proc = _chromium(["--dump-dom", path.as_uri() + f"#probe={x},{y}"], tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert not _console_errors(proc.stderr), _console_errors(proc.stderr)
+    dom = proc.stdout
+    assert 'data-work-sections="1"' in dom and 'data-drawn="list"' in dom
+    assert int(re.search(r'data-images-decoded="(\d+)"', dom).group(1)) == int(
+        re.search(r'data-images="(\d+)"', dom).group(1))
+    readout = re.search(r'class="readout" data-x="(\d+)" data-y="(\d+)" data-values="([^"]*)"', dom)
+    assert readout, dom[-3000:]
+    assert (int(readout.group(1)), int(readout.group(2))) == (x, y)
+    import html
+    import json
+    values = json.loads(html.unescape(readout.group(3)))
+    assert values == [int(run.work[y, x]) for run in cmp.runs]

@@ -335,12 +335,32 @@ def _finish_comparison(cmp, args, console, title, plots) -> int:
     return 0
 
 
+def _write_work_images(cmp, folder, console) -> None:
+    """One figure per scene (FOLDER/SCENE.COUNTER.png): every structure's work layer on one scale,
+    ratios, winners."""
+    import re
+    from pathlib import Path
+
+    from .analysis.workimages import work_images, write_figure
+    folder = Path(folder)
+    for scene in cmp.scenes():
+        path = folder / (re.sub(r"[^A-Za-z0-9_.=-]+", "_", scene).strip("_") + f".{cmp.work}.png")
+        write_figure(work_images(cmp, scene), path)
+        console.print(f"work images of {scene}: {path}", markup=False, highlight=False, soft_wrap=True)
+
+
 def cmd_compare(args, console) -> int:
     from .analysis import compare as cm
+    from .errors import OptionError
+    work = args.work or ("tests.total" if args.work_images else None)
+    if args.work_images and not Path(args.work_images).is_dir():
+        raise OptionError(f"--work-images: {args.work_images} is not a folder")
     with _cluster(args, console) as cluster:
         cmp = cm.compare(args.scene, args.accel, spd=args.spd, resolution=args.resolution, threads=args.threads,
                          model=args.calibration or "default", command=cm.command_from_args("compare", args),
-                         cluster=cluster)
+                         cluster=cluster, work=work)
+    if args.work_images:
+        _write_work_images(cmp, args.work_images, console)
     return _finish_comparison(cmp, args, console, "raykernel compare",
                               [("Counts and times per scene", lambda: cm.compare_figure_png(cmp))])
 
@@ -561,6 +581,12 @@ def _add_others(sub) -> None:
         c = sub.add_parser(name, help=help_text)
         if name == "compare":
             c.add_argument("scene", nargs="+", help="scenes: .nff/.json files, spd:NAME[:SIZE], scene:NAME[:k=v,...]")
+            c.add_argument("--work", metavar="COUNTER", help="keep each render's work layer of COUNTER (e.g. "
+                           "tests.total, bounds.tests, cells.visited, tests.total.shadow): the report gets work "
+                           "images of every structure on one scale, ratios against the first and a winner map")
+            c.add_argument("--work-images", metavar="FOLDER", help="write each scene's work figure (every "
+                           "structure on one scale, log2 ratios against the first, the winner map) into FOLDER "
+                           "(counter: --work, default tests.total)")
             c.set_defaults(func=cmd_compare)
         else:
             c.add_argument("template", help="scene with {NAME} placeholders, e.g. spd:balls:{sf} or "

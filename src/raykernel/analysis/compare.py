@@ -2,6 +2,7 @@
 
     cmp = compare(["spd:balls", "spd:gears"], ["list", "grid", "bvh"], spd=True, resolution=128)
     cmp.disagreements          # [] when every structure cast the same rays
+    cmp = compare(["scene:stadium"], ["grid", "bvh"], work="tests.total")   # + each run's work layer
     print_table(cmp, console); write_json(cmp, "cmp.json"); write_csv(cmp, "cmp.csv")
 
     sw = sweep("scene:stadium:ratio={ratio}", {"ratio": ["1", "100", "10000"]}, ["grid", "bvh"])
@@ -62,6 +63,7 @@ class Run:
     primitives: int
     params: dict = field(default_factory=dict)      # sweep parameters, if any
     predicted: float | None = None
+    work: np.ndarray | None = None                  # compare(work=COUNTER): that counter's work layer
 
     def value(self, key):
         if key == "predicted.trace":
@@ -92,6 +94,7 @@ class Comparison:
     disagreements: list = field(default_factory=list)
     model: object = None
     params: dict = field(default_factory=dict)     # sweep: name -> values
+    work: str | None = None                         # the counter whose work layers the runs hold
 
     def scenes(self) -> list:
         return list(dict.fromkeys(r.scene for r in self.runs))
@@ -151,21 +154,30 @@ def _model(model):
     return model
 
 
-def _cell(scene, label, params, accel, options) -> Run:
-    """One scene x structure cell of a comparison (scene: a Scene or a name to load)."""
+def _cell(scene, label, params, accel, options, work=None) -> Run:
+    """One scene x structure cell of a comparison (scene: a Scene or a name to load); work: a
+    counter whose work layer the run keeps."""
     if not hasattr(scene, "root"):
         scene = _load_scene(scene)
-    result = render(scene, accel=accel, **options)
+    result = render(scene, accel=accel, work=work is not None, **options)
+    if work is not None and work not in result.work:
+        raise OptionError(f"{label} with {accel} has no work layer {work!r}; it has: {', '.join(sorted(result.work))}")
     return Run(scene=label, accel=accel, stats=result.stats, image=result.image,
-               primitives=scene.count_primitives(), params=dict(params))
+               primitives=scene.count_primitives(), params=dict(params),
+               work=None if work is None else np.array(result.work[work]))
 
 
 def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=5, model="default",
-            log=None, command=None, warm_up=True, cluster=None) -> Comparison:
+            log=None, command=None, warm_up=True, cluster=None, work=None) -> Comparison:
     """Render every scene with every structure; scenes are names or (label, Scene, params) triples.
-    cluster: a cluster.Cluster to run the cells on, one task each (same counts; times are each worker's)."""
+    cluster: a cluster.Cluster to run the cells on, one task each (same counts; times are each worker's).
+    work: a counter name (e.g. "tests.total"): every run keeps that counter's work layer
+    (analysis/workimages.py draws them)."""
     from .costmodel import machine_info
     _check_accels(accels)
+    if work is not None:
+        from ..rendering.worklayers import check_layer_name
+        check_layer_name(work)
     model = _model(model)
     options = dict(resolution=resolution, spd=spd, max_depth=max_depth, threads=threads)
     if cluster is not None:
@@ -175,7 +187,7 @@ def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=
         for item in scenes:
             label, scene, params = item if isinstance(item, tuple) else (item, item, {})
             shipped = cluster.scatter(scene)[0] if hasattr(scene, "root") else scene
-            cells += [(shipped, label, params, accel, cluster.task_options(options)) for accel in accels]
+            cells += [(shipped, label, params, accel, cluster.task_options(options), work) for accel in accels]
         runs = cluster.map(_cell, cells)
     else:
         if warm_up:
@@ -184,7 +196,7 @@ def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=
         for item in scenes:
             label, scene, params = item if isinstance(item, tuple) else (item, _load_scene(item), {})
             for accel in accels:
-                runs.append(_cell(scene, label, params, accel, options))
+                runs.append(_cell(scene, label, params, accel, options, work))
                 if log:
                     log(f"{label} {accel}: trace {runs[-1].stats['time.trace']:.3f} s")
     for run in runs:
@@ -193,7 +205,7 @@ def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=
     return Comparison(runs=runs, options={"spd": spd, "resolution": resolution, "threads": threads,
                                           "max_depth": max_depth},
                       machine=machine_info(), command=command or command_line(),
-                      disagreements=check_rays(runs), model=model)
+                      disagreements=check_rays(runs), model=model, work=work)
 
 
 # --- sweeps ---------------------------------------------------------------------------------
