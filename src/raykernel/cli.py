@@ -19,6 +19,9 @@ from pathlib import Path
 
 from .errors import RayKernelError
 
+SCENE_HELP = ("a .nff, .json or model file (.obj with its .mtl, .ply, .stl, .off, .gltf, .glb: the mesh extra), "
+              "spd:NAME[:SIZE], scene:NAME[:k=v,...] or example:NAME")
+
 
 def _positive_int(text: str) -> int:
     try:
@@ -485,7 +488,7 @@ def _add_trace_options(r) -> None:
 
 def _add_render(sub) -> None:
     r = sub.add_parser("render", help="render a scene to PNG and print its statistics")
-    r.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
+    r.add_argument("scene", help=SCENE_HELP)
     r.add_argument("-o", "--output", help="output image: .png, .jpg, .tif, .webp (8-bit) or .npy, .pfm, .exr "
                    "(float); default: the scene's name + .png")
     _add_trace_options(r)
@@ -506,7 +509,7 @@ def _add_render(sub) -> None:
 def _add_explain(sub) -> None:
     e = sub.add_parser("explain", help="re-trace one pixel and print its ray tree: every ray, the cells or nodes "
                        "it visited and the objects it tested, level by level, with the pixel's work layers")
-    e.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
+    e.add_argument("scene", help=SCENE_HELP)
     e.add_argument("--pixel", nargs=2, type=int, metavar=("X", "Y"), required=True,
                    help="the pixel: X the column, Y the row from the top (in --spd, the corner sample X, Y)")
     e.add_argument("--json", metavar="FILE", help="also write the explanation as JSON (its `totals`: each counter's "
@@ -569,7 +572,7 @@ def _add_others(sub) -> None:
     sc.set_defaults(func=cmd_scene)
 
     cv = sub.add_parser("convert", help="convert a scene to NFF, JSON, Wavefront OBJ (+ .mtl) or POV-Ray 3.7")
-    cv.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
+    cv.add_argument("scene", help=SCENE_HELP)
     cv.add_argument("-o", "--output", required=True, help="output file; its suffix picks the format: "
                     ".nff, .json, .obj or .pov")
     cv.add_argument("--segments", type=_positive_int, default=16,
@@ -580,7 +583,7 @@ def _add_others(sub) -> None:
                             ("sweep", "scaling study: render a scene template over parameter values")):
         c = sub.add_parser(name, help=help_text)
         if name == "compare":
-            c.add_argument("scene", nargs="+", help="scenes: .nff/.json files, spd:NAME[:SIZE], scene:NAME[:k=v,...]")
+            c.add_argument("scene", nargs="+", help="scenes: " + SCENE_HELP)
             c.add_argument("--work", metavar="COUNTER", help="keep each render's work layer of COUNTER (e.g. "
                            "tests.total, bounds.tests, cells.visited, tests.total.shadow): the report gets work "
                            "images of every structure on one scale, ratios against the first and a winner map")
@@ -610,7 +613,7 @@ def _add_others(sub) -> None:
 
     an = sub.add_parser("anneal", help="find a hierarchy of structures for a scene by simulated annealing and "
                         "write it as a JSON scene (what --accel auto does inside a render)")
-    an.add_argument("scene", help="a .nff or .json file, spd:NAME[:SIZE], scene:NAME or example:NAME")
+    an.add_argument("scene", help=SCENE_HELP)
     an.add_argument("-o", "--output", required=True, help="the scene with the hierarchy found, as JSON")
     an.add_argument("--seconds", type=float, default=30.0, help="time budget of the search (default 30)")
     an.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

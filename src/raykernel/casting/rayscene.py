@@ -406,6 +406,14 @@ class RayScene:
         return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel, edges=edges)
 
     @classmethod
+    def from_file(cls, path, accel: str = MESH_ACCEL, edges: str = "watertight") -> "RayScene":
+        """The triangles of a model file (OBJ, PLY, STL, OFF, glTF, GLB; read by trimesh, the mesh
+        extra), every mesh of it in one, placed by the file's transforms (scene/meshfile.py)."""
+        from ..scene.meshfile import mesh_arrays
+        vertices, faces = mesh_arrays(path)
+        return cls.from_mesh(vertices, faces, accel=accel, edges=edges)
+
+    @classmethod
     def from_mesh(cls, vertices, faces=None, normals=None, accel: str = MESH_ACCEL,
                   edges: str = "watertight") -> "RayScene":
         """A triangle mesh: vertices (V, 3) float32/float64, faces (F, 3) integer vertex

@@ -2,6 +2,7 @@
 
     load("balls-sf4.nff")      load("scene.json")
     load("spd:balls")          load("spd:balls:2")      load("example:heckbert")
+    load("bunny.ply")          load("model.obj")        (OBJ, PLY, STL, OFF, glTF, GLB: meshfile.py)
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ from .model import Scene
 
 
 def load(source) -> Scene:
-    """A Scene from a .nff or .json path, `spd:NAME[:SIZE]`, `scene:NAME` or `example:NAME`;
+    """A Scene from a .nff, .json or model file (.obj, .ply, .stl, .off, .gltf, .glb) path,
+    `spd:NAME[:SIZE]`, `scene:NAME` or `example:NAME`;
     its parse_seconds say how long that took (a render reports them as time.parse), less the
     kernels' compiling and loading on a first call (its compile_seconds and load_seconds)."""
     from ..geometry.compiletime import CompileClock, compile_notice, typing_setup
@@ -57,6 +59,10 @@ def _load(source) -> Scene:
     if suffix == ".json":
         from .jsonscene import read_json
         return read_json(path)
+    from .meshfile import SUFFIXES, read_mesh_file
+    if suffix in SUFFIXES:
+        return read_mesh_file(path)
     if not path.exists():
         raise SceneError("no such file, and not spd:NAME, scene:NAME or example:NAME", path=text)
-    raise SceneError(f"unknown scene format {suffix or '(no suffix)'}; expected .nff or .json", path=text)
+    raise SceneError(f"unknown scene format {suffix or '(no suffix)'}; expected .nff, .json or a model file "
+                     f"({', '.join(SUFFIXES)})", path=text)
