@@ -135,3 +135,43 @@ def test_the_depth_image_example_runs(tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["depth_image.py", "-o", str(out)])
     runpy.run_path(str(Path(__file__).parents[1] / "examples" / "depth_image.py"), run_name="__main__")
     assert out.stat().st_size > 10_000
+
+
+def _trimesh_signatures(module: str) -> dict:
+    """Each public method of trimesh's RayMeshIntersector in `module` (read from its source, so
+    ray_pyembree needs no embreex) -> its parameter names, and "*" / "**" for *args / **kwargs."""
+    import ast
+    import importlib.util
+    source = open(importlib.util.find_spec(f"trimesh.ray.{module}").origin).read()
+    cls = next(n for n in ast.walk(ast.parse(source)) if isinstance(n, ast.ClassDef) and n.name == "RayMeshIntersector")
+    out = {}
+    for f in cls.body:
+        if isinstance(f, ast.FunctionDef) and (f.name == "__init__" or not f.name.startswith("_")):
+            names = [a.arg for a in f.args.args + f.args.kwonlyargs][1:]
+            out[f.name] = names + (["*"] if f.args.vararg else []) + (["**"] if f.args.kwarg else [])
+    return out
+
+
+@pytest.mark.parametrize("module", ["ray_triangle", "ray_pyembree"])
+def test_every_trimesh_signature_is_accepted(module):
+    import inspect
+    theirs = _trimesh_signatures(module)
+    assert "intersects_id" in theirs and "__init__" in theirs
+    for name, params in theirs.items():
+        ours = inspect.signature(getattr(RayMeshIntersector, name)).parameters
+        has_kwargs = any(p.kind is p.VAR_KEYWORD for p in ours.values())
+        for p in params:
+            if p in ("*", "**"):
+                continue
+            assert p in ours or has_kwargs, f"{module}.RayMeshIntersector.{name}: no parameter {p!r}"
+    mesh = trimesh.creation.icosphere()
+    o = np.array([[0.11, 0.13, -3.0], [0.0, 3.0, 0.0]])       # off the poles: no shared vertex or edge
+    d = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
+    native = trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
+    for ours in (RayMeshIntersector(mesh, scale_to_box=False), RayMeshIntersector(mesh=mesh)):
+        assert ours.mesh is mesh and list(ours.intersects_any(o, d)) == [True, False]
+        assert np.array_equal(ours.intersects_first(o, d), native.intersects_first(o, d))
+        loc, ray, tri = ours.intersects_location(o, d, multiple_hits=True, max_hits=1)
+        assert list(ray) == [0] and np.allclose(loc, [[0.11, 0.13, -0.98]], atol=0.02)
+    with pytest.raises(TypeError, match="geometry or as mesh"):
+        RayMeshIntersector()

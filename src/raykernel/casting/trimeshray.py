@@ -9,7 +9,10 @@
 The methods and their answers are those of trimesh's `RayMeshIntersector`
 (trimesh.ray.ray_triangle and ray_pyembree): `intersects_id`,
 `intersects_location`, `intersects_first`, `intersects_any` and
-`contains_points`. Hits are exact, in double precision. By default edges
+`contains_points`, with both classes' arguments: the mesh as `geometry` (ray_pyembree)
+or `mesh` (ray_triangle), `scale_to_box` (ray_pyembree's float32 rescaling, which
+double precision does not need: accepted and kept, changing nothing), and the extra
+keywords trimesh's methods pass on to `intersects_id` (`max_hits`). Hits are exact, in double precision. By default edges
 are inclusive, as in trimesh's engines: a ray grazing a silhouette edge or
 running in the plane of a face hits the edge, and a ray through an edge or
 vertex is reported once, by the lowest-numbered triangle there
@@ -35,12 +38,16 @@ from .rayscene import RayScene
 class RayMeshIntersector:
     """Ray queries on a trimesh.Trimesh, answered by raykernel (see the module docstring)."""
 
-    def __init__(self, geometry, accel: str = MESH_ACCEL, edges: str = "inclusive"):
+    def __init__(self, geometry=None, scale_to_box: bool = True, accel: str = MESH_ACCEL, edges: str = "inclusive",
+                 *, mesh=None):
         try:
             from trimesh import caching
         except ImportError:
             raise RayKernelError("raykernel.trimesh needs trimesh: pip install raykernel[mesh]") from None
-        self.mesh = geometry
+        if (geometry is None) == (mesh is None):
+            raise TypeError("RayMeshIntersector needs the mesh, as geometry or as mesh (one of them)")
+        self.mesh = geometry if mesh is None else mesh
+        self.scale_to_box = scale_to_box
         self.accel = accel
         self.edges = edges      # inclusive, as trimesh's engines: a ray grazing an edge hits it
         self._cache = caching.Cache(id_function=self.mesh.__hash__)
@@ -64,7 +71,7 @@ class RayMeshIntersector:
         return o.reshape(-1, 3), d.reshape(-1, 3)
 
     def intersects_id(self, ray_origins, ray_directions, multiple_hits: bool = True, max_hits: int = 100,
-                      return_locations: bool = False):
+                      return_locations: bool = False, **kwargs):
         """Triangles hit by each ray: (index_tri, index_ray[, locations]); with multiple_hits
         every hit along the ray up to max_hits, nearest first, else the first hit of each ray."""
         o, d = self._rays(ray_origins, ray_directions)
@@ -85,21 +92,22 @@ class RayMeshIntersector:
             return tri, ray, o[ray] + t[:, None] * d[ray]
         return tri, ray
 
-    def intersects_location(self, ray_origins, ray_directions, multiple_hits: bool = True):
-        """(locations, index_ray, index_tri) of the hits, as intersects_id."""
+    def intersects_location(self, ray_origins, ray_directions, multiple_hits: bool = True, **kwargs):
+        """(locations, index_ray, index_tri) of the hits, as intersects_id (kwargs: its max_hits)."""
         tri, ray, locations = self.intersects_id(ray_origins, ray_directions, multiple_hits=multiple_hits,
-                                                 return_locations=True)
+                                                 return_locations=True, **kwargs)
         return locations, ray, tri
 
-    def intersects_first(self, ray_origins, ray_directions) -> np.ndarray:
-        """The first triangle each ray hits, -1 where it hits none."""
+    def intersects_first(self, ray_origins, ray_directions, **kwargs) -> np.ndarray:
+        """The first triangle each ray hits, -1 where it hits none (kwargs: accepted as trimesh's
+        ray_triangle does, changing nothing)."""
         o, d = self._rays(ray_origins, ray_directions)
         if len(o) == 0:
             return np.zeros(0, np.int64)
         return self.scene.intersect(o, d, fields="prim_id").prim_id
 
-    def intersects_any(self, ray_origins, ray_directions) -> np.ndarray:
-        """True where the ray hits the mesh at all."""
+    def intersects_any(self, ray_origins, ray_directions, **kwargs) -> np.ndarray:
+        """True where the ray hits the mesh at all (kwargs: as intersects_first)."""
         o, d = self._rays(ray_origins, ray_directions)
         if len(o) == 0:
             return np.zeros(0, bool)
@@ -121,7 +129,7 @@ class RayMeshIntersector:
         self._cache = caching.Cache(id_function=self.mesh.__hash__)
 
     def __copy__(self):
-        return RayMeshIntersector(self.mesh, self.accel, self.edges)
+        return RayMeshIntersector(self.mesh, self.scale_to_box, accel=self.accel, edges=self.edges)
 
     def __deepcopy__(self, memo):
         return self.__copy__()
