@@ -430,8 +430,14 @@ def test_nul_in_text():
     expect_error(VIEW + "s 0 0 0 1\x00\n", 8, "not a text NFF file")
 
 
-def test_no_view_at_all():
+def test_no_view_at_all(tmp_path):
     expect_error("b 0 0 0\nl 1 1 1\n\n# end\n", 2, "no view block")
+    # a file is read by the fast path first, which must hand such a file to the reading that names it
+    for text, line in (("b 0 0 0\nl 1 1 1\n\n# end\n", 2), ("b 0.1 0.2 0.3\n", 1)):
+        path = tmp_path / "noview.nff"
+        path.write_text(text)
+        with pytest.raises(SceneError, match=f"^{path}:{line}: no view block"):
+            read_nff(path)
 
 
 def test_geometry_before_view():

@@ -499,8 +499,8 @@ class _Reader:
             if self.pos < n and not is_keyword[self.pos]:
                 raise _NotPlain                         # numbers left over
         bulk = np.flatnonzero(code < _CODES["f"])
-        if len(bulk) and (self.camera is None or at[bulk[0]] < self.view_start):
-            raise _NotPlain
+        if self.camera is None or (len(bulk) and at[bulk[0]] < self.view_start):
+            raise _NotPlain                             # the token-by-token reading names what is missing
 
         # materials: each fill's numbers made a Material once, each entity given its last fill's,
         # registered in order of first use
