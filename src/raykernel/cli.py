@@ -266,6 +266,23 @@ def cmd_cache(args, console) -> int:
     return 0
 
 
+def cmd_warmup(args, console) -> int:
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .analysis.warmup import warm_up
+    from .geometry.config import cache_root
+    with Progress(TextColumn("warming up {task.fields[step]:<36}"), BarColumn(), "{task.completed}/{task.total}",
+                  TimeElapsedColumn(), console=console, transient=True) as bar:
+        task = bar.add_task("warmup", total=None, step="")
+
+        def progress(done, total, label):
+            bar.update(task, completed=done, total=total, step=label)
+        report = warm_up(args.what, progress=progress)
+    print(f"warm-up of {args.what}: {report['steps']} steps in {report['seconds']:.1f} s (compiling "
+          f"{report['compile']:.1f} s, loading cached kernels {report['load']:.1f} s); cached in {cache_root()}")
+    return 0
+
+
 def cmd_spd(args, console) -> int:
     from .atomicfile import atomic_write
     from .scene import spd
@@ -555,6 +572,13 @@ def _add_others(sub) -> None:
     ca.add_argument("--clear", action="store_true", help="remove every raykernel kernel cache folder (this "
                     "version's and earlier ones'); the next run compiles again")
     ca.set_defaults(func=cmd_cache)
+
+    w = sub.add_parser("warmup", help="compile the kernels a first render or ray cast would compile (or load them "
+                       "from the cache), and say how long it took")
+    w.add_argument("what", nargs="?", default="all", choices=["render", "cast", "all"],
+                   help="render: every structure, shading model, antialiasing, filtered shadows, work layers; "
+                   "cast: every RayScene query; all: both (the default)")
+    w.set_defaults(func=cmd_warmup)
 
     s = sub.add_parser("spd", help="write one of Haines's Standard Procedural Databases as NFF")
     s.add_argument("name", help="balls, gears, mount, rings, teapot, tetra, tree, jacks, lattice, shells, "
