@@ -266,6 +266,26 @@ def cmd_cache(args, console) -> int:
     return 0
 
 
+def cmd_structure(args, console) -> int:
+    from .aggregates.registry import parse_spec
+    from .errors import OptionError
+    from .rendering.structure import select, structure_boxes, write_ply
+    from .scene.loading import load
+    if Path(args.output).suffix.lower() != ".ply":
+        raise OptionError(f"--output {args.output}: the structure is written as PLY; name a .ply file")
+    parse_spec(args.accel)
+    boxes = structure_boxes(load(args.scene), args.accel, max_memory=args.max_memory)
+    if args.leaves:
+        boxes = select(boxes, boxes.leaf == 1)
+    if args.no_empty:
+        boxes = select(boxes, boxes.items != 0)
+    write_ply(boxes, args.output)
+    levels = int(boxes.level.max()) + 1 if len(boxes) else 0
+    print(f"{args.scene} with {args.accel}: {len(boxes):,} boxes over {levels} nesting level(s) -> {args.output} "
+          f"(per face: level, depth, leaf, items, aggregate, walk)")
+    return 0
+
+
 def cmd_warmup(args, console) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -572,6 +592,16 @@ def _add_others(sub) -> None:
     ca.add_argument("--clear", action="store_true", help="remove every raykernel kernel cache folder (this "
                     "version's and earlier ones'); the next run compiles again")
     ca.set_defaults(func=cmd_cache)
+
+    st = sub.add_parser("structure", help="write a built structure's cells and nodes as boxes in a PLY file "
+                        "(nested structures level by level; per face: level, depth, leaf, items)")
+    st.add_argument("scene", help=SCENE_HELP)
+    st.add_argument("-o", "--output", required=True, help="the PLY file")
+    st.add_argument("--accel", default="bvh", help="accelerator spec for groups that name none (default bvh)")
+    st.add_argument("--leaves", action="store_true", help="leaves and cells only, no inner nodes")
+    st.add_argument("--no-empty", action="store_true", help="leave out empty leaves and cells")
+    st.add_argument("--max-memory", help="memory budget of the build, e.g. 8G or 512M")
+    st.set_defaults(func=cmd_structure)
 
     w = sub.add_parser("warmup", help="compile the kernels a first render or ray cast would compile (or load them "
                        "from the cache), and say how long it took")

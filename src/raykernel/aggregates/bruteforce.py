@@ -9,7 +9,7 @@ driver tests it. Every aggregate with no items is stored as a list.
 
 from ..geometry.config import njit
 from .spec import Kind, Search
-from .walk import FI_AGG, Walk, answer
+from .walk import FI_AGG, Walk, answer, one_cell
 
 
 @njit(inline="always")
@@ -31,7 +31,8 @@ def flatten(builder, params, refs, bounds, name, box):
 
 
 CODE = 0
-WALK = Walk(code=CODE, name="list", step=walk_step)
+WALK = Walk(code=CODE, name="list", step=walk_step,
+            cells=lambda geo, a: one_cell(geo.agg_bounds[a], geo.agg_start[a], geo.agg_count[a]))
 # the annealer offers it to groups of at most 16 primitives only: beyond that every structure beats it
 KIND = Kind("list", "brute force: test every child", flatten=flatten, walk=WALK, refit=refit_aggregate,
             search=Search(candidates=("list",), max_items=16))

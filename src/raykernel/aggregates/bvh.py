@@ -79,7 +79,7 @@ from ..geometry.primitives import PRIMITIVE_KINDS
 from ..options import number
 from .bvhtree import BVHArrays, as_item_bounds, is_leaf
 from .spec import Kind, Param, Search
-from .walk import MAX_TREE_DEPTH, START, Field, Walk, answer, entry_tag, push
+from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, push
 
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item_bounds"]
 
@@ -714,7 +714,25 @@ def flatten(builder, params, refs, bounds, name, box):
     return append_bvh(builder.flat, tree, refs, box, cull_margin(box)), dict(stats, width=params["width"])
 
 
-WALK = Walk(code=CODE, name="bvh", fields=FIELDS, step=walk_step, features=features)
+def cells(geo, a) -> Cells:
+    """The tree's nodes, level by level from the root (Walk.cells)."""
+    level, found, depths = np.array([geo.agg_start[a]], np.int64), [], []
+    single = geo.agg_count[a] <= 1          # one node: the root is a leaf, even an empty one
+    for depth in range(MAX_TREE_DEPTH + 1):
+        found.append(level)
+        depths.append(np.full(len(level), depth, np.int64))
+        left = geo.node_first[level[geo.node_count[level] == 0]]
+        level = np.stack([left, left + 1], axis=1).ravel()
+        if single or not len(level):
+            break
+    nodes = np.concatenate(found)
+    leaf = (geo.node_count[nodes] > 0) | single
+    b = geo.node_bounds[nodes]
+    return Cells(b[:, :3], b[:, 3:], np.concatenate(depths), np.where(leaf, geo.node_first[nodes], 0),
+                 np.where(leaf, geo.node_count[nodes], -1))
+
+
+WALK = Walk(code=CODE, name="bvh", fields=FIELDS, step=walk_step, features=features, cells=cells)
 # the annealer starts from a BVH over pieces of long thin polygons (presplit.py), the one structure
 # that separates a fan of facets, and from BVHs whose nodes are reinserted (bvhopt.py), the ones that
 # tighten a tree around a small dense cluster in a large sparse scene (the stadium's teapot), with

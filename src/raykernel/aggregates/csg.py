@@ -56,7 +56,7 @@ from ..geometry.config import njit
 from ..geometry.counters import own_columns
 from .collect import CAPACITY, COLUMNS, begin
 from .spec import Kind, Param
-from .walk import Field, Walk
+from .walk import Field, Walk, one_cell
 
 CODE = 5
 DIFFERENCE, INTERSECTION, UNION = 0, 1, 2
@@ -238,8 +238,14 @@ def resolve(op, base, count, csg_t, csg_i, csg_m, csg_n, region, shift, operand,
     return out - region
 
 
+def cells(geo, a):
+    """The node's box around its operands, which are drawn below it (Walk.cells)."""
+    k = geo.agg_start[a]
+    return one_cell(geo.csg_bounds[k], geo.csg_first[k], geo.csg_count[k])
+
+
 WALK = Walk(code=CODE, name="csg", fields=FIELDS, step=walk_step, resolve=walk_resolve, counters=COUNTERS,
-            stats_rows=stats_rows)
+            stats_rows=stats_rows, cells=cells)
 _BASE = Param("base", 1, "operands that form the base; the rest are subtracted", int, 0, MAX_OPERANDS)
 KINDS = (
     Kind("difference", "CSG: the first `base` operands less the rest", (_BASE,), flatten=_flatten(DIFFERENCE),

@@ -76,7 +76,7 @@ from ..geometry import counters as C
 from ..geometry.config import njit
 from .memory import check, memory_limit
 from .spec import Kind, Param, Search
-from .walk import F_STATE, START, Field, Walk, answer, entry_tag, mailbox_reset, push
+from .walk import F_STATE, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, push
 
 __all__ = ["GridArrays", "RULES", "build_grid", "grid_resolution"]
 
@@ -418,7 +418,18 @@ def features(stats, f, used) -> None:
         f[f"{what}.grid.more"] = count - f[f"{what}.grid"]
 
 
-WALK = Walk(code=CODE, name="grid", fields=FIELDS, step=walk_step, features=features)
+def cells(geo, a) -> Cells:
+    """Every cell of the grid, in its index order (cz * ry + cy) * rx + cx (Walk.cells)."""
+    g = geo.agg_start[a]
+    rx, ry, rz = (int(r) for r in geo.grid_res[g])
+    cz, cy, cx = np.meshgrid(np.arange(rz), np.arange(ry), np.arange(rx), indexing="ij")
+    lo = geo.grid_origin[g] + np.stack([cx.ravel(), cy.ravel(), cz.ravel()], axis=1) * geo.grid_cell_size[g]
+    o, n = geo.grid_cell_offset[g], rx * ry * rz
+    first = geo.grid_cells[o:o + n]
+    return Cells(lo, lo + geo.grid_cell_size[g], np.zeros(n, np.int64), first, geo.grid_cells[o + 1:o + n + 1] - first)
+
+
+WALK = Walk(code=CODE, name="grid", fields=FIELDS, step=walk_step, features=features, cells=cells)
 KIND = Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatides-Woo)", (
     Param("res", "regular", "resolution rule: regular (about density*N cubic cells), woo "
           "(longest side density*N^(1/3) cells) or klimaszewski (our reading of Klimaszewski's heterogeneous "

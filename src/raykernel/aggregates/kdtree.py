@@ -71,7 +71,7 @@ from ..geometry.config import njit
 from ..options import number
 from .memory import check, grown, memory_limit
 from .spec import Kind, Param, Search
-from .walk import MAX_TREE_DEPTH, START, Field, Walk, answer, entry_tag, mailbox_reset, push
+from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, push
 
 __all__ = ["KdArrays", "build_kdtree"]
 
@@ -360,7 +360,26 @@ def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
     return answer(sp, s, e, ray, best_t)
 
 
-WALK = Walk(code=CODE, name="kdtree", fields=FIELDS, step=walk_step)
+def cells(geo, a) -> Cells:
+    """The tree's nodes, each with the box its planes cut out of the tree's (Walk.cells)."""
+    t = geo.agg_start[a]
+    todo, rows = [(int(geo.kd_root[t]), geo.kd_box[t].copy(), 0)], []
+    while todo:
+        node, box, depth = todo.pop()
+        count = int(geo.kd_count[node])
+        rows.append((box, depth, int(geo.kd_child[node]) if count >= 0 else 0, count if count >= 0 else -1))
+        if count < 0:
+            axis, split = -1 - count, geo.kd_split[node]
+            below, above = box.copy(), box.copy()
+            below[3 + axis] = split
+            above[axis] = split
+            todo += [(int(geo.kd_child[node]), above, depth + 1), (node + 1, below, depth + 1)]
+    boxes = np.array([r[0] for r in rows])
+    return Cells(boxes[:, :3], boxes[:, 3:], np.array([r[1] for r in rows], np.int64),
+                 np.array([r[2] for r in rows], np.int64), np.array([r[3] for r in rows], np.int64))
+
+
+WALK = Walk(code=CODE, name="kdtree", fields=FIELDS, step=walk_step, cells=cells)
 KIND = Kind("kdtree", "k-d tree: axis-aligned planes placed by the surface-area heuristic on the items' sides "
             "(pbrt's build), walked by Havran's recursive traversal (TA_B^rec)", (
     Param("leaf", 1, "a node holding at most this many items is a leaf", int, 1, 1 << 20),

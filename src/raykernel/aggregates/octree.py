@@ -138,7 +138,7 @@ from ..options import number
 from .grid import grid_box
 from .memory import check, grown, memory_limit
 from .spec import Kind, Param, Search
-from .walk import F_STATE, FI_AGG, START, Field, Walk, answer, entry_tag, mailbox_reset, push
+from .walk import F_STATE, FI_AGG, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, push
 
 __all__ = ["OctreeArrays", "build_octree", "ADDRESS_BITS", "MAX_DEPTH"]
 
@@ -898,7 +898,25 @@ def stats_rows(stats) -> list:
     return [("octree", "wall steps", f"{n:,}", f"{n / leaves:.2f} wall quadtree levels per leaf reached")]
 
 
-WALK = Walk(code=CODE, name="octree", fields=FIELDS, step=walk_step, counters=COUNTERS, stats_rows=stats_rows)
+def cells(geo, a) -> Cells:
+    """The tree's nodes, level by level from the root (Walk.cells)."""
+    level, found, depths = np.array([geo.oct_root[geo.agg_start[a]]], np.int64), [], []
+    depth = 0
+    while len(level):
+        found.append(level)
+        depths.append(np.full(len(level), depth, np.int64))
+        first = geo.oct_first[level[geo.oct_count[level] < 0]]
+        level = (first[:, None] + np.arange(8)).ravel()
+        depth += 1
+    nodes = np.concatenate(found)
+    leaf = geo.oct_count[nodes] >= 0
+    b = geo.oct_bounds[nodes]
+    return Cells(b[:, :3], b[:, 3:], np.concatenate(depths), np.where(leaf, geo.oct_first[nodes], 0),
+                 np.where(leaf, geo.oct_count[nodes], -1))
+
+
+WALK = Walk(code=CODE, name="octree", fields=FIELDS, step=walk_step, counters=COUNTERS, stats_rows=stats_rows,
+            cells=cells)
 KIND = Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
               "objects in every child their box overlaps; nodes with the most items times box area are split "
               "first, until depth, leaf, the criteria or the reference budget stop them. Defaults: depth 16 and "

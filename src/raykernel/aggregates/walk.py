@@ -146,6 +146,25 @@ class Field(NamedTuple):
 KEYED_FIELDS = (Field("keyed_key", np.float64), Field("keyed_ref", np.int64))   # the keyed lists (see above)
 
 
+class Cells(NamedTuple):
+    """An aggregate's cells or nodes, as a walk's `cells(geo, a)` gives them (rendering/structure.py
+    draws them): boxes lo, hi (n, 3) in the aggregate's space, each one's depth in the structure
+    (0: the root or, for a grid, every cell), and its references refs[first:first + count]
+    (count -1: an inner node, which holds none of its own)."""
+    lo: np.ndarray
+    hi: np.ndarray
+    depth: np.ndarray
+    first: np.ndarray
+    count: np.ndarray
+
+
+def one_cell(box, first: int, count: int) -> Cells:
+    """An aggregate drawn as its box alone, holding refs[first:first + count] (count 0: none drawn below)."""
+    box = np.asarray(box, np.float64)
+    return Cells(box[None, :3].copy(), box[None, 3:].copy(), np.zeros(1, np.int64), np.array([first], np.int64),
+                 np.array([count], np.int64))
+
+
 @dataclass(frozen=True)
 class Walk:
     """A walk, as its module declares it (WALK): `code`, its number (agg_kind, counter columns:
@@ -153,8 +172,9 @@ class Walk:
     Geometry `fields` it owns, its compiled `step` (the contract above), for an operator its
     compiled `resolve` (collect.py), its `counters` of its own ((name, cost-model feature or
     None), in counters.own_columns(code)), `stats_rows(stats)`, its rows of the statistics
-    table, and `features(stats, f)`, which prices what the cost model's features for every walk
-    (entry.W, step.W, bound.W and its own counters') do not (analysis/costmodel.py)."""
+    table, `features(stats, f)`, which prices what the cost model's features for every walk
+    (entry.W, step.W, bound.W and its own counters') do not (analysis/costmodel.py), and
+    `cells(geo, a)`, aggregate a's cells or nodes as Cells (None: drawn as its box)."""
     code: int
     name: str
     fields: tuple = ()
@@ -163,6 +183,7 @@ class Walk:
     counters: tuple = ()
     stats_rows: object = field(default=None, compare=False)
     features: object = field(default=None, compare=False)
+    cells: object = field(default=None, compare=False)
 
 
 class Workspace(NamedTuple):
