@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import RayKernelError
+from .errors import OptionError, RayKernelError
 
 SCENE_HELP = ("a .nff, .json or model file (.obj with its .mtl, .ply, .stl, .off, .gltf, .glb: the mesh extra), "
               "spd:NAME[:SIZE], scene:NAME[:k=v,...] or example:NAME")
@@ -109,6 +109,8 @@ def cmd_render(args, console) -> int:
     if args.work or work_images:
         options["work"] = True
     _, auto = parse_spec(args.accel)
+    if args.draw is not None and (is_auto(args.accel) or not (args.draw == "all" or args.draw.isdigit())):
+        raise OptionError(f"--draw {args.draw}: give a depth (0, 1, ...) or all, with a structure spec (not auto)")
     if is_auto(args.accel):
         console.print(f"Annealing a hierarchy for this render first (auto: up to {auto['seconds']:g} s; "
                       "raykernel anneal writes one to reuse).", markup=False, highlight=False)
@@ -127,7 +129,13 @@ def cmd_render(args, console) -> int:
                          threads=args.threads, progress=progress, max_memory=args.max_memory, **options)
     finally:
         progress.close()
-    result.save(out)
+    if args.draw is None:
+        result.save(out)
+    else:
+        from .rendering.imageio import save_image
+        from .rendering.overlay import draw_structure
+        save_image(draw_structure(result.image, scene, args.accel, None if args.draw == "all" else int(args.draw),
+                                  max_memory=args.max_memory), out)
     if args.stats_json:
         result.stats.to_json(args.stats_json)
     if args.work:
@@ -144,7 +152,6 @@ def cmd_render(args, console) -> int:
 def _work_images(items, out: str) -> dict:
     """--work-image COUNTER[=PATH] arguments as {counter: path}; the path defaults to the
     image's name with the counter added (balls.png -> balls.tests.total.png)."""
-    from .errors import OptionError
     from .rendering.worklayers import check_layer_name
     images = {}
     for item in items or ():
@@ -268,7 +275,6 @@ def cmd_cache(args, console) -> int:
 
 def cmd_structure(args, console) -> int:
     from .aggregates.registry import parse_spec
-    from .errors import OptionError
     from .rendering.structure import select, structure_boxes, write_ply
     from .scene.loading import load
     if Path(args.output).suffix.lower() != ".ply":
@@ -316,7 +322,6 @@ def cmd_spd(args, console) -> int:
 
 
 def cmd_scene(args, console) -> int:
-    from .errors import OptionError
     from .scene import pathological
     if args.list or args.name == "list":
         console.print(pathological.describe(), markup=False, highlight=False, soft_wrap=True)
@@ -391,7 +396,6 @@ def _write_work_images(cmp, folder, console) -> None:
 
 def cmd_compare(args, console) -> int:
     from .analysis import compare as cm
-    from .errors import OptionError
     work = args.work or ("tests.total" if args.work_images else None)
     if args.work_images and not Path(args.work_images).is_dir():
         raise OptionError(f"--work-images: {args.work_images} is not a folder")
@@ -407,7 +411,6 @@ def cmd_compare(args, console) -> int:
 
 def cmd_sweep(args, console) -> int:
     from .analysis import compare as cm
-    from .errors import OptionError
     params = cm.parse_params(args.param)
     if not params:
         raise OptionError("give at least one --param NAME=V1,V2,...")
@@ -435,7 +438,6 @@ def cmd_calibrate(args, console) -> int:
 
 def cmd_anneal(args, console) -> int:
     from .analysis import anneal
-    from .errors import OptionError
     from .rendering.render import render, render_options
     from .scene.jsonscene import write_json
     from .scene.loading import load
@@ -538,6 +540,9 @@ def _add_render(sub) -> None:
                    "image's name + .COUNTER.png); may be given more than once")
     r.add_argument("--work-scale", choices=["linear", "log"], default="linear", help="--work-image's colour "
                    "scale (default linear)")
+    r.add_argument("--draw", metavar="DEPTH|all", help="draw the structure's boxes over the image, those DEPTH or "
+                   "fewer deep in their structure (0: the roots, and a grid's cells) or all, hidden where the "
+                   "scene's surfaces cover them; nesting levels in their own colours")
     r.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "
                    "tcp://HOST:PORT joins a running scheduler (pip install 'raykernel[distributed]')")
     r.set_defaults(func=cmd_render)
