@@ -130,3 +130,15 @@ def test_work_section_in_headless_chromium(work_report, tmp_path, x, y):
     import json
     values = json.loads(html.unescape(readout.group(3)))
     assert values == [int(run.work[y, x]) for run in cmp.runs]
+
+
+def test_work_data_cannot_end_its_script_element():
+    odd = "b</script><b>vh"
+    runs = [cm.Run(scene="s", accel=a, stats={}, image=np.zeros((2, 2, 3), np.uint8), primitives=1,
+                   work=np.array([[1, 2], [3, k]])) for k, a in enumerate(["list", odd])]
+    cmp = cm.Comparison(runs=runs, options={}, machine={}, command="x", work="tests.total")
+    text = render_html(cmp)
+    data = re.search(r"<script type='application/json' class='work-data'>(.*?)</script>", text, re.S).group(1)
+    import json
+    assert json.loads(data)["accels"] == ["list", odd]
+    assert "</script><b>" not in text

@@ -363,7 +363,8 @@ def cmd_convert(args, console) -> int:
 
 def _finish_comparison(cmp, args, console, title, plots) -> int:
     from .analysis import compare as cm
-    console.print(cm.table(cmp, title=title))
+    for part in cm.tables(cmp, title=title, width=console.width):
+        console.print(part)
     for accel, worst, mean, n in cm.prediction_summary(cmp):
         console.print(f"cost model, {accel}: mean |error| {mean:.0%}, worst {worst:+.0%} over {n} run(s)",
                       markup=False, highlight=False)
@@ -700,7 +701,7 @@ def _add_others(sub) -> None:
 def main(argv=None) -> int:
     from rich.console import Console
     args = build_parser().parse_args(argv)
-    console = Console()
+    console = Console(emoji=False)     # "scene:stadium:" is a name, not an emoji code
     try:
         return args.func(args, console)
     except RayKernelError as err:

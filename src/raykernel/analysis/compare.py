@@ -3,7 +3,8 @@
     cmp = compare(["spd:balls", "spd:gears"], ["list", "grid", "bvh"], spd=True, resolution=128)
     cmp.disagreements          # [] when every structure cast the same rays
     cmp = compare(["scene:stadium"], ["grid", "bvh"], work="tests.total")   # + each run's work layer
-    print_table(cmp, console); write_json(cmp, "cmp.json"); write_csv(cmp, "cmp.csv")
+    for part in tables(cmp, width=console.width): console.print(part)     # split to fit, never cut
+    write_json(cmp, "cmp.json"); write_csv(cmp, "cmp.csv")
 
     sw = sweep("scene:stadium:ratio={ratio}", {"ratio": ["1", "100", "10000"]}, ["grid", "bvh"])
     plot_sweep(sw, "stadium.png")
@@ -398,20 +399,40 @@ def table_rows(cmp: Comparison):
         yield run.scene, run.accel, cells
 
 
-def table(cmp: Comparison, title=None):
+def table(cmp: Comparison, title=None, columns=COLUMNS):
+    """A rich Table of every run (scene, structure and `columns`); no cell is ever cut short."""
     from rich.table import Table
+    from rich.text import Text          # names as written: "scene:stadium:" is no emoji, "[x]" no markup
     t = Table(title=title, header_style="bold", show_edge=False)
-    t.add_column("scene")
-    t.add_column("structure")
-    for header, _, _ in COLUMNS:
-        t.add_column(header, justify="right")
+    t.add_column("scene", overflow="fold")
+    t.add_column("structure", overflow="fold")
+    for header, _, _ in columns:
+        t.add_column(header, justify="right", no_wrap=True)
+    keep = [k for k, c in enumerate(COLUMNS) if c in columns]
     last = None
     for scene, accel, cells in table_rows(cmp):
         if last is not None and scene != last:
             t.add_section()
-        t.add_row(scene if scene != last else "", accel, *cells)
+        t.add_row(Text(scene if scene != last else ""), Text(accel), *(cells[k] for k in keep))
         last = scene
     return t
+
+
+def tables(cmp: Comparison, title=None, width: int = 80) -> list:
+    """table() split by columns into as many tables as it takes for each to fit `width`
+    characters (each keeps the scene and structure), so that no number is cut or wrapped."""
+    rows = list(table_rows(cmp))
+    names = max([len("scene") + len("structure")] + [len(s) + len(a) for s, a, _ in rows])
+    widths = [max([len(h)] + [len(cells[k]) for _, _, cells in rows]) + 3 for k, (h, _, _) in enumerate(COLUMNS)]
+    groups, group, used = [], [], min(names + 6, width // 2)
+    for column, w in zip(COLUMNS, widths):
+        if group and used + w > width:
+            groups.append(group)
+            group, used = [], min(names + 6, width // 2)
+        group.append(column)
+        used += w
+    groups.append(group)
+    return [table(cmp, title=title if k == 0 else None, columns=tuple(g)) for k, g in enumerate(groups)]
 
 
 def _run_dict(run: Run) -> dict:

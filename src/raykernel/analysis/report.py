@@ -165,6 +165,7 @@ def _work_section(cmp: Comparison, scene: str) -> str:
     lut = (matplotlib.colormaps["viridis"](np.linspace(0.0, 1.0, 256))[:, :3] * 255).round().astype(int)
     data = {"counter": w.counter, "accels": w.accels, "width": wd, "height": h, "dtype": dtype,
             "min": low, "max": high, "lut": lut.ravel().tolist(), "layers": [t for t, _ in texts]}
+    payload = json.dumps(data).replace("</", "<\\/")       # no "</script>" inside the script element
     step = "1" if dtype == "uint32" else "any"
     radios = "".join(f"<label><input type='radio' class='accel' name='accel-{_e(scene)}'>{_e(a)}</label>"
                      for a in w.accels)
@@ -179,7 +180,7 @@ def _work_section(cmp: Comparison, scene: str) -> str:
             f"<label><input type='checkbox' class='log'>log</label> <span class='range'></span></div>"
             f"<p>Samples won (least {_e(w.counter)}): {_e(shares)}.</p>"
             f"<img class='plot' alt='{_e(scene)} work ratios' src='{_png_uri(figure_png(w))}'>"
-            f"<script type='application/json' class='work-data'>{json.dumps(data)}</script></section>")
+            f"<script type='application/json' class='work-data'>{payload}</script></section>")
 
 
 def _e(text) -> str:

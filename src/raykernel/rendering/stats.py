@@ -128,7 +128,7 @@ class Stats(dict):
         from rich.table import Table
         table = Table(title=title, show_edge=False, header_style="bold")
         for col, justify in (("", "left"), ("", "left"), ("count", "right"), ("", "left")):
-            table.add_column(col, justify=justify)
+            table.add_column(col, justify=justify, overflow="fold")     # wrapped where narrow, never cut short
         last = None
         for section, name, value, note in self.rows():
             table.add_row(section if section != last else "", name, value, note)
@@ -139,7 +139,7 @@ class Stats(dict):
         import io
 
         from rich.console import Console
-        console = Console(width=100, file=io.StringIO())
+        console = Console(width=100, file=io.StringIO(), emoji=False)
         console.print(self.table())
         return console.file.getvalue()
 
