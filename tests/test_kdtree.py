@@ -177,6 +177,29 @@ def test_bad_arguments_and_the_memory_budget():
         kdtree.build_kdtree(np.hstack([lo, lo + 3.0]), max_bytes=200_000)
 
 
+def test_its_cells_tile_its_box_and_hold_every_item():
+    from raykernel.engine.flatten import flatten
+    from raykernel.geometry.primitives import INDEX_MASK, KIND_SHIFT, SPHERE
+    from raykernel.rendering.structure import boxes_of
+    geo, _ = flatten(raykernel.load("spd:balls:1"), "kdtree")
+    boxes = boxes_of(geo)
+    cells = kdtree.cells(geo, geo.root)
+    assert len(boxes) == len(cells.lo) == geo.agg_count[geo.root]      # every node
+    size = cells.hi - cells.lo
+    leaves = cells.count >= 0
+    whole = np.prod(geo.kd_box[0][3:] - geo.kd_box[0][:3])
+    assert np.prod(size[leaves], axis=1).sum() == pytest.approx(whole, rel=1e-9)   # the leaves tile the box
+    spheres = np.hstack([geo.sph_center - geo.sph_radius[:, None], geo.sph_center + geo.sph_radius[:, None]])
+    held = set()
+    for k in np.flatnonzero(leaves):
+        for ref in geo.refs[cells.first[k]:cells.first[k] + cells.count[k]]:
+            if ref >> KIND_SHIFT == SPHERE:
+                b = spheres[ref & INDEX_MASK]
+                assert np.all(b[:3] <= cells.hi[k] + 1e-6) and np.all(b[3:] >= cells.lo[k] - 1e-6)   # (boxes padded)
+                held.add(int(ref & INDEX_MASK))
+    assert held == set(range(len(geo.sph_radius)))
+
+
 def _files_naming(word: str) -> set[str]:
     """The repository's code and data files (src, tests, bench) that name `word` in code: as a
     name, or inside a string (not in comments)."""
