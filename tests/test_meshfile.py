@@ -170,3 +170,29 @@ def test_bad_model_files_give_one_line(tmp_path, capsys, name, content, message)
     assert not (tmp_path / "x.png").exists()
     with pytest.raises(SceneError, match="no such file"):
         load(tmp_path / "missing.glb")
+
+
+def test_view_options_set_the_camera(files, tmp_path, capsys):
+    from PIL import Image
+
+    from raykernel.cli import main
+    from raykernel.scene import Camera
+    d, *_ = files
+    out = tmp_path / "v.png"
+    assert main(["render", str(d / "b.stl"), "--resolution", "16", "--eye", "4,-5,3", "--look-at", "0,0,0.1",
+                 "--up", "0,0,1", "--angle", "35", "-o", str(out)]) == 0
+    scene = load(d / "b.stl")
+    scene.camera = Camera(eye=[4, -5, 3], look_at=[0, 0, 0.1], up=[0, 0, 1], angle=35.0)
+    from raykernel.rendering.imageio import to_uint8
+    expect = to_uint8(render(scene, resolution=16).image)
+    assert np.array_equal(np.asarray(Image.open(out)), expect)
+    assert len(np.unique(expect.reshape(-1, 3), axis=0)) > 3         # the box is in view, not just background
+    capsys.readouterr()
+    assert main(["render", str(d / "b.stl"), "--resolution", "8", "--eye", "1,1,1", "--look-at", "1,1,1",
+                 "-o", str(tmp_path / "w.png")]) == 2
+    err = capsys.readouterr().err
+    assert "eye and look_at are the same point" in err and err.count("\n") == 1
+    with pytest.raises(SystemExit):
+        main(["render", str(d / "b.stl"), "--eye", "1,2", "-o", str(tmp_path / "w.png")])
+    assert "three numbers" in capsys.readouterr().err
+    assert not (tmp_path / "w.png").exists()

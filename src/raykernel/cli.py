@@ -89,7 +89,7 @@ def cmd_render(args, console) -> int:
     from .scene.loading import load
     from .rendering.worklayers import picture, save_layers, work_file_format
 
-    scene = load(args.scene)
+    scene = _viewed(load(args.scene), args)
     options = {}
     if args.scene.startswith("example:"):
         options.update(examples.render_defaults(args.scene.split(":", 1)[1]))
@@ -173,7 +173,7 @@ def cmd_explain(args, console) -> int:
     from .scene.loading import load
     if args.json:
         check_output_directory(args.json)
-    scene = load(args.scene)
+    scene = _viewed(load(args.scene), args)
     options = {}
     if args.scene.startswith("example:"):
         options.update(examples.render_defaults(args.scene.split(":", 1)[1]))
@@ -185,6 +185,28 @@ def cmd_explain(args, console) -> int:
     if args.json:
         write_json(ex, args.json)
     return 0
+
+
+def _vector(text: str):
+    """X,Y,Z on the command line."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z, got {text!r}")
+    return values
+
+
+def _viewed(scene, args):
+    """The scene with --eye, --look-at, --up and --angle put in its camera (checked as the camera checks)."""
+    import dataclasses
+    changes = {name: getattr(args, name) for name in ("eye", "look_at", "up", "angle") if getattr(args, name) is not None}
+    if changes:
+        if scene.camera is None:
+            raise OptionError("--eye, --look-at, --up and --angle change a camera; this scene has none")
+        scene.camera = dataclasses.replace(scene.camera, **changes)
+    return scene
 
 
 def _trace_options(args) -> dict:
@@ -497,6 +519,11 @@ def _add_trace_options(r) -> None:
                    "see `raykernel accels`")
     r.add_argument("--spd", action="store_true", help="follow the SPD test procedure (corner rays, no cut-off)")
     r.add_argument("--max-depth", type=_positive_int, help="maximum ray-tree depth, eye ray = 1 (default 5)")
+    r.add_argument("--eye", type=_vector, metavar="X,Y,Z", help="put the camera here (default: the scene's, or for "
+                   "a model file one framed around it)")
+    r.add_argument("--look-at", type=_vector, metavar="X,Y,Z", help="point the camera at this point")
+    r.add_argument("--up", type=_vector, metavar="X,Y,Z", help="the camera's up direction")
+    r.add_argument("--angle", type=float, help="the camera's field of view in degrees (NFF's angle)")
     r.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
     r.add_argument("--shading", choices=["whitted", "hall", "heckbert"],
                    help="whitted: NFF's parameters (the default); hall: Hall and Greenberg's model (Fresnel, "
