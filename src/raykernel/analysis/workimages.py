@@ -112,8 +112,7 @@ def figure_png(w: WorkImages, scale: str = "log") -> bytes:
         ax = fig.add_subplot(grid[0, k])
         values = np.asarray(w.layers[accel], np.float64)
         shown = np.where(values > 0, values, np.nan) if scale == "log" else values
-        cmap = plt.get_cmap("viridis").copy()
-        cmap.set_bad("black")
+        cmap = plt.get_cmap("viridis").with_extremes(bad="black")
         im = ax.imshow(shown, cmap=cmap, norm=norm, interpolation="nearest")
         s = summary(values)
         ax.set_title(f"{accel}\nmean {s['mean']:,.1f}  max {s['max']:,.0f}", fontsize=8)
