@@ -141,6 +141,9 @@ def test_command_line(tmp_path, capsys):
     assert main(["structure", "spd:balls:1", "-o", str(tmp_path / "g.obj")]) == 2
     assert "name a .ply file" in capsys.readouterr().err
     assert main(["structure", "spd:balls:1", "--accel", "nosuch", "-o", str(out)]) == 2
+    capsys.readouterr()
+    assert main(["structure", "spd:balls:1", "--accel", "auto", "-o", str(out)]) == 2
+    assert "raykernel anneal" in capsys.readouterr().err
 
 
 def test_rc_and_list_are_their_box(balls):

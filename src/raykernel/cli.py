@@ -297,11 +297,15 @@ def cmd_cache(args, console) -> int:
 
 def cmd_structure(args, console) -> int:
     from .aggregates.registry import parse_spec
+    from .aggregates.spec import is_auto
     from .rendering.structure import select, structure_boxes, write_ply
     from .scene.loading import load
     if Path(args.output).suffix.lower() != ".ply":
         raise OptionError(f"--output {args.output}: the structure is written as PLY; name a .ply file")
     parse_spec(args.accel)
+    if is_auto(args.accel):
+        raise OptionError("--accel auto is a search, not a structure: `raykernel anneal SCENE -o found.json` writes "
+                          "the hierarchy it finds, and `raykernel structure found.json` draws it")
     boxes = structure_boxes(load(args.scene), args.accel, max_memory=args.max_memory)
     if args.leaves:
         boxes = select(boxes, boxes.leaf == 1)
