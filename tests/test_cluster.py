@@ -96,7 +96,7 @@ def test_animation_on_the_cluster_equals_one_process(two_workers, tmp_path):
 
 
 def test_compare_on_the_cluster_equals_one_process(two_workers):
-    kw = dict(resolution=16, model=None, warm_up=False)
+    kw = dict(resolution=16, model=None, warm_up=False, work="cells.visited")
     here = compare(["spd:balls:1", "spd:tetra:1"], ["bvh", "grid"], **kw)
     there = compare(["spd:balls:1", "spd:tetra:1"], ["bvh", "grid"], cluster=two_workers, **kw)
     assert [(r.scene, r.accel) for r in here.runs] == [(r.scene, r.accel) for r in there.runs]
@@ -104,6 +104,7 @@ def test_compare_on_the_cluster_equals_one_process(two_workers):
         work = [k for k in a.stats if not k.startswith(NOT_WORK)]
         assert {k: a.stats[k] for k in work} == {k: b.stats[k] for k in work}
         assert np.array_equal(a.image, b.image)
+        assert np.array_equal(a.work, b.work) and int(b.work.sum()) == b.stats["cells.visited"]   # work images too
 
 
 def test_a_scheduler_that_cannot_be_reached_is_a_clear_error():
