@@ -180,13 +180,14 @@ def _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area, bloc
     for a in range(3):
         if scale[a] == 0.0:
             continue
-        nn = 0
+        nn = np.int64(0)        # not the literal 0: numba would compile _sweep again for it
         for b in range(bins):
             if bin_count[a, b] > 0:
                 nonempty[nn] = b
                 nn += 1
-        _sweep(bin_box, bin_weight, nonempty, nn, a, inv, use_area, block, False, box, left)
-        _sweep(bin_box, bin_weight, nonempty, nn, a, inv, use_area, block, True, box, right)
+        for direction in range(2):      # forwards into left, backwards into right: a runtime flag, one compile
+            _sweep(bin_box, bin_weight, nonempty, nn, a, inv, use_area, block, direction == 1, box,
+                   right if direction == 1 else left)
         for j in range(nn - 1, 0, -1):
             c = left[j - 1] + right[j]
             if c < best:
@@ -340,7 +341,7 @@ def _build_kernel(items, weights, leaf_size, bins, traversal_cost, intersection_
         bounds[0, k] = box[k]
     zero = np.int64(0)      # not the literal 0: numba would compile _push_work again for it
     top = _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, n, zero, cbox)
-    next_node = 1
+    next_node = np.int64(1)
     max_depth = 0
 
     while top > 0:

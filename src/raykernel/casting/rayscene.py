@@ -121,7 +121,7 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
     for c in range(c0, c1):
         r0 = c * chunk
         r1 = min(n, (c + 1) * chunk)
-        cap = 0
+        cap = np.int64(0)       # not the literal 0: numba would compile workspace again for it
         if mode == ALL_HITS and store:
             for r in range(r0, r1):
                 cap = max(cap, offsets[r + 1] - offsets[r])

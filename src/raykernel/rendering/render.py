@@ -95,7 +95,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
         if starts is None and cull and _culled(geo, cam, samples_w, samples_h, x0, y0):
             _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, work, cnt)
         else:
-            ws = workspace(0, work)     # each tile starts from the same state, whichever thread claims it
+            ws = workspace(np.int64(0), work)   # each tile starts from the same state, whichever thread claims it
             rays = np.zeros((RAY_STACK, RAY_COLUMNS))
             if starts is None:      # tricks.LEAN: no trick needs a memory, and numba compiles none of their code
                 _render_tile(geo, mats, lights, background, cam, samples_w, samples_h, x0, y0, max_depth, cutoff,

@@ -99,7 +99,7 @@ def render_pixels(geo, mats, lights, background, cam, width, height, tile_x, til
         tile = claim(counter)
         if tile >= last:
             break
-        ws = workspace(0, sample_work(layer, levels, probe, tile_x[tile], tile_y[tile], tile_size))
+        ws = workspace(np.int64(0), sample_work(layer, levels, probe, tile_x[tile], tile_y[tile], tile_size))
         rays = np.zeros((whitted.RAY_STACK, whitted.RAY_COLUMNS))
         state = tricks_memo(lights.shape[0], starts)
         cnt = np.zeros(C.N_COUNTERS + passes.shape[1], np.int64)
