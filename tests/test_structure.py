@@ -58,8 +58,11 @@ def test_leaves_hold_what_overlaps_them(balls, accel):
 
 def boxes_of_leaf_refs(geo, boxes, k):
     """The references of box k, found by matching it to its walk's cells again (brute force)."""
-    from raykernel.rendering.structure import _walk_cells
+    from raykernel.rendering.structure import WALKS_BY_CODE, _walk_cells
     a = boxes.aggregate[k]
+    walk = WALKS_BY_CODE[int(geo.agg_kind[a])]
+    if walk.references is not None:         # held outside geo.refs (ray classification's candidate lists)
+        return walk.references(geo, a)
     cells = _walk_cells(geo, a)
     lo = boxes.corners[k, 0]
     match = np.flatnonzero(np.all(np.isclose(cells.lo, lo), axis=1) & np.all(np.isclose(cells.hi, boxes.corners[k, 7]),

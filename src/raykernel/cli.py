@@ -296,9 +296,12 @@ def cmd_cache(args, console) -> int:
 
 
 def cmd_structure(args, console) -> int:
+    import numpy as np
+
     from .aggregates.registry import parse_spec
     from .aggregates.spec import is_auto
-    from .rendering.structure import select, structure_boxes, write_ply
+    from .rendering.structure import USE, select, structure_boxes, structure_use, write_ply
+    from .scene import examples
     from .scene.loading import load
     if Path(args.output).suffix.lower() != ".ply":
         raise OptionError(f"--output {args.output}: the structure is written as PLY; name a .ply file")
@@ -306,15 +309,32 @@ def cmd_structure(args, console) -> int:
     if is_auto(args.accel):
         raise OptionError("--accel auto is a search, not a structure: `raykernel anneal SCENE -o found.json` writes "
                           "the hierarchy it finds, and `raykernel structure found.json` draws it")
-    boxes = structure_boxes(load(args.scene), args.accel, max_memory=args.max_memory)
+    scene = _viewed(load(args.scene), args)
+    use = None
+    if args.use:
+        options = examples.render_defaults(args.scene.split(":", 1)[1]) if args.scene.startswith("example:") else {}
+        options.update(_trace_options(args))
+        with console.status("rendering on one thread, counting each box's use"):
+            boxes, use, _ = structure_use(scene, args.accel, resolution=args.resolution, spd=args.spd,
+                                          max_memory=args.max_memory, **options)
+    else:
+        boxes = structure_boxes(scene, args.accel, max_memory=args.max_memory)
+    keep = np.ones(len(boxes), bool)
     if args.leaves:
-        boxes = select(boxes, boxes.leaf == 1)
+        keep &= boxes.leaf == 1
     if args.no_empty:
-        boxes = select(boxes, boxes.items != 0)
-    write_ply(boxes, args.output)
+        keep &= boxes.items != 0
+    boxes = select(boxes, keep)
+    use = None if use is None else {name: value[keep] for name, value in use.items()}
+    write_ply(boxes, args.output, use)
     levels = int(boxes.level.max()) + 1 if len(boxes) else 0
+    values = "level, depth, leaf, items, aggregate, walk" + (", " + ", ".join(USE) if use else "")
     print(f"{args.scene} with {args.accel}: {len(boxes):,} boxes over {levels} nesting level(s) -> {args.output} "
-          f"(per face: level, depth, leaf, items, aggregate, walk)")
+          f"(per face: {values})")
+    if use:
+        print(f"  {int(use['visits'].sum()):,} visits, {int(use['tests'].sum()):,} tests, "
+              f"{int(use['futile'][use['futile'] >= 0].sum()):,} futile visits, {int(use['refined'].sum()):,} "
+              f"cells refined by the render")
     return 0
 
 
@@ -634,10 +654,12 @@ def _add_others(sub) -> None:
                         "(nested structures level by level; per face: level, depth, leaf, items)")
     st.add_argument("scene", help=SCENE_HELP)
     st.add_argument("-o", "--output", required=True, help="the PLY file")
-    st.add_argument("--accel", default="bvh", help="accelerator spec for groups that name none (default bvh)")
     st.add_argument("--leaves", action="store_true", help="leaves and cells only, no inner nodes")
     st.add_argument("--no-empty", action="store_true", help="leave out empty leaves and cells")
-    st.add_argument("--max-memory", help="memory budget of the build, e.g. 8G or 512M")
+    st.add_argument("--use", action="store_true", help="render the scene (on one thread, with the options below) "
+                    "and give each box how its rays used it: visits, tests, futile (visits where nothing was hit) "
+                    "and refined (a lazy octree's cells this render made)")
+    _add_trace_options(st)
     st.set_defaults(func=cmd_structure)
 
     w = sub.add_parser("warmup", help="compile the kernels a first render or ray cast would compile (or load them "

@@ -79,7 +79,7 @@ from ..geometry.primitives import PRIMITIVE_KINDS
 from ..options import number
 from .bvhtree import BVHArrays, as_item_bounds, is_leaf
 from .spec import Kind, Param, Search
-from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, push
+from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, note_visit, push
 
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item_bounds"]
 
@@ -560,12 +560,13 @@ def append_bvh(flat, tree: BVHArrays, refs, box, margin: float) -> int:
 
 @njit(private=True)
 def descend(node_bounds, node_first, node_count, node, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a, stack_b,
-            stack_t, sp, cnt):
+            stack_t, sp, cnt, work):
     """The binary walk: descend from `node` to the nearest leaf the ray enters, pushing the
     farther child of every inner node passed (a START entry); returns (sp, s, e): the leaf's
-    references (none: s == e)."""
+    references (none: s == e). work: a render's per-sample work, or None (walk.note_visit)."""
     while True:
         cnt[C.CELLS_VISITED] += 1
+        note_visit(work, CODE, node)
         n_items = node_count[node]
         if n_items > 0:
             cnt[C.CELLS_LEAVES] += 1
@@ -594,7 +595,7 @@ def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
     """Every entry is a node to descend from (walk.py's step contract)."""
     ox, oy, oz, _, _, _, ix, iy, iz = ray
     sp, s, e = descend(geo.node_bounds, geo.node_first, geo.node_count, a, ox, oy, oz, ix, iy, iz, lo, best_t,
-                       ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt)
+                       ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt, ws.work)
     return answer(sp, s, e, ray, best_t)
 
 
@@ -730,10 +731,11 @@ def cells(geo, a) -> Cells:
     leaf = (geo.node_count[nodes] > 0) | single
     b = geo.node_bounds[nodes]
     return Cells(b[:, :3], b[:, 3:], np.concatenate(depths), np.where(leaf, geo.node_first[nodes], 0),
-                 np.where(leaf, geo.node_count[nodes], -1))
+                 np.where(leaf, geo.node_count[nodes], -1), nodes)
 
 
-WALK = Walk(code=CODE, name="bvh", fields=FIELDS, step=walk_step, features=features, cells=cells)
+WALK = Walk(code=CODE, name="bvh", fields=FIELDS, step=walk_step, features=features, cells=cells,
+            keys="node_count")
 # the annealer starts from a BVH over pieces of long thin polygons (presplit.py), the one structure
 # that separates a fan of facets, and from BVHs whose nodes are reinserted (bvhopt.py), the ones that
 # tighten a tree around a small dense cluster in a large sparse scene (the stadium's teapot), with

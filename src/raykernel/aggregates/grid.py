@@ -76,7 +76,7 @@ from ..geometry import counters as C
 from ..geometry.config import njit
 from .memory import check, memory_limit
 from .spec import Kind, Param, Search
-from .walk import F_STATE, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, push
+from .walk import F_STATE, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, note_visit, push
 
 __all__ = ["GridArrays", "RULES", "build_grid", "grid_resolution"]
 
@@ -330,18 +330,18 @@ def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
     ox, oy, oz, dx, dy, dz, ix, iy, iz = ray
     sp, s, e = dda(geo.grid_cell_offset, geo.grid_cell_size, geo.grid_cells, geo.grid_inv_cell, geo.grid_mailbox,
                    geo.grid_origin, geo.grid_res, step, a, te, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, ws.frame_f,
-                   f, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt)
+                   f, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt, ws.work)
     return answer(sp, s, e, ray, best_t)
 
 
 @njit(private=True)
 def dda(grid_cell_offset, grid_cell_size, grid_cells, grid_inv_cell, grid_mailbox, grid_origin, grid_res,
         kind_step, gi, gt, ox, oy, oz, dx, dy, dz, ix, iy, iz, best_t, frame_f, f,
-        stack_a, stack_b, stack_t, sp, cnt):
+        stack_a, stack_b, stack_t, sp, cnt, work):
     """The 3D-DDA (Amanatides and Woo 1987) from the entry point (START) or the frame's
     next cell (NEXT) to the next non-empty cell; empty cells are stepped over in one go.
     Returns (sp, s, e): that cell's references, with a NEXT entry pushed below them
-    unless it is the last cell."""
+    unless it is the last cell. work: as for walk.note_visit."""
     if gt > best_t:
         return sp, 0, 0
     rx, ry, rz = grid_res[gi, 0], grid_res[gi, 1], grid_res[gi, 2]
@@ -374,6 +374,7 @@ def dda(grid_cell_offset, grid_cell_size, grid_cells, grid_inv_cell, grid_mailbo
         cnt[C.CELLS_VISITED] += 1
         cnt[C.CELLS_LEAVES] += 1
         cell = off + (cz * ry + cy) * rx + cx
+        note_visit(work, CODE, cell)
         s = grid_cells[cell]
         e = grid_cells[cell + 1]
         # leave the cell across its nearest boundary
@@ -426,10 +427,12 @@ def cells(geo, a) -> Cells:
     lo = geo.grid_origin[g] + np.stack([cx.ravel(), cy.ravel(), cz.ravel()], axis=1) * geo.grid_cell_size[g]
     o, n = geo.grid_cell_offset[g], rx * ry * rz
     first = geo.grid_cells[o:o + n]
-    return Cells(lo, lo + geo.grid_cell_size[g], np.zeros(n, np.int64), first, geo.grid_cells[o + 1:o + n + 1] - first)
+    return Cells(lo, lo + geo.grid_cell_size[g], np.zeros(n, np.int64), first, geo.grid_cells[o + 1:o + n + 1] - first,
+                 o + np.arange(n, dtype=np.int64))
 
 
-WALK = Walk(code=CODE, name="grid", fields=FIELDS, step=walk_step, features=features, cells=cells)
+WALK = Walk(code=CODE, name="grid", fields=FIELDS, step=walk_step, features=features, cells=cells,
+            keys="grid_cells")
 KIND = Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatides-Woo)", (
     Param("res", "regular", "resolution rule: regular (about density*N cubic cells), woo "
           "(longest side density*N^(1/3) cells) or klimaszewski (our reading of Klimaszewski's heterogeneous "

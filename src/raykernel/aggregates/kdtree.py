@@ -71,7 +71,7 @@ from ..geometry.config import njit
 from ..options import number
 from .memory import check, grown, memory_limit
 from .spec import Kind, Param, Search
-from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, push
+from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, note_visit, push
 
 __all__ = ["KdArrays", "build_kdtree"]
 
@@ -296,7 +296,7 @@ def flatten(builder, params, refs, bounds, name, box):
 
 @njit(private=True)
 def kd_step(kd_split, kd_child, kd_count, kd_root, kd_box, kd_mailbox, step, a, te, ray, lo, best_t, frame_f, f,
-            stack_a, stack_b, stack_t, stack_u, sp, cnt):
+            stack_a, stack_b, stack_t, stack_u, sp, cnt, work):
     """Down the tree from the root (START: tree a) or a child visited second (FAR: node a, its
     segment from te to stack_u[sp]) to the next leaf the ray's segment reaches; returns (sp, s,
     e): the leaf's references (none: s == e)."""
@@ -320,6 +320,7 @@ def kd_step(kd_split, kd_child, kd_count, kd_root, kd_box, kd_mailbox, step, a, 
     tag = entry_tag(CODE, FAR)
     while True:
         cnt[C.CELLS_VISITED] += 1
+        note_visit(work, CODE, node)
         m = kd_count[node]
         if m >= 0:
             cnt[C.CELLS_LEAVES] += 1
@@ -356,7 +357,8 @@ def kd_step(kd_split, kd_child, kd_count, kd_root, kd_box, kd_mailbox, step, a, 
 def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
     """walk.py's step contract: the next leaf of the tree (START) or of a child visited second (FAR)."""
     sp, s, e = kd_step(geo.kd_split, geo.kd_child, geo.kd_count, geo.kd_root, geo.kd_box, geo.kd_mailbox, step, a,
-                       te, ray, lo, best_t, ws.frame_f, f, ws.stack_a, ws.stack_b, ws.stack_t, ws.stack_u, sp, cnt)
+                       te, ray, lo, best_t, ws.frame_f, f, ws.stack_a, ws.stack_b, ws.stack_t, ws.stack_u, sp, cnt,
+                       ws.work)
     return answer(sp, s, e, ray, best_t)
 
 
@@ -367,7 +369,7 @@ def cells(geo, a) -> Cells:
     while todo:
         node, box, depth = todo.pop()
         count = int(geo.kd_count[node])
-        rows.append((box, depth, int(geo.kd_child[node]) if count >= 0 else 0, count if count >= 0 else -1))
+        rows.append((box, depth, int(geo.kd_child[node]) if count >= 0 else 0, count if count >= 0 else -1, node))
         if count < 0:
             axis, split = -1 - count, geo.kd_split[node]
             below, above = box.copy(), box.copy()
@@ -376,10 +378,11 @@ def cells(geo, a) -> Cells:
             todo += [(int(geo.kd_child[node]), above, depth + 1), (node + 1, below, depth + 1)]
     boxes = np.array([r[0] for r in rows])
     return Cells(boxes[:, :3], boxes[:, 3:], np.array([r[1] for r in rows], np.int64),
-                 np.array([r[2] for r in rows], np.int64), np.array([r[3] for r in rows], np.int64))
+                 np.array([r[2] for r in rows], np.int64), np.array([r[3] for r in rows], np.int64),
+                 np.array([r[4] for r in rows], np.int64))
 
 
-WALK = Walk(code=CODE, name="kdtree", fields=FIELDS, step=walk_step, cells=cells)
+WALK = Walk(code=CODE, name="kdtree", fields=FIELDS, step=walk_step, cells=cells, keys="kd_count")
 KIND = Kind("kdtree", "k-d tree: axis-aligned planes placed by the surface-area heuristic on the items' sides "
             "(pbrt's build), walked by Havran's recursive traversal (TA_B^rec)", (
     Param("leaf", 1, "a node holding at most this many items is a leaf", int, 1, 1 << 20),

@@ -138,7 +138,7 @@ from ..options import number
 from .grid import grid_box
 from .memory import check, grown, memory_limit
 from .spec import Kind, Param, Search
-from .walk import F_STATE, FI_AGG, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, push
+from .walk import F_STATE, FI_AGG, START, Cells, Field, Walk, answer, entry_tag, mailbox_reset, note_visit, push
 
 __all__ = ["OctreeArrays", "build_octree", "ADDRESS_BITS", "MAX_DEPTH"]
 
@@ -618,15 +618,15 @@ def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
     sp, s, e = octree_step(geo.oct_bounds, geo.oct_count, geo.oct_first, geo.oct_level, geo.oct_loc, geo.oct_mailbox,
                            geo.oct_nbr, geo.oct_origin, geo.oct_pass, geo.oct_quad, geo.oct_root, geo.oct_scale,
                            geo.oct_slot, geo.oct_unit, geo.oct_walk, step, a, te, geo.agg_start[ws.frame_i[f, FI_AGG]],
-                           ray, lo, best_t, ws.frame_f, f, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt)
+                           ray, lo, best_t, ws.frame_f, f, ws, sp, cnt)
     return answer(sp, s, e, ray, best_t)
 
 
 @njit(inline="always")   # the choice of walk only: the walks are compiled apart (their IR inlined would cost 15 s)
 def octree_step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_nbr, oct_origin, oct_pass,
                 oct_quad, oct_root, oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, tmin, best_t,
-                frame_f, f, stack_a, stack_b, stack_t, sp, cnt):
-    """One step of octree `oi`'s walk; returns (sp, s, e), the references of the next
+                frame_f, f, ws, sp, cnt):
+    """One step of octree `oi`'s walk (ws: the workspace, its stack and work); returns (sp, s, e), the references of the next
     non-empty leaf (none: s == e).
 
     point (Lathrop): the leaf holding a point is found from the root by the point's
@@ -652,21 +652,22 @@ def octree_step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbo
     if kind_step == PARAM or (kind_step == START and oct_walk[oi] == PARAMETRIC_WALK):
         return _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin, oct_pass, oct_root,
                            oct_unit, a if kind_step == PARAM else oct_root[oi], oi,
-                           ray, tmin, best_t, stack_a, stack_b, stack_t, sp, cnt)
+                           ray, tmin, best_t, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt, ws.work)
     return _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_quad, oct_root,
                        oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi,
-                       ray, best_t, frame_f, f, stack_a, stack_b, stack_t, sp, cnt)
+                       ray, best_t, frame_f, f, ws.stack_a, ws.stack_b, ws.stack_t, sp, cnt, ws.work)
 
 
 @njit(private=True)
 def _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin, oct_pass, oct_root, oct_unit,
                 node, oi, ray, tmin, best_t,
-                stack_a, stack_b, stack_t, sp, cnt):
+                stack_a, stack_b, stack_t, sp, cnt, work):
     ox, oy, oz, _, _, _, ix, iy, iz = ray
     # Revelles, Urena and Lastra 2000: node parameters with the ray reflected
     # onto positive directions (amask: the reflected axes)
     while True:
         cnt[C.CELLS_VISITED] += 1
+        note_visit(work, CODE, node)
         cnt[C.BOUNDS_TESTS] += 1
         nb = oct_bounds
         top = oct_root[oi]
@@ -774,7 +775,7 @@ def _across_wall(oct_nbr, oct_quad, leaf, axis, up, level, px, py, pz):
 @njit(private=True)
 def _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, oct_pass, oct_quad, oct_root,
                 oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, best_t, frame_f, f, stack_a,
-                stack_b, stack_t, sp, cnt):
+                stack_b, stack_t, sp, cnt, work):
     ox, oy, oz, dx, dy, dz, ix, iy, iz = ray
     # point (Lathrop) or neighbor (Glassner): find the leaf holding the point p
     # by its 28-bit address, leave it across its nearest wall, repeat
@@ -798,6 +799,7 @@ def _point_walk(oct_count, oct_first, oct_level, oct_loc, oct_nbr, oct_origin, o
         leaf = np.int64(-1)
         while True:
             cnt[C.CELLS_VISITED] += 1
+            note_visit(work, CODE, node)
             sh = ADDRESS_BITS - oct_level[node]
             lx, ly, lz = oct_loc[node, 0], oct_loc[node, 1], oct_loc[node, 2]
             diff = (px ^ lx) | (py ^ ly) | (pz ^ lz)
@@ -912,11 +914,11 @@ def cells(geo, a) -> Cells:
     leaf = geo.oct_count[nodes] >= 0
     b = geo.oct_bounds[nodes]
     return Cells(b[:, :3], b[:, 3:], np.concatenate(depths), np.where(leaf, geo.oct_first[nodes], 0),
-                 np.where(leaf, geo.oct_count[nodes], -1))
+                 np.where(leaf, geo.oct_count[nodes], -1), nodes)
 
 
 WALK = Walk(code=CODE, name="octree", fields=FIELDS, step=walk_step, counters=COUNTERS, stats_rows=stats_rows,
-            cells=cells)
+            cells=cells, keys="oct_count")
 KIND = Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
               "objects in every child their box overlaps; nodes with the most items times box area are split "
               "first, until depth, leaf, the criteria or the reference budget stop them. Defaults: depth 16 and "

@@ -163,7 +163,7 @@ from .grid import grid_box
 from .lazyset import scene_totals, tree_counts
 from .memory import grown, memory_limit, over_budget
 from .spec import Kind, Param
-from .walk import F_KEY_D, F_KEY_END, F_KEY_O, Field, Walk
+from .walk import F_KEY_D, F_KEY_END, F_KEY_O, Cells, Field, Walk, one_cell
 
 __all__ = ["RcArrays", "RcBudgetWarning", "LazyRC", "build_rc", "start_rc", "face_of", "NODE_BYTES",
            "CANDIDATE_BYTES", "VIRTUAL_LEVELS"]
@@ -1028,7 +1028,30 @@ def features(stats, f, used) -> None:
             f["refine.rc.ref_size"] = f.get("refine.rc.ref_size", 0.0) + float(a.get("refs", 0)) * a.get("bytes", 0) / 2 ** 20
 
 
-WALK = Walk(code=CODE, name="rc", fields=FIELDS, step=walk_step, features=features)
+def references(geo, a) -> np.ndarray:
+    """Every reference of rc aggregate a's candidate lists, once (Walk.references)."""
+    todo, found = list(geo.rc_face_root[geo.agg_start[a]]), []
+    seen = set()
+    while todo:
+        node = int(todo.pop())
+        if node in seen:
+            continue
+        seen.add(node)
+        nb = int(geo.rc_node_b[node])
+        if nb < 0:
+            todo += [int(geo.rc_node_a[node]), int(geo.rc_node_a[node]) + 1]
+        elif nb:
+            found.append(geo.keyed_ref[geo.rc_node_a[node]:geo.rc_node_a[node] + nb])
+    return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
+
+
+def cells(geo, a) -> Cells:
+    """The aggregate's box (its beams live in the space of rays), holding its candidates (Walk.cells)."""
+    return one_cell(geo.agg_bounds[a], 0, len(references(geo, a)))
+
+
+WALK = Walk(code=CODE, name="rc", fields=FIELDS, step=walk_step, features=features, cells=cells,
+            references=references)
 # the annealer does not offer it: a sample of rays would price the lazy one as the coarse trees it
 # leaves, and the eager one costs more to build, on scenes of thousands of items, than a search has
 # time for

@@ -77,6 +77,9 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numba.core import types
+from numba.core.types import NamedTuple as NamedTupleType
+from numba.extending import overload
 
 from ..geometry import counters as C
 from ..geometry.config import njit
@@ -149,20 +152,47 @@ KEYED_FIELDS = (Field("keyed_key", np.float64), Field("keyed_ref", np.int64))   
 class Cells(NamedTuple):
     """An aggregate's cells or nodes, as a walk's `cells(geo, a)` gives them (rendering/structure.py
     draws them): boxes lo, hi (n, 3) in the aggregate's space, each one's depth in the structure
-    (0: the root or, for a grid, every cell), and its references refs[first:first + count]
-    (count -1: an inner node, which holds none of its own)."""
+    (0: the root or, for a grid, every cell), its references refs[first:first + count] (count
+    -1: an inner node, which holds none of its own), and the key its walk notes a visit of it
+    with (note_visit; -1: a box the walk does not note, whose aggregate's box is charged)."""
     lo: np.ndarray
     hi: np.ndarray
     depth: np.ndarray
     first: np.ndarray
     count: np.ndarray
+    key: np.ndarray
 
 
 def one_cell(box, first: int, count: int) -> Cells:
     """An aggregate drawn as its box alone, holding refs[first:first + count] (count 0: none drawn below)."""
     box = np.asarray(box, np.float64)
     return Cells(box[None, :3].copy(), box[None, 3:].copy(), np.zeros(1, np.int64), np.array([first], np.int64),
-                 np.array([count], np.int64))
+                 np.array([count], np.int64), np.array([-1], np.int64))
+
+
+def note_visit(work, code, key):
+    """A walk of code `code` enters its cell or node `key` (as its Cells give the key): counted
+    when a render measures how rays use the structure (engine/work.py, Use); nothing otherwise,
+    and without work layers nothing is compiled."""
+
+
+def _measures_use(work) -> bool:
+    return (isinstance(work, NamedTupleType) and "use" in work.fields
+            and not isinstance(work.types[work.fields.index("use")], types.NoneType))
+
+
+@overload(note_visit, inline="always")
+def _note_visit(work, code, key):
+    if not _measures_use(work):
+        return lambda work, code, key: None
+
+    def visit(work, code, key):
+        use = work.use
+        if use.state[1] == 0:       # not paused (engine/work.py: Use.state, NOTED and PAUSED)
+            row = use.offset[code] + key
+            use.counts[row, 0] += 1
+            use.state[0] = row
+    return visit
 
 
 @dataclass(frozen=True)
@@ -174,7 +204,11 @@ class Walk:
     None), in counters.own_columns(code)), `stats_rows(stats)`, its rows of the statistics
     table, `features(stats, f)`, which prices what the cost model's features for every walk
     (entry.W, step.W, bound.W and its own counters') do not (analysis/costmodel.py), and
-    `cells(geo, a)`, aggregate a's cells or nodes as Cells (None: drawn as its box)."""
+    `cells(geo, a)`, aggregate a's cells or nodes as Cells (None: drawn as its box), and `keys`,
+    the Geometry field whose rows number the keys its kernel notes visits with (note_visit;
+    None: it notes none, and the aggregate's box takes its visits), and `references(geo, a)`,
+    the references aggregate a holds where they are not ranges of geo.refs given by its Cells
+    (ray classification's candidate lists), so that what is nested below it is drawn."""
     code: int
     name: str
     fields: tuple = ()
@@ -184,6 +218,8 @@ class Walk:
     stats_rows: object = field(default=None, compare=False)
     features: object = field(default=None, compare=False)
     cells: object = field(default=None, compare=False)
+    keys: str | None = None
+    references: object = field(default=None, compare=False)
 
 
 class Workspace(NamedTuple):

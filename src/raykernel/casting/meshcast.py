@@ -209,7 +209,7 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
             if stack_t[sp] > best and stack_t[sp] > best * CONSERVATIVE:
                 continue        # entered beyond the closest hit, beyond rounding (ties need the node)
             sp, s, e = descend(geo.node_bounds, geo.node_first, geo.node_count, stack_a[sp], ox, oy, oz, ix, iy, iz,
-                               lo, best, stack_a, stack_b, stack_t, sp, cnt)
+                               lo, best, stack_a, stack_b, stack_t, sp, cnt, None)
             if s == e:
                 continue
             best, best_j, n_all, tested, hits, done = _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo,

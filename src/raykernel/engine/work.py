@@ -6,7 +6,8 @@ row at the sample's start, and the sample's work split by ray type and by nestin
     figures = work_figures(ws.work, cnt)         # (tests, bounds, visited) now: around a search
     charge_type(ws.work, ray_kind, figures, cnt) # what the search did, to its ray type
     record_sample(ws.work, j, i, cnt)            # the sample's record into layer[j, i]
-    note(ws.work, STEP, ...)                     # an event of the probed sample (Probe), if any
+    note(ws.work, STEP, ...)                     # an event of the probed sample (Probe), if any,
+                                                 # or what it tells of the structure's use (Use)
 
 Every helper is an overload that does nothing when ws.work is None (and every `note` nothing
 without a probe): a render without layers compiles none of this and runs as before.
@@ -52,6 +53,7 @@ class SampleWork(NamedTuple):
     level_mark: np.ndarray   # (3,) int64: the figures at the driver's last change of frame
     levels: int          # nesting levels split (0: none)
     probe: object        # None, or the event log of one probed sample (Probe; explain.py)
+    use: object          # None, or every cell's and node's use (Use; rendering/structure.py)
 
 
 # A probe logs the events of one sample (rendering/explain.py): one float64 row an event, its
@@ -75,10 +77,38 @@ def probe(row: int, col: int, capacity: int) -> Probe:
     return Probe(np.zeros((capacity, LOG_COLUMNS)), state)
 
 
+# A render that measures how rays use its structures (rendering/structure.py, one thread) counts,
+# for every cell and node a walk enters (walk.note_visit) and for every aggregate whose walk notes
+# none (a list, an operator, ray classification: its box), its visits, the primitive tests made in
+# its references, the visits in which some test hit (the rest entered and found nothing) and, for
+# an aggregate's box, the steps that reached its references. A row
+# of `counts` is offset[code] + key for a walk of code `code` that notes its cells, and
+# offset[AGGREGATES] + the aggregate's index for the others. `state` holds the row noted last
+# (-1: none since the last step), whether counting is paused (a search whose work the render does
+# not count: counted), then for each frame of the driver the row its tests are made in and
+# whether one of them has hit since.
+COUNTS = ("visits", "tests", "hits", "entries")
+VISITS, TESTS, HITS, ENTRIES = range(len(COUNTS))
+NOTED, PAUSED, FRAMES = 0, 1, 2       # Use.state
+AGGREGATES = C.MAX_WALKS
+
+
+class Use(NamedTuple):
+    counts: np.ndarray   # (rows, 4) int64: COUNTS
+    offset: np.ndarray   # (MAX_WALKS + 1,) int64: each walk's first row; [AGGREGATES] the aggregates' boxes
+    keyed: np.ndarray    # (MAX_WALKS,) int64: 1 for a walk that notes its cells itself
+    state: np.ndarray    # (FRAMES + 2 * frames,) int64: the row noted last, paused, then per frame (row, hit since)
+
+
+def _is_use(probe) -> bool:
+    return isinstance(probe, NamedTupleType) and "counts" in probe.fields
+
+
 def sample_work(layer, levels, probe, x0, y0, size):
     """A tile's per-sample work over `layer` (None: no layers, and so None), `levels` nesting
     levels split (engine/work.columns); `probe` (None or a Probe) logs the events of its sample
-    if the tile at column x0, row y0, `size` samples square, holds it."""
+    if the tile at column x0, row y0, `size` samples square, holds it; a Use in its place counts
+    how every sample's rays use the structures."""
 
 
 @overload(sample_work)
@@ -88,15 +118,20 @@ def _sample_work(layer, levels, probe, x0, y0, size):
     if isinstance(probe, types.NoneType):
         def no_probe(layer, levels, probe, x0, y0, size):
             return SampleWork(layer, np.zeros(C.N_COUNTERS, np.int64), np.zeros(layer.shape[2] - SPLIT, np.int64),
-                              np.zeros(3, np.int64), np.int64(levels if levels > 1 else 0), None)
+                              np.zeros(3, np.int64), np.int64(levels if levels > 1 else 0), None, None)
         return no_probe
+    if _is_use(probe):
+        def using(layer, levels, probe, x0, y0, size):
+            return SampleWork(layer, np.zeros(C.N_COUNTERS, np.int64), np.zeros(layer.shape[2] - SPLIT, np.int64),
+                              np.zeros(3, np.int64), np.int64(levels if levels > 1 else 0), None, probe)
+        return using
 
     def probed(layer, levels, probe, x0, y0, size):
         j, i = probe.state[TARGET_ROW], probe.state[TARGET_COL]
         mine = y0 <= j < y0 + size and x0 <= i < x0 + size
         p = probe if mine else Probe(np.zeros((0, LOG_COLUMNS)), probe.state.copy())
         return SampleWork(layer, np.zeros(C.N_COUNTERS, np.int64), np.zeros(layer.shape[2] - SPLIT, np.int64),
-                          np.zeros(3, np.int64), np.int64(levels if levels > 1 else 0), p)
+                          np.zeros(3, np.int64), np.int64(levels if levels > 1 else 0), p, None)
     return probed
 
 
@@ -112,12 +147,56 @@ def note(work, code, a, b, c, d, e, f, g, h, i):
 
 @overload(note, inline="always")
 def _note(work, code, a, b, c, d, e, f, g, h, i):
+    if _using(work):
+        def count(work, code, a, b, c, d, e, f, g, h, i):
+            if code == STEP:        # frame a, aggregate b, walk c, cells visited d
+                _use_step(work.use, a, b, c, d)
+            elif code == TEST:      # frame a, t e
+                _use_test(work.use, a, e)
+        return count
     if not _probed(work):
         return lambda work, code, a, b, c, d, e, f, g, h, i: None
 
     def log(work, code, a, b, c, d, e, f, g, h, i):
         _log(work.probe, code, a, b, c, d, e, f, g, h, i)
     return log
+
+
+def _using(work) -> bool:
+    """Whether a kernel's `work` carries a Use: no counting code compiles otherwise."""
+    return isinstance(work, NamedTupleType) and not isinstance(work.types[work.fields.index("use")], types.NoneType)
+
+
+@njit
+def _use_step(use, f, agg, kind, visited):
+    # the step of frame f's walk ends where its references are tested: the cell it noted last,
+    # or for a walk that notes none the aggregate's box, which takes the step's visits
+    state = use.state
+    row = state[NOTED]
+    if state[PAUSED]:
+        row = -1
+    elif use.keyed[kind] == 0:
+        row = use.offset[AGGREGATES] + agg
+        use.counts[row, VISITS] += visited
+        use.counts[row, ENTRIES] += 1
+    state[NOTED] = -1
+    state[FRAMES + 2 * f], state[FRAMES + 1 + 2 * f] = row, 0
+
+
+@njit
+def _use_test(use, f, t):
+    # a test in frame f's cell; a hit there is a hit in the cells of the frames above, which
+    # hold the aggregate it was found in
+    state = use.state
+    row = state[FRAMES + 2 * f]
+    if row >= 0:
+        use.counts[row, TESTS] += 1
+    if t < np.inf and t > -np.inf:
+        for g in range(f + 1):
+            row = state[FRAMES + 2 * g]
+            if row >= 0 and state[FRAMES + 1 + 2 * g] == 0:
+                use.counts[row, HITS] += 1
+                state[FRAMES + 1 + 2 * g] = 1
 
 
 @njit(inline="always")
@@ -140,6 +219,12 @@ def note_search(work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
 
 @overload(note_search, inline="always")
 def _note_search(work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+    if _using(work):
+        def begin(work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
+            state = work.use.state
+            state[NOTED] = -1
+            state[FRAMES:] = -1         # no frame has a cell yet
+        return begin
     if not _probed(work):
         return lambda work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt: None
 
@@ -341,3 +426,24 @@ def names(levels: int) -> list[str]:
     if levels > 1:
         out += [f"{figure}.level{level}" for level in range(levels) for figure in FIGURES]
     return out
+
+
+def pause_use(work, paused):
+    """Searches from here on until unpaused are not the render's work (an uncounted search of
+    Haines's tricks): a Use does not count them."""
+
+
+@overload(pause_use, inline="always")
+def _pause_use(work, paused):
+    if not _using(work):
+        return lambda work, paused: None
+
+    def pause(work, paused):
+        _set_paused(work.use.state, paused)
+    return pause
+
+
+@njit
+def _set_paused(state, paused):
+    # a call, not inlined: inlined into the tricks' kernels numba's IR checks find a variable out of scope
+    state[PAUSED] = 1 if paused else 0

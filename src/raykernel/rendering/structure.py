@@ -4,6 +4,8 @@ hierarchies level by level, each box with its values.
     boxes = structure_boxes(scene, accel="hybrid")      # Boxes, in world space
     boxes.level, boxes.depth, boxes.leaf, boxes.items   # one value a box
     write_ply(boxes, "hybrid.ply")                      # 8 vertices and 12 triangles a box, values per face
+    boxes, use, result = structure_use(scene, accel="lazyoctree", resolution=64)   # how a render's rays used them
+    write_ply(boxes, "used.ply", use)                   # use["visits"], use["tests"], use["futile"], use["refined"]
 
 Each aggregate's walk draws its cells (Walk.cells): BVH and octree nodes, grid cells, k-d tree
 nodes with the boxes their planes cut; a list, a CSG node and ray classification (whose beams
@@ -18,20 +20,34 @@ own structure (0: its root; a grid's cells all 0); `leaf`, 1 for a box that hold
 `items`, its references (-1 for an inner node); `aggregate`, the aggregate's index; `walk`, the
 walk's code (aggregates/walk.py). The PLY file (binary, written through trimesh, the mesh extra)
 carries each as a property of every face, so MeshLab, ParaView, Open3D and trimesh colour by it.
+
+How rays used them (structure_use): the scene rendered with render's options on one thread, its
+walks counting, box by box (engine/work.py, Use), `visits`, the times a ray entered it (they sum
+to the render's cells.visited); `tests`, the primitive tests made in its references (they sum to
+its tests.total, less the tests Haines's tricks make outside any search); `futile`, the visits
+whose tests hit nothing (an empty cell's every visit); and `refined`, 1 for a lazy octree's cells
+this render made. A box that holds no references of its own (an inner node) has futile -1, and
+as tests those made in it while it was a leaf (a lazy octree's cell this render split), else 0. A list, an operator and ray classification (drawn as their box) count their walk's visits on
+it, and as futile the times their references were reached and nothing hit. An aggregate drawn
+once for each instance shows the use of all its instances on each. A BVH that renders 4-wide
+(widewalk.py) is walked in its binary form here, node by node as drawn.
 """
 
 from __future__ import annotations
 
+import time
 from typing import NamedTuple
 
 import numpy as np
 
 from ..aggregates.registry import WALKS
-from ..aggregates.walk import one_cell
+from ..aggregates.walk import MAX_NESTING, one_cell
+from ..engine.work import AGGREGATES, COUNTS, ENTRIES, FRAMES, HITS, PAUSED, TESTS, VISITS, Use
 from ..errors import OptionError
 from ..geometry.primitives import AGGREGATE, INDEX_MASK, INSTANCE, KIND_SHIFT
 
 VALUES = ("level", "depth", "leaf", "items", "aggregate", "walk")
+USE = ("visits", "tests", "futile", "refined")
 # the corners of a box: corner k takes hi on x if k & 1, on y if k & 2, on z if k & 4
 CORNERS = np.array([[(k >> axis) & 1 for axis in range(3)] for k in range(8)], bool)
 # its 12 triangles, counter-clockwise seen from outside
@@ -47,6 +63,7 @@ class Boxes(NamedTuple):
     items: np.ndarray
     aggregate: np.ndarray
     walk: np.ndarray
+    key: np.ndarray         # the box's key in its walk (Cells.key; -1: its aggregate's box)
 
     def __len__(self) -> int:
         return len(self.corners)
@@ -60,6 +77,17 @@ def _walk_cells(geo, a):
     if walk is not None and walk.cells is not None:
         return walk.cells(geo, a)
     return one_cell(geo.agg_bounds[a], 0, 0)
+
+
+def _references(geo, a, cells) -> np.ndarray:
+    """The references aggregate a's cells hold, each once."""
+    walk = WALKS_BY_CODE.get(int(geo.agg_kind[a]))
+    if walk is not None and walk.references is not None:
+        return walk.references(geo, a)
+    held = cells.count > 0
+    counts = cells.count[held]
+    index = np.repeat(cells.first[held] - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
+    return np.unique(geo.refs[index])
 
 
 def _to_world(local_to_world: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -82,13 +110,9 @@ def boxes_of(geo) -> Boxes:
         cells = _walk_cells(geo, a)
         n = len(cells.lo)
         parts.append((_to_world(to_world, cells.lo, cells.hi), np.full(n, level), cells.depth,
-                      (cells.count >= 0).astype(np.int64), cells.count, np.full(n, a), np.full(n, geo.agg_kind[a])))
-        held = cells.count > 0
-        if not held.any():
-            continue
-        counts = cells.count[held]
-        index = np.repeat(cells.first[held] - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
-        refs = np.unique(geo.refs[index])
+                      (cells.count >= 0).astype(np.int64), cells.count, np.full(n, a), np.full(n, geo.agg_kind[a]),
+                      cells.key))
+        refs = _references(geo, a, cells)
         kinds, items = refs >> KIND_SHIFT, refs & INDEX_MASK
         todo += [(int(c), to_world, level + 1) for c in items[kinds == AGGREGATE]]
         for i in items[kinds == INSTANCE]:
@@ -111,9 +135,10 @@ def select(boxes: Boxes, keep: np.ndarray) -> Boxes:
     return Boxes(*(np.asarray(column)[keep] for column in boxes))
 
 
-def write_ply(boxes: Boxes, path) -> None:
+def write_ply(boxes: Boxes, path, use: dict | None = None) -> None:
     """Every box as 8 vertices and 12 triangles in a binary PLY file, each face with the box's
-    values (VALUES) as int properties; written atomically."""
+    values (VALUES, and those of `use`, as structure_use gives them) as int properties; written
+    atomically."""
     try:
         import trimesh
     except ImportError:
@@ -122,6 +147,62 @@ def write_ply(boxes: Boxes, path) -> None:
     n = len(boxes)
     faces = (FACES[None] + 8 * np.arange(n)[:, None, None]).reshape(-1, 3)
     mesh = trimesh.Trimesh(boxes.corners.reshape(-1, 3), faces, process=False)
-    for name in VALUES:
-        mesh.face_attributes[name] = np.repeat(getattr(boxes, name), len(FACES)).astype(np.int32)
+    values = {name: getattr(boxes, name) for name in VALUES} | (use or {})
+    for name, value in values.items():
+        mesh.face_attributes[name] = np.repeat(np.asarray(value), len(FACES)).astype(np.int32)
     write_bytes(path, trimesh.exchange.ply.export_ply(mesh, encoding="binary", include_attributes=True))
+
+
+def structure_use(scene, accel: str = "bvh", **options):
+    """The boxes of `scene` built with `accel`, how the rays of its render with `options`
+    (render's: resolution, spd, shading, aa, tricks, ...) used them (a dict of USE's values, one
+    a box: see the module's docstring), and the render (its image and statistics). The render
+    runs on one thread."""
+    from ..engine.widewalk import with_driver
+    from .render import RenderJob
+    job = RenderJob(scene, accel=accel, **dict(options, work=True, threads=1))
+    job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])     # walked node by node
+    built = len(job.geo.oct_count)
+    job.probe = _use_of(job.geo)
+    t0 = time.perf_counter()
+    for p in range(len(job.passes)):
+        job.trace_pass(p, 1)
+        job.end_pass(p)
+        if job.geo.wide_nodes.shape[0]:
+            job.geo = job.geo._replace(wide_nodes=job.geo.wide_nodes[:0])
+        job.probe = _use_of(job.geo, job.probe)     # a lazy structure refined: room for its new cells
+    result = job.result(time.perf_counter() - t0, 0.0)
+    boxes = boxes_of(job.geo)
+    use = job.probe
+    keyed = use.keyed[boxes.walk] != 0
+    rows = np.where(keyed, use.offset[boxes.walk] + boxes.key, use.offset[AGGREGATES] + boxes.aggregate)
+    counts = use.counts[rows]
+    inner = boxes.leaf == 0
+    futile = np.where(keyed, counts[:, VISITS], counts[:, ENTRIES]) - counts[:, HITS]
+    from ..aggregates.octree import CODE as OCTREE
+    return boxes, {"visits": counts[:, VISITS], "tests": counts[:, TESTS],
+                   "futile": np.where(inner, -1, futile),
+                   "refined": ((boxes.walk == OCTREE) & (boxes.key >= built)).astype(np.int64)}, result
+
+
+def _use_of(geo, old: Use | None = None) -> Use:
+    """A Use with a row for every cell and node of geo's walks, and for every aggregate; the
+    counts of `old` (for geo before a lazy structure refined) kept."""
+    sizes = np.zeros(AGGREGATES + 1, np.int64)
+    keyed = np.zeros(AGGREGATES, np.int64)
+    for w in WALKS:
+        if w.keys is not None:
+            sizes[w.code] = len(getattr(geo, w.keys))
+            keyed[w.code] = 1
+    sizes[AGGREGATES] = len(geo.agg_kind)
+    offset = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    if old is not None and np.array_equal(offset, old.offset):
+        return old
+    counts = np.zeros((int(sizes.sum()), len(COUNTS)), np.int64)
+    if old is not None:
+        before = np.diff(np.append(old.offset, len(old.counts)))
+        for k in range(AGGREGATES + 1):
+            counts[offset[k]:offset[k] + before[k]] = old.counts[old.offset[k]:old.offset[k] + before[k]]
+    state = np.full(FRAMES + 2 * (MAX_NESTING + 1), -1, np.int64)
+    state[PAUSED] = 0
+    return Use(counts, offset, keyed, state)

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..engine.hitrule import hit_primitive
 from ..engine.traverse import ALL_HITS, ANY_OPAQUE, CLOSEST, CLOSEST_EAGER, OPERATOR_SURFACE, clear_material, intersect
+from ..engine.work import pause_use
 from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.boxes import INF
@@ -198,7 +199,9 @@ def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, rays, 
         cnt[C.FULL_WALKS] += 1
         intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, ALL_HITS, ws, cnt)
         before = scratch[C.NORMALS_COMPUTED]
+        pause_use(ws.work, True)
         found = intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, scratch)
+        pause_use(ws.work, False)
         cnt[C.NORMALS_COMPUTED] += scratch[C.NORMALS_COMPUTED] - before
         return found
     memorable = tricks & RAYTREE and node < MEMO_NODES
