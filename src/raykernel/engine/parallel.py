@@ -19,6 +19,7 @@ so results do not depend on the thread count or the order.
 from __future__ import annotations
 
 import threading
+import time
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 
 import numba
@@ -29,7 +30,6 @@ from numba.extending import intrinsic
 from ..geometry.compiletime import WORKER_PREFIX
 from ..geometry.config import compiled, njit
 
-CHUNKS_PER_THREAD = 8       # ranges per thread: enough for balance, few enough to keep the call overhead small
 
 
 def default_threads() -> int:
@@ -63,44 +63,103 @@ def for_ranges(fn, n: int, threads: int | None = None, kernel=None, min_size: in
     cache) the first range runs alone on this thread, since threads calling an uncompiled
     kernel at once compile it once each (a first render took 52 s instead of 30).
     min_size: items a range holds at least, so that small work (a lazy render's first
-    passes, a few rays each) runs on this thread instead of paying a hand-over per range."""
+    passes, a few rays each) runs on this thread instead of paying a hand-over per range.
+    Each thread takes ranges one after another, sized to take about RANGE_SECONDS (from one
+    item, four times as many each time while they are quick), so that uneven work balances and
+    Ctrl-C is answered after the ranges being worked on: it raises KeyboardInterrupt."""
     threads = max(1, int(threads or default_threads()))
     if n <= 0:
         return
-    n_ranges = min(n // max(1, min_size), threads * CHUNKS_PER_THREAD)
-    if threads == 1 or n_ranges <= 1 or threading.current_thread().name.startswith(WORKER_PREFIX):
-        fn(0, n)            # (a worker never waits on its own pool)
-        return
-    size = -(-n // n_ranges)
-    start = 0
-    if kernel is not None and not compiled(kernel):
-        fn(0, size)
-        start = size
-    futures = [_pool(threads).submit(fn, lo, min(n, lo + size)) for lo in range(start, n, size)]
+    ranges = _Ranges(n, max(1, min_size))
+    alone = threads == 1 or n < 2 * max(1, min_size) or threading.current_thread().name.startswith(WORKER_PREFIX)
+    if alone or (kernel is not None and not compiled(kernel)):
+        ranges.run(fn, once=not alone)      # on this thread: Ctrl-C is raised between ranges
+        if alone:
+            return
+    futures = [_pool(threads).submit(ranges.run, fn) for _ in range(threads)]
+    _wait(futures, stop=ranges.stop)
     for future in futures:
         future.result()
 
 
-def on_threads(fn, threads: int | None = None, poll=None, interval: float = 0.1) -> None:
+RANGE_SECONDS = 0.05
+
+
+class _Ranges:
+    """The ranges of 0..n handed out to for_ranges' threads, each sized to its thread's last pace."""
+
+    def __init__(self, n: int, first: int):
+        self.n, self.first, self.next = n, first, 0
+        self.lock = threading.Lock()
+
+    def stop(self) -> None:
+        with self.lock:
+            self.next = self.n
+
+    def run(self, fn, once: bool = False) -> None:
+        size = self.first
+        while True:
+            with self.lock:
+                lo = self.next
+                hi = self.next = min(self.n, lo + size)
+            if lo >= hi:
+                return
+            start = time.perf_counter()
+            fn(lo, hi)
+            if once:
+                return
+            pace = (time.perf_counter() - start) / (hi - lo)
+            size = max(self.first, min(4 * size, int(RANGE_SECONDS / max(pace, 1e-9))))
+
+
+def on_threads(fn, threads: int | None = None, poll=None, interval: float = 0.1, counter=None) -> None:
     """Call fn() once on each of `threads` threads at once, the calls sharing their work
     through a counter the kernel claims items from (claim below): one call per thread, so
     the hand-over is paid once however many items there are, and a thread that finishes
     early takes the items another has not reached. poll: called every `interval` seconds
-    while they run, and once at the end (a progress report)."""
+    while they run, and once at the end (a progress report). counter: that counter; given,
+    the calls run on the pool even for one thread, and Ctrl-C on this thread ends the work
+    after the items being worked on (no item is claimed after it) and raises KeyboardInterrupt."""
     threads = max(1, int(threads or default_threads()))
-    if threads == 1 or threading.current_thread().name.startswith(WORKER_PREFIX):
+    if (threads == 1 and counter is None) or threading.current_thread().name.startswith(WORKER_PREFIX):
         fn()
     else:
         futures = [_pool(threads).submit(fn) for _ in range(threads)]
-        while True:
-            done, pending = wait(futures, timeout=interval if poll is not None else None, return_when=FIRST_EXCEPTION)
-            if not pending or any(f.exception() is not None for f in done):
-                break
-            poll()
+        _wait(futures, poll, interval, stop=None if counter is None else lambda: stop_claims(counter))
         for future in futures:
             future.result()
     if poll is not None:
         poll()
+
+
+def stop_claims(counter) -> None:
+    """No item of the work counter is claimed after this (every claim gets one past the last)."""
+    counter[0] = NO_MORE
+
+
+NO_MORE = np.int64(1) << 62
+
+
+def _wait(futures, poll=None, interval: float = 0.1, stop=None) -> None:
+    """Wait for the futures (calling poll every interval) until all are done or one has failed.
+    Ctrl-C meanwhile: stop() (no more work handed out), wait for what runs, raise KeyboardInterrupt."""
+    try:
+        while True:
+            done, pending = wait(futures, timeout=interval, return_when=FIRST_EXCEPTION)
+            if not pending or any(f.exception() is not None for f in done if not f.cancelled()):
+                return
+            if poll is not None:
+                poll()
+    except KeyboardInterrupt:
+        if stop is not None:
+            stop()
+        while True:
+            try:
+                wait(futures)
+                break
+            except KeyboardInterrupt:       # pressed again: the running items still end first
+                continue
+        raise
 
 
 @intrinsic

@@ -474,14 +474,14 @@ class RenderJob:
         start = first + lo
         samples = self.work[p] * (hi - lo) // max(1, last - first)
         threads = max(1, min(threads, hi - lo, -(-samples // THREAD_SAMPLES)))
-        if threads > 1 and not compiled(self.kernel):
-            # the first tile alone, while the kernel compiles (or loads): threads calling an
-            # uncompiled kernel at once would each compile it
+        if not compiled(self.kernel):
+            # the first tile alone, on this thread, while the kernel compiles (or loads): threads
+            # calling an uncompiled kernel at once would each compile it, and Ctrl-C stops a compile here
             run(np.array([start, 0], np.int64), start + 1)
             start += 1
         counter = np.array([start, start - first - lo], np.int64)      # next tile, tiles finished
         on_threads(lambda: run(counter, first + hi), threads,
-                   poll=None if report is None else lambda: report(int(counter[1])))
+                   poll=None if report is None else lambda: report(int(counter[1])), counter=counter)
 
     def trace_pass(self, p: int, threads: int, report=None) -> None:
         """Trace all of pass p over `threads` threads (report: as for trace)."""
