@@ -101,3 +101,62 @@ def test_under_an_address_space_limit(tmp_path, spec):
     assert run.returncode == 2, run.stderr[-2000:]
     assert "memory budget" in run.stderr and "Traceback" not in run.stderr
     assert np.all([line.strip() for line in run.stderr.strip().splitlines()][-1:])
+
+
+def _limited(args, limit=3 << 30):
+    """The command line under an address-space limit, in a process of its own."""
+    code = (f"import resource, sys; resource.setrlimit(resource.RLIMIT_AS, ({limit}, {limit})); "
+            "from raykernel.cli import main; sys.exit(main(sys.argv[1:]))")
+    return subprocess.run([sys.executable, "-c", code] + args, capture_output=True, text=True, timeout=900)
+
+
+@pytest.mark.parametrize("args,what", [
+    (["--resolution", "16384"], "16384x16384 render"),
+    (["--resolution", "4096", "--work", "w.npz"], "work layers"),
+    (["--resolution", "8000", "--aa", "adaptive", "--aa-depth", "4"], "8000x8000 render"),
+    (["--resolution", "16384", "--max-memory", "1T"], "out of memory"),
+    (["--resolution", "100000"], "resolution must be"),
+    (["--aa", "jitter", "--samples", "1000000"], "samples must be"),
+])
+def test_huge_renders_give_one_line_under_an_address_space_limit(tmp_path, args, what):
+    out = tmp_path / "big.png"
+    run = _limited(["render", "spd:tetra:2", "-o", str(out)] + [str(tmp_path / a) if a.endswith(".npz") else a
+                                                               for a in args])
+    assert run.returncode == 2, run.stderr[-2000:]
+    last = run.stderr.strip().splitlines()[-1]
+    assert last.startswith("raykernel: error:") and what in last and "Traceback" not in run.stderr
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_the_budget_holds_the_image(balls):
+    from raykernel.rendering.render import render
+    with pytest.raises(MemoryBudgetError, match="400x400 render"):
+        render(balls, accel="list", resolution=400, max_memory="10M")
+    assert render(balls, accel="list", resolution=40, max_memory="10M").image.shape == (40, 40, 3)
+
+
+@pytest.mark.parametrize("query", ["intersect", "occluded", "count_hits", "intersect_all"])
+def test_huge_ray_batches_stop_before_allocating(balls, query):
+    from raykernel import RayScene
+    scene = RayScene(balls, max_memory="64M")
+    n = 10 ** 9     # views of one ray: nothing is allocated until the query copies them
+    o = np.broadcast_to(np.array([0.0, 0.0, 5.0]), (n, 3))
+    d = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (n, 3))
+    with pytest.raises(MemoryBudgetError, match=f"RayScene.{query} of 1,000,000,000 rays"):
+        getattr(scene, query)(o, d)
+    assert np.all(np.isfinite(scene.intersect(o[:5], d[:5]).t))       # and the scene still answers
+
+
+def test_intersect_all_checks_the_hits_before_keeping_them():
+    from raykernel import RayScene
+    centers = np.zeros((2000, 3))
+    centers[:, 2] = np.arange(2000) * 3.0      # a ray along z meets all 2,000 spheres
+    scene = RayScene.from_spheres(centers, np.ones(2000))
+    scene._limit = 4 << 20
+    o = np.tile([0.0, 0.0, -10.0], (100, 1))
+    d = np.tile([0.0, 0.0, 1.0], (100, 1))
+    with pytest.raises(MemoryBudgetError, match="intersect_all"):
+        scene.intersect_all(o, d)
+    scene._limit = 1 << 30
+    ray, t, prim = scene.intersect_all(o, d)
+    assert len(ray) == 200_000

@@ -763,6 +763,11 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write("raykernel: interrupted; unfinished output files were removed\n")
         return 130
+    except MemoryError as err:      # the machine had less to give than the budget (--max-memory) allowed
+        sys.stderr.write(f"raykernel: error: out of memory ({err or 'the system refused an allocation'}); lower "
+                         f"--resolution, the samples or --max-memory (the budget: default half of this machine's "
+                         f"memory)\n")
+        return 2
 
 
 def run() -> None:

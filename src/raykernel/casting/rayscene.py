@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock, compile_notice
+from ..aggregates.memory import check, describe_bytes, memory_limit
 from ..aggregates.registry import COUNTER_NAMES
 from ..engine.flatten import flatten
 from ..engine.parallel import for_ranges
@@ -65,6 +66,7 @@ HIT_FIELDS = ("t", "prim_id", "geom_id", "inst_id", "kind", "uv", "normal", "sha
 FLOAT_FIELDS = ("t", "uv", "normal", "shading_normal")
 FIELD_COLUMNS = {"uv": (2,), "normal": (3,), "shading_normal": (3,)}
 DTYPES = {"float64": (np.float64, np.int64), "float32": (np.float32, np.int32)}    # floats, ids
+HIT_BYTES = 2 * (8 + 24 + 8) + 8     # intersect_all: a hit's t, identity and ray, sorted into copies, and the order
 OUTPUTS = ("t", "kind", "geom", "idx", "inst", "uv", "gn", "sn")     # the kernels' output arrays, in call order
 EDGE_RULES = {"watertight": WATERTIGHT, "inclusive": INCLUSIVE}
 KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone", TRIANGLE: "triangle"}
@@ -231,14 +233,17 @@ def _interval(value, name: str, shape: tuple) -> np.ndarray:
     return arr
 
 
-def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
+def check_rays(origins, directions, tmin=0.0, tmax=np.inf, budget=None):
     """Checked float64 copies, flat: origins (N, 3), directions (N, 3), tmin and tmax ((N,), or
     (1,) for one number), and the rays' shape: the leading dimensions of origins and directions
     broadcast together ((N,) for (N, 3) arrays, (H, W) for an image of rays, (1,) for one (3,) ray).
     The values of origins and directions are checked by the kernels as they cast (rayinput.py);
-    check_ray_values names the first bad ray."""
+    check_ray_values names the first bad ray. budget(n, copied): called before anything is
+    copied, with the rays' number and the bytes their copies take (RayScene._budget)."""
     if _plain(origins, directions):
         o, d, shape = origins, directions, origins.shape[:1]      # the common call: nothing to broadcast
+        if budget is not None:
+            budget(len(o), 0)
     else:
         o = _vectors(origins, "origins", finite=False)
         d = _vectors(directions, "directions", finite=False)
@@ -247,6 +252,8 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf):
         except ValueError:
             raise RayInputError(f"origins and directions differ in length: {o.shape[:-1]} vs "
                                 f"{d.shape[:-1]}") from None
+        if budget is not None:
+            budget(math.prod(shape), 64 * math.prod(shape))    # origins, directions, tmin, tmax
         o = np.broadcast_to(o, shape + (3,)).reshape(-1, 3)
         d = np.broadcast_to(d, shape + (3,)).reshape(-1, 3)
     lo = _interval(tmin, "tmin", shape)
@@ -358,6 +365,7 @@ class RayScene:
         self._lazy = self.build_stats.get("lazy")
         self._may_repeat = self._may_repeat or self._lazy is not None or edges == "inclusive"
         self._mesh = MeshKernel.of(self.geo, table)
+        self._limit = memory_limit(max_memory)
         self._lock = threading.RLock()      # held by queries that refine lazy structures
         self._local = threading.local()     # last_stats, per thread
 
@@ -553,6 +561,24 @@ class RayScene:
         stats["time.load"] = clock.loading
         return stats
 
+    def _budget(self, what: str, per_ray: int, hint: str = "cast fewer rays at a time"):
+        """check_rays' budget: MemoryBudgetError unless the structures, the rays' copies and
+        `per_ray` bytes of outputs a ray fit in the memory budget (max_memory)."""
+        def fits(n: int, copied: int) -> None:
+            need = n * (per_ray + C.N_COUNTERS * 8 // CHUNK + 1) + copied
+            if need > (1 << 24):        # small batches are not worth summing the structures for
+                held = sum(a.nbytes for a in self.geo if isinstance(a, np.ndarray))
+                check(held + need, self._limit, f"RayScene.{what} of {n:,} rays ({describe_bytes(need)} of outputs "
+                      f"and copies, beside {describe_bytes(held)} of structures)", hint)
+        return fits
+
+    def _output_bytes(self, fields=None, dtype="float64") -> int:
+        """The bytes a ray's outputs take: the fields asked for, and the general kernel's identities."""
+        fdt, idt = DTYPES.get(dtype, DTYPES["float64"])
+        per = sum(np.dtype(fdt if name in FLOAT_FIELDS else idt).itemsize * math.prod(FIELD_COLUMNS.get(name, ()))
+                  for name in (HIT_FIELDS if fields is None else _field_names(fields)))
+        return per + (0 if self._mesh is not None else 16)
+
     def _outputs(self, shape: tuple, fields=None, dtype="float64", out=None) -> tuple[dict, dict]:
         """(the kernel's output arrays by OUTPUTS name, the Hits fields asked for by name): the
         fields' arrays come from `out` (a Hits) or are new; what nobody asked for has no rows.
@@ -595,7 +621,10 @@ class RayScene:
         are filled in place instead of new ones (no memory to allocate and fault in). A ray that is
         not finite or has a zero direction raises RayInputError naming it, after the other rays
         were cast: out's arrays then hold their hits."""
-        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
+        per_ray = 0 if out is not None else self._output_bytes(fields, dtype)
+        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax,
+                                         self._budget("intersect", per_ray, "cast fewer rays at a time, or fill the "
+                                                      "arrays of an earlier call (out=)"))
         arrays, hits = self._outputs(shape, fields, dtype, out)
         stats = self._run(CLOSEST, o, d, lo, hi, arrays, threads=threads)
         if self._mesh is None:
@@ -615,7 +644,7 @@ class RayScene:
 
     def occluded(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
         """True where the ray meets anything in [tmin, tmax] (stops at the first hit found)."""
-        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
+        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax, self._budget("occluded", 9))
         arrays, _ = self._outputs((len(o),), ("t",))
         self.last_stats = self._run(ANY, o, d, lo, hi, arrays, threads=threads)
         return np.isfinite(arrays["t"]).reshape(shape)
@@ -636,6 +665,8 @@ class RayScene:
                 self.geo = self._lazy.restore(mark, self.geo)   # the second run must meet the same trees
             offsets = np.zeros(len(o) + 1, np.int64)
             np.cumsum(counts, out=offsets[1:])
+            # each hit: t, (kind, index, instance), its ray, and the sort's order and copies
+            self._budget("intersect_all", 0)(len(o), int(offsets[-1]) * HIT_BYTES)
             all_t = np.empty(offsets[-1])
             all_i = np.empty((offsets[-1], 3), np.int64)
             stats2 = self._run(ALL_HITS, o, d, lo, hi, self._counts(len(o)), offsets=offsets, all_t=all_t,
@@ -669,7 +700,7 @@ class RayScene:
         A ray through a shared edge or vertex of a mesh meets exactly one of
         the triangles there (watertight tests). ray_index counts the rays in
         row-major order (np.unravel_index(ray_index, shape) for shaped rays)."""
-        o, d, lo, hi, _ = check_rays(origins, directions, tmin, tmax)
+        o, d, lo, hi, _ = check_rays(origins, directions, tmin, tmax, self._budget("intersect_all", 48))
         ray, t, ident, _, stats = self._all(o, d, lo, hi, threads)
         self.last_stats = stats
         if ids:
@@ -678,7 +709,7 @@ class RayScene:
 
     def count_hits(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
         """Number of primitives each ray meets in [tmin, tmax] (the lengths of intersect_all's lists)."""
-        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax)
+        o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax, self._budget("count_hits", 48))
         if self._may_repeat:
             ray, _, _, _, stats = self._all(o, d, lo, hi, threads)
             counts = np.bincount(ray, minlength=len(o)).astype(np.int64)

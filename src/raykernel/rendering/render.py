@@ -44,7 +44,7 @@ from ..engine.flatten import flatten
 from ..engine.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..engine.widewalk import count_misses, with_driver
-from ..aggregates.memory import check, memory_limit
+from ..aggregates.memory import check, describe_bytes, memory_limit
 from ..engine.work import CULLED, charge_type, note, record_sample, sample_work, start_samples, work_figures
 from ..engine.work import columns as work_columns
 from ..errors import OptionError
@@ -391,17 +391,16 @@ class RenderJob:
         self.tile_y = np.repeat(tiles_y, len(tiles_x)).astype(np.int64)
         self.n_tiles = n_tiles = len(self.tile_x)
         t0 = time.perf_counter()
-        self.values = _faulted_zeros((self.sh, self.sw, 3), np.float64)      # the samples' colours
-        self.counts = _faulted_zeros((n_tiles, C.N_COUNTERS), np.int64)
         # the samples' records of their work (engine/work.py), by nesting level where aggregates nest
         self.levels = int(self.build.get("build.nesting", 1))
+        layer_shape = (self.sh, self.sw, work_columns(self.levels)) if o["work"] else (0, 0, 0)
+        self._check_memory(layer_shape, n_tiles)
+        self.values = _faulted_zeros((self.sh, self.sw, 3), np.float64)      # the samples' colours
+        self.counts = _faulted_zeros((n_tiles, C.N_COUNTERS), np.int64)
         self.layer = None
         self.probe = None       # the event log of one sample (rendering/explain.py)
         if o["work"]:
-            shape = (self.sh, self.sw, work_columns(self.levels))
-            check(int(np.prod(shape)) * 4, memory_limit(o["max_memory"]), "the work layers",
-                  "lower the resolution, or render without work layers")
-            self.layer = _faulted_zeros(shape, np.int32)
+            self.layer = _faulted_zeros(layer_shape, np.int32)
         self.preprocess += time.perf_counter() - t0
         if o["shading"] == "heckbert":
             self.cam = heckbert.camera_vectors(scene.camera, self.width, self.height)
@@ -425,6 +424,21 @@ class RenderJob:
         self.pass_counts = [None] * len(self.passes)
         self.refined = 0        # passes whose counts the lazy structures have refined from
         self._lock = threading.Lock()
+
+    def _check_memory(self, layer_shape, n_tiles) -> None:
+        """MemoryBudgetError, before anything is allocated, unless the structures and every buffer
+        of the render fit in the memory budget: the samples' colours, the image made from them with
+        two temporaries of its size (its 8-bit copy too), the tiles' counters and the work layers."""
+        if self.geo is None:
+            return      # a remote job's buffers: its own process checked the same
+        pixels = self.width * self.height
+        buffers = {"image": self.sh * self.sw * 24 + pixels * (3 * 24 + 3) + n_tiles * C.N_COUNTERS * 8,
+                   "work layers": int(np.prod(layer_shape)) * 4}
+        held = sum(a.nbytes for a in self.geo if isinstance(a, np.ndarray))
+        limit = memory_limit(self.options["max_memory"])
+        what = f"a {self.width}x{self.height} render ({', '.join(f'{k} {describe_bytes(v)}' for k, v in buffers.items() if v)}"
+        check(held + sum(buffers.values()), limit, what + f", beside {describe_bytes(held)} of structures)",
+              "lower the resolution" + (", or render without work layers" if buffers["work layers"] else ""))
 
     def plan(self) -> dict:
         """What a remote job (RenderJob(..., remote=plan)) needs from this one."""
