@@ -24,7 +24,7 @@ LAYERS = (
     ("rendering, casting", ("rendering", "casting", "trimesh"),
      "shading, sampling, statistics, images; RayScene's ray casting and point queries"),
     ("analysis, cluster", ("analysis", "cluster"), "comparisons, the cost model, annealing, auto; Dask"),
-    ("cli", ("cli",), "the command line"),
+    ("cli", ("cli", "__main__"), "the command line (and python -m raykernel)"),
     ("package", ("",), "raykernel's public names (raykernel/__init__.py)"),
 )
 

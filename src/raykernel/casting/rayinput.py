@@ -1,4 +1,6 @@
-"""Which rays the query kernels cast: a finite origin and a finite, non-zero direction.
+"""Which rays the query kernels cast: an origin within +-MAX_COORDINATE and a direction whose
+largest component lies between MIN_SIZE and MAX_COORDINATE (geometry/primitives.py: the range
+raykernel answers exactly; NaN and infinities fail too).
 
     if not valid_ray(ox, oy, oz, dx, dy, dz):
         continue            # left out of the chunk's rays.cast
@@ -13,13 +15,12 @@ raise the error that names the first bad one (rayscene.check_ray_values).
 """
 
 from ..geometry.config import njit
-
-_HUGE = 1.7976931348623157e308      # the largest finite double: NaN and +-inf fail abs(x) <= _HUGE
+from ..geometry.primitives import MAX_COORDINATE, MIN_SIZE
 
 
 @njit(inline="always")
 def valid_ray(ox, oy, oz, dx, dy, dz):
-    """The origin and direction are finite and the direction is not (0, 0, 0)."""
-    finite = (abs(ox) <= _HUGE and abs(oy) <= _HUGE and abs(oz) <= _HUGE and abs(dx) <= _HUGE and abs(dy) <= _HUGE
-              and abs(dz) <= _HUGE)
-    return finite and (dx != 0.0 or dy != 0.0 or dz != 0.0)
+    """The origin and direction are in range (NaN fails every comparison)."""
+    inside = abs(ox) <= MAX_COORDINATE and abs(oy) <= MAX_COORDINATE and abs(oz) <= MAX_COORDINATE
+    bounded = abs(dx) <= MAX_COORDINATE and abs(dy) <= MAX_COORDINATE and abs(dz) <= MAX_COORDINATE
+    return inside and bounded and (abs(dx) >= MIN_SIZE or abs(dy) >= MIN_SIZE or abs(dz) >= MIN_SIZE)

@@ -53,7 +53,8 @@ from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..errors import RayKernelError
 from ..geometry import counters as C
 from ..geometry.config import njit
-from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
+from ..geometry.primitives import (CONE, INCLUSIVE, MAX_COORDINATE, MIN_SIZE, PATCH, POLYGON, SPHERE, TRIANGLE,
+                                   WATERTIGHT)
 from ..scene.model import Scene, TriangleMesh
 from .hitsurface import store_miss, store_surface
 from .meshcast import MESH_ACCEL, MeshKernel
@@ -274,13 +275,24 @@ def _plain(origins, directions) -> bool:
 
 
 def check_ray_values(o: np.ndarray, d: np.ndarray) -> None:
-    """Raise RayInputError naming the first ray (of check_rays' flat arrays) that is not finite or
-    has a zero direction: what valid_ray refuses in the kernels."""
+    """Raise RayInputError naming the first ray (of check_rays' flat arrays) that is not finite, has
+    a zero direction or lies outside the range raykernel answers: what valid_ray refuses in the kernels."""
     _finite(o, "origins")
     _finite(d, "directions")
     zero = (d[:, 0] == 0.0) & (d[:, 1] == 0.0) & (d[:, 2] == 0.0)
     if zero.any():
         raise RayInputError(f"directions[{int(np.flatnonzero(zero)[0])}] has zero length")
+    far = np.any(np.abs(o) > MAX_COORDINATE, axis=1)
+    if far.any():
+        i = int(np.flatnonzero(far)[0])
+        raise RayInputError(f"origins[{i}] {o[i].tolist()} lies beyond +-{MAX_COORDINATE:g}, the range raykernel "
+                            f"answers exactly")
+    longest = np.max(np.abs(d), axis=1)
+    odd = (longest < MIN_SIZE) | (longest > MAX_COORDINATE)
+    if odd.any():
+        i = int(np.flatnonzero(odd)[0])
+        raise RayInputError(f"directions[{i}] {d[i].tolist()}: its largest component must lie between {MIN_SIZE:g} "
+                            f"and {MAX_COORDINATE:g} (scale the direction; only its way matters)")
 
 
 def _field_names(fields) -> tuple:

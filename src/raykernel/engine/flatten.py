@@ -50,8 +50,11 @@ from ..geometry.primitives import (
     INDEX_MASK,
     INSTANCE,
     KIND_SHIFT,
+    MAX_COORDINATE,
+    MIN_SIZE,
     PATCH,
     POLYGON,
+    PRIMITIVE_KINDS,
     SPHERE,
     TRIANGLE,
     make_ref,
@@ -141,8 +144,9 @@ def transform_box(box: np.ndarray, m: np.ndarray) -> np.ndarray:
     lo, hi = box[:3], box[3:]
     corners = np.array([[lo[0] if i & 1 == 0 else hi[0], lo[1] if i & 2 == 0 else hi[1],
                          lo[2] if i & 4 == 0 else hi[2]] for i in range(8)])
-    mapped = corners @ m[:3, :3].T + m[:3, 3]
-    return _box_of_points(mapped)
+    with np.errstate(over="ignore", invalid="ignore"):      # out of range: refused by _check_range
+        mapped = corners @ m[:3, :3].T + m[:3, 3]
+        return _box_of_points(mapped)
 
 
 class FlatArrays:
@@ -212,6 +216,20 @@ class FlatArrays:
         return np.ascontiguousarray(np.concatenate(parts).reshape((-1,) + f.shape), dtype=f.dtype)
 
 
+def _check_range(kind: str, bounds: np.ndarray, first: int = 0, sizes: np.ndarray | None = None) -> None:
+    """SceneError naming the first item whose box (n, 6) leaves +-MAX_COORDINATE, or whose size
+    is below MIN_SIZE without being zero: beyond the range raykernel answers exactly."""
+    with np.errstate(invalid="ignore"):
+        out = ~np.all(np.abs(bounds) <= MAX_COORDINATE, axis=1)
+        if sizes is not None:
+            out |= (sizes != 0.0) & (np.abs(sizes) < MIN_SIZE)
+    if out.any():
+        i = int(np.flatnonzero(out)[0])
+        lo, hi = bounds[i, :3].tolist(), bounds[i, 3:].tolist()
+        raise SceneError(f"{kind} {first + i} spans {lo} to {hi}: coordinates must lie within +-{MAX_COORDINATE:g} and "
+                         f"sizes be at least {MIN_SIZE:g}, the range raykernel answers exactly; scale the scene")
+
+
 def _sphere_refs(arr: FlatArrays, s):
     if np.any(s.radius == 0.0) or not np.all(np.isfinite(s.radius)) or not np.all(np.isfinite(s.center)):
         bad = int(np.flatnonzero((s.radius == 0.0) | ~np.isfinite(s.radius))[0]) if np.any(
@@ -222,10 +240,17 @@ def _sphere_refs(arr: FlatArrays, s):
     arr.sph.append(s)
     arr.n_sph += len(s)
     r = np.abs(s.radius)[:, None]
-    return make_ref(SPHERE, idx), np.hstack([s.center - r, s.center + r])
+    with np.errstate(over="ignore"):
+        bounds = np.hstack([s.center - r, s.center + r])
+    _check_range("sphere", bounds, idx[0] if len(idx) else 0, s.radius)
+    return make_ref(SPHERE, idx), bounds
 
 
 def _cone_refs(arr: FlatArrays, c):
+    for name, points in (("base", c.base), ("apex", c.apex)):
+        _check_range(f"cone {name} of cone", np.hstack([points, points]), arr.n_cone)
+    _check_range("cone radii of cone", np.abs(np.stack([c.base_radius, c.apex_radius], axis=1)).repeat(3, axis=1),
+                 arr.n_cone)
     axis = c.apex - c.base
     length = np.linalg.norm(axis, axis=1)
     bad = (length == 0.0) | ((c.base_radius == 0.0) & (c.apex_radius == 0.0)) | \
@@ -256,6 +281,8 @@ def _polygon_refs(arr: FlatArrays, p):
     arr.n_poly_verts += len(p.vertices)
     lo = np.minimum.reduceat(p.vertices, p.start, axis=0)
     hi = np.maximum.reduceat(p.vertices, p.start, axis=0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        _check_range(PRIMITIVE_KINDS[kind], np.hstack([lo, hi]), idx[0] if len(idx) else 0, np.max(hi - lo, axis=1))
     return make_ref(kind, idx), np.hstack([lo, hi])
 
 
@@ -266,7 +293,10 @@ def _mesh_refs(arr: FlatArrays, m):
     arr.n_tri += len(m.faces)
     arr.n_tri_verts += len(m.vertices)
     tri = m.vertices[m.faces]
-    return make_ref(TRIANGLE, idx), np.hstack([tri.min(axis=1), tri.max(axis=1)])
+    bounds = np.hstack([tri.min(axis=1), tri.max(axis=1)])
+    with np.errstate(over="ignore", invalid="ignore"):
+        _check_range("triangle", bounds, idx[0] if len(idx) else 0, np.max(bounds[:, 3:] - bounds[:, :3], axis=1))
+    return make_ref(TRIANGLE, idx), bounds
 
 
 def _concrete(spec):
@@ -367,7 +397,9 @@ class Builder:
         k = self.flat.size("inst_agg")
         to_local = np.linalg.inv(child.matrix)[:3, :]   # classified for sparse mapping (transforms.py)
         self.flat.append(inst_agg=[agg], inst_to_local=to_local.reshape(1, 12), inst_class=[transform_class(to_local)])
-        return make_ref(INSTANCE, [k]), transform_box(self.flat.agg_box(agg), child.matrix)
+        box = transform_box(self.flat.agg_box(agg), child.matrix)
+        _check_range(f"the instance of group {child.group.name or '(unnamed)'}, instance", box[None], k)
+        return make_ref(INSTANCE, [k]), box
 
     def _collect_operands(self, group: Group, kind: str, refs: list, bounds: list) -> int:
         """One reference per child of an operator group (csg.py), in order, each child built

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..aggregates.walk import MAX_NESTING  # noqa: F401  (the deepest level a group may sit at: the kernels' frames)
 from ..errors import SceneError
+from ..geometry.primitives import MAX_COORDINATE
 
 
 def _vec3(value, what: str) -> np.ndarray:
@@ -29,6 +30,9 @@ def _vec3(value, what: str) -> np.ndarray:
         raise SceneError(f"{what} must have 3 numbers, got {arr.size}")
     if not np.all(np.isfinite(arr)):
         raise SceneError(f"{what} must be finite, got {arr.tolist()}")
+    if np.any(np.abs(arr) > MAX_COORDINATE):
+        raise SceneError(f"{what} {arr.tolist()} lies beyond +-{MAX_COORDINATE:g}, the range raykernel answers "
+                         f"exactly; scale the scene")
     return arr
 
 
