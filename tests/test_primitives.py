@@ -695,7 +695,7 @@ def exactly_planar(center, size, outline):
     return verts
 
 
-SCALES = [(0.0, 1e-6), (0.0, 1e-30), (0.0, 1e30), (1e8, 1.0), (1e3, 1e-6), (1e8, 1e-6)]
+SCALES = [(0.0, 1e-6), (0.0, 1e-30), (0.0, 5e29), (1e8, 1.0), (1e3, 1e-6), (1e8, 1e-6)]     # within +-1e30
 
 
 def _rays_near(kind, offset, size, n=1000, seed=12):

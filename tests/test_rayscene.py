@@ -273,7 +273,11 @@ def test_a_bad_ray_deep_in_a_batch_is_named_by_every_kernel(bad, match, scene, q
 
 @pytest.mark.parametrize("o, d, valid", [
     ((0, 0, 0), (0, 0, 1), True),
-    ((1e308, -1e308, 0), (5e-324, 0, 0), True),         # the largest and the smallest numbers are fine
+    ((1e30, -1e30, 0), (1e-30, 0, 0), True),            # the ends of the range raykernel answers
+    ((0, 0, 0), (1e30, -1e30, 1e-300), True),
+    ((1e308, 0, 0), (0, 0, 1), False),                  # beyond it (geometry/primitives.py, MAX_COORDINATE)
+    ((0, 0, 0), (5e-324, 0, 0), False),
+    ((0, 0, 0), (0, 2e30, 0), False),
     ((0, 0, 0), (0, 0, 0), False),
     ((0, 0, 0), (-0.0, 0.0, -0.0), False),
     ((np.nan, 0, 0), (0, 0, 1), False),

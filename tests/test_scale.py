@@ -11,6 +11,7 @@ import pytest
 
 import raykernel
 from raykernel import RayScene
+from raykernel.aggregates.registry import KINDS
 from raykernel.casting.rayscene import RayInputError
 from raykernel.errors import SceneError
 from raykernel.geometry.primitives import MAX_COORDINATE, MIN_SIZE
@@ -39,7 +40,7 @@ def _rays_at_triangle(v, rng, n=64):
     return o, target - o
 
 
-@pytest.mark.parametrize("accel", ["bvh", "grid", "octree", "kdtree"])
+@pytest.mark.parametrize("accel", [name for name, kind in KINDS.items() if not kind.operands and name != "auto"])
 def test_mesh_hits_are_exact_across_the_range(accel):
     rng = np.random.default_rng(5)
     for s in SCALES:

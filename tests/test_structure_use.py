@@ -66,7 +66,7 @@ def test_the_same_render_gives_the_same_counts(balls):
 
 
 @pytest.mark.parametrize("outer,inner,instanced", [("grid", "bvh", False), ("bvh", "octree", True),
-                                                    ("kdtree", "list", True), ("octree", "rc", False)])
+                                                    ("hgrid", "list", True), ("octree", "rc", False)])
 def test_nested_and_instanced_scenes_sum_to_the_counters(outer, inner, instanced):
     scene = nested_scene(np.random.default_rng(3), outer, inner, instanced)
     scene.camera.eye, scene.camera.look_at = np.array([0.0, -14.0, 6.0]), np.zeros(3)
@@ -157,7 +157,7 @@ def test_bvh_use_follows_the_tree(balls):
 
 def test_ply_file_carries_the_use(balls, tmp_path):
     trimesh = pytest.importorskip("trimesh")
-    boxes, use, _ = structure_use(balls, "kdtree", resolution=8)
+    boxes, use, _ = structure_use(balls, "octree", resolution=8)
     path = tmp_path / "used.ply"
     write_ply(boxes, path, use)
     mesh = trimesh.load(path, process=False)

@@ -572,7 +572,8 @@ class _Reader:
                     raise _NotPlain     # (a patch with no area at all is allowed: the slow reading knows)
             if kind == "pp":
                 nx, ny, nz = v[:, 3], v[:, 4], v[:, 5]
-                length2 = nx * nx + ny * ny + nz * nz
+                with np.errstate(over="ignore"):        # too long for the range: the slow reading names it
+                    length2 = nx * nx + ny * ny + nz * nz
                 if not np.all((length2 > 0.0) & (length2 < math.inf)):
                     raise _NotPlain
                 target.normals = np.ascontiguousarray(v[:, 3:])
