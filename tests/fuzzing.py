@@ -323,8 +323,12 @@ def _run_cli(args, workdir) -> None:
             status = exit_.code
     if status not in (0, 2):
         raise AssertionError(f"status {status}: {err.getvalue()[-200:]}")
-    if status == 2 and "Traceback" in err.getvalue():
-        raise AssertionError(f"a traceback: {err.getvalue()[-200:]}")
+    if status == 2:
+        from raykernel.errors import OptionError
+        lines = err.getvalue().strip().splitlines()
+        if "Traceback" in err.getvalue() or not lines or ": error: " not in lines[-1]:
+            raise AssertionError(f"a refusal that is not one error line: {err.getvalue()[-200:]}")
+        raise OptionError(lines[-1])        # refused, as the last line says
 
 
 def _run_rays(case, workdir) -> None:
