@@ -31,7 +31,6 @@ from ..geometry.compiletime import WORKER_PREFIX
 from ..geometry.config import compiled, njit
 
 
-
 def default_threads() -> int:
     """Threads a call uses unless told: numba's thread count for this thread (every core,
     NUMBA_NUM_THREADS, or numba.set_num_threads), so one setting governs every kernel."""
@@ -78,6 +77,8 @@ def for_ranges(fn, n: int, threads: int | None = None, kernel=None, min_size: in
             return
     futures = [_pool(threads).submit(ranges.run, fn) for _ in range(threads)]
     _wait(futures, stop=ranges.stop)
+    ranges.stop()       # one call failed: no more ranges for the others (nothing left otherwise)
+    wait(futures)
     for future in futures:
         future.result()
 

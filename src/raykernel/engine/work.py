@@ -81,12 +81,11 @@ def probe(row: int, col: int, capacity: int) -> Probe:
 # for every cell and node a walk enters (walk.note_visit) and for every aggregate whose walk notes
 # none (a list, an operator, ray classification: its box), its visits, the primitive tests made in
 # its references, the visits in which some test hit (the rest entered and found nothing) and, for
-# an aggregate's box, the steps that reached its references. A row
-# of `counts` is offset[code] + key for a walk of code `code` that notes its cells, and
-# offset[AGGREGATES] + the aggregate's index for the others. `state` holds the row noted last
-# (-1: none since the last step), whether counting is paused (a search whose work the render does
-# not count: counted), then for each frame of the driver the row its tests are made in and
-# whether one of them has hit since.
+# an aggregate's box, the steps that reached its references. A row of `counts` is
+# offset[code] + key for a walk of code `code` that notes its cells, and offset[AGGREGATES] + the
+# aggregate's index for the others. `state` holds the row noted last (-1: none since the last
+# step), whether counting is paused (during a search whose work the render does not count), then
+# for each frame of the driver the row its tests are made in and whether one of them has hit since.
 COUNTS = ("visits", "tests", "hits", "entries")
 VISITS, TESTS, HITS, ENTRIES = range(len(COUNTS))
 NOTED, PAUSED, FRAMES = 0, 1, 2       # Use.state

@@ -40,6 +40,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..aggregates.octree import CODE as OCTREE
 from ..aggregates.registry import WALKS
 from ..aggregates.walk import MAX_NESTING, one_cell
 from ..engine.work import AGGREGATES, COUNTS, ENTRIES, FRAMES, HITS, PAUSED, TESTS, VISITS, Use
@@ -179,7 +180,6 @@ def structure_use(scene, accel: str = "bvh", **options):
     counts = use.counts[rows]
     inner = boxes.leaf == 0
     futile = np.where(keyed, counts[:, VISITS], counts[:, ENTRIES]) - counts[:, HITS]
-    from ..aggregates.octree import CODE as OCTREE
     return boxes, {"visits": counts[:, VISITS], "tests": counts[:, TESTS],
                    "futile": np.where(inner, -1, futile),
                    "refined": ((boxes.walk == OCTREE) & (boxes.key >= built)).astype(np.int64)}, result
