@@ -33,7 +33,8 @@ import fuzzing
 with tempfile.TemporaryDirectory() as folder:
     report = fuzzing.campaign(int(sys.argv[1]), int(sys.argv[2]), save=Path(sys.argv[4]), workdir=Path(folder))
 print(json.dumps({"counts": [[t, k, n] for (t, k), n in report["counts"].items()],
-                  "failures": [[c.target, c.key(), o] for c, o in report["failures"]]}))
+                  "failures": [[c.target, c.key(), o] for c, o in report["failures"]],
+                  "slowest": report["slowest"]}))
 """
 
 
@@ -43,10 +44,11 @@ def batch(seed: int, n: int) -> dict:
         run = subprocess.run([sys.executable, "-c", WORKER, str(seed), str(n), str(ROOT / "tests"), str(SAVE)],
                              capture_output=True, text=True, timeout=BATCH_SECONDS, cwd=ROOT)
     except subprocess.TimeoutExpired:
-        return {"counts": [], "failures": [["batch", f"seed {seed}", f"no answer within {BATCH_SECONDS} s"]]}
+        return {"counts": [], "failures": [["batch", f"seed {seed}", f"no answer within {BATCH_SECONDS} s"]],
+                "slowest": []}
     if run.returncode != 0:
         return {"counts": [], "failures": [["batch", f"seed {seed}", f"the process ended with {run.returncode}: "
-                                            f"{run.stderr[-300:]}"]]}
+                                            f"{run.stderr[-300:]}"]], "slowest": []}
     return json.loads(run.stdout.strip().splitlines()[-1])
 
 
@@ -58,13 +60,15 @@ def main() -> None:
     parser.add_argument("--no-write", action="store_true", help="print the table, leave BENCHMARKS.md alone")
     args = parser.parse_args()
     sizes = [min(BATCH, args.inputs - k) for k in range(0, args.inputs, BATCH)]
-    counts, failures = Counter(), []
+    counts, failures, slowest = Counter(), [], []
     start = time.perf_counter()
     with ThreadPoolExecutor(args.processes) as pool:
         for k, result in enumerate(pool.map(lambda kn: batch(args.seed + kn[0], kn[1]), enumerate(sizes))):
             for target, kind, n in result["counts"]:
                 counts[target, kind] += n
             failures += result["failures"]
+            slowest = sorted(slowest + [(s, t, f"seed {args.seed + k}, {key}") for s, t, key in result["slowest"]],
+                             reverse=True)[:5]
             done = sum(counts.values())
             print(f"{done:,} inputs, {len(failures)} failures, {time.perf_counter() - start:.0f} s", flush=True)
     seconds = time.perf_counter() - start
@@ -82,7 +86,8 @@ def main() -> None:
         "RayKernelError of one line; any other exception, a numpy warning or a batch with no answer within "
         f"{BATCH_SECONDS} s is a failure, saved under tests/data/fuzz and replayed by tests/test_fuzz.py.", "",
         *rows, "", f"Failures: {len(failures)}" + ("." if not failures else ":"),
-        *[f"- {t} {key}: {outcome}" for t, key, outcome in failures[:20]]])
+        *[f"- {t} {key}: {outcome}" for t, key, outcome in failures[:20]], "",
+        "The slowest inputs: " + "; ".join(f"{t} ({key}) {s:.1f} s" for s, t, key in slowest) + "."])
     print(text)
     if not args.no_write:
         replace_section("fuzz", text)

@@ -21,6 +21,7 @@ import hashlib
 import io
 import json
 import random
+import time
 import traceback
 import warnings
 from collections import Counter
@@ -287,10 +288,13 @@ def run(case: Case, workdir: Path | None = None) -> str:
     return "answered"
 
 
+MAX_MEMORY = "256M"     # the renders' budget: a spec asking for a huge structure is refused, not built
+
+
 def _render_all(scene) -> None:
     import raykernel
     for accel in ("bvh", "grid", "octree"):
-        raykernel.render(scene, accel=accel, resolution=4, threads=1)
+        raykernel.render(scene, accel=accel, resolution=4, threads=1, max_memory=MAX_MEMORY)
 
 
 def _run_nff(text, workdir) -> None:
@@ -309,7 +313,7 @@ def _run_spec(text, workdir) -> None:
     from raykernel.scene.loading import load
     parse_spec(text)
     if "auto" not in text.lower():      # auto is parsed only: its search takes `seconds` (30 by default)
-        raykernel.render(load("spd:balls:1"), accel=text, resolution=4, threads=1)
+        raykernel.render(load("spd:balls:1"), accel=text, resolution=4, threads=1, max_memory=MAX_MEMORY)
 
 
 def _run_cli(args, workdir) -> None:
@@ -318,6 +322,8 @@ def _run_cli(args, workdir) -> None:
     args = list(args) + ["-o", str(folder / "out.png")] if args[0] in ("render", "structure") else list(args)
     if args[0] == "structure":
         args[-1] = str(folder / "out.ply")
+    if args[0] in ("render", "explain", "structure", "compare") and "--max-memory" not in args:
+        args += ["--max-memory", MAX_MEMORY]
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
         try:
             status = main(args)
@@ -357,17 +363,20 @@ RUNNERS = {"nff": _run_nff, "json": _run_json, "spec": _run_spec, "cli": _run_cl
 
 
 def campaign(seed: int, n: int, save: Path | None = None, workdir: Path | None = None) -> dict:
-    """Run n cases from the seed: counts by target and outcome, and the failures (saved to `save`)."""
-    counts, failures = Counter(), []
+    """Run n cases from the seed: counts by target and outcome, the failures (saved to `save`) and
+    the five slowest cases (seconds, target, key)."""
+    counts, failures, slowest = Counter(), [], []
     for case in cases(seed, n):
+        start = time.perf_counter()
         outcome = run(case, workdir)
+        slowest = sorted(slowest + [(time.perf_counter() - start, case.target, case.key())], reverse=True)[:5]
         kind = outcome if outcome in ("answered", "refused") else "failed"
         counts[case.target, kind] += 1
         if kind == "failed":
             failures.append((case, outcome))
             if save is not None:
                 save_case(case, outcome, save)
-    return {"counts": counts, "failures": failures}
+    return {"counts": counts, "failures": failures, "slowest": slowest}
 
 
 def save_case(case: Case, outcome: str, folder: Path) -> Path:

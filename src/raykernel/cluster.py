@@ -18,26 +18,36 @@ tasks carry the counts of the passes before it, and a worker that has not seen t
 one) replays the refinements first. The frames of an animation and the cells of a
 comparison are tasks too (animate.py, analysis/compare.py).
 
-A worker that dies loses nothing: the scheduler runs its tasks again elsewhere, and they
-give the same results. A scheduler that cannot be reached within `timeout` seconds is an
-OptionError naming the address.
+A worker that dies (killed, or out of memory and stopped by its nanny) loses nothing: the
+scheduler runs its tasks again elsewhere, and they give the same results. A scheduler that
+cannot be reached within `timeout` seconds is an OptionError naming the address; one lost while
+work is on the cluster (the client out of touch with it for LOST_SECONDS) is a ClusterError
+naming it, and an animation keeps the frames written so far: the same command goes on from them.
 """
 
 from __future__ import annotations
 
+import asyncio
 import itertools
 import os
 import threading
 import time
 from collections import OrderedDict
+from concurrent.futures import CancelledError
 
-from .errors import OptionError
+from .errors import OptionError, RayKernelError
 
 __all__ = ["Cluster", "connect"]
 
 TASKS_PER_WORKER = 4       # tasks a pass is cut into per worker: enough to balance, few enough to stay cheap
 JOBS_KEPT = 4              # renders a worker keeps built
 CONNECT_TIMEOUT = 10.0
+LOST_SECONDS = 5.0         # the client out of touch with the scheduler this long: it is lost
+POLL_SECONDS = 0.25
+
+
+class ClusterError(RayKernelError):
+    """The Dask scheduler was lost while work was on the cluster."""
 
 _jobs: OrderedDict = OrderedDict()      # in each worker process: (scene key, options) -> RenderJob
 _jobs_lock = threading.Lock()           # a worker with several threads may run tasks of one job at once
@@ -177,29 +187,64 @@ class Cluster:
         """Compile (or load from the cache) the kernels on every worker before anything is timed."""
         self.client.run(_warm_task, self.task_options(dict(options or {})))
 
-    def map(self, fn, items, progress=None, pure=False) -> list:
-        """fn(*item) for every item as tasks; the results in the items' order."""
+    def completed(self, futures, doing: str = "rendering"):
+        """(future, result) as the futures finish; ClusterError if the scheduler is lost meanwhile
+        (`doing`: what was on the cluster, for the message). A task's own error is raised as it is."""
         distributed = _import_distributed()
+        pending, lost_since = list(futures), None
+        while pending:
+            try:
+                done, left = distributed.wait(pending, timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                done, left = [], pending
+            status = self.client.status
+            if status == "running" and not any(f.status == "cancelled" for f in done):
+                lost_since = None
+            else:
+                lost_since = time.monotonic() if lost_since is None else lost_since
+                if status in ("closing", "closed") or time.monotonic() - lost_since >= LOST_SECONDS:
+                    raise self._lost(doing, f"no answer for {time.monotonic() - lost_since:.0f} s; the client is "
+                                            f"{status}")
+                continue
+            for f in done:
+                try:
+                    yield f, f.result()
+                except (OSError, CancelledError, asyncio.CancelledError) as e:     # the connection went with it
+                    if f.status == "error":
+                        raise       # the task's own
+                    raise self._lost(doing, f"{type(e).__name__}") from None
+            pending = list(left)
+
+    def _lost(self, doing: str, why: str) -> ClusterError:
+        return ClusterError(f"lost the Dask scheduler at {self.address} while {doing} ({why})")
+
+    def result(self, future, doing: str = "rendering"):
+        """future's result, or ClusterError if the scheduler is lost first."""
+        for _, value in self.completed([future], doing):
+            return value
+
+    def map(self, fn, items, progress=None, pure=False, doing: str = "rendering") -> list:
+        """fn(*item) for every item as tasks; the results in the items' order."""
         futures = [self.client.submit(fn, *item, pure=pure) for item in items]
-        done = 0
-        for _ in distributed.as_completed(futures):
-            done += 1
+        results = {}
+        for f, value in self.completed(futures, doing):
+            results[f.key] = value
             if progress is not None:
-                progress(done, len(futures))
-        return self.client.gather(futures)
+                progress(len(results), len(futures))
+        return [results[f.key] for f in futures]
 
     def animate(self, segments, work, finished) -> None:
         """animate()'s frames (rendering/animate.py), each segment of them a task; each frame handed
         to finished(index, image, record) as its segment returns. work: (subject, times, pending
         frames, options, incremental, rebuild threshold)."""
-        distributed = _import_distributed()
         subject, times, pending, options, incremental, threshold = work
         future, _ = self.scatter(subject)
         options = self.task_options(options)
         futures = [self.client.submit(_segment_task, future, times, seg, set(pending), options, incremental,
                                       threshold, pure=False) for seg in segments]
-        for f in distributed.as_completed(futures):
-            for i, image, record in f.result():
+        doing = "animating: the frames written so far are kept, and the same command goes on from them"
+        for _, frames in self.completed(futures, doing):
+            for i, image, record in frames:
                 finished(i, image, record)
 
     def render(self, scene, progress=None, **options):
@@ -211,7 +256,7 @@ class Cluster:
         scene, options, annealed = tune(scene, options)     # here, once: the workers build what it found
         options = self.task_options(options)
         future, key = self.scatter(scene)
-        plan = self.client.submit(_plan_task, future, key, options, pure=False).result()
+        plan = self.result(self.client.submit(_plan_task, future, key, options, pure=False))
         job = RenderJob(scene, remote=plan, annealed=annealed, **options)
         done, total = 0, sum(job.work)
         t0 = time.perf_counter()
@@ -220,7 +265,6 @@ class Cluster:
         chunk = max(1, -(-job.n_tiles // (TASKS_PER_WORKER * self.workers)))
         # without lazy structures every pass's tasks go at once; with them, one pass after another
         groups = [[p] for p in range(len(job.passes))] if lazy else [list(range(len(job.passes)))]
-        distributed = _import_distributed()
         with CompileClock() as clock:
             for group in groups:
                 items, futures = [], []
@@ -231,9 +275,9 @@ class Cluster:
                         futures.append(self.client.submit(_tiles_task, future, key, options, p, lo, min(n, lo + chunk),
                                                           list(history), pure=False))
                 where = {f.key: item for f, item in zip(futures, items)}
-                for f in distributed.as_completed(futures):
+                for f, block in self.completed(futures):
                     p, lo, hi = where[f.key]
-                    job.put_block(p, lo, *f.result())
+                    job.put_block(p, lo, *block)
                     done += job.work[p] * (hi - lo) // max(1, job.pass_tiles(p))
                     if progress is not None:
                         progress(done, total)
@@ -242,7 +286,7 @@ class Cluster:
         trace = time.perf_counter() - t0
         build = None
         if lazy:
-            build = self.client.submit(_final_plan_task, future, key, options, history, pure=False).result()["build"]
+            build = self.result(self.client.submit(_final_plan_task, future, key, options, history, pure=False))["build"]
         result = job.result(trace, clock.seconds, threads=self.workers, build=build)
         result.stats.info["dask"] = {"address": str(self.address), "workers": self.workers}
         return result

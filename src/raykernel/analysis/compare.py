@@ -189,7 +189,7 @@ def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=
             label, scene, params = item if isinstance(item, tuple) else (item, item, {})
             shipped = cluster.scatter(scene)[0] if hasattr(scene, "root") else scene
             cells += [(shipped, label, params, accel, cluster.task_options(options), work) for accel in accels]
-        runs = cluster.map(_cell, cells)
+        runs = cluster.map(_cell, cells, doing="comparing")
     else:
         if warm_up:
             _warm_up(accels, spd, threads)
