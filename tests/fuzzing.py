@@ -8,10 +8,10 @@ command lines and RayScene's arrays.
 Each case is loaded and rendered tiny (4x4, under bvh, grid and octree), or cast, or run on the
 command line, and must either be answered or be refused with one RayKernelError of one line (an
 auto spec is parsed, not rendered: its search takes its `seconds`, 30 by default).
-Anything else fails: another exception, a message of several lines, a numpy warning, or a
-command line that does not return 0 or 2. A failure is saved as a reproducer (tests/data/fuzz),
-which test_fuzz.py replays ever after. A hang is caught by bench/fuzz.py, which runs campaigns
-in processes with a time limit.
+Anything else fails: another exception, a message of several lines, a warning that is not one of
+raykernel's own (numpy's RuntimeWarnings above all), or a command line that does not return 0 or
+2. A failure is saved as a reproducer (tests/data/fuzz), which test_fuzz.py replays ever after.
+A hang is caught by bench/fuzz.py, which runs campaigns in processes with a time limit.
 """
 
 from __future__ import annotations
@@ -276,16 +276,20 @@ def _rays(rng) -> dict:
 def run(case: Case, workdir: Path | None = None) -> str:
     """'answered', 'refused' (a RayKernelError of one line), or what went wrong."""
     from raykernel.errors import RayKernelError
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         try:
             RUNNERS[case.target](case.payload, workdir)
+            outcome = "answered"
         except RayKernelError as err:
-            return "refused" if "\n" not in str(err) and str(err) else f"a refusal of several lines: {err!s:.200}"
+            outcome = "refused" if "\n" not in str(err) and str(err) else f"a refusal of several lines: {err!s:.200}"
         except Exception as err:  # noqa: BLE001 (every other exception is what the fuzzer looks for)
             frame = traceback.extract_tb(err.__traceback__)[-1]
             return f"{type(err).__name__}: {str(err)[:160]} @ {Path(frame.filename).name}:{frame.lineno}"
-    return "answered"
+    for w in caught:    # raykernel's own warnings (a budget reached, ...) say what they mean; others leak
+        if not w.category.__module__.startswith("raykernel"):
+            return f"{w.category.__name__}: {str(w.message)[:160]} @ {Path(w.filename).name}:{w.lineno}"
+    return outcome
 
 
 MAX_MEMORY = "256M"     # the renders' budget: a spec asking for a huge structure is refused, not built

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 import fuzzing
-from raykernel.errors import SceneError
+from raykernel.errors import RayKernelWarning, SceneError
 
 REPRODUCERS = sorted((Path(__file__).parent / "data" / "fuzz").glob("*.json"))
 
@@ -43,10 +43,14 @@ def test_the_harness_tells_failures_apart(monkeypatch, tmp_path):
 
     def warns(payload, workdir):
         warnings.warn("overflow encountered in multiply", RuntimeWarning)
+
+    def warns_on_purpose(payload, workdir):
+        warnings.warn("a size of 1 is not supported by the SPD; writing it anyway", RayKernelWarning)
     case = fuzzing.Case("nff", "v\n")
     for runner, expected in ((raises(SceneError("one line")), "refused"), (lambda p, w: None, "answered"),
                              (raises(SceneError("two\nlines")), "a refusal of several lines"),
-                             (raises(ValueError("deep")), "ValueError: deep"), (warns, "RuntimeWarning: overflow")):
+                             (raises(ValueError("deep")), "ValueError: deep"), (warns, "RuntimeWarning: overflow"),
+                             (warns_on_purpose, "answered")):
         monkeypatch.setitem(fuzzing.RUNNERS, "nff", runner)
         assert fuzzing.run(case).startswith(expected)
     saved = fuzzing.save_case(case, "ValueError", tmp_path)

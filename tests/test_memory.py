@@ -160,3 +160,16 @@ def test_intersect_all_checks_the_hits_before_keeping_them():
     scene._limit = 1 << 30
     ray, t, prim = scene.intersect_all(o, d)
     assert len(ray) == 200_000
+
+
+def test_a_huge_ray_batch_under_an_address_space_limit_is_one_line():
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (3 << 30, 3 << 30)); "
+            "import numpy as np; from raykernel import RayScene; from raykernel.errors import RayKernelError; "
+            "scene = RayScene.from_spheres(np.zeros((1, 3)), np.ones(1)); "
+            "o = np.broadcast_to(np.array([0.0, 0.0, 5.0]), (400_000_000, 3)); "
+            "d = np.broadcast_to(np.array([0.0, 0.0, -1.0]), (400_000_000, 3))\n"
+            "try:\n    scene.intersect(o, d)\nexcept RayKernelError as e:\n    print(type(e).__name__, e)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr[-2000:]
+    assert run.stdout.startswith("MemoryBudgetError RayScene.intersect of 400,000,000 rays")
+    assert len(run.stdout.strip().splitlines()) == 1

@@ -29,3 +29,8 @@ class SceneError(RayKernelError):
 
 class OptionError(RayKernelError):
     """A render option or accelerator spec is not valid."""
+
+
+class RayKernelWarning(RuntimeWarning):
+    """A warning raykernel gives on purpose, saying what it did anyway and why (numpy's own
+    RuntimeWarnings are bugs of ours: tests/fuzzing.py tells the two apart)."""

@@ -77,7 +77,7 @@ import numpy as np
 
 from ..aggregates.registry import KINDS, SMALL_ONLY, WALK_COUNTERS, WALK_NAMES, WALKS
 from ..geometry.primitives import PRIMITIVE_KINDS
-from ..errors import OptionError
+from ..errors import OptionError, RayKernelWarning
 
 VERSION = 10                # calibration files of another version priced other features
 REFERENCE_PATH = Path(__file__).with_name("reference_costs.json")
@@ -292,7 +292,7 @@ def current() -> CostModel:
         model = load_default()
     except OptionError as err:
         import warnings
-        warnings.warn(f"{err}; using the reference costs meanwhile", RuntimeWarning, stacklevel=2)
+        warnings.warn(f"{err}; using the reference costs meanwhile", RayKernelWarning, stacklevel=2)
         model = None
     return model or CostModel.load(REFERENCE_PATH)
 

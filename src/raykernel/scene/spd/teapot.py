@@ -21,7 +21,7 @@ import warnings
 
 import numpy as np
 
-from ...errors import OptionError
+from ...errors import OptionError, RayKernelWarning
 from ..nffwriter import NffWriter
 from ._common import SKY_BLUE, material
 
@@ -248,7 +248,7 @@ def _checkerboard(w: NffWriter, n: int):
 def generate(size: int = DEFAULT_SIZE) -> str:
     """NFF text of the teapot scene at size factor `size` (n = 1 warns, as the SPD does)."""
     if size == 1:
-        warnings.warn("teapot: a size of 1 is not supported by the SPD; writing it anyway", RuntimeWarning,
+        warnings.warn("teapot: a size of 1 is not supported by the SPD; writing it anyway", RayKernelWarning,
                       stacklevel=2)
     if size < 1:
         raise OptionError(f"teapot size factor must be a positive integer, got {size!r}")
