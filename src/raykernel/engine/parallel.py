@@ -125,8 +125,15 @@ def on_threads(fn, threads: int | None = None, poll=None, interval: float = 0.1,
     if (threads == 1 and counter is None) or threading.current_thread().name.startswith(WORKER_PREFIX):
         fn()
     else:
-        futures = [_pool(threads).submit(fn) for _ in range(threads)]
-        _wait(futures, poll, interval, stop=None if counter is None else lambda: stop_claims(counter))
+        # one thread: a thread of its own, not the shared pool's, so that calls from several
+        # threads of the user's still run side by side
+        pool = _pool(threads) if threads > 1 else ThreadPoolExecutor(1, thread_name_prefix=WORKER_PREFIX)
+        futures = [pool.submit(fn) for _ in range(threads)]
+        try:
+            _wait(futures, poll, interval, stop=None if counter is None else lambda: stop_claims(counter))
+        finally:
+            if threads == 1:
+                pool.shutdown(wait=False)
         for future in futures:
             future.result()
     if poll is not None:
