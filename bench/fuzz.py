@@ -83,7 +83,8 @@ def main() -> None:
         f"`.venv/bin/python bench/fuzz.py --inputs {args.inputs} --processes {args.processes} --seed {args.seed}` "
         f"on {machine()}: {total:,} inputs in {seconds / 60:.0f} min. Each is loaded and rendered at 4x4 under bvh, "
         "grid and octree, cast, or run on the command line, and must be answered or refused with one "
-        "RayKernelError of one line; any other exception, a numpy warning or a batch with no answer within "
+        "RayKernelError of one line; any other exception, a warning that is not raykernel's own (numpy's "
+        "above all) or a batch with no answer within "
         f"{BATCH_SECONDS} s is a failure, saved under tests/data/fuzz and replayed by tests/test_fuzz.py.", "",
         *rows, "", f"Failures: {len(failures)}" + ("." if not failures else ":"),
         *[f"- {t} {key}: {outcome}" for t, key, outcome in failures[:20]], "",
