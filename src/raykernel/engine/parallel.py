@@ -64,12 +64,13 @@ def for_ranges(fn, n: int, threads: int | None = None, kernel=None, min_size: in
     min_size: items a range holds at least, so that small work (a lazy render's first
     passes, a few rays each) runs on this thread instead of paying a hand-over per range.
     Each thread takes ranges one after another, sized to take about RANGE_SECONDS (from one
-    item, four times as many each time while they are quick), so that uneven work balances and
-    Ctrl-C is answered after the ranges being worked on: it raises KeyboardInterrupt."""
+    item, four times as many each time while they are quick; never more than half an equal share
+    of what is left), so that uneven work balances and Ctrl-C is answered after the ranges being
+    worked on: it raises KeyboardInterrupt."""
     threads = max(1, int(threads or default_threads()))
     if n <= 0:
         return
-    ranges = _Ranges(n, max(1, min_size))
+    ranges = _Ranges(n, max(1, min_size), threads)
     alone = threads == 1 or n < 2 * max(1, min_size) or threading.current_thread().name.startswith(WORKER_PREFIX)
     if alone or (kernel is not None and not compiled(kernel)):
         ranges.run(fn, once=not alone)      # on this thread: Ctrl-C is raised between ranges
@@ -87,10 +88,11 @@ RANGE_SECONDS = 0.05
 
 
 class _Ranges:
-    """The ranges of 0..n handed out to for_ranges' threads, each sized to its thread's last pace."""
+    """The ranges of 0..n handed out to for_ranges' threads, each sized to its thread's last pace
+    and to at most half of an equal share of what is left (so the threads end together)."""
 
-    def __init__(self, n: int, first: int):
-        self.n, self.first, self.next = n, first, 0
+    def __init__(self, n: int, first: int, threads: int = 1):
+        self.n, self.first, self.threads, self.next = n, first, threads, 0
         self.lock = threading.Lock()
 
     def stop(self) -> None:
@@ -102,7 +104,8 @@ class _Ranges:
         while True:
             with self.lock:
                 lo = self.next
-                hi = self.next = min(self.n, lo + size)
+                share = max(self.first, (self.n - lo) // (2 * self.threads))
+                hi = self.next = min(self.n, lo + min(size, share))
             if lo >= hi:
                 return
             start = time.perf_counter()
@@ -125,19 +128,25 @@ def on_threads(fn, threads: int | None = None, poll=None, interval: float = 0.1,
     if (threads == 1 and counter is None) or threading.current_thread().name.startswith(WORKER_PREFIX):
         fn()
     else:
-        # one thread: a thread of its own, not the shared pool's, so that calls from several
-        # threads of the user's still run side by side
-        pool = _pool(threads) if threads > 1 else ThreadPoolExecutor(1, thread_name_prefix=WORKER_PREFIX)
+        pool = _pool(threads) if threads > 1 else _own_thread()
         futures = [pool.submit(fn) for _ in range(threads)]
-        try:
-            _wait(futures, poll, interval, stop=None if counter is None else lambda: stop_claims(counter))
-        finally:
-            if threads == 1:
-                pool.shutdown(wait=False)
+        _wait(futures, poll, interval, stop=None if counter is None else lambda: stop_claims(counter))
         for future in futures:
             future.result()
     if poll is not None:
         poll()
+
+
+_own = threading.local()
+
+
+def _own_thread() -> ThreadPoolExecutor:
+    """The calling thread's own worker thread (kept for its later calls): one-thread work runs
+    there, not on the shared pool, so that calls from several threads of the user's still run
+    side by side while each caller waits where Ctrl-C can reach it."""
+    if getattr(_own, "pool", None) is None:
+        _own.pool = ThreadPoolExecutor(1, thread_name_prefix=WORKER_PREFIX)
+    return _own.pool
 
 
 def stop_claims(counter) -> None:

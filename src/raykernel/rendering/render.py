@@ -494,8 +494,10 @@ class RenderJob:
             run(np.array([start, 0], np.int64), start + 1)
             start += 1
         counter = np.array([start, start - first - lo], np.int64)      # next tile, tiles finished
+        # the counter given, Ctrl-C stops the tiles; a small pass (a lazy render's first) runs here
         on_threads(lambda: run(counter, first + hi), threads,
-                   poll=None if report is None else lambda: report(int(counter[1])), counter=counter)
+                   poll=None if report is None else lambda: report(int(counter[1])),
+                   counter=counter if samples > THREAD_SAMPLES else None)
 
     def trace_pass(self, p: int, threads: int, report=None) -> None:
         """Trace all of pass p over `threads` threads (report: as for trace)."""
