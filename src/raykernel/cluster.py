@@ -18,8 +18,8 @@ tasks carry the counts of the passes before it, and a worker that has not seen t
 one) replays the refinements first. The frames of an animation and the cells of a
 comparison are tasks too (animate.py, analysis/compare.py).
 
-A worker that dies (killed, or out of memory and stopped by its nanny) loses nothing: the
-scheduler runs its tasks again elsewhere, and they give the same results. A scheduler that
+A worker that dies (killed) loses nothing: the scheduler runs its tasks again elsewhere, and
+they give the same results; tasks the scheduler cancels instead are a ClusterError. A scheduler that
 cannot be reached within `timeout` seconds is an OptionError naming the address; one lost while
 work is on the cluster (the client out of touch with it for LOST_SECONDS) is a ClusterError
 naming it, and an animation keeps the frames written so far: the same command goes on from them.
@@ -197,6 +197,12 @@ class Cluster:
                 done, left = distributed.wait(pending, timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
             except TimeoutError:
                 done, left = [], pending
+            except distributed.client.FuturesCancelledError as e:
+                reason = str(e).splitlines()[2].strip() if len(str(e).splitlines()) > 2 else type(e).__name__
+                if "connection-lost" in reason or self.client.status != "running":
+                    raise self._lost(doing, reason) from None
+                raise ClusterError(f"the Dask scheduler at {self.address} cancelled the tasks while {doing} "
+                                   f"({reason})") from None
             status = self.client.status
             if status == "running" and not any(f.status == "cancelled" for f in done):
                 lost_since = None
