@@ -1,5 +1,6 @@
 """Faults on Dask: a scheduler lost mid-render or mid-animation is one ClusterError within seconds,
-and the animation goes on from the frames it wrote."""
+and the animation goes on from the frames it wrote; a worker stopped for running out of memory
+is survived with the same image bytes and counters."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import sys
 import threading
 import time
 
+import numpy as np
 import pytest
 
 distributed = pytest.importorskip("distributed")
@@ -17,7 +19,10 @@ distributed = pytest.importorskip("distributed")
 from raykernel import cluster as cluster_module  # noqa: E402
 from raykernel.cluster import Cluster, ClusterError  # noqa: E402
 from raykernel.rendering.animate import animate  # noqa: E402
+from raykernel.rendering.render import render  # noqa: E402
 from raykernel.scene.loading import load  # noqa: E402
+
+from test_cluster import assert_same  # noqa: E402
 
 
 
@@ -98,3 +103,37 @@ def test_an_animation_keeps_its_frames_and_goes_on_after_the_scheduler_is_lost(s
         name = f"frame-{i:04d}.png"
         assert (out / name).read_bytes() == (tmp_path / "alone" / name).read_bytes()
     assert [f["index"] for f in alone.frames] == list(range(12))
+
+
+def test_a_worker_out_of_memory_is_survived(monkeypatch):
+    """A worker whose memory passes its limit mid-render is stopped by its nanny and started
+    again; its tasks run again elsewhere (the scene with them), and the render is the same."""
+    monkeypatch.setattr(cluster_module, "TASKS_PER_WORKER", 64)
+    scene = load("spd:gears:1")
+    alone = render(scene, resolution=128)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=2, processes=True, memory_limit="1.5GiB",
+                                  dashboard_address=None, silence_logs=50) as local:
+        c = Cluster(local.scheduler_address)
+        c.warm_up()
+        before = c.worker_pids()
+        hog = []
+
+        def hog_memory(done, total):
+            if hog:
+                return
+            # 2.4 GB of ones on one worker, past its 1.5 GiB, beside the render's tasks there; the
+            # render waits here until the nanny has stopped that worker
+            victim = sorted(before)[0]
+            future = c.client.submit(np.ones, 300_000_000, workers=[victim], pure=False, allow_other_workers=False)
+            deadline = time.monotonic() + 120
+            while victim in c.client.scheduler_info()["workers"] and time.monotonic() < deadline:
+                time.sleep(0.05)
+            future.cancel()
+            hog.append((done, total, victim not in c.client.scheduler_info()["workers"]))
+        spread = c.render(scene, resolution=128, progress=hog_memory)
+        done, total, stopped = hog[0]
+        assert stopped and done < total, "the worker was stopped while the render had work left"
+        assert_same(alone, spread)
+        c.client.wait_for_workers(2, timeout=60)
+        assert set(c.worker_pids().values()) != set(before.values())      # the nanny started a new one
+        c.client.close()

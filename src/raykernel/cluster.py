@@ -9,7 +9,7 @@
 The command line takes the same addresses: `raykernel render scene.nff --dask local:2`, and
 likewise `animate`, `compare` and `sweep`.
 
-A render's tiles are Dask tasks. The scene is scattered to every worker once; each worker
+A render's tiles are Dask tasks. The scene goes to every worker once; each worker
 builds its structures on its first task and keeps them (a few renders per worker process),
 so its later tasks only trace. Tiles write only their own samples and counter rows, so the
 gathered image bytes and counters equal a single-process render's whatever worker traced
@@ -18,8 +18,11 @@ tasks carry the counts of the passes before it, and a worker that has not seen t
 one) replays the refinements first. The frames of an animation and the cells of a
 comparison are tasks too (animate.py, analysis/compare.py).
 
-A worker that dies (killed) loses nothing: the scheduler runs its tasks again elsewhere, and
-they give the same results; tasks the scheduler cancels instead are a ClusterError. A scheduler that
+A worker that dies (killed, or out of memory and stopped by its nanny) loses nothing: the
+scheduler runs its tasks again elsewhere, and they give the same results (the scene reaches the
+workers as a task's result, which the scheduler can make again, not as scattered data, whose
+dependents it forgets when a worker is lost with it). Tasks the scheduler cancels anyway are a
+ClusterError. A scheduler that
 cannot be reached within `timeout` seconds is an OptionError naming the address; one lost while
 work is on the cluster (the client out of touch with it for LOST_SECONDS) is a ClusterError
 naming it, and an animation keeps the frames written so far: the same command goes on from them.
@@ -113,6 +116,10 @@ def _segment_task(subject, times, indices, pending, options, incremental, thresh
     return list(render_segment(subject, times, indices, pending, options, incremental, threshold))
 
 
+def _given(obj):
+    return obj
+
+
 def _warm_task(options):
     from .rendering.render import render
     from .scene.loading import load
@@ -179,8 +186,10 @@ class Cluster:
         return options
 
     def scatter(self, obj):
-        """(future, key): obj on every worker, and a key that names it in their caches."""
-        future = self.client.scatter(obj, broadcast=True, hash=False)
+        """(future, key): obj for the tasks, and a key that names it in the workers' caches. obj
+        is the result of a task, not scattered data: a worker lost with it (killed, out of
+        memory) has it made again, where the scheduler forgets scattered data's dependents."""
+        future = self.client.submit(_given, obj, pure=False)
         return future, f"{future.key}-{next(self._keys)}-{time.monotonic_ns()}"
 
     def warm_up(self, options: dict | None = None) -> None:
