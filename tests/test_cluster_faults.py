@@ -111,7 +111,7 @@ def test_a_worker_out_of_memory_is_survived(monkeypatch):
     monkeypatch.setattr(cluster_module, "TASKS_PER_WORKER", 64)
     scene = load("spd:gears:1")
     alone = render(scene, resolution=128)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=2, processes=True, memory_limit="1.5GiB",
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=2, processes=True, memory_limit="1GiB",
                                   dashboard_address=None, silence_logs=50) as local:
         c = Cluster(local.scheduler_address)
         c.warm_up()
@@ -121,10 +121,10 @@ def test_a_worker_out_of_memory_is_survived(monkeypatch):
         def hog_memory(done, total):
             if hog:
                 return
-            # 2.4 GB of ones on one worker, past its 1.5 GiB, beside the render's tasks there; the
+            # 1.6 GB of ones on one worker, past its 1 GiB, beside the render's tasks there; the
             # render waits here until the nanny has stopped that worker
             victim = sorted(before)[0]
-            future = c.client.submit(np.ones, 300_000_000, workers=[victim], pure=False, allow_other_workers=False)
+            future = c.client.submit(np.ones, 200_000_000, workers=[victim], pure=False, allow_other_workers=False)
             deadline = time.monotonic() + 120
             while victim in c.client.scheduler_info()["workers"] and time.monotonic() < deadline:
                 time.sleep(0.05)
