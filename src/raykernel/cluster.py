@@ -185,7 +185,7 @@ class Cluster:
             return {**options, "threads": self.threads_per_worker}
         return options
 
-    def scatter(self, obj):
+    def share(self, obj):
         """(future, key): obj for the tasks, and a key that names it in the workers' caches. obj
         is the result of a task, not scattered data: a worker lost with it (killed, out of
         memory) has it made again, where the scheduler forgets scattered data's dependents."""
@@ -253,7 +253,7 @@ class Cluster:
         to finished(index, image, record) as its segment returns. work: (subject, times, pending
         frames, options, incremental, rebuild threshold)."""
         subject, times, pending, options, incremental, threshold = work
-        future, _ = self.scatter(subject)
+        future, _ = self.share(subject)
         options = self.task_options(options)
         futures = [self.client.submit(_segment_task, future, times, seg, set(pending), options, incremental,
                                       threshold, pure=False) for seg in segments]
@@ -270,7 +270,7 @@ class Cluster:
         options.pop("builder", None)
         scene, options, annealed = tune(scene, options)     # here, once: the workers build what it found
         options = self.task_options(options)
-        future, key = self.scatter(scene)
+        future, key = self.share(scene)
         plan = self.result(self.client.submit(_plan_task, future, key, options, pure=False))
         job = RenderJob(scene, remote=plan, annealed=annealed, **options)
         done, total = 0, sum(job.work)

@@ -187,7 +187,7 @@ def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=
         cells = []
         for item in scenes:
             label, scene, params = item if isinstance(item, tuple) else (item, item, {})
-            shipped = cluster.scatter(scene)[0] if hasattr(scene, "root") else scene
+            shipped = cluster.share(scene)[0] if hasattr(scene, "root") else scene
             cells += [(shipped, label, params, accel, cluster.task_options(options), work) for accel in accels]
         runs = cluster.map(_cell, cells, doing="comparing")
     else:
