@@ -14,6 +14,14 @@ from raykernel.casting.triangles4 import BLOCK, corner, hit4, leaf_blocks
 from raykernel.geometry.primitives import INCLUSIVE, WATERTIGHT, hit_sheared, ray_shear
 
 
+def _blocks(corners, first, count, prims=None):
+    """leaf_blocks over triangles given by their corners: each its own three vertices."""
+    n = len(corners)
+    verts = np.ascontiguousarray(corners[:, :9].reshape(-1, 3))
+    faces = np.arange(3 * n, dtype=np.int64).reshape(n, 3)
+    return leaf_blocks(verts, faces, np.arange(n) if prims is None else prims, first, count)
+
+
 @njit
 def _block_test(blocks, b, o, d, tmin, tmax, t4):
     kx, ky, kz, sx, sy, sz = ray_shear(d[0], d[1], d[2])
@@ -33,7 +41,7 @@ def assert_lanes_agree(corners, origins, directions, tmin=0.0, tmax=np.inf):
     lanes and their t as the scalar test's under both edge rules, ties flagged. Returns how
     many lanes hit and how many were ties."""
     n = len(corners)
-    blocks, first = leaf_blocks(corners, np.arange(0, n, BLOCK), np.minimum(BLOCK, n - np.arange(0, n, BLOCK)))
+    blocks, _, _ = _blocks(corners, np.arange(0, n, BLOCK), np.minimum(BLOCK, n - np.arange(0, n, BLOCK)))
     t4 = np.empty(BLOCK)
     hits = ties = 0
     for o, d in zip(origins, directions):
@@ -100,9 +108,9 @@ def test_leaf_blocks_layout():
     rng = np.random.default_rng(6)
     corners = rng.normal(size=(11, 9))
     first, count = np.array([0, 5, 6]), np.array([5, 1, 4])       # leaves of 5, 1 and 4 references
-    blocks, first_block = leaf_blocks(corners, first, count)
-    assert blocks.shape == (4, 36) and first_block[[0, 5, 6]].tolist() == [0, 2, 3]
-    assert (first_block[[1, 2, 3, 4, 7, 8, 9, 10]] == -1).all()
+    blocks, lanes, start = _blocks(corners, first, count)
+    assert blocks.shape == (4, 36) and start.tolist() == [0, 8, 12]
+    assert lanes.tolist() == [0, 1, 2, 3, 4, -1, -1, -1, 5, -1, -1, -1, 6, 7, 8, 9]
     for ref, (block, lane) in {0: (0, 0), 3: (0, 3), 4: (1, 0), 5: (2, 0), 9: (3, 3)}.items():
         for column in range(9):
             assert blocks[block, column * BLOCK + lane] == corners[ref, column]

@@ -24,14 +24,15 @@ that make it fast:
   from one contiguous block: on the 4-wide tree blocks of four triangles as
   structure of arrays (triangles4.py), tested four at a time by one vector
   watertight test (the same t bit for bit; edge and vertex ties go to the
-  scalar test), and the fast walk's 80-byte records (engine/widewalk.py,
-  corners in their first nine columns) for those ties; nine numbers per
-  reference copied here for the binary one;
+  scalar test, which reads the same block), a leaf's child field naming its
+  first lane and `prims` each lane's triangle; nine numbers per reference
+  copied here for the binary one;
 * the loop knows only BVH nodes and triangles.
 
-Meshes (RayScene.from_mesh, from_trimesh) are built with MESH_ACCEL, a BVH
-whose SAH prices leaves in blocks of four triangles (bvh(block=4), as
-Embree prices its leaves), so that leaves fill their blocks.
+Meshes (RayScene.from_mesh, from_trimesh) are built straight into these
+arrays (meshbuild.py), at medium quality with MESH_ACCEL's tree: a BVH whose
+SAH prices leaves in blocks of four triangles (bvh(block=4), as Embree
+prices its leaves), so that leaves fill their blocks.
 
 Tracing large incoherent batches in Morton order of origin and direction
 octant was tried and dropped: the scattered reads and writes cost more than
@@ -54,10 +55,10 @@ from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
-from ..geometry.unchecked import load
 from .hitsurface import IDENTITY, store_corner_surface, store_miss, store_triangle_surface
 from .rayinput import valid_ray
-from .triangles4 import BLOCK, hit4, leaf_blocks
+from ..errors import SceneError
+from .triangles4 import BLOCK, COLUMNS, corner, hit4, leaf_blocks
 
 INF = np.inf
 MESH_ACCEL = "bvh(block=4)"  # RayScene's meshes: the SAH counts triangles in blocks of four (triangles4.py)
@@ -82,14 +83,14 @@ class MeshArrays(NamedTuple):
 
 
 class MeshKernel(NamedTuple):
-    geo: MeshArrays          # what the kernel reads of the scene's Geometry
-    corners: np.ndarray      # (R, 9 or more) float64: v0, v1, v2 of the triangle of each leaf reference
-    ids: np.ndarray          # (R, 4) int64 of each leaf reference: global triangle index, geometry (mesh), face
-                             # index within it, 1 where the triangle has vertex normals (one record: one miss a hit)
-    root: int                # root node of the BVH
-    wide: WideBVH            # the BVH collapsed 4-wide (widebvh.py); empty arrays for width 2
+    geo: MeshArrays          # what the kernel reads of the scene's Geometry (or of the mesh: meshbuild.py)
+    corners: np.ndarray      # binary walk: (R, 9 or more) float64, v0, v1, v2 of each leaf reference; else (0, 9)
+    prims: np.ndarray        # the global triangle of each leaf reference (binary walk, (R,) int64), or of
+                             # each block lane (4-wide walk, (4 B,) int32, -1 where unused)
+    geoms: np.ndarray        # (G + 1,) int64: the first global triangle of each mesh, then the triangle count
+    root: int                # root node of the binary BVH
+    wide: WideBVH            # the BVH collapsed 4-wide (widebvh.py), a leaf's child its first lane; empty for width 2
     blocks: np.ndarray       # (B, 36) float64 the 4-wide tree's leaves in blocks of 4 triangles (triangles4.py)
-    first_block: np.ndarray  # (R,) int64 a leaf's first block, at its first reference
 
     @classmethod
     def of(cls, geo: Geometry, geometries: np.ndarray) -> "MeshKernel | None":
@@ -100,24 +101,45 @@ class MeshKernel(NamedTuple):
         if (len(geo.agg_kind) != 1 or geo.agg_kind[0] != BVH or len(geo.inst_agg) or len(geo.sph_radius)
                 or len(geo.cone_length) or len(geo.poly_start) or not len(geo.tri_faces)):
             return None
-        prim = (geo.refs & INDEX_MASK).astype(np.int64)
-        # a triangle's corners in leaf order: the fast walk's records hold them in their first nine columns
-        corners = geo.wide_prims if len(geo.wide_prims) else geo.tri_verts[geo.tri_faces[prim]].reshape(-1, 9)
-        geom = np.searchsorted(geometries[:, 1], prim, side="right") - 1
-        local = prim - geometries[geom, 1]
+        prims = (geo.refs & INDEX_MASK).astype(np.int64)
+        geoms = np.append(geometries[:, 1], len(geo.tri_faces)).astype(np.int64)
+        arrays = MeshArrays(*(getattr(geo, name) for name in MeshArrays._fields))
         root = int(geo.agg_start[geo.root])
-        wide = WideBVH(geo.wide_nodes, geo.wide_center)
-        corners = np.ascontiguousarray(corners)
-        count = wide.nodes[:, COUNT:COUNT + 4]
-        leaves = count > 0
-        blocks, first_block = leaf_blocks(corners, wide.nodes[:, CHILD:CHILD + 4][leaves], count[leaves])
-        ids = np.ascontiguousarray(np.c_[prim, geom, local, geo.tri_smooth[prim]].astype(np.int64))
-        return cls(MeshArrays(*(getattr(geo, name) for name in MeshArrays._fields)), corners, ids, root, wide, blocks,
-                   first_block)
+        if not len(geo.wide_nodes):
+            corners = np.ascontiguousarray(geo.tri_verts[geo.tri_faces[prims]].reshape(-1, 9))
+            return cls(arrays, corners, prims, geoms, root, WideBVH(geo.wide_nodes, geo.wide_center), NO_BLOCKS)
+        wide, blocks, lanes = wide_leaves(WideBVH(geo.wide_nodes.copy(), geo.wide_center), geo.tri_verts,
+                                          geo.tri_faces, prims)
+        return cls(arrays, NO_CORNERS, lanes, geoms, root, wide, blocks)
 
     @property
     def kernel(self):
         return query if len(self.wide.nodes) else query_binary
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays this kernel holds beyond the mesh's vertices and faces."""
+        own = (self.corners, self.prims, self.geoms, self.wide.nodes, self.blocks, self.geo.agg_bounds,
+               self.geo.node_bounds, self.geo.node_first, self.geo.node_count, self.geo.tri_smooth, self.geo.tri_mat)
+        return int(sum(a.nbytes for a in own))
+
+
+NO_CORNERS = np.zeros((0, 9))
+NO_BLOCKS = np.zeros((0, COLUMNS))
+
+
+def wide_leaves(wide: WideBVH, verts, faces, prims, threads=None) -> tuple[WideBVH, np.ndarray, np.ndarray]:
+    """The 4-wide tree's leaves in blocks (triangles4.leaf_blocks), the tree's leaf children
+    changed in place from first reference to first lane: (wide, blocks, lane triangles)."""
+    count = wide.nodes[:, COUNT:COUNT + 4]
+    leaves = count > 0
+    child = wide.nodes[:, CHILD:CHILD + 4]
+    blocks, lanes, start = leaf_blocks(verts, faces, prims, child[leaves], count[leaves], threads)
+    if len(start) and start[-1] >= 2 ** 31:
+        raise SceneError(f"the 4-wide mesh kernel holds at most 2**31 - 1 triangle lanes; this mesh needs "
+                         f"{int(start[-1]):,}: use bvh(width=2)")
+    child[leaves] = start
+    return wide, blocks, lanes
 
 
 # the same test, inlined here where it is the inner loop (a call spills its 15 arguments)
@@ -126,15 +148,16 @@ _hit_sheared = njit(inline="always")(hit_sheared.py_func)
 
 @njit(inline="always")
 def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax, edges):
-    """primitives.hit_triangle for corners row j with the ray's shear precomputed."""
-    return _hit_sheared(c[j, kx] - o[kx], c[j, ky] - o[ky], c[j, kz] - o[kz],
-                       c[j, 3 + kx] - o[kx], c[j, 3 + ky] - o[ky], c[j, 3 + kz] - o[kz],
-                       c[j, 6 + kx] - o[kx], c[j, 6 + ky] - o[ky], c[j, 6 + kz] - o[kz], sx, sy, sz, tmin, tmax,
-                       edges)
+    """primitives.hit_triangle for triangle j of c (a corners row or a block lane: triangles4.corner)
+    with the ray's shear precomputed."""
+    return _hit_sheared(corner(c, j, kx) - o[kx], corner(c, j, ky) - o[ky], corner(c, j, kz) - o[kz],
+                        corner(c, j, 3 + kx) - o[kx], corner(c, j, 3 + ky) - o[ky], corner(c, j, 3 + kz) - o[kz],
+                        corner(c, j, 6 + kx) - o[kx], corner(c, j, 6 + ky) - o[ky], corner(c, j, 6 + kz) - o[kz],
+                        sx, sy, sz, tmin, tmax, edges)
 
 
 @njit
-def query(geo, corners, ids, root, wide, blocks, first_block, origins, directions, tmin, tmax, mode,
+def query(geo, corners, prims, geoms, root, wide, blocks, origins, directions, tmin, tmax, mode,
           chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
           all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
@@ -149,13 +172,13 @@ def query(geo, corners, ids, root, wide, blocks, first_block, origins, direction
         stack_t = np.empty(STACK4)
         o = np.empty(3)
         t4 = np.empty(4)
-        _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, tmin, tmax, mode,
+        _chunk4(geo, prims, geoms, wide, blocks, origins, directions, tmin, tmax, mode,
                 t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
                 all_i, counters, c, c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o, t4)
 
 
 @njit
-def query_binary(geo, corners, ids, root, wide, blocks, first_block, origins, directions, tmin, tmax,
+def query_binary(geo, corners, prims, geoms, root, wide, blocks, origins, directions, tmin, tmax,
                  mode, chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface,
                  offsets, all_t, all_i, counters, c0, c1):
     """query on the binary tree as built (bvh(width=2)), with the general kernel's binary walk."""
@@ -166,13 +189,13 @@ def query_binary(geo, corners, ids, root, wide, blocks, first_block, origins, di
         stack_t = np.empty(STACK)
         o = np.empty(3)
         cnt = np.zeros(C.N_COUNTERS, np.int64)
-        _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
+        _chunk(geo, corners, prims, geoms, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
                idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c,
                c * chunk, min(n, (c + 1) * chunk), stack_a, stack_b, stack_t, o, cnt)
 
 
 @njit(private=True)     # one call per chunk; without reference counting: the surfaces read geo's arrays per hit
-def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
+def _chunk(geo, corners, prims, geoms, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
            idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c, r0, r1,
            stack_a, stack_b, stack_t, o, cnt):
     """Rays r0..r1-1 of query, counting into counters[c], with the chunk's stack, origin scratch
@@ -212,21 +235,21 @@ def _chunk(geo, corners, ids, root, origins, directions, tmin, tmax, mode, t_out
                                lo, best, stack_a, stack_b, stack_t, sp, cnt, None)
             if s == e:
                 continue
-            best, best_j, n_all, tested, hits, done = _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo,
+            best, best_j, n_all, tested, hits, done = _leaf(corners, prims, s, e, o, kx, ky, kz, sx, sy, sz, lo,
                                                             best, best_j, edges, mode, store, offsets, r, base, n_all,
                                                             all_t, all_i)
             n_tests += tested
             n_hits += hits
             if done:
                 sp = 0
-        _finish(geo, corners, best_j, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
+        _finish(geo, corners, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
     _count(counters, c, r1 - r0 - n_invalid, n_bounds + cnt[C.BOUNDS_TESTS], cnt[C.CELLS_VISITED], n_entries,
            cnt[C.CELLS_LEAVES], n_tests, n_hits)
 
 
 @njit(private=True)
-def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, tmin, tmax, mode, t_out,
+def _chunk4(geo, prims, geoms, wide, blocks, origins, directions, tmin, tmax, mode, t_out,
             kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
             counters, c, r0, r1, stack, stack_t, o, t4):
     """_chunk on the 4-wide tree. Stack entries: v >= 0 a wide node to visit, v < 0 the leaf in
@@ -250,7 +273,6 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
         lo = tmin[r if per_lo else 0]
         best = tmax[r if per_hi else 0]
         best_j = np.int64(-1)
-        best_slot = np.int64(-1)
         n_all = np.int64(0)
         base = offsets[r] if store else 0
         sp = 0
@@ -268,37 +290,35 @@ def _chunk4(geo, corners, ids, wide, blocks, first_block, origins, directions, t
                 continue
             n_leaves += 1
             s0, e0 = leaf_range(nodes, v)
-            best, best_j, best_slot, n_all, tested, hits, done = _leaf4(blocks, load(first_block, s0), corners, ids, s0,
-                                                                        e0, o, kx, ky, kz, sx, sy, sz, lo, best,
-                                                                        best_j, best_slot, edges, mode, store,
-                                                                        offsets, r, base, n_all, all_t, all_i, t4)
+            best, best_j, n_all, tested, hits, done = _leaf4(blocks, prims, s0, e0, o, kx, ky, kz, sx, sy, sz, lo,
+                                                             best, best_j, edges, mode, store, offsets, r, base, n_all,
+                                                             all_t, all_i, t4)
             n_tests += tested
             n_hits += hits
             if done:
                 sp = 0
-        _finish(geo, blocks, best_slot, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
+        _finish(geo, blocks, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
                 kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
     _count(counters, c, r1 - r0 - n_invalid, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
 
 
 @njit(inline="always")
-def _leaf4(blocks, b, corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, best_slot, edges, mode, store,
-           offsets, r, base, n_all, all_t, all_i, t4):
-    """_leaf on the leaf's blocks of four triangles from block b (triangles4.hit4): each block in
-    one vector test, its lanes then taken in reference order as _leaf takes them (a lane's t
+def _leaf4(blocks, prims, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r, base,
+           n_all, all_t, all_i, t4):
+    """_leaf on the leaf's lanes s..e-1 (s a block's first lane), four at a time (triangles4.hit4):
+    each block in one vector test, its lanes then taken in order as _leaf takes them (a lane's t
     is checked against the closest hit of the lanes before it; lanes with a zero edge function
-    go through the scalar test and its tie rule). best_slot: the closest hit's block * 4 + lane."""
+    go through the scalar test and its tie rule). best_j: the closest hit's lane."""
     okx, oky, okz = o[kx], o[ky], o[kz]
     hits = 0
     for j0 in range(s, e, BLOCK):
-        m = hit4(blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, lo, best, t4)
-        b += 1
+        m = hit4(blocks, j0 >> 2, kx, ky, kz, okx, oky, okz, sx, sy, sz, lo, best, t4)
         if m == 0:
             continue
         for lane in range(min(BLOCK, e - j0)):
             j = j0 + lane
             if m >> (BLOCK + lane) & 1:
-                t = _hit(corners, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
+                t = _hit(blocks, j, o, kx, ky, kz, sx, sy, sz, lo, best, edges)
                 if t == INF:
                     continue
             elif m >> lane & 1 and t4[lane] <= best:
@@ -306,17 +326,15 @@ def _leaf4(blocks, b, corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, b
             else:
                 continue
             hits += 1
-            best, best_j, n_all, closer = _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t,
-                                                all_i)
-            if closer:
-                best_slot = (b - 1) * BLOCK + lane
-                if mode != 0:
-                    return best, best_j, best_slot, n_all, min(e - s, j0 - s + BLOCK), hits, True
-    return best, best_j, best_slot, n_all, e - s, hits, False
+            best, best_j, n_all, closer = _take(prims, j, t, best, best_j, mode, store, offsets, r, base, n_all,
+                                                all_t, all_i)
+            if closer and mode != 0:
+                return best, best_j, n_all, min(e - s, j0 - s + BLOCK), hits, True
+    return best, best_j, n_all, e - s, hits, False
 
 
 @njit(inline="always")
-def _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r, base,
+def _leaf(corners, prims, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges, mode, store, offsets, r, base,
           n_all, all_t, all_i):
     """Test the leaf's references s..e-1 against ray r, the binary walk's leaf loop: returns the closest
     hit so far (best, best_j), the hits counted or stored (all hits), the tests made, those that
@@ -327,7 +345,7 @@ def _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges
         if t == INF:
             continue
         hits += 1
-        best, best_j, n_all, closer = _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t,
+        best, best_j, n_all, closer = _take(prims, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t,
                                             all_i)
         if closer and mode != 0:
             return best, best_j, n_all, j - s + 1, hits, True
@@ -335,8 +353,8 @@ def _leaf(corners, ids, s, e, o, kx, ky, kz, sx, sy, sz, lo, best, best_j, edges
 
 
 @njit(inline="always")
-def _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t, all_i):
-    """Reference j's hit at t, for both leaf loops: all hits counts it (and stores it where
+def _take(prims, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t, all_i):
+    """Reference (or lane) j's hit at t, for both leaf loops: all hits counts it (and stores it where
     offsets say); else it becomes the closest hit if it is closer, ties at equal t going to the
     smaller triangle index as in the generic kernel. Returns best, best_j, n_all and whether j
     became the closest."""
@@ -344,19 +362,32 @@ def _take(ids, j, t, best, best_j, mode, store, offsets, r, base, n_all, all_t, 
         if store and n_all < offsets[r + 1] - base:
             all_t[base + n_all] = t
             all_i[base + n_all, 0] = TRIANGLE
-            all_i[base + n_all, 1] = ids[j, 0]
+            all_i[base + n_all, 1] = prims[j]
             all_i[base + n_all, 2] = -1
         return best, best_j, n_all + 1, False
-    if best_j < 0 or t < best or ids[j, 0] < ids[best_j, 0]:
+    if best_j < 0 or t < best or prims[j] < prims[best_j]:
         return t, j, n_all, True
     return best, best_j, n_all, False
 
 
 @njit(inline="always")
-def _finish(geo, src, row, ids, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
+def _mesh_of(geoms, prim):
+    """The mesh that global triangle prim belongs to (geoms: each mesh's first triangle, then the count)."""
+    lo, hi = 0, geoms.shape[0] - 2
+    while lo < hi:
+        mid = (lo + hi + 1) >> 1
+        if geoms[mid] <= prim:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+@njit(inline="always")
+def _finish(geo, src, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
             kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface):
     """Ray r's outputs: its hit count (all hits), its miss, or its closest hit's identity and surface;
-    the hit triangle's corners are row `row` of src (corners, or blocks: triangles4.corner)."""
+    the hit triangle's corners are row best_j of src (corners, or lane best_j of blocks: triangles4.corner)."""
     if mode == ALL_HITS:
         if not store:
             idx_out[r] = n_all
@@ -370,21 +401,24 @@ def _finish(geo, src, row, ids, mode, r, best, best_j, n_all, store, ox, oy, oz,
         if inst_out.shape[0]:
             inst_out[r] = -1
         return
+    prim = np.int64(prims[best_j])
     t_out[r] = best
     if kind_out.shape[0]:           # (outputs not asked for have no rows)
         kind_out[r] = TRIANGLE
-    if geom_out.shape[0]:
-        geom_out[r] = ids[best_j, 1]
-    if idx_out.shape[0]:
-        idx_out[r] = ids[best_j, 2]
+    if geom_out.shape[0] or idx_out.shape[0]:
+        g = _mesh_of(geoms, prim)
+        if geom_out.shape[0]:
+            geom_out[r] = g
+        if idx_out.shape[0]:
+            idx_out[r] = prim - geoms[g]
     if inst_out.shape[0]:
         inst_out[r] = -1
     if with_surface:
         px, py, pz = ox + best * dx, oy + best * dy, oz + best * dz
-        if ids[best_j, 3]:
-            store_triangle_surface(geo, r, ids[best_j, 0], px, py, pz, IDENTITY, uv_out, gn_out, sn_out)
+        if geo.tri_smooth[prim]:
+            store_triangle_surface(geo, r, prim, px, py, pz, IDENTITY, uv_out, gn_out, sn_out)
         else:       # from the corners the walk read: the mesh's arrays would be read from memory again
-            store_corner_surface(src, row, r, px, py, pz, uv_out, gn_out, sn_out)
+            store_corner_surface(src, best_j, r, px, py, pz, uv_out, gn_out, sn_out)
 
 
 @njit(inline="always")

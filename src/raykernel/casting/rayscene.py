@@ -57,7 +57,9 @@ from ..geometry.primitives import (CONE, INCLUSIVE, MAX_COORDINATE, MIN_SIZE, PA
                                    WATERTIGHT)
 from ..scene.model import Scene, TriangleMesh
 from .hitsurface import store_miss, store_surface
+from .meshbuild import BUILD_BYTES, DIRECT, QUALITY, build_mesh
 from .meshcast import MESH_ACCEL, MeshKernel
+from .winding import dipoles, winding_numbers
 from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, point_index, surface_normals
 from .rayinput import valid_ray
 
@@ -361,8 +363,9 @@ class RayScene:
             raise RayInputError(f"edges must be one of {', '.join(EDGE_RULES)}, got {edges!r}")
         self.scene = scene
         self.edges = edges
-        self.geo, self.build_stats = flatten(scene, accel, max_memory)
-        self.geo = self.geo._replace(tri_edges=np.array([EDGE_RULES[edges]], np.int64))
+        self._accel, self._max_memory = accel, max_memory
+        geo, self.build_stats = flatten(scene, accel, max_memory)
+        self._geo = geo._replace(tri_edges=np.array([EDGE_RULES[edges]], np.int64))
         table = self.build_stats.pop("geometries")
         self.geometries = [{"kind": KIND_NAMES[k], "count": int(n)} for k, _, n in table]
         # per kind family (polygons and patches share one numbering): first global index of each geometry
@@ -382,6 +385,36 @@ class RayScene:
         self._local = threading.local()     # last_stats, per thread
 
     @property
+    def geo(self):
+        """The scene's flat Geometry (engine/flatten.py), which every query but the mesh kernel's
+        walks. A mesh built straight into the mesh kernel's arrays (from_mesh) builds it on first
+        use, with the scene's spec: point queries and parity tests need it, ray casts do not."""
+        if self._geo is None:
+            with self._lock:
+                if self._geo is None:
+                    geo, _ = flatten(self.scene, self._accel, self._max_memory)
+                    self._geo = geo._replace(tri_edges=np.array([EDGE_RULES[self.edges]], np.int64))
+        return self._geo
+
+    @geo.setter
+    def geo(self, geo) -> None:
+        self._geo = geo
+
+    @property
+    def stats(self) -> dict:
+        """The build's statistics, and the bytes held beyond the user's arrays (`bytes`, and
+        `bytes_per_triangle` for meshes): the mesh kernel's arrays and the Geometry where it is built."""
+        stats = dict(self.build_stats)
+        held = self._mesh.nbytes if self._mesh is not None else 0
+        if self._geo is not None:
+            held += sum(a.nbytes for a in self._geo if isinstance(a, np.ndarray))
+        stats["bytes"] = held
+        triangles = sum(g["count"] for g in self.geometries if g["kind"] == "triangle")
+        if triangles:
+            stats["bytes_per_triangle"] = held / triangles
+        return stats
+
+    @property
     def last_stats(self) -> dict:
         """The counters and times of this thread's last query."""
         return getattr(self._local, "stats", {})
@@ -398,6 +431,7 @@ class RayScene:
         state = self.__dict__.copy()
         del state["_lock"], state["_local"]
         state.pop("_point_index", None)      # rebuilt on demand
+        state.pop("_far", None)
         return state
 
     def __setstate__(self, state):
@@ -419,28 +453,39 @@ class RayScene:
         return geom, local
 
     @classmethod
-    def from_trimesh(cls, mesh, accel: str = MESH_ACCEL, edges: str = "watertight") -> "RayScene":
+    def from_trimesh(cls, mesh, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
+                     max_memory=None) -> "RayScene":
         """A trimesh.Trimesh, or any object with `.vertices` (V, 3) and `.faces` (F, 3)."""
         if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
             raise RayInputError(f"expected a mesh with .vertices and .faces, got {type(mesh).__name__}")
-        return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel, edges=edges)
+        return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel, edges=edges,
+                             quality=quality, max_memory=max_memory)
 
     @classmethod
-    def from_file(cls, path, accel: str = MESH_ACCEL, edges: str = "watertight") -> "RayScene":
+    def from_file(cls, path, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
+                  max_memory=None) -> "RayScene":
         """The triangles of a model file (OBJ, PLY, STL, OFF, glTF, GLB; read by trimesh, the mesh
         extra), every mesh of it in one, placed by the file's transforms (scene/meshfile.py)."""
         from ..scene.meshfile import mesh_arrays
         vertices, faces = mesh_arrays(path)
-        return cls.from_mesh(vertices, faces, accel=accel, edges=edges)
+        return cls.from_mesh(vertices, faces, accel=accel, edges=edges, quality=quality, max_memory=max_memory)
 
     @classmethod
-    def from_mesh(cls, vertices, faces=None, normals=None, accel: str = MESH_ACCEL,
-                  edges: str = "watertight") -> "RayScene":
+    def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None, edges: str = "watertight",
+                  quality: str = "medium", max_memory=None, threads: int | None = None) -> "RayScene":
         """A triangle mesh: vertices (V, 3) float32/float64, faces (F, 3) integer vertex
         indices, optional per-vertex normals (V, 3) for shading_normal. A mesh object
-        (trimesh.Trimesh, anything with .vertices and .faces) may stand for both."""
+        (trimesh.Trimesh, anything with .vertices and .faces) may stand for both.
+
+        quality: the build, as Embree's build qualities: "fast" (Morton order: quickest to
+        build, for few rays), "medium" (binned SAH, the default) or "high" (split clipping and
+        reinsertion: slowest to build, for many rays); the fast and medium trees are built
+        straight into the mesh kernel's arrays, which hold about 100 bytes a triangle beyond the
+        vertex and face arrays (float64 vertices and int64 faces are read, not copied; `stats`).
+        accel: any spec instead (built through the scene's general path). max_memory: the budget
+        of the build (bytes or "8G"); threads: the build's threads (default: all)."""
         if faces is None and hasattr(vertices, "vertices") and hasattr(vertices, "faces"):
-            return cls.from_trimesh(vertices, accel, edges)
+            return cls.from_trimesh(vertices, accel, edges, quality, max_memory)
         if faces is None:
             raise RayInputError(f"from_mesh needs faces, or a mesh object with .vertices and .faces "
                                 f"(got a {type(vertices).__name__})")
@@ -464,9 +509,32 @@ class RayScene:
                 raise RayInputError(f"normals must have the shape of vertices {v.shape}, got {n.shape}")
             if not np.all(np.isfinite(n)):
                 raise RayInputError("normals must be finite")
+        if quality not in QUALITY:
+            raise RayInputError(f"quality must be one of {', '.join(QUALITY)}, got {quality!r}")
+        if edges not in EDGE_RULES:
+            raise RayInputError(f"edges must be one of {', '.join(EDGE_RULES)}, got {edges!r}")
+        v = np.ascontiguousarray(v, np.float64)
+        f = np.ascontiguousarray(f, np.int64)
+        n = None if n is None else np.ascontiguousarray(n, np.float64)
         scene = Scene()
-        scene.root.add(TriangleMesh(v, f.astype(np.int64), normals=n))
-        return cls(scene, accel, edges=edges)
+        scene.root.add(TriangleMesh(v, f, normals=n))
+        if accel is not None or quality not in DIRECT or not len(f):
+            return cls(scene, accel or QUALITY[quality], max_memory, edges=edges)
+        limit = memory_limit(max_memory)
+        check(len(f) * BUILD_BYTES, limit, f"building a BVH over {len(f):,} triangles",
+              "build a smaller mesh")
+        self = cls.__new__(cls)
+        self.scene, self.edges, self._accel, self._max_memory, self._geo = scene, edges, MESH_ACCEL, max_memory, None
+        self._mesh, self.build_stats = build_mesh(v, f, n, quality, EDGE_RULES[edges], threads)
+        self.build_stats["aggregates"] = [dict(self.build_stats, kind="bvh", spec=QUALITY[quality])]
+        self.geometries = [{"kind": "triangle", "count": len(f)}]
+        self._geom_of = {TRIANGLE: (np.array([0]), np.array([0]))}
+        self._may_repeat = edges == "inclusive"
+        self._lazy = None
+        self._limit = limit
+        self._lock = threading.RLock()
+        self._local = threading.local()
+        return self
 
     @classmethod
     def from_spheres(cls, centers, radii, accel: str = "bvh") -> "RayScene":
@@ -579,7 +647,7 @@ class RayScene:
         def fits(n: int, copied: int) -> None:
             need = n * (per_ray + C.N_COUNTERS * 8 // CHUNK + 1) + copied
             if need > (1 << 24):        # small batches are not worth summing the structures for
-                held = sum(a.nbytes for a in self.geo if isinstance(a, np.ndarray))
+                held = self.stats["bytes"]
                 check(held + need, self._limit, f"RayScene.{what} of {n:,} rays ({describe_bytes(need)} of outputs "
                       f"and copies, beside {describe_bytes(held)} of structures)", hint)
         return fits
@@ -758,10 +826,29 @@ class RayScene:
         """Distance from each point (..., 3) to the scene's surface."""
         return self.closest_points(points, threads).distance
 
-    def contains(self, points, threads: int | None = None) -> np.ndarray:
-        """True where a point (..., 3) lies inside the scene's closed triangle meshes or polygon sets
-        (ray parity, the majority of three directions) or inside a sphere."""
+    def contains(self, points, threads: int | None = None, method: str = "auto") -> np.ndarray:
+        """True where a point (..., 3) lies inside the scene.
+
+        method: "parity" casts one ray a point and counts the triangles it crosses (exact for a
+        closed mesh: the watertight test counts a crossing through a shared edge once); "winding"
+        takes the generalized winding number above one half (winding.py: for meshes with holes,
+        an answer that depends on no ray's direction); "vote", the majority of three parity rays,
+        also for polygons and spheres; "auto" (the default): parity for a closed triangle mesh,
+        winding for one with holes, vote for any other scene."""
         p, shape = self._points(points)
+        if method not in ("auto", "parity", "winding", "vote"):
+            raise RayInputError(f"method must be auto, parity, winding or vote, got {method!r}")
+        meshes_only = [g["kind"] for g in self.geometries] == ["triangle"] * len(self.geometries)
+        if method == "auto":
+            method = "vote" if not meshes_only else "parity" if self._closed() else "winding"
+        if method != "vote" and not meshes_only:
+            raise RayInputError(f"contains(method={method!r}) takes triangle meshes only; this scene has "
+                                f"{', '.join(sorted({g['kind'] for g in self.geometries} - {'triangle'}))}")
+        if method == "winding":
+            mesh, far = self._winding_tree()
+            return (winding_numbers(mesh, p, far, threads) > 0.5).reshape(shape)
+        if method == "parity":
+            return (self.count_hits(p, INSIDE_DIRECTIONS[0], threads=threads) % 2 == 1).reshape(shape)
         if len(self.geo.inst_agg) or len(self.geo.cone_length):
             raise RayInputError("contains does not handle instances or cones yet")
         spheres = [g for g, info in enumerate(self.geometries) if info["kind"] == "sphere"]
@@ -780,6 +867,33 @@ class RayScene:
             inside[split] = odd(p[split], INSIDE_DIRECTIONS[2])
         inside |= inside_spheres(self.geo, p)
         return inside.reshape(shape)
+
+    def _closed(self) -> bool:
+        """Whether the triangle meshes are closed: every edge is two triangles', once each way."""
+        if not hasattr(self, "_is_closed"):
+            closed = True
+            for mesh in self.scene.root.meshes if not self.scene.root.children else ():
+                f = mesh.faces
+                edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+                key = edges[:, 0] * (len(mesh.vertices) + 1) + edges[:, 1]
+                twin = edges[:, 1] * (len(mesh.vertices) + 1) + edges[:, 0]
+                key.sort()
+                closed = closed and bool(np.all(np.diff(key) > 0)) and bool(
+                    np.all(key[np.minimum(np.searchsorted(key, twin), len(key) - 1)] == twin))
+            self._is_closed = closed and bool(self.scene.root.meshes) and not self.scene.root.children
+        return self._is_closed
+
+    def _winding_tree(self):
+        """The 4-wide mesh kernel and its dipoles for winding numbers (built once: for a scene
+        walked another way, from its triangles at medium quality)."""
+        if not hasattr(self, "_far"):
+            mesh = self._mesh
+            if mesh is None or not len(mesh.wide.nodes):
+                g = self.geo
+                mesh, _ = build_mesh(np.ascontiguousarray(g.tri_verts), np.ascontiguousarray(g.tri_faces), None,
+                                     "medium", EDGE_RULES[self.edges])
+            self._far = (mesh, dipoles(mesh))
+        return self._far
 
     def signed_distance(self, points, threads: int | None = None) -> np.ndarray:
         """Distance to the surface, negative inside (contains)."""

@@ -1,6 +1,6 @@
 """A leaf's triangles in blocks of four, tested against a ray four at a time.
 
-    blocks, first_block = leaf_blocks(corners, leaf_first, leaf_count)   # per leaf of the 4-wide tree
+    blocks, lane_prims, start = leaf_blocks(verts, faces, prims, leaf_first, leaf_count)   # the 4-wide tree's leaves
     mask = hit4(blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, tmin, tmax, t4)
     x = corner(blocks, b * 4 + lane, i)     # coordinate i (v0x, v0y, ... v2z) of a block's triangle
 
@@ -8,10 +8,11 @@ Layout: `blocks` is (B, 36) float64, one row a block of up to four triangles
 as structure of arrays: column (3 * corner + axis) * 4 + lane holds that
 corner's coordinate along that axis (x, y, z) for the block's lane-th
 triangle, so one corner's coordinate along one axis for all four triangles
-is one <4 x double> load. A leaf of k references takes ceil(k / 4) blocks
-starting at `first_block[leaf's first reference]`, its references in order
-(lane i of block j is reference first + 4 j + i); unused lanes hold zeros and
-are masked off by the caller. 288 bytes a block.
+is one <4 x double> load. A leaf of k references takes ceil(k / 4) blocks,
+from lane start[leaf] = 4 * its first block on, its references in order
+(lane start + i is reference first + i); unused lanes hold zeros and are
+masked off by the caller. 288 bytes a block, and `lane_prims` names the
+triangle of each lane (4 bytes a lane).
 
 `hit4` is primitives.hit_sheared for four triangles in one pass of
 <4 x double> arithmetic, the same operations in the same order, so a lane's
@@ -28,33 +29,44 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from ..engine.parallel import for_ranges
 from ..geometry.config import njit
 
 BLOCK = 4           # triangles in a block
 COLUMNS = 36        # 3 corners x 3 axes x 4 lanes
 
 
-def leaf_blocks(corners: np.ndarray, first: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The blocks of the leaves (first reference, count) over `corners` ((R, 9 or more) float64 in
-    leaf order: v0, v1, v2), and the first block of each leaf at its first reference's index of
-    an (R,) int64 array (-1 elsewhere)."""
-    first = np.asarray(first, np.int64)
-    count = np.asarray(count, np.int64)
+def leaf_blocks(verts, faces, prims, first, count, threads=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The blocks of the leaves (first reference, count) whose references are the triangles `prims`
+    (faces (T, 3) into verts (V, 3), float64): (blocks, the triangle in each lane (-1 where
+    unused), each leaf's first lane). A leaf's lanes start a block: leaf i takes lanes
+    start[i] .. start[i] + count[i] - 1."""
+    first = np.ascontiguousarray(first, np.int64)
+    count = np.ascontiguousarray(count, np.int64)
     per_leaf = (count + BLOCK - 1) // BLOCK
     start = np.zeros(len(first) + 1, np.int64)
     np.cumsum(per_leaf, out=start[1:])
-    first_block = np.full(len(corners), -1, np.int64)
-    first_block[first] = start[:-1]
     blocks = np.zeros((int(start[-1]), COLUMNS))
-    # every used lane: its block, its lane and its reference
-    leaf = np.repeat(np.arange(len(first)), count)
-    offset = np.arange(len(leaf)) - np.repeat(np.cumsum(count) - count, count)
-    block = start[leaf] + offset // BLOCK
-    lane = offset % BLOCK
-    ref = first[leaf] + offset
-    for corner_axis in range(9):
-        blocks[block, corner_axis * BLOCK + lane] = corners[ref, corner_axis]
-    return blocks, first_block
+    lane_prims = np.full(BLOCK * len(blocks), -1, np.int32)
+    start *= BLOCK
+    for_ranges(lambda i0, i1: _fill_blocks(verts, faces, prims, first, count, start, blocks, lane_prims, i0, i1),
+               len(first), threads, kernel=_fill_blocks, min_size=4096)
+    return blocks, lane_prims, start[:-1]
+
+
+@njit
+def _fill_blocks(verts, faces, prims, first, count, start, blocks, lane_prims, i0, i1):
+    """Leaves i0..i1-1 of leaf_blocks: each reference's corners into its lane."""
+    for i in range(i0, i1):
+        for k in range(count[i]):
+            p = prims[first[i] + k]
+            lane = start[i] + k
+            lane_prims[lane] = p
+            b = lane >> 2
+            for c in range(3):
+                v = faces[p, c]
+                for axis in range(3):
+                    blocks[b, (3 * c + axis) * BLOCK + (lane & 3)] = verts[v, axis]
 
 
 @njit(inline="always")

@@ -144,7 +144,7 @@ def transform_box(box: np.ndarray, m: np.ndarray) -> np.ndarray:
     lo, hi = box[:3], box[3:]
     corners = np.array([[lo[0] if i & 1 == 0 else hi[0], lo[1] if i & 2 == 0 else hi[1],
                          lo[2] if i & 4 == 0 else hi[2]] for i in range(8)])
-    with np.errstate(over="ignore", invalid="ignore"):      # out of range: refused by _check_range
+    with np.errstate(over="ignore", invalid="ignore"):      # out of range: refused by check_range
         mapped = corners @ m[:3, :3].T + m[:3, 3]
         return _box_of_points(mapped)
 
@@ -216,7 +216,7 @@ class FlatArrays:
         return np.ascontiguousarray(np.concatenate(parts).reshape((-1,) + f.shape), dtype=f.dtype)
 
 
-def _check_range(kind: str, bounds: np.ndarray, first: int = 0, sizes: np.ndarray | None = None) -> None:
+def check_range(kind: str, bounds: np.ndarray, first: int = 0, sizes: np.ndarray | None = None) -> None:
     """SceneError naming the first item whose box (n, 6) leaves +-MAX_COORDINATE, or whose size
     is below MIN_SIZE without being zero: beyond the range raykernel answers exactly."""
     with np.errstate(invalid="ignore"):
@@ -242,14 +242,14 @@ def _sphere_refs(arr: FlatArrays, s):
     r = np.abs(s.radius)[:, None]
     with np.errstate(over="ignore"):
         bounds = np.hstack([s.center - r, s.center + r])
-    _check_range("sphere", bounds, idx[0] if len(idx) else 0, s.radius)
+    check_range("sphere", bounds, idx[0] if len(idx) else 0, s.radius)
     return make_ref(SPHERE, idx), bounds
 
 
 def _cone_refs(arr: FlatArrays, c):
     for name, points in (("base", c.base), ("apex", c.apex)):
-        _check_range(f"cone {name} of cone", np.hstack([points, points]), arr.n_cone)
-    _check_range("cone radii of cone", np.abs(np.stack([c.base_radius, c.apex_radius], axis=1)).repeat(3, axis=1),
+        check_range(f"cone {name} of cone", np.hstack([points, points]), arr.n_cone)
+    check_range("cone radii of cone", np.abs(np.stack([c.base_radius, c.apex_radius], axis=1)).repeat(3, axis=1),
                  arr.n_cone)
     axis = c.apex - c.base
     length = np.linalg.norm(axis, axis=1)
@@ -282,7 +282,7 @@ def _polygon_refs(arr: FlatArrays, p):
     lo = np.minimum.reduceat(p.vertices, p.start, axis=0)
     hi = np.maximum.reduceat(p.vertices, p.start, axis=0)
     with np.errstate(over="ignore", invalid="ignore"):
-        _check_range(PRIMITIVE_KINDS[kind], np.hstack([lo, hi]), idx[0] if len(idx) else 0, np.max(hi - lo, axis=1))
+        check_range(PRIMITIVE_KINDS[kind], np.hstack([lo, hi]), idx[0] if len(idx) else 0, np.max(hi - lo, axis=1))
     return make_ref(kind, idx), np.hstack([lo, hi])
 
 
@@ -295,7 +295,7 @@ def _mesh_refs(arr: FlatArrays, m):
     tri = m.vertices[m.faces]
     bounds = np.hstack([tri.min(axis=1), tri.max(axis=1)])
     with np.errstate(over="ignore", invalid="ignore"):
-        _check_range("triangle", bounds, idx[0] if len(idx) else 0, np.max(bounds[:, 3:] - bounds[:, :3], axis=1))
+        check_range("triangle", bounds, idx[0] if len(idx) else 0, np.max(bounds[:, 3:] - bounds[:, :3], axis=1))
     return make_ref(TRIANGLE, idx), bounds
 
 
@@ -398,7 +398,7 @@ class Builder:
         to_local = np.linalg.inv(child.matrix)[:3, :]   # classified for sparse mapping (transforms.py)
         self.flat.append(inst_agg=[agg], inst_to_local=to_local.reshape(1, 12), inst_class=[transform_class(to_local)])
         box = transform_box(self.flat.agg_box(agg), child.matrix)
-        _check_range(f"the instance of group {child.group.name or '(unnamed)'}, instance", box[None], k)
+        check_range(f"the instance of group {child.group.name or '(unnamed)'}, instance", box[None], k)
         return make_ref(INSTANCE, [k]), box
 
     def _collect_operands(self, group: Group, kind: str, refs: list, bounds: list) -> int:

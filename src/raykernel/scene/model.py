@@ -266,7 +266,8 @@ class TriangleMesh(_PrimitiveSet):
         if len(self.faces) and (self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
             raise SceneError(f"mesh face indices must lie in [0, {len(self.vertices)})")
         mat = np.asarray(material, np.int32).reshape(-1)
-        self.material = np.full(len(self.faces), mat[0], np.int32) if mat.size == 1 else mat
+        # one material for all: a read-only view of it, not a copy a face
+        self.material = np.broadcast_to(mat[:1], len(self.faces)) if mat.size == 1 else mat
         if len(self.material) != len(self.faces):
             raise SceneError("mesh needs one material per face or a single material")
         self.normals = None if normals is None else np.asarray(normals, np.float64).reshape(-1, 3)

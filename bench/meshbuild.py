@@ -1,0 +1,168 @@
+"""Mesh builds: RayScene.from_mesh at each quality against embreex and Open3D, build and first ray.
+
+    .venv/bin/python bench/meshbuild.py [--threads 2] [--big]
+
+A user with a scanned mesh builds a structure and casts a ray before anything
+else: each row times that (the build and one ray, best of 3, kernels warm),
+each library in its own process pinned to `threads` cores (taskset), with
+the mesh's arrays made before the clock starts. held: the process's resident
+memory after the build less before it, a triangle (the structure and what the
+library copied: embreex copies the triangles in float32, Open3D its vertices
+and faces); for raykernel also RayScene.stats' own count of its arrays.
+SAH: the tree's cost (traversal 1, a triangle test 1) from the build's own
+statistics. Casting: 1M coherent (one pinhole camera) and 1M incoherent rays
+(origins uniform in the mesh's box, uniform directions), raykernel's closest
+hit with t and prim_id. --big adds the 20M-triangle icosphere (subdivision
+10) at medium quality. Writes the `meshbuild` section of BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _report import machine, replace_section  # noqa: E402
+from raycast import camera_rays, random_rays, scene_triangles  # noqa: E402
+
+MESHES = {"icosphere(6)": ("ico", 6), "tetra-sf8": ("spd", "tetra:8"), "icosphere(8)": ("ico", 8),
+          "icosphere(9)": ("ico", 9)}
+BIG = {"icosphere(10)": ("ico", 10)}
+RAYS = 1_000_000
+
+
+def make(kind, arg):
+    if kind == "ico":
+        import trimesh
+        m = trimesh.creation.icosphere(subdivisions=arg)
+        return np.ascontiguousarray(m.vertices, np.float64), np.ascontiguousarray(m.faces, np.int64)
+    import raykernel
+    return scene_triangles(raykernel.load(f"spd:{arg}"))
+
+
+def rss() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def timed(build, cast1, repeat=3):
+    """(best seconds of build + one ray, resident bytes the last build added, the last built)."""
+    best, held, built = np.inf, 0, None
+    for _ in range(repeat):
+        built = None
+        before = rss()
+        t0 = time.perf_counter()
+        built = build()
+        cast1(built)
+        best = min(best, time.perf_counter() - t0)
+        held = rss() - before
+    return best, held, built
+
+
+def worker(lib, name, threads, qualities):
+    import numba
+    numba.set_num_threads(threads)
+    v, f = make(*{**MESHES, **BIG}[name])
+    one_o, one_d = np.array([[0.0, 0.0, 1e3]]), np.array([[0.0, 0.0, -1.0]])
+    rows = []
+    if lib == "raykernel":
+        from raykernel import RayScene
+        small = make("ico", 2)
+        for q in qualities:
+            RayScene.from_mesh(*small, quality=q).intersect(one_o, one_d)       # warm
+            seconds, held, rs = timed(lambda: RayScene.from_mesh(v, f, quality=q, threads=threads),
+                                      lambda s: s.intersect(one_o, one_d, threads=threads), 1 if len(f) > 6e6 else 3)
+            st = rs.stats
+            sah = st.get("sah_cost") or st["aggregates"][0].get("sah_after") or st["aggregates"][0].get("sah_cost")
+            rates = {}
+            for kind, (o, d) in (("coherent", camera_rays(v, RAYS)), ("incoherent", random_rays(v, RAYS, np.random.default_rng(5)))):
+                rs.intersect(o[:1000], d[:1000], threads=threads, fields=("t", "prim_id"))
+                t0 = time.perf_counter()
+                rs.intersect(o, d, threads=threads, fields=("t", "prim_id"))
+                rates[kind] = len(o) / (time.perf_counter() - t0) / 1e6
+            rows.append(dict(lib=f"raykernel {q}", mesh=name, triangles=len(f), seconds=seconds, held=held / len(f),
+                             own=st["bytes_per_triangle"], sah=sah, **rates))
+    elif lib == "embreex":
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh as EmbreeMesh
+
+        def build():
+            scene = rtcore_scene.EmbreeScene()
+            EmbreeMesh(scene, v.astype(np.float32), f.astype(np.int32))
+            return scene
+        o32, d32 = one_o.astype(np.float32), one_d.astype(np.float32)
+        seconds, held, _ = timed(build, lambda s: s.run(o32, d32, output=1))
+        rows.append(dict(lib="embreex", mesh=name, triangles=len(f), seconds=seconds, held=held / len(f)))
+    else:
+        import open3d as o3d
+
+        def build():
+            scene = o3d.t.geometry.RaycastingScene(nthreads=threads)
+            scene.add_triangles(v.astype(np.float32), f.astype(np.uint32))
+            return scene
+        ray = o3d.core.Tensor(np.concatenate([one_o, one_d], 1).astype(np.float32))
+        seconds, held, _ = timed(build, lambda s: s.cast_rays(ray, nthreads=threads))
+        rows.append(dict(lib="open3d", mesh=name, triangles=len(f), seconds=seconds, held=held / len(f)))
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--big", action="store_true", help="add the 20M-triangle icosphere (medium quality only)")
+    ap.add_argument("--meshes", nargs="*", default=None)
+    ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--worker", nargs=3, help=argparse.SUPPRESS)
+    ap.add_argument("--qualities", default="fast,medium,high", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.worker:
+        lib, name, out = args.worker
+        Path(out).write_text(json.dumps(worker(lib, name, args.threads, args.qualities.split(","))))
+        return
+    names = args.meshes or list(MESHES) + (list(BIG) if args.big else [])
+    rows = []
+    for name in names:
+        for lib in ("raykernel", "embreex", "open3d"):
+            if name in BIG and lib != "raykernel":
+                continue
+            qualities = "medium" if name in BIG else ("fast,medium,high" if "(9)" not in name else "fast,medium")
+            with tempfile.NamedTemporaryFile(suffix=".json") as tmp:
+                cmd = ["taskset", "-c", f"0-{args.threads - 1}", sys.executable, __file__, "--threads",
+                       str(args.threads), "--qualities", qualities, "--worker", lib, name, tmp.name]
+                subprocess.run(cmd, check=True)
+                got = json.loads(Path(tmp.name).read_text())
+            for r in got:
+                print(r, flush=True)
+            rows += got
+    lines = ["## Mesh builds (raykernel vs embreex and Open3D)", "",
+             f"Machine: {machine()}.", "", f"Command: `.venv/bin/python bench/meshbuild.py --threads {args.threads}"
+             f"{' --big' if args.big else ''}` ({time.strftime('%Y-%m-%d')})", "",
+             __doc__.split("\n\n", 2)[1].replace("\n", " "), "",
+             "| mesh | triangles | library | build + 1 ray s | vs Open3D | held B/tri | own B/tri | SAH | "
+             "coherent Mrays/s | incoherent Mrays/s |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    o3d_s = {r["mesh"]: r["seconds"] for r in rows if r["lib"] == "open3d"}
+    for r in rows:
+        ratio = f"{o3d_s[r['mesh']] / r['seconds']:.2f}" if r["mesh"] in o3d_s else ""
+        lines.append(f"| {r['mesh']} | {r['triangles']:,} | {r['lib']} | {r['seconds']:.3f} | {ratio} | "
+                     f"{r['held']:.0f} | {r.get('own', float('nan')):.0f} | {r.get('sah', float('nan')):.1f} | "
+                     f"{r.get('coherent', float('nan')):.2f} | {r.get('incoherent', float('nan')):.2f} |"
+                     .replace("nan", ""))
+    lines.append("")
+    lines.append("vs Open3D: Open3D's seconds over this row's (above 1: faster than Open3D). Mrays/s at "
+                 f"{args.threads} threads, 1,000,000 rays each.")
+    text = "\n".join(lines)
+    print(text)
+    if not args.no_write:
+        replace_section("meshbuild", text)
+
+
+if __name__ == "__main__":
+    main()

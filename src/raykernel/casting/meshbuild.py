@@ -1,0 +1,124 @@
+"""A triangle mesh's 4-wide BVH built straight from its arrays, for RayScene.from_mesh.
+
+    mesh, stats = build_mesh(vertices, faces, normals=None, quality="medium", edges=WATERTIGHT)
+    # mesh: a meshcast.MeshKernel; stats: seconds, bytes, bytes_per_triangle, sah_cost, nodes, ...
+
+Why: a scene's general build (engine/flatten.py) copies the triangles into
+the Geometry every aggregate kind can walk (vertices, faces, per-reference
+records for the render's fast walk, the binary tree) before the mesh kernel
+takes its own blocks from it: about 330 bytes a triangle held, and most of
+a build's time. Here the kernel's arrays are made from the user's vertex and
+face arrays alone, which it reads but does not copy:
+
+* the tree over the triangles' boxes, built on every core (bvh.py's binned
+  SAH, or its Morton-order build), its boxes widened by the culling margin
+  a scene's BVH gets (boxes.cull_margin);
+* the tree collapsed 4-wide with float32 boxes rounded outwards (widebvh.py,
+  128 bytes a node), its leaves' triangles in float64 blocks of four
+  (triangles4.py, 288 bytes a block, and 4 bytes a lane naming the triangle);
+* a bool a triangle (smooth shading where vertex normals are given).
+
+The binary tree and the build's temporaries are dropped once the wide tree
+is made. QUALITY maps the levels to bvh specs, as Embree's build qualities:
+"fast" splits by Morton order, "medium" (the default) is the binned SAH that
+prices leaves in blocks of four, "high" adds split clipping and reinsertion
+and is built through the general path (flatten), whose Geometry it keeps.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import numpy as np
+
+from ..aggregates.bvh import _build, _morton, sah_cost
+from ..aggregates.widebvh import collapse
+from ..engine.flatten import check_range
+from ..engine.parallel import for_ranges
+from ..geometry.boxes import cull_margin
+from ..geometry.compiletime import CompileClock, compile_notice
+from ..geometry.config import njit
+from .meshcast import NO_CORNERS, MeshArrays, MeshKernel, wide_leaves
+
+QUALITY = {"fast": "bvh(block=4, build=morton)", "medium": "bvh(block=4)",
+           "high": "bvh(block=4, split=16, optimize=reinsertion)"}
+DIRECT = ("fast", "medium")       # the levels built here; "high" goes through flatten
+LEAF, BINS, BLOCK = 4, 16, 4      # bvh(block=4)'s leaves, bins and pricing
+# the build's peak a triangle: its rows (80 bytes), order (8), the binary nodes (64 each, up to
+# two a triangle and the parallel build's top), and the kernel's arrays it makes (about 100)
+BUILD_BYTES = 340
+_COMPILING = "raykernel: compiling the mesh builder (first use after install, a few seconds)"
+
+
+@njit
+def _triangle_data(verts, faces, data, i0, i1):
+    """bvh._item_data's rows for triangles i0..i1-1: box, centroid of the box, weight 1."""
+    for i in range(i0, i1):
+        a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
+        for k in range(3):
+            lo = min(verts[a, k], min(verts[b, k], verts[c, k]))
+            hi = max(verts[a, k], max(verts[b, k], verts[c, k]))
+            data[i, k] = lo
+            data[i, k + 3] = hi
+            data[i, k + 6] = 0.5 * lo + 0.5 * hi
+        data[i, 9] = 1.0
+
+
+def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, quality: str, edges: int,
+               threads: int | None = None) -> tuple[MeshKernel, dict]:
+    """The mesh kernel's arrays for one mesh: verts (V, 3) float64 and faces (F, 3) int64, both
+    C-contiguous and checked, normals (V, 3) float64 or None; quality "fast" or "medium"."""
+    t0 = time.perf_counter()
+    n = len(faces)
+    # a line for builds that take more than a second (a million triangles or so), and their time at the end
+    slow = threading.Timer(1.0, lambda: print(f"raykernel: building the BVH of {n:,} triangles ({quality} quality) ...",
+                                              file=sys.stderr, flush=True))
+    slow.daemon = True
+    slow.start()
+    try:
+        mesh, stats = _build_mesh(verts, faces, normals, quality, edges, threads, n, t0)
+    finally:
+        slow.cancel()
+    if stats["seconds"] > 1.0:
+        print(f"raykernel: built in {stats['seconds']:.1f} s, {stats['bytes_per_triangle']:.0f} bytes a triangle",
+              file=sys.stderr, flush=True)
+    return mesh, stats
+
+
+def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
+    with CompileClock(notice=compile_notice("meshbuild", _COMPILING), after=0.0):
+        data = np.empty((n, 10))
+        for_ranges(lambda i0, i1: _triangle_data(verts, faces, data, np.int64(i0), np.int64(i1)), n, threads,
+                   kernel=_triangle_data, min_size=1 << 14)
+        with np.errstate(over="ignore", invalid="ignore"):
+            check_range("triangle", data[:, :6], 0, np.max(data[:, 3:6] - data[:, :3], axis=1))
+        if quality == "fast":
+            bounds, first, count, order, n_nodes, depth = _morton(data, LEAF, threads)
+        else:
+            bounds, first, count, order, n_nodes, depth = _build(data, LEAF, BINS, 1.0, 1.0, BLOCK, threads)
+        data = None     # (its memory back before the wide tree is made)
+        bounds, first, count = bounds[:n_nodes], first[:n_nodes], count[:n_nodes]
+        box = bounds[0].copy()
+        margin = cull_margin(box) if n else 0.0
+        bounds[:, :3] -= margin     # as append_bvh widens a scene's BVH
+        bounds[:, 3:] += margin
+        cost = sah_cost(bounds, first, count, 0, n_nodes) if n else 0.0
+        wide = collapse(bounds, first, count, 0)
+        del bounds, first, count
+        wide, blocks, lanes = wide_leaves(wide, verts, faces, order, threads)
+    del order
+    smooth = normals is not None
+    arrays = MeshArrays(agg_bounds=np.r_[box[:3] - margin, box[3:] + margin].reshape(1, 6), root=0,
+                        tri_edges=np.array([edges], np.int64), tri_verts=verts, tri_faces=faces,
+                        tri_smooth=np.full(n, smooth), tri_mat=np.zeros(n if smooth else 0, np.int32),
+                        tri_vnormals=normals if smooth else np.zeros((0, 3)),
+                        node_bounds=np.zeros((0, 6)), node_first=np.zeros(0, np.int64),
+                        node_count=np.zeros(0, np.int64))
+    mesh = MeshKernel(arrays, NO_CORNERS, lanes, np.array([0, n], np.int64), 0, wide, blocks)
+    seconds = time.perf_counter() - t0
+    stats = {"quality": quality, "triangles": n, "seconds": seconds, "wide_nodes": len(wide.nodes),
+             "lanes": len(lanes), "max_depth": int(depth), "sah_cost": float(cost), "bytes": mesh.nbytes,
+             "bytes_per_triangle": mesh.nbytes / max(n, 1)}
+    return mesh, stats

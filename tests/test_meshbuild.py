@@ -1,0 +1,260 @@
+"""Meshes built straight into the mesh kernel's arrays (casting/meshbuild.py), at every quality, against
+the brute-force list; the parallel and Morton builds of bvh.py; winding numbers and contains."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from raykernel import RayScene
+from raykernel.aggregates import bvh
+from raykernel.aggregates.memory import MemoryBudgetError
+from raykernel.casting.meshbuild import QUALITY
+
+QUALITIES = tuple(QUALITY)
+
+
+def sphere(sub=3):
+    m = trimesh.creation.icosphere(subdivisions=sub)
+    return np.ascontiguousarray(m.vertices, np.float64), np.ascontiguousarray(m.faces, np.int64)
+
+
+def edge_and_vertex_rays(v, f, rng, n=300):
+    """Rays from outside aimed at vertices and at edge midpoints (shared by two triangles of a closed
+    mesh), and axis-parallel rays through them."""
+    targets = np.concatenate([v[rng.integers(0, len(v), n)],
+                              0.5 * (v[f[rng.integers(0, len(f), n), 0]] + v[f[rng.integers(0, len(f), n), 1]])])
+    c = v.mean(axis=0)
+    size = np.ptp(v, axis=0).max()
+    o = c + rng.normal(size=(len(targets), 3)) * size * 3
+    d = targets - o
+    axis = np.eye(3)[rng.integers(0, 3, len(targets))] * rng.choice([-1.0, 1.0], (len(targets), 1))
+    o2 = targets - axis * size * 3
+    return np.concatenate([o, o2]), np.concatenate([d, axis])
+
+
+def assert_same_as_list(v, f, o, d, quality):
+    fast = RayScene.from_mesh(v, f, quality=quality)
+    ref = RayScene.from_mesh(v, f, accel="list")
+    a, b = fast.intersect(o, d), ref.intersect(o, d)
+    np.testing.assert_array_equal(a.t, b.t)
+    np.testing.assert_array_equal(a.prim_id, b.prim_id)
+    np.testing.assert_array_equal(a.normal, b.normal)
+    np.testing.assert_array_equal(fast.occluded(o, d), ref.occluded(o, d))
+    for x, y in zip(fast.intersect_all(o, d), ref.intersect_all(o, d)):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(fast.count_hits(o, d), ref.count_hits(o, d))
+    return a
+
+
+@pytest.mark.parametrize("quality", QUALITIES)
+def test_every_quality_matches_the_list_on_edges_vertices_and_axis_rays(quality):
+    v, f = sphere(3)
+    rng = np.random.default_rng(1)
+    o, d = edge_and_vertex_rays(v, f, rng)
+    hits = assert_same_as_list(v, f, o, d, quality)
+    # rays that cross the sphere (not grazing its silhouette) hit it, through an edge or vertex too,
+    # and cross it an even number of times: the watertight test counts a shared edge once
+    u = d / np.linalg.norm(d, axis=1)[:, None]
+    crossing = np.linalg.norm(np.cross(o, u), axis=1) < 0.95      # the line passes within 0.95 of the centre
+    assert np.isfinite(hits.t[crossing]).all()
+    assert (RayScene.from_mesh(v, f, quality=quality).count_hits(o, d)[crossing] % 2 == 0).all()
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1e-3, 1.0, 1e3, 1e7])
+@pytest.mark.parametrize("quality", ("fast", "medium"))
+def test_float32_boxes_lose_no_hit_at_any_scale(scale, quality):
+    v, f = sphere(2)
+    rng = np.random.default_rng(int(scale * 1e6) % 1000)
+    shift = np.array([scale * 3, -scale * 1e3, scale]) if scale >= 1 else np.zeros(3)
+    v = v * scale + shift
+    o, d = edge_and_vertex_rays(v, f, rng, 100)
+    grazing = rng.uniform(-scale, scale, (100, 3)) + shift
+    o = np.concatenate([o, grazing - [3 * scale, 0, 0]])
+    d = np.concatenate([d, np.tile([1.0, 0, 0], (100, 1))])
+    assert_same_as_list(v, f, o, d, quality)
+
+
+def test_random_soup_and_rays_of_every_kind():
+    rng = np.random.default_rng(7)
+    v = rng.uniform(-1, 1, (900, 3))
+    f = rng.integers(0, 900, (1500, 3))
+    o = rng.uniform(-2, 2, (2000, 3))
+    d = rng.normal(size=(2000, 3))
+    for quality in QUALITIES:
+        assert_same_as_list(v, f, o, d, quality)
+
+
+def test_the_direct_build_is_lean_and_makes_no_scene_geometry():
+    v, f = sphere(5)
+    rs = RayScene.from_mesh(v, f)
+    rs.intersect(v.mean(0), [0, 0, 1.0])
+    assert rs._geo is None                       # ray casting needs no general Geometry
+    st = rs.stats
+    assert st["bytes_per_triangle"] <= 110, st["bytes_per_triangle"]
+    assert st["bytes"] == rs._mesh.nbytes
+    assert st["sah_cost"] > 0 and st["quality"] == "medium"
+    # the general Geometry is built on first use, and point queries still answer right
+    cp = rs.closest_points([[0.0, 0.0, 2.0]])
+    assert rs._geo is not None and abs(cp.distance[0] - 1.0) < 1e-2
+
+
+def test_the_surface_and_vertex_normals_match_the_general_path():
+    v, f = sphere(2)
+    n = v / np.linalg.norm(v, axis=1)[:, None]
+    rng = np.random.default_rng(3)
+    o = rng.normal(size=(500, 3)) * 3
+    d = -o + rng.normal(size=(500, 3)) * 0.3
+    a = RayScene.from_mesh(v, f, normals=n).intersect(o, d)
+    b = RayScene.from_mesh(v, f, normals=n, accel="bvh(block=4)").intersect(o, d)
+    for field in ("t", "prim_id", "uv", "normal", "shading_normal"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+
+
+def test_counters_do_not_depend_on_the_thread_count():
+    v, f = sphere(4)
+    rng = np.random.default_rng(4)
+    o, d = rng.normal(size=(5000, 3)) * 2, rng.normal(size=(5000, 3))
+    rs = RayScene.from_mesh(v, f)
+    stats = []
+    for threads in (1, 2):
+        rs.intersect(o, d, threads=threads)
+        stats.append({k: v for k, v in rs.last_stats.items() if not k.startswith("time.")})
+    assert stats[0] == stats[1]
+
+
+def test_bad_quality_and_the_memory_budget():
+    v, f = sphere(3)
+    with pytest.raises(ValueError, match="quality must be one of fast, medium, high"):
+        RayScene.from_mesh(v, f, quality="best")
+    with pytest.raises(MemoryBudgetError, match="triangles needs .* the memory budget of 64.0 KiB"):
+        RayScene.from_mesh(v, f, max_memory="64K")
+
+
+def test_an_empty_mesh():
+    rs = RayScene.from_mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    assert not np.isfinite(rs.intersect([0, 0, 0.0], [1.0, 0, 0]).t).any()
+
+
+# ----------------------------------------------------------------- the builders
+
+
+def leaves_of(tree):
+    """Each leaf's items, in depth-first order from the root, and the node boxes checked on the way."""
+    out, stack = [], [0]
+    while stack:
+        i = stack.pop()
+        if tree.count[i] > 0 or tree.first[i] <= i:
+            out.append(tuple(tree.order[tree.first[i]:tree.first[i] + tree.count[i]]))
+        else:
+            for c in (tree.first[i], tree.first[i] + 1):
+                assert c > i and (tree.bounds[c, :3] >= tree.bounds[i, :3]).all()
+                assert (tree.bounds[c, 3:] <= tree.bounds[i, 3:]).all()
+            stack += [tree.first[i] + 1, tree.first[i]]
+    return out
+
+
+def random_boxes(n, seed):
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(-10, 10, (n, 3)) ** 3
+    return np.c_[lo, lo + rng.exponential(0.5, (n, 3))]
+
+
+def test_the_parallel_build_is_the_serial_tree_at_any_thread_count(monkeypatch):
+    items = random_boxes(bvh.PARALLEL_ITEMS + 5000, 9)
+    one, _ = bvh.build_bvh(items, block=4, threads=1)
+    two, _ = bvh.build_bvh(items, block=4, threads=2)
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a, b)
+    monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1 << 40)
+    serial, _ = bvh.build_bvh(items, block=4)
+    assert leaves_of(serial) == leaves_of(one)
+    assert sorted(i for leaf in leaves_of(one) for i in leaf) == list(range(len(items)))
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 1000, 40000])
+def test_the_morton_build_holds_every_item_once_in_small_leaves(n):
+    items = random_boxes(n, n)
+    tree, stats = bvh.build_bvh(items, leaf_size=4, method="morton")
+    leaves = leaves_of(tree)
+    assert sorted(i for leaf in leaves for i in leaf) == list(range(n))
+    assert max(len(leaf) for leaf in leaves) <= 4 and stats["nodes"] == 2 * len(leaves) - 1
+    for i in np.flatnonzero(tree.count > 0):
+        mine = items[tree.order[tree.first[i]:tree.first[i] + tree.count[i]]]
+        np.testing.assert_array_equal(tree.bounds[i], np.r_[mine[:, :3].min(0), mine[:, 3:].max(0)])
+
+
+def test_the_morton_build_of_coincident_items():
+    tree, _ = bvh.build_bvh(np.tile([0.0, 0, 0, 1, 1, 1], (37, 1)), leaf_size=4, method="morton")
+    assert sorted(i for leaf in leaves_of(tree) for i in leaf) == list(range(37))
+
+
+def test_bvh_spec_build_morton_renders_like_sah():
+    v, f = sphere(2)
+    rng = np.random.default_rng(2)
+    o, d = rng.normal(size=(300, 3)) * 3, rng.normal(size=(300, 3))
+    a = RayScene.from_mesh(v, f, accel="bvh(build=morton)").intersect(o, d)
+    b = RayScene.from_mesh(v, f, accel="list").intersect(o, d)
+    np.testing.assert_array_equal(a.t, b.t)
+
+
+# ----------------------------------------------------------------- winding numbers and contains
+
+
+def brute_winding(v, f, points):
+    a, b, c = (v[f[:, k]][None] - points[:, None] for k in range(3))
+    la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
+    det = np.einsum("pti,pti->pt", a, np.cross(b, c))
+    den = la * lb * lc + np.einsum("pti,pti->pt", a, b) * lc + np.einsum("pti,pti->pt", b, c) * la \
+        + np.einsum("pti,pti->pt", c, a) * lb
+    return (2 * np.arctan2(det, den)).sum(axis=1) / (4 * np.pi)
+
+
+def open_teapot():
+    """The SPD teapot as triangles (our OBJ export, read by trimesh): its lid leaves gaps."""
+    import io
+
+    import raykernel
+    from raykernel.scene.convert import scene_to_obj
+    obj, _ = scene_to_obj(raykernel.load("spd:teapot:2"))
+    m = trimesh.load(io.StringIO(obj), file_type="obj", force="mesh", process=False)
+    return np.ascontiguousarray(m.vertices, np.float64), np.ascontiguousarray(m.faces, np.int64)
+
+
+def test_winding_numbers_against_the_brute_force_sum():
+    from raykernel.casting.winding import winding_numbers
+    rng = np.random.default_rng(5)
+    for v, f in (sphere(3), open_teapot()):
+        lo, hi = v.min(0), v.max(0)
+        p = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), (400, 3))
+        rs = RayScene.from_mesh(v, f)
+        mesh, far = rs._winding_tree()
+        w = winding_numbers(mesh, p, far)
+        exact = brute_winding(v, f, p)
+        assert np.abs(w - exact).max() < 0.05, np.abs(w - exact).max()     # the dipoles: a few hundredths
+        clear = np.abs(exact - 0.5) > 0.05
+        np.testing.assert_array_equal(rs.contains(p, method="winding")[clear], (exact > 0.5)[clear])
+
+
+def test_contains_picks_parity_for_closed_meshes_and_winding_for_open_ones():
+    rng = np.random.default_rng(6)
+    v, f = sphere(3)
+    p = rng.uniform(-1.2, 1.2, (3000, 3))
+    rs = RayScene.from_mesh(v, f)
+    assert rs._closed()
+    r = np.linalg.norm(p, axis=1)
+    inside = rs.contains(p)
+    clear = np.abs(r - 1) > 0.01
+    np.testing.assert_array_equal(inside[clear], (r < 1)[clear])
+    for method in ("parity", "winding", "vote"):
+        np.testing.assert_array_equal(rs.contains(p, method=method)[clear], inside[clear])
+    tv, tf = open_teapot()
+    teapot = RayScene.from_mesh(tv, tf)
+    assert not teapot._closed()
+    q = rng.uniform(tv.min(0), tv.max(0), (500, 3))
+    np.testing.assert_array_equal(teapot.contains(q), teapot.contains(q, method="winding"))
+    with pytest.raises(ValueError, match="method must be"):
+        rs.contains(p, method="odd")
+    with pytest.raises(ValueError, match="triangle meshes only"):
+        RayScene.from_spheres([[0, 0, 0.0]], 1.0).contains(p, method="winding")
