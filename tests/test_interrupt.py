@@ -1,4 +1,4 @@
-"""Ctrl-C: a render or a ray query stops within about a second of SIGINT, from Python and from the
+"""Ctrl-C: a render, a ray query or a mesh build stops within about a second of SIGINT, from Python and from the
 command line, leaves no file behind, and the next call in the same process works."""
 
 from __future__ import annotations
@@ -27,6 +27,16 @@ CHILD = textwrap.dedent("""
         scene = load("spd:balls:3")
         small = lambda: raykernel.render(scene, resolution=8, threads=threads).stats["rays.eye"]
         long = lambda: raykernel.render(scene, resolution=4096, threads=threads)
+    elif sys.argv[1] == "build":
+        # a height field of 1.28M triangles, built again and again: SIGINT meets some phase of a build
+        k = 801
+        x, y = np.meshgrid(np.linspace(0, 1, k), np.linspace(0, 1, k))
+        v = np.c_[x.ravel(), y.ravel(), 0.1 * np.sin(9 * x.ravel()) * np.cos(7 * y.ravel())]
+        q = (np.arange(k - 1)[:, None] * k + np.arange(k - 1)[None]).ravel()
+        f = np.concatenate([np.c_[q, q + 1, q + k], np.c_[q + 1, q + k + 1, q + k]])
+        ray = np.array([[0.5, 0.5, 1.0]]), np.array([[0.0, 0.0, -1.0]])
+        small = lambda: int(raykernel.RayScene.from_mesh(v[:4 * k], f[:100]).intersect(*ray).prim_id[0] >= -1)
+        long = lambda: [raykernel.RayScene.from_mesh(v, f, threads=threads) for _ in range(100)]
     else:
         rays = raykernel.RayScene(load("spd:balls:4"), accel="list")
         rng = np.random.default_rng(1)
@@ -48,7 +58,8 @@ CHILD = textwrap.dedent("""
 """)
 
 
-@pytest.mark.parametrize("what,threads", [("render", 1), ("render", 2), ("query", 1), ("query", 2)])
+@pytest.mark.parametrize("what,threads", [("render", 1), ("render", 2), ("query", 1), ("query", 2), ("build", 1),
+                                          ("build", 2)])
 def test_python_call_stops_within_a_second_and_the_next_call_works(what, threads):
     out = subprocess.run([sys.executable, "-c", CHILD, what, str(threads)], capture_output=True, text=True,
                          timeout=900)

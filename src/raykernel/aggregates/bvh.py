@@ -306,11 +306,14 @@ def _item_data(items, weights, data, i0, i1):
 
 @njit
 def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st_depth, st_cb, top, next_node,
-                leaf_size, bins, traversal_cost, intersection_cost, block, defer, node_cap, tasks, task_cb):
+                leaf_size, bins, traversal_cost, intersection_cost, block, defer, node_cap, tasks, task_cb, n_tasks,
+                work):
     """Split the work items on the stack (node over data[s:e], depth, centroid box) until every
-    node is a leaf; returns (next free node, deepest depth, tasks deferred). With defer > 0, a
-    work item of fewer than `defer` items, or met when the nodes up to node_cap are used up, is
-    not split here but written to tasks (node, start, end, depth) and task_cb, for _build_tasks."""
+    node is a leaf, or until the items split add up to `work` (0: no limit; the caller calls
+    again, between calls Python answers Ctrl-C); returns (stack top, next free node, deepest
+    depth, tasks deferred). With defer > 0, a work item of fewer than `defer` items, or met when
+    the nodes up to node_cap are used up, is not split here but written to tasks[n_tasks]
+    (node, start, end, depth) and task_cb, for _build_tasks."""
     bin_count = np.zeros((3, bins), dtype=np.int64)
     bin_weight = np.zeros((3, bins), dtype=np.float64)
     bin_box = np.empty((3, bins, 6), dtype=np.float64)
@@ -328,9 +331,9 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
     scale = np.zeros(3, dtype=np.float64)
     cmin = np.zeros(3, dtype=np.float64)
     max_depth = 0
-    n_tasks = 0
+    done = 0
 
-    while top > 0:
+    while top > 0 and (work == 0 or done < work):
         top -= 1
         node = st_node[top]
         s = st_start[top]
@@ -348,6 +351,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             continue
         if depth > max_depth:
             max_depth = depth
+        done += cnt
 
         # axes that can be binned: positive, finite centroid extent and finite bins/extent
         any_axis = False
@@ -408,7 +412,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         # right child below left on the stack: the left subtree is built first
         top = _push_work(st_node, st_start, st_end, st_depth, st_cb, top, left + 1, mid, e, depth + 1, rcb)
         top = _push_work(st_node, st_start, st_end, st_depth, st_cb, top, left, s, mid, depth + 1, lcb)
-    return next_node, max_depth, n_tasks
+    return top, next_node, max_depth, n_tasks
 
 
 @njit
@@ -419,22 +423,29 @@ def _work_stack(n):
 
 
 @njit
-def _build_top(data, order, bounds, first, count, leaf_size, bins, traversal_cost, intersection_cost, block,
-               defer, node_cap, tasks, task_cb):
-    """The root over all of data, split down to the tasks (_build_loop with defer); returns
-    (next free node, deepest depth, tasks)."""
-    n = data.shape[0]
-    st_node, st_start, st_end, st_depth, st_cb = _work_stack(n)
+def _push_root(data, bounds, st_node, st_start, st_end, st_depth, st_cb):
+    """The root's box, and the root over all of data as the stack's one work item; returns the top."""
     box = np.empty(6, dtype=np.float64)
     cbox = np.empty(6, dtype=np.float64)
-    _range_bounds(data, np.int64(0), n, box, cbox)
+    _range_bounds(data, np.int64(0), data.shape[0], box, cbox)
     for k in range(6):
         bounds[0, k] = box[k]
     zero = np.int64(0)      # not the literal 0: numba would compile _push_work again for it
-    top = _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, n, zero, cbox)
-    return _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st_depth, st_cb, top,
-                       np.int64(1), leaf_size, bins, traversal_cost, intersection_cost, block, defer, node_cap,
-                       tasks, task_cb)
+    return _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, data.shape[0], zero, cbox)
+
+
+def _build_top(data, order, bounds, first, count, args, defer, node_cap, tasks, task_cb):
+    """The root over all of data, split down to the tasks (_build_loop with defer) in calls of
+    about TOP_WORK items each; returns (next free node, deepest depth, tasks)."""
+    stack = _work_stack(len(data))
+    top = _push_root(data, bounds, *stack)
+    next_node, deepest, n_tasks = np.int64(1), 0, np.int64(0)
+    while top > 0:
+        top, next_node, depth, n_tasks = _build_loop(data, order, bounds, first, count, *stack, top, next_node, *args,
+                                                     np.int64(defer), np.int64(node_cap), tasks, task_cb, n_tasks,
+                                                     np.int64(TOP_WORK))
+        deepest = max(deepest, depth)
+    return next_node, deepest, n_tasks
 
 
 @njit
@@ -449,9 +460,9 @@ def _build_tasks(data, order, bounds, first, count, tasks, task_cb, base, k0, k1
         st_node, st_start, st_end, st_depth, st_cb = _work_stack(e - s)
         top = _push_work(st_node, st_start, st_end, st_depth, st_cb, np.int64(0), tasks[k, 0], s, e, tasks[k, 3],
                          task_cb[k])
-        _, depth, _ = _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st_depth, st_cb,
-                                  top, base + 2 * s, leaf_size, bins, traversal_cost, intersection_cost, block,
-                                  np.int64(0), np.int64(0), tasks, task_cb)
+        _, _, depth, _ = _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st_depth, st_cb,
+                                     top, base + 2 * s, leaf_size, bins, traversal_cost, intersection_cost, block,
+                                     np.int64(0), np.int64(0), tasks, task_cb, np.int64(0), np.int64(0))
         deepest = max(deepest, depth)
     return deepest
 
@@ -606,6 +617,7 @@ def _morton(data, leaf_size, threads=None):
 # items from which a build is split over threads, and the largest subtree built by one thread's call
 PARALLEL_ITEMS = 1 << 15
 DEFER_ITEMS = 1 << 12
+TOP_WORK = 1 << 22          # items the top of a build splits in one call (about a tenth of a second)
 
 
 def _build(data, leaf_size, bins, tc, ic, block, threads=None):
@@ -625,15 +637,14 @@ def _build(data, leaf_size, bins, tc, ic, block, threads=None):
         cap = 2 * n - 1
         bounds, first, count = np.empty((cap, 6)), np.empty(cap, np.int64), np.empty(cap, np.int64)
         none = np.empty((0, 4), np.int64), np.empty((0, 6))
-        n_nodes, depth, _ = _build_top(data, order, bounds, first, count, *args, np.int64(0), np.int64(cap), *none)
+        n_nodes, depth, _ = _build_top(data, order, bounds, first, count, args, 0, cap, *none)
         return bounds, first, count, order, n_nodes, depth
     # the top: at most 8 nodes for every DEFER_ITEMS items (beyond, the rest is deferred as it is)
     top_cap = min(2 * n - 1, 8 * (n // DEFER_ITEMS) + 64)
     cap = top_cap + 2 * n
     bounds, first, count = np.empty((cap, 6)), np.empty(cap, np.int64), np.empty(cap, np.int64)
     tasks, task_cb = np.empty((top_cap, 4), np.int64), np.empty((top_cap, 6))
-    _, depth, n_tasks = _build_top(data, order, bounds, first, count, *args, np.int64(DEFER_ITEMS),
-                                   np.int64(top_cap), tasks, task_cb)
+    _, depth, n_tasks = _build_top(data, order, bounds, first, count, args, DEFER_ITEMS, top_cap, tasks, task_cb)
     tasks, task_cb = tasks[:n_tasks], task_cb[:n_tasks]
     # the largest first, so that threads finish together
     big = np.argsort(tasks[:, 1] - tasks[:, 2], kind="stable")
