@@ -6,7 +6,7 @@ import threading
 import numpy as np
 import pytest
 
-from raykernel.engine.parallel import claim, finished, for_ranges, on_threads
+from raykernel.geometry.parallel import claim, finished, for_ranges, on_threads
 from raykernel.geometry.config import njit
 
 

@@ -17,10 +17,11 @@ from pathlib import Path
 # scene names its structures by spec, which its readers check against the aggregates' registry.
 LAYERS = (
     ("geometry", ("geometry", "errors", "options", "atomicfile", "layers"),
-     "primitives and their tests, boxes, counters, the kernel decorator and its cache; errors, option checks"),
+     "primitives and their tests, boxes, counters, the kernel decorator and its cache, kernels on threads; "
+     "errors, option checks"),
     ("aggregates", ("aggregates",), "one module per kind of structure: its builder, layout and walk; the registry"),
     ("scene", ("scene",), "the scene model, NFF and JSON readers and writers, SPD and pathological generators"),
-    ("engine", ("engine",), "flat arrays from a scene, the intersection driver, instances, parallel ranges"),
+    ("engine", ("engine",), "flat arrays from a scene, the intersection driver, instances"),
     ("rendering, casting", ("rendering", "casting", "trimesh"),
      "shading, sampling, statistics, images; RayScene's ray casting and point queries"),
     ("analysis, cluster", ("analysis", "cluster"), "comparisons, the cost model, annealing, auto; Dask"),

@@ -76,7 +76,7 @@ from ..geometry.boxes import INF, box_entry, cull_margin
 from ..geometry.compiletime import CompileClock, compile_notice
 from ..geometry.config import njit
 from ..geometry.primitives import PRIMITIVE_KINDS
-from ..engine.parallel import for_ranges
+from ..geometry.parallel import for_ranges
 from ..options import number
 from .bvhtree import BVHArrays, as_item_bounds, is_leaf
 from .spec import Kind, Param, Search
@@ -312,7 +312,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
     node is a leaf, or until the items split add up to `work` (0: no limit; the caller calls
     again, between calls Python answers Ctrl-C); returns (stack top, next free node, deepest
     depth, tasks deferred). With defer > 0, a work item of fewer than `defer` items, or met when
-    the nodes up to node_cap are used up, is not split here but written to tasks[n_tasks]
+    the nodes up to node_cap or the stack are used up, is not split here but written to tasks[n_tasks]
     (node, start, end, depth) and task_cb, for _build_tasks."""
     bin_count = np.zeros((3, bins), dtype=np.int64)
     bin_weight = np.zeros((3, bins), dtype=np.float64)
@@ -340,7 +340,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         e = st_end[top]
         depth = st_depth[top]
         cnt = e - s
-        if defer > 0 and cnt > leaf_size and (cnt < defer or next_node + 2 > node_cap):
+        if defer > 0 and cnt > leaf_size and (cnt < defer or next_node + 2 > node_cap or top + 2 > st_node.shape[0]):
             tasks[n_tasks, 0] = node
             tasks[n_tasks, 1] = s
             tasks[n_tasks, 2] = e
@@ -437,7 +437,7 @@ def _push_root(data, bounds, st_node, st_start, st_end, st_depth, st_cb):
 def _build_top(data, order, bounds, first, count, args, defer, node_cap, tasks, task_cb):
     """The root over all of data, split down to the tasks (_build_loop with defer) in calls of
     about TOP_WORK items each; returns (next free node, deepest depth, tasks)."""
-    stack = _work_stack(len(data))
+    stack = _work_stack(len(data) if defer == 0 else min(len(data), TOP_STACK))
     top = _push_root(data, bounds, *stack)
     next_node, deepest, n_tasks = np.int64(1), 0, np.int64(0)
     while top > 0:
@@ -592,12 +592,12 @@ def _leading_zeros(x):
 
 
 def _morton(data, leaf_size, threads=None):
-    """_build's result by Morton order (Lauterbach et al. 2009's linear BVH, split top-down):
+    """_build_sah's result by Morton order (Lauterbach et al. 2009's linear BVH, split top-down):
     a sort and a binary search a node instead of binning every level; data is permuted in place."""
     n = len(data)
     order = np.arange(n, dtype=np.int64)
     if n == 0:
-        return _build(data, leaf_size, 2, 1.0, 1.0, 1)
+        return _build_sah(data, leaf_size, 2, 1.0, 1.0, 1)
     lo, hi = data[:, 6:9].min(axis=0), data[:, 6:9].max(axis=0)
     extent = hi - lo
     with np.errstate(divide="ignore", over="ignore"):
@@ -614,13 +614,28 @@ def _morton(data, leaf_size, threads=None):
     return bounds, first, count, order, n_nodes, depth
 
 
+ROW_COLUMNS = 10        # a build's row of an item: its box (6), the box's centre (3), its weight
+
+
+def build_rows(data, method="sah", leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0, block=1,
+               threads=None):
+    """build_bvh's tree over rows already made ((n, ROW_COLUMNS) float64: box, centre, weight;
+    permuted in place): (bounds, first, count, order, node count, max depth), the node arrays
+    possibly longer than the node count. For builders that make the rows themselves, faster than
+    boxes (casting/meshbuild.py makes a mesh's from its vertices)."""
+    if method == "morton":
+        return _morton(data, leaf_size, threads)
+    return _build_sah(data, leaf_size, bins, traversal_cost, intersection_cost, block, threads)
+
+
 # items from which a build is split over threads, and the largest subtree built by one thread's call
 PARALLEL_ITEMS = 1 << 15
 DEFER_ITEMS = 1 << 12
+TOP_STACK = 1 << 16         # work items the top's stack holds (a deeper top defers the rest as tasks)
 TOP_WORK = 1 << 22          # items the top of a build splits in one call (about a tenth of a second)
 
 
-def _build(data, leaf_size, bins, tc, ic, block, threads=None):
+def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None):
     """Build the tree over `data` (_item_data's rows, permuted in place); returns (bounds,
     first, count, order, node count, max depth). From PARALLEL_ITEMS items on, the nodes of
     more than DEFER_ITEMS items are split on the calling thread, and the subtrees below them
@@ -745,14 +760,11 @@ def build_bvh(bounds, *, leaf_size=4, bins=16, traversal_cost=1.0, intersection_
         raise OptionError(f"weights must be {len(items)} finite positive numbers, one per item box")
     # said when it compiles (first use after install), not when it loads from the cache
     with CompileClock(notice=compile_notice("bvh", _COMPILING), after=0.0):
-        data = np.empty((len(items), 10))
-        _item_data(items, weights, data, np.int64(0), np.int64(len(items)))
-        if method == "morton":
-            nb, first, count, order, n_nodes, max_depth = _morton(data, leaf_size, threads)
-        elif method == "sah":
-            nb, first, count, order, n_nodes, max_depth = _build(data, leaf_size, bins, tc, ic, block, threads)
-        else:
+        if method not in ("sah", "morton"):
             raise OptionError(f"method must be sah or morton, got {method!r}")
+        data = np.empty((len(items), ROW_COLUMNS))
+        _item_data(items, weights, data, np.int64(0), np.int64(len(items)))
+        nb, first, count, order, n_nodes, max_depth = build_rows(data, method, leaf_size, bins, tc, ic, block, threads)
     if n_nodes < count.shape[0]:  # give back the unused part of the 2n - 1 node allocation
         nb, first, count = nb[:n_nodes].copy(), first[:n_nodes].copy(), count[:n_nodes].copy()
     bvh = BVHArrays(nb, first, count, order)

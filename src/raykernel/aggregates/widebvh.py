@@ -92,13 +92,30 @@ class WideBVH(NamedTuple):
         return self.nodes.nbytes
 
 
-def _outwards(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """float32 boxes that contain the float64 ones: each bound rounded away from the box."""
-    lo32, hi32 = lo.astype(np.float32), hi.astype(np.float32)
-    up, down = lo32 > lo, hi32 < hi
-    lo32[up] = np.nextafter(lo32[up], np.float32(-np.inf))
-    hi32[down] = np.nextafter(hi32[down], np.float32(np.inf))
-    return lo32, hi32
+@njit(inline="always")
+def _down(x):
+    """The largest float32 at or below x (x - center in float64)."""
+    y = np.float32(x)
+    return np.nextafter(y, np.float32(-np.inf)) if np.float64(y) > x else y
+
+
+@njit(inline="always")
+def _up(x):
+    y = np.float32(x)
+    return np.nextafter(y, np.float32(np.inf)) if np.float64(y) < x else y
+
+
+@njit
+def _pack(box, child, count, center, nodes, boxes):
+    """The wide nodes' records (see above): float32 boxes rounded outwards from the float64 ones
+    moved by center (so that each contains its original), child and count."""
+    for w in range(box.shape[0]):
+        for s in range(4):
+            for a in range(3):
+                boxes[w, 4 * a + s] = _down(box[w, s, a] - center[a])
+                boxes[w, 12 + 4 * a + s] = _up(box[w, s, 3 + a] - center[a])
+            nodes[w, CHILD + s] = child[w, s]
+            nodes[w, COUNT + s] = count[w, s]
 
 
 @njit
@@ -179,13 +196,8 @@ def collapse(node_bounds, node_first, node_count, root: int) -> WideBVH:
                          f"{max(len(box), int(child.max()) + 1):,}: use bvh(width=2)")
     root_box = node_bounds[root]
     center = np.where(np.isfinite(root_box[:3] + root_box[3:]), (root_box[:3] + root_box[3:]) / 2, 0.0)
-    lo, hi = _outwards(box[:, :, :3] - center, box[:, :, 3:] - center)
     nodes = _aligned(len(box))
-    boxes = nodes.view(np.float32)
-    boxes[:, :12] = lo.transpose(0, 2, 1).reshape(-1, 12)      # xmin[4] ymin[4] zmin[4]
-    boxes[:, 12:24] = hi.transpose(0, 2, 1).reshape(-1, 12)    # xmax[4] ymax[4] zmax[4]
-    nodes[:, CHILD:COUNT] = child
-    nodes[:, COUNT:] = count
+    _pack(box, child, count, center, nodes, nodes.view(np.float32))
     return WideBVH(nodes, center)
 
 

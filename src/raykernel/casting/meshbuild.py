@@ -33,10 +33,10 @@ import time
 
 import numpy as np
 
-from ..aggregates.bvh import _build, _morton, sah_cost
+from ..aggregates.bvh import ROW_COLUMNS, build_rows, sah_cost
 from ..aggregates.widebvh import collapse
 from ..engine.flatten import check_range
-from ..engine.parallel import for_ranges
+from ..geometry.parallel import for_ranges, interrupted
 from ..geometry.boxes import cull_margin
 from ..geometry.compiletime import CompileClock, compile_notice
 from ..geometry.config import njit
@@ -46,6 +46,7 @@ QUALITY = {"fast": "bvh(block=4, build=morton)", "medium": "bvh(block=4)",
            "high": "bvh(block=4, split=16, optimize=reinsertion)"}
 DIRECT = ("fast", "medium")       # the levels built here; "high" goes through flatten
 LEAF, BINS, BLOCK = 4, 16, 4      # bvh(block=4)'s leaves, bins and pricing
+PROGRESS_TRIANGLES = 1 << 19     # builds from which a line says what is being built (about 0.3 s and more)
 # the build's peak a triangle: its rows (80 bytes), order (8), the binary nodes (64 each, up to
 # two a triangle and the parallel build's top), and the kernel's arrays it makes (about 100)
 BUILD_BYTES = 340
@@ -54,7 +55,7 @@ _COMPILING = "raykernel: compiling the mesh builder (first use after install, a 
 
 @njit
 def _triangle_data(verts, faces, data, i0, i1):
-    """bvh._item_data's rows for triangles i0..i1-1: box, centroid of the box, weight 1."""
+    """bvh.build_rows' rows for triangles i0..i1-1: box, centre of the box, weight 1."""
     for i in range(i0, i1):
         a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
         for k in range(3):
@@ -72,16 +73,22 @@ def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
     C-contiguous and checked, normals (V, 3) float64 or None; quality "fast" or "medium"."""
     t0 = time.perf_counter()
     n = len(faces)
-    # a line for builds that take more than a second (a million triangles or so), and their time at the end
+    # a line for big builds that take more than a second, and their time at the end (not for a
+    # small one that waits for its kernels to compile: the compile notice says so)
     slow = threading.Timer(1.0, lambda: print(f"raykernel: building the BVH of {n:,} triangles ({quality} quality) ...",
                                               file=sys.stderr, flush=True))
     slow.daemon = True
-    slow.start()
+    if n >= PROGRESS_TRIANGLES:
+        slow.start()
     try:
         mesh, stats = _build_mesh(verts, faces, normals, quality, edges, threads, n, t0)
+    except SystemError as e:        # Ctrl-C met while numba was loading a kernel: wrapped, said as it is
+        if interrupted(e):
+            raise KeyboardInterrupt from None
+        raise
     finally:
         slow.cancel()
-    if stats["seconds"] > 1.0:
+    if n >= PROGRESS_TRIANGLES and stats["seconds"] > 1.0:
         print(f"raykernel: built in {stats['seconds']:.1f} s, {stats['bytes_per_triangle']:.0f} bytes a triangle",
               file=sys.stderr, flush=True)
     return mesh, stats
@@ -89,15 +96,13 @@ def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
 
 def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
     with CompileClock(notice=compile_notice("meshbuild", _COMPILING), after=0.0):
-        data = np.empty((n, 10))
+        data = np.empty((n, ROW_COLUMNS))
         for_ranges(lambda i0, i1: _triangle_data(verts, faces, data, np.int64(i0), np.int64(i1)), n, threads,
                    kernel=_triangle_data, min_size=1 << 14)
         with np.errstate(over="ignore", invalid="ignore"):
             check_range("triangle", data[:, :6], 0, np.max(data[:, 3:6] - data[:, :3], axis=1))
-        if quality == "fast":
-            bounds, first, count, order, n_nodes, depth = _morton(data, LEAF, threads)
-        else:
-            bounds, first, count, order, n_nodes, depth = _build(data, LEAF, BINS, 1.0, 1.0, BLOCK, threads)
+        method = "morton" if quality == "fast" else "sah"
+        bounds, first, count, order, n_nodes, depth = build_rows(data, method, LEAF, BINS, 1.0, 1.0, BLOCK, threads)
         data = None     # (its memory back before the wide tree is made)
         bounds, first, count = bounds[:n_nodes], first[:n_nodes], count[:n_nodes]
         box = bounds[0].copy()

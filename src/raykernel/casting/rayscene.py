@@ -48,7 +48,7 @@ from ..geometry.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, Comp
 from ..aggregates.memory import check, describe_bytes, memory_limit
 from ..aggregates.registry import COUNTER_NAMES
 from ..engine.flatten import flatten
-from ..engine.parallel import for_ranges
+from ..geometry.parallel import for_ranges
 from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..errors import RayKernelError
 from ..geometry import counters as C
@@ -838,6 +838,8 @@ class RayScene:
         p, shape = self._points(points)
         if method not in ("auto", "parity", "winding", "vote"):
             raise RayInputError(f"method must be auto, parity, winding or vote, got {method!r}")
+        if self._geo is not None and (len(self._geo.inst_agg) or len(self._geo.cone_length)):
+            raise RayInputError("contains does not handle instances or cones yet")
         meshes_only = [g["kind"] for g in self.geometries] == ["triangle"] * len(self.geometries)
         if method == "auto":
             method = "vote" if not meshes_only else "parity" if self._closed() else "winding"
@@ -849,8 +851,6 @@ class RayScene:
             return (winding_numbers(mesh, p, far, threads) > 0.5).reshape(shape)
         if method == "parity":
             return (self.count_hits(p, INSIDE_DIRECTIONS[0], threads=threads) % 2 == 1).reshape(shape)
-        if len(self.geo.inst_agg) or len(self.geo.cone_length):
-            raise RayInputError("contains does not handle instances or cones yet")
         spheres = [g for g, info in enumerate(self.geometries) if info["kind"] == "sphere"]
 
         def odd(q, direction):

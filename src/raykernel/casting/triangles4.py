@@ -29,7 +29,7 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-from ..engine.parallel import for_ranges
+from ..geometry.parallel import for_ranges
 from ..geometry.config import njit
 
 BLOCK = 4           # triangles in a block

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from ..aggregates.widebvh import CHILD, COUNT
-from ..engine.parallel import for_ranges
+from ..geometry.parallel import for_ranges
 from ..geometry.config import njit
 from .meshcast import MeshKernel
 from .triangles4 import corner
@@ -50,8 +50,10 @@ def _dipoles(nodes, boxes, center, blocks):
                 first = nodes[w, CHILD + s]
                 for lane in range(first, first + cnt):
                     ax, ay, az = corner(blocks, lane, 0), corner(blocks, lane, 1), corner(blocks, lane, 2)
-                    ex, ey, ez = corner(blocks, lane, 3) - ax, corner(blocks, lane, 4) - ay, corner(blocks, lane, 5) - az
-                    fx, fy, fz = corner(blocks, lane, 6) - ax, corner(blocks, lane, 7) - ay, corner(blocks, lane, 8) - az
+                    ex, ey, ez = (corner(blocks, lane, 3) - ax, corner(blocks, lane, 4) - ay,
+                                  corner(blocks, lane, 5) - az)
+                    fx, fy, fz = (corner(blocks, lane, 6) - ax, corner(blocks, lane, 7) - ay,
+                                  corner(blocks, lane, 8) - az)
                     cx, cy, cz = 0.5 * (ey * fz - ez * fy), 0.5 * (ez * fx - ex * fz), 0.5 * (ex * fy - ey * fx)
                     a = math.sqrt(cx * cx + cy * cy + cz * cz)
                     nx += cx

@@ -80,7 +80,7 @@ from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, fo
     hit_primitive,
     take,
 )
-from .parallel import for_ranges
+from ..geometry.parallel import for_ranges
 from .transforms import compose_map, map_ray
 from .widewalk import intersect_wide
 from .work import ENTER, STEP, TEST, level_charge, level_mark, note, note_found, note_search

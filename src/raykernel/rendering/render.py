@@ -18,7 +18,7 @@ sampling.py's, which tiles, passes and counts the same way.
 The image is traced in tiles of TILE x TILE samples, in parallel; each
 tile owns one row of counters, so counts and image bytes do not depend on
 the number of threads. Each thread makes one call of the tile kernel and
-claims tiles from a shared counter (engine/parallel.py) until none are
+claims tiles from a shared counter (geometry/parallel.py) until none are
 left, and a tile's eye rays go to the shading kernel in one call; a tile
 none of whose eye rays can enter the scene's box (frustum.py) gets the
 background and the counts of those misses without tracing them. With lazy structures (aggregates/lazyoctree.py,
@@ -41,7 +41,7 @@ import numpy as np
 from ..aggregates.lazyset import pass_ranges
 from ..geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, CompileClock, compile_notice, typing_setup
 from ..engine.flatten import flatten
-from ..engine.parallel import claim, default_threads, finished, on_threads
+from ..geometry.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
 from ..engine.widewalk import count_misses, with_driver
 from ..aggregates.memory import check, describe_bytes, memory_limit

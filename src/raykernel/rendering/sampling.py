@@ -22,7 +22,7 @@ count and in any tile order.
 
 import numpy as np
 
-from ..engine.parallel import claim, finished
+from ..geometry.parallel import claim, finished
 from ..engine.traverse import workspace
 from ..engine.work import record_sample, sample_work, start_samples
 from ..geometry import counters as C

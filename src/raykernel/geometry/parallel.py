@@ -27,8 +27,8 @@ import numpy as np
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
-from ..geometry.compiletime import WORKER_PREFIX
-from ..geometry.config import compiled, njit
+from .compiletime import WORKER_PREFIX
+from .config import compiled, njit
 
 
 def default_threads() -> int:
@@ -82,6 +82,16 @@ def for_ranges(fn, n: int, threads: int | None = None, kernel=None, min_size: in
     wait(futures)
     for future in futures:
         future.result()
+
+
+def interrupted(error: BaseException) -> bool:
+    """Whether a KeyboardInterrupt is among the causes of error: Ctrl-C met while numba ran Python
+    code (loading a kernel from the cache) comes back wrapped in SystemErrors."""
+    while error is not None:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        error = error.__cause__ or error.__context__
+    return False
 
 
 RANGE_SECONDS = 0.05
