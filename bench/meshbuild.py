@@ -79,7 +79,8 @@ def worker(lib, name, threads, qualities):
         for q in qualities:
             RayScene.from_mesh(*small, quality=q).intersect(one_o, one_d)       # warm
             seconds, held, rs = timed(lambda: RayScene.from_mesh(v, f, quality=q, threads=threads),
-                                      lambda s: s.intersect(one_o, one_d, threads=threads), 1 if len(f) > 6e6 else 3)
+                                      lambda s: s.intersect(one_o, one_d, threads=threads),
+                                      1 if len(f) > 6e6 or q == "high" else 3)
             st = rs.stats
             sah = st.get("sah_cost") or st["aggregates"][0].get("sah_after") or st["aggregates"][0].get("sah_cost")
             rates = {}

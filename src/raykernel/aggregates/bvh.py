@@ -266,6 +266,16 @@ def _partition(data, order, s, e, a, cmin, scale, bins, split_bin, lcb, rcb):
 
 
 @njit(private=True)
+def _leaf_is_cheapest(data, s, e, block, traversal_cost, intersection_cost):
+    """A leaf of data[s:e] costs no more than the traversal of a split alone (which every split
+    costs at least): a leaf with no need to bin."""
+    weight = 0.0
+    for p in range(s, e):
+        weight += data[p, 9]
+    return _priced(weight, block) * intersection_cost <= traversal_cost
+
+
+@njit(private=True)
 def _scaled_measure(bounds, node):
     """(1 / the node box's largest extent (1 if none), its measure on the box so scaled, whether
     that measure is a surface area (else the half-perimeter: a flat box))."""
@@ -368,7 +378,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         split_axis = -1
         split_bin = 0
         mid = s + cnt // 2
-        if cnt == 1:
+        if cnt == 1 or cnt <= leaf_size and _leaf_is_cheapest(data, s, e, block, traversal_cost, intersection_cost):
             pass
         elif not any_axis:
             # all centroids coincide: a leaf, or a middle split by count when too many
@@ -508,21 +518,33 @@ def _spread(x):
 
 
 @njit
-def _morton_codes(data, codes, i0, i1):
+def _morton_codes(data, grid, codes, i0, i1):
     """The 63-bit Morton codes of the centroids of data[i0:i1], on a 2**21 grid over all centroids'
-    box (data's last row holds that box's low corner and 2**21 / its extent, 0 on a flat axis)."""
-    n = data.shape[0] - 1
+    box (grid: that box's low corner, then 2**21 / its extent, 0 on a flat axis)."""
     for i in range(i0, i1):
         code = np.uint64(0)
         for a in range(3):
-            q = np.int64(min(2097151.0, max(0.0, (data[i, a + 6] - data[n, a]) * data[n, a + 3])))
+            q = np.int64(min(2097151.0, max(0.0, (data[i, a + 6] - grid[a]) * grid[a + 3])))
             code |= np.uint64(_spread(q)) << np.uint64(a)
         codes[i] = code
 
 
 @njit
-def _morton_build(data, codes, leaf_size):
-    """The tree over data sorted by Morton code: every range of more than leaf_size items split
+def _centre_box(data):
+    """The box of data's centroids: (low corner, high corner)."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for i in range(data.shape[0]):
+        for a in range(3):
+            c = data[i, a + 6]
+            lo[a] = min(lo[a], c)
+            hi[a] = max(hi[a], c)
+    return lo, hi
+
+
+@njit
+def _morton_build(data, order, codes, leaf_size):
+    """The tree over data[order], sorted by Morton code: every range of more than leaf_size items split
     where its codes' highest differing bit turns (in the middle where all codes agree), node
     boxes from the leaves up; returns (bounds, first, count, node count, max depth)."""
     n = data.shape[0]
@@ -571,9 +593,10 @@ def _morton_build(data, codes, leaf_size):
             bounds[i, k + 3] = -np.inf
         if count[i] > 0:
             for p in range(first[i], first[i] + count[i]):
+                item = order[p]
                 for k in range(3):
-                    bounds[i, k] = min(bounds[i, k], data[p, k])
-                    bounds[i, k + 3] = max(bounds[i, k + 3], data[p, k + 3])
+                    bounds[i, k] = min(bounds[i, k], data[item, k])
+                    bounds[i, k + 3] = max(bounds[i, k + 3], data[item, k + 3])
         else:
             c = first[i]
             for k in range(3):
@@ -593,24 +616,21 @@ def _leading_zeros(x):
 
 def _morton(data, leaf_size, threads=None):
     """_build_sah's result by Morton order (Lauterbach et al. 2009's linear BVH, split top-down):
-    a sort and a binary search a node instead of binning every level; data is permuted in place."""
+    a sort and a binary search a node instead of binning every level; data stays as it is."""
     n = len(data)
     order = np.arange(n, dtype=np.int64)
     if n == 0:
         return _build_sah(data, leaf_size, 2, 1.0, 1.0, 1)
-    lo, hi = data[:, 6:9].min(axis=0), data[:, 6:9].max(axis=0)
+    lo, hi = _centre_box(data)
     extent = hi - lo
     with np.errstate(divide="ignore", over="ignore"):
         scale = np.where((extent > 0) & np.isfinite(2.0 ** 21 / extent), 2.0 ** 21 / extent, 0.0)
-    grid = np.vstack([data, np.r_[lo, scale, np.zeros(4)]])
+    grid = np.r_[lo, scale]
     codes = np.empty(n, np.uint64)
-    for_ranges(lambda i0, i1: _morton_codes(grid, codes, np.int64(i0), np.int64(i1)), n, threads,
+    for_ranges(lambda i0, i1: _morton_codes(data, grid, codes, np.int64(i0), np.int64(i1)), n, threads,
                kernel=_morton_codes, min_size=1 << 14)
-    grid = None         # (its memory back before the sort)
     order = np.argsort(codes, kind="stable")
-    codes = codes[order]
-    data[:] = data[order]
-    bounds, first, count, n_nodes, depth = _morton_build(data, codes, np.int64(leaf_size))
+    bounds, first, count, n_nodes, depth = _morton_build(data, order, codes[order], np.int64(leaf_size))
     return bounds, first, count, order, n_nodes, depth
 
 
@@ -620,7 +640,7 @@ ROW_COLUMNS = 10        # a build's row of an item: its box (6), the box's centr
 def build_rows(data, method="sah", leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0, block=1,
                threads=None):
     """build_bvh's tree over rows already made ((n, ROW_COLUMNS) float64: box, centre, weight;
-    permuted in place): (bounds, first, count, order, node count, max depth), the node arrays
+    the SAH permutes them): (bounds, first, count, order, node count, max depth), the node arrays
     possibly longer than the node count. For builders that make the rows themselves, faster than
     boxes (casting/meshbuild.py makes a mesh's from its vertices)."""
     if method == "morton":

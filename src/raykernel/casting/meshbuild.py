@@ -33,13 +33,14 @@ import time
 
 import numpy as np
 
-from ..aggregates.bvh import ROW_COLUMNS, build_rows, sah_cost
+from ..aggregates.bvh import ROW_COLUMNS, build_rows
 from ..aggregates.widebvh import collapse
 from ..engine.flatten import check_range
 from ..geometry.parallel import for_ranges, interrupted
 from ..geometry.boxes import cull_margin
 from ..geometry.compiletime import CompileClock, compile_notice
 from ..geometry.config import njit
+from ..geometry.primitives import MAX_COORDINATE, MIN_SIZE
 from .meshcast import NO_CORNERS, MeshArrays, MeshKernel, wide_leaves
 
 QUALITY = {"fast": "bvh(block=4, build=morton)", "medium": "bvh(block=4)",
@@ -65,6 +66,39 @@ def _triangle_data(verts, faces, data, i0, i1):
             data[i, k + 3] = hi
             data[i, k + 6] = 0.5 * lo + 0.5 * hi
         data[i, 9] = 1.0
+
+
+@njit
+def _first_out_of_range(data):
+    """The first row whose box leaves +-MAX_COORDINATE or is smaller than MIN_SIZE but not zero
+    (flatten.check_range's rule), or -1."""
+    for i in range(data.shape[0]):
+        size = 0.0
+        for k in range(3):
+            if not (abs(data[i, k]) <= MAX_COORDINATE and abs(data[i, k + 3]) <= MAX_COORDINATE):
+                return i
+            size = max(size, data[i, k + 3] - data[i, k])
+        if size != 0.0 and size < MIN_SIZE:
+            return i
+    return -1
+
+
+@njit
+def _widen(bounds, first, count, n_nodes, margin):
+    """Grow the node boxes by margin (as append_bvh grows a scene's BVH); returns the tree's SAH
+    cost (bvh.sah_cost: inner areas and leaf areas times their triangles, over the root's area)."""
+    total = 0.0
+    root = 1.0
+    for i in range(n_nodes):
+        for k in range(3):
+            bounds[i, k] -= margin
+            bounds[i, k + 3] += margin
+        dx, dy, dz = bounds[i, 3] - bounds[i, 0], bounds[i, 4] - bounds[i, 1], bounds[i, 5] - bounds[i, 2]
+        area = dx * dy + dy * dz + dz * dx
+        if i == 0 and area > 0.0:
+            root = area
+        total += area * (count[i] if count[i] > 0 else 1)
+    return total / root
 
 
 def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, quality: str, edges: int,
@@ -99,17 +133,17 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
         data = np.empty((n, ROW_COLUMNS))
         for_ranges(lambda i0, i1: _triangle_data(verts, faces, data, np.int64(i0), np.int64(i1)), n, threads,
                    kernel=_triangle_data, min_size=1 << 14)
-        with np.errstate(over="ignore", invalid="ignore"):
-            check_range("triangle", data[:, :6], 0, np.max(data[:, 3:6] - data[:, :3], axis=1))
+        bad = _first_out_of_range(data)
+        if bad >= 0:        # the scene's error for it
+            with np.errstate(over="ignore", invalid="ignore"):
+                check_range("triangle", data[bad:bad + 1, :6], bad, np.max(data[bad:bad + 1, 3:6] - data[bad:bad + 1, :3]))
         method = "morton" if quality == "fast" else "sah"
         bounds, first, count, order, n_nodes, depth = build_rows(data, method, LEAF, BINS, 1.0, 1.0, BLOCK, threads)
         data = None     # (its memory back before the wide tree is made)
         bounds, first, count = bounds[:n_nodes], first[:n_nodes], count[:n_nodes]
         box = bounds[0].copy()
         margin = cull_margin(box) if n else 0.0
-        bounds[:, :3] -= margin     # as append_bvh widens a scene's BVH
-        bounds[:, 3:] += margin
-        cost = sah_cost(bounds, first, count, 0, n_nodes) if n else 0.0
+        cost = _widen(bounds, first, count, np.int64(n_nodes), margin) if n else 0.0
         wide = collapse(bounds, first, count, 0)
         del bounds, first, count
         wide, blocks, lanes = wide_leaves(wide, verts, faces, order, threads)
