@@ -6,7 +6,8 @@ A user with a scanned mesh builds a structure and casts a ray before anything
 else: each row times that (the build and one ray, best of 3, kernels warm),
 each library in its own process pinned to `threads` cores (taskset), with
 the mesh's arrays made before the clock starts. held: the process's resident
-memory after the build less before it, a triangle (the structure and what the
+memory after the build less before it, a triangle (0 where the build
+reused memory the process already held) (the structure and what the
 library copied: embreex copies the triangles in float32, Open3D its vertices
 and faces); for raykernel also RayScene.stats' own count of its arrays.
 SAH: the tree's cost (traversal 1, a triangle test 1) from the build's own
@@ -91,6 +92,8 @@ def worker(lib, name, threads, qualities):
                 rates[kind] = len(o) / (time.perf_counter() - t0) / 1e6
             rows.append(dict(lib=f"raykernel {q}", mesh=name, triangles=len(f), seconds=seconds, held=held / len(f),
                              own=st["bytes_per_triangle"], sah=sah, **rates))
+        import resource
+        rows[-1]["peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 2 ** 30
     elif lib == "embreex":
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh as EmbreeMesh
@@ -150,7 +153,10 @@ def main():
              "| mesh | triangles | library | build + 1 ray s | vs Open3D | held B/tri | own B/tri | SAH | "
              "coherent Mrays/s | incoherent Mrays/s |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
     o3d_s = {r["mesh"]: r["seconds"] for r in rows if r["lib"] == "open3d"}
+    peaks = []
     for r in rows:
+        if "peak_gb" in r:
+            peaks.append(f"{r['mesh']} {r['peak_gb']:.1f} GiB")
         ratio = f"{o3d_s[r['mesh']] / r['seconds']:.2f}" if r["mesh"] in o3d_s else ""
         lines.append(f"| {r['mesh']} | {r['triangles']:,} | {r['lib']} | {r['seconds']:.3f} | {ratio} | "
                      f"{r['held']:.0f} | {r.get('own', float('nan')):.0f} | {r.get('sah', float('nan')):.1f} | "
@@ -158,7 +164,8 @@ def main():
                      .replace("nan", ""))
     lines.append("")
     lines.append("vs Open3D: Open3D's seconds over this row's (above 1: faster than Open3D). Mrays/s at "
-                 f"{args.threads} threads, 1,000,000 rays each.")
+                 f"{args.threads} threads, 1,000,000 rays each. Peak resident memory of raykernel's process "
+                 f"(making the mesh, every build and the casts): {', '.join(peaks)}.")
     text = "\n".join(lines)
     print(text)
     if not args.no_write:

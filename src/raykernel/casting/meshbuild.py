@@ -19,10 +19,11 @@ face arrays alone, which it reads but does not copy:
 * a bool a triangle (smooth shading where vertex normals are given).
 
 The binary tree and the build's temporaries are dropped once the wide tree
-is made. QUALITY maps the levels to bvh specs, as Embree's build qualities:
-"fast" splits by Morton order, "medium" (the default) is the binned SAH that
-prices leaves in blocks of four, "high" adds split clipping and reinsertion
-and is built through the general path (flatten), whose Geometry it keeps.
+is made. The build qualities, as Embree's, and the bvh spec that builds the
+same tree (QUALITY): "fast" splits by Morton order, "medium" (the default)
+is the binned SAH that prices leaves in blocks of four, "high" then reinserts
+nodes where that lowers the SAH cost (bvhopt.py: fewer node visits a ray,
+for many rays; split clipping, tried too, cast slower in the 4-wide kernel).
 """
 
 from __future__ import annotations
@@ -34,6 +35,9 @@ import time
 import numpy as np
 
 from ..aggregates.bvh import ROW_COLUMNS, build_rows
+from ..aggregates.bvhopt import optimize
+from ..aggregates.bvhtree import BVHArrays
+from ..aggregates.walk import MAX_TREE_DEPTH
 from ..aggregates.widebvh import collapse
 from ..engine.flatten import check_range
 from ..geometry.parallel import for_ranges, interrupted
@@ -44,8 +48,7 @@ from ..geometry.primitives import MAX_COORDINATE, MIN_SIZE
 from .meshcast import NO_CORNERS, MeshArrays, MeshKernel, wide_leaves
 
 QUALITY = {"fast": "bvh(block=4, build=morton)", "medium": "bvh(block=4)",
-           "high": "bvh(block=4, split=16, optimize=reinsertion)"}
-DIRECT = ("fast", "medium")       # the levels built here; "high" goes through flatten
+           "high": "bvh(block=4, optimize=reinsertion)"}      # each level's tree as a spec
 LEAF, BINS, BLOCK = 4, 16, 4      # bvh(block=4)'s leaves, bins and pricing
 PROGRESS_TRIANGLES = 1 << 19     # builds from which a line says what is being built (about 0.3 s and more)
 # the build's peak a triangle: its rows (80 bytes), order (8), the binary nodes (64 each, up to
@@ -104,7 +107,7 @@ def _widen(bounds, first, count, n_nodes, margin):
 def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, quality: str, edges: int,
                threads: int | None = None) -> tuple[MeshKernel, dict]:
     """The mesh kernel's arrays for one mesh: verts (V, 3) float64 and faces (F, 3) int64, both
-    C-contiguous and checked, normals (V, 3) float64 or None; quality "fast" or "medium"."""
+    C-contiguous and checked, normals (V, 3) float64 or None; quality one of QUALITY."""
     t0 = time.perf_counter()
     n = len(faces)
     # a line for big builds that take more than a second, and their time at the end (not for a
@@ -141,6 +144,11 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
         bounds, first, count, order, n_nodes, depth = build_rows(data, method, LEAF, BINS, 1.0, 1.0, BLOCK, threads)
         data = None     # (its memory back before the wide tree is made)
         bounds, first, count = bounds[:n_nodes], first[:n_nodes], count[:n_nodes]
+        if quality == "high" and n:       # fewer node visits for many rays: bvhopt's reinsertion
+            tree, info = optimize(BVHArrays(bounds, first, count, order), "reinsertion")
+            if info["max_depth"] <= MAX_TREE_DEPTH:         # the kernel's stack holds that much
+                bounds, first, count, order = tree
+                n_nodes, depth = len(count), info["max_depth"]
         box = bounds[0].copy()
         margin = cull_margin(box) if n else 0.0
         cost = _widen(bounds, first, count, np.int64(n_nodes), margin) if n else 0.0

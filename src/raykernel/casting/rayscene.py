@@ -57,7 +57,7 @@ from ..geometry.primitives import (CONE, INCLUSIVE, MAX_COORDINATE, MIN_SIZE, PA
                                    WATERTIGHT)
 from ..scene.model import Scene, TriangleMesh
 from .hitsurface import store_miss, store_surface
-from .meshbuild import BUILD_BYTES, DIRECT, QUALITY, build_mesh
+from .meshbuild import BUILD_BYTES, QUALITY, build_mesh
 from .meshcast import MESH_ACCEL, MeshKernel
 from .winding import dipoles, winding_numbers
 from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, point_index, surface_normals
@@ -478,10 +478,10 @@ class RayScene:
         (trimesh.Trimesh, anything with .vertices and .faces) may stand for both.
 
         quality: the build, as Embree's build qualities: "fast" (Morton order: quickest to
-        build, for few rays), "medium" (binned SAH, the default) or "high" (split clipping and
-        reinsertion: slowest to build, for many rays); the fast and medium trees are built
-        straight into the mesh kernel's arrays, which hold about 100 bytes a triangle beyond the
-        vertex and face arrays (float64 vertices and int64 faces are read, not copied; `stats`).
+        build, for few rays), "medium" (binned SAH, the default) or "high" (the SAH tree with
+        nodes reinserted: slowest to build, for many rays); the tree is built straight into the
+        mesh kernel's arrays, which hold about 100 bytes a triangle beyond the vertex and face
+        arrays (float64 vertices and int64 faces are read, not copied; `stats`).
         accel: any spec instead (built through the scene's general path). max_memory: the budget
         of the build (bytes or "8G"); threads: the build's threads (default: all)."""
         if faces is None and hasattr(vertices, "vertices") and hasattr(vertices, "faces"):
@@ -518,7 +518,7 @@ class RayScene:
         n = None if n is None else np.ascontiguousarray(n, np.float64)
         scene = Scene()
         scene.root.add(TriangleMesh(v, f, normals=n))
-        if accel is not None or quality not in DIRECT or not len(f):
+        if accel is not None or not len(f):
             return cls(scene, accel or QUALITY[quality], max_memory, edges=edges)
         limit = memory_limit(max_memory)
         check(len(f) * BUILD_BYTES, limit, f"building a BVH over {len(f):,} triangles",
