@@ -149,7 +149,7 @@ def main():
     lines = ["## Mesh builds (raykernel vs embreex and Open3D)", "",
              f"Machine: {machine()}.", "", f"Command: `.venv/bin/python bench/meshbuild.py --threads {args.threads}"
              f"{' --big' if args.big else ''}` ({time.strftime('%Y-%m-%d')})", "",
-             __doc__.split("\n\n", 2)[1].replace("\n", " "), "",
+             __doc__.split("\n\n")[2].replace("\n", " "), "",
              "| mesh | triangles | library | build + 1 ray s | vs Open3D | held B/tri | own B/tri | SAH | "
              "coherent Mrays/s | incoherent Mrays/s |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
     o3d_s = {r["mesh"]: r["seconds"] for r in rows if r["lib"] == "open3d"}

@@ -60,7 +60,7 @@ from .hitsurface import store_miss, store_surface
 from .meshbuild import BUILD_BYTES, QUALITY, build_mesh
 from .meshcast import MESH_ACCEL, MeshKernel
 from .winding import dipoles, winding_numbers
-from .proximity import INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, point_index, surface_normals
+from .proximity import INSIDE_DIRECTIONS, ClosestPoints, parity_directions, inside_spheres, kinds_of, point_index, surface_normals
 from .rayinput import valid_ray
 
 CHUNK = 1024
@@ -829,8 +829,9 @@ class RayScene:
     def contains(self, points, threads: int | None = None, method: str = "auto") -> np.ndarray:
         """True where a point (..., 3) lies inside the scene.
 
-        method: "parity" casts one ray a point and counts the triangles it crosses (exact for a
-        closed mesh: the watertight test counts a crossing through a shared edge once); "winding"
+        method: "parity" casts one ray a point, toward the nearest side of the scene's box, and
+        counts the triangles it crosses (exact for a closed mesh: the watertight test counts a
+        crossing through a shared edge once); "winding"
         takes the generalized winding number above one half (winding.py: for meshes with holes,
         an answer that depends on no ray's direction); "vote", the majority of three parity rays,
         also for polygons and spheres; "auto" (the default): parity for a closed triangle mesh,
@@ -850,7 +851,8 @@ class RayScene:
             mesh, far = self._winding_tree()
             return (winding_numbers(mesh, p, far, threads) > 0.5).reshape(shape)
         if method == "parity":
-            return (self.count_hits(p, INSIDE_DIRECTIONS[0], threads=threads) % 2 == 1).reshape(shape)
+            box = self._mesh.geo.agg_bounds[0] if self._mesh is not None else self.geo.agg_bounds[self.geo.root]
+            return (self.count_hits(p, parity_directions(p, box, threads), threads=threads) % 2 == 1).reshape(shape)
         spheres = [g for g, info in enumerate(self.geometries) if info["kind"] == "sphere"]
 
         def odd(q, direction):
