@@ -258,3 +258,19 @@ def test_contains_picks_parity_for_closed_meshes_and_winding_for_open_ones():
         rs.contains(p, method="odd")
     with pytest.raises(ValueError, match="triangle meshes only"):
         RayScene.from_spheres([[0, 0, 0.0]], 1.0).contains(p, method="winding")
+
+
+def test_parity_on_a_box_with_points_on_its_vertex_grid():
+    """Axis-aligned faces and query points on the lines and planes of the box's own vertices: the
+    parity rays (no two components in a simple ratio) still count each crossing once."""
+    box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    rs = RayScene.from_trimesh(box)
+    assert rs._closed()
+    g = np.linspace(-1.5, 1.5, 13)
+    p = np.stack(np.meshgrid(g, g, g), axis=-1).reshape(-1, 3)
+    inside = rs.contains(p, method="parity")
+    strictly = (np.abs(p) < 1).all(axis=1)
+    outside = (np.abs(p) > 1).any(axis=1)
+    np.testing.assert_array_equal(inside[strictly], True)
+    np.testing.assert_array_equal(inside[outside], False)
+    np.testing.assert_array_equal(rs.contains(p, method="winding")[strictly | outside], inside[strictly | outside])
