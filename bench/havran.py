@@ -1,0 +1,186 @@
+"""Havran's 1999 octree tables (Ray Tracing News 12) beside raykernel's octree, counter for counter.
+
+    .venv/bin/python bench/havran.py [--resolution 512] [--depths 4 5 6 7] [--walks point neighbor parametric]
+                                     [--scenes BALLS ...] [--build-only] [--no-write]
+
+Havran built octrees over the SPD scenes at their default sizes (teapot at
+size 12, the size the SPD statistics use; fluid, a scene of his own, is left
+out) with a leaf holding at most one object or at the maximum depth, objects
+placed in octants by their boxes, every octant of a split node a leaf of its
+own (N_V = 7 N_IN + 1), no mailboxes and no shadow cache, and traced the SPD
+procedure: 513 x 513 corner rays at 512 x 512, depth 5. raykernel's octree
+with those settings is `octree(depth=D, leaf=1, collapse=off, budget=0,
+mailbox=off)`, its three walks standing for his three traversals: point
+(Glassner 1984, Octree84), neighbor (Samet 1989, Octree89) and parametric
+(Revelles et al. 2000, in the place of Gargantini and Atkinson 1993,
+Octree93). His "-A" octrees split at a cost minimum (Octree-R), which
+raykernel does not build. The published numbers are bench/data/
+havran1999_octrees.json, each with its line in Havran's file.
+
+Build: N_IN interior nodes, N_V leaves (empty ones included), N_EV empty
+leaves, N_OIV object references. Traversal, per ray (all rays: eye,
+reflected, refracted, shadow): N_IT intersection tests, N_TS traversal steps
+(nodes visited), N_ETS leaves visited, N_EETS empty leaves visited. Writes
+the `havran` section of BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _report import machine, replace_section  # noqa: E402
+
+DATA = Path(__file__).resolve().parent / "data" / "havran1999_octrees.json"
+SCENES = {"BALLS": "spd:balls:4", "GEARS": "spd:gears:4", "LATTICE": "spd:lattice:12", "MOUNT": "spd:mount:6",
+          "RINGS": "spd:rings:7", "TEAPOT": "spd:teapot:12", "TETRA": "spd:tetra:6", "TREE": "spd:tree:11"}
+WALKS = {"point": "Octree84-C", "neighbor": "Octree89-C", "parametric": "Octree93-C"}
+BUILD = ("N_IN", "N_V", "N_EV", "N_OIV")
+TRAVERSAL = ("N_IT", "N_TS", "N_ETS", "N_EETS")
+
+
+def spec(depth: int, walk: str = "point") -> str:
+    return f"octree(depth={depth}, leaf=1, collapse=off, budget=0, mailbox=off, walk={walk})"
+
+
+def published() -> dict:
+    return json.loads(DATA.read_text())["variants"]
+
+
+def build_counts(scene, depth: int) -> dict:
+    """Havran's build counters of raykernel's octree over `scene` at `depth`."""
+    from raykernel.engine.flatten import flatten
+    _, stats = flatten(scene, spec(depth))
+    agg = stats["aggregates"][0]
+    return {"N_IN": agg["inner"], "N_V": agg["leaves"], "N_EV": agg["empty_leaves"], "N_OIV": agg["refs"]}
+
+
+def rule_counts(scene, depth: int, rule: str) -> dict:
+    """The build counters of the same octree (centre splits, leaf of at most one item, every octant
+    a leaf, raykernel's root box) with items placed by another overlap rule, counted in numpy:
+    "closed" (a box touching an octant's face is in it, as raykernel places items, less its
+    margin) or "halfopen" (octants as [lo, hi): a box whose top only touches an octant's bottom
+    face is not in it)."""
+    from raykernel.aggregates.grid import grid_box
+    items = item_boxes(scene)
+    lo, ext = grid_box(items)
+    inner = leaves = empty = refs = 0
+    stack = [(np.arange(len(items)), lo, lo + ext, 0)]
+    while stack:
+        idx, clo, chi, d = stack.pop()
+        if len(idx) <= 1 or d == depth:
+            leaves, empty, refs = leaves + 1, empty + (len(idx) == 0), refs + len(idx)
+            continue
+        inner += 1
+        mid = 0.5 * (clo + chi)
+        b = items[idx]
+        for c in range(8):
+            upper = np.array([(c >> a) & 1 for a in range(3)], bool)
+            a0, a1 = np.where(upper, mid, clo), np.where(upper, chi, mid)
+            below = b[:, :3] <= a1 if rule == "closed" else b[:, :3] < a1
+            stack.append((idx[np.all(below & (b[:, 3:] >= a0), axis=1)], a0, a1, d + 1))
+    return {"N_IN": inner, "N_V": leaves, "N_EV": empty, "N_OIV": refs}
+
+
+def item_boxes(scene) -> np.ndarray:
+    """The item boxes raykernel's octree is built over (caught on their way to build_octree)."""
+    from raykernel.aggregates import octree
+    from raykernel.engine.flatten import flatten
+    caught, build = [], octree.build_octree
+
+    def catch(bounds, **kw):
+        caught.append(np.asarray(bounds, np.float64).reshape(-1, 6))
+        return build(bounds, **kw)
+    octree.build_octree = catch
+    try:
+        flatten(scene, spec(1))
+    finally:
+        octree.build_octree = build
+    return caught[0]
+
+
+def traversal_counts(scene, depth: int, walk: str, resolution: int) -> dict:
+    """Havran's per-ray traversal counters of a render with the SPD procedure (corner rays, depth 5)."""
+    import raykernel
+    st = raykernel.render(scene, accel=spec(depth, walk), resolution=resolution, spd=True).stats
+    return {"N_IT": st["tests.per_ray"], "N_TS": st["cells.visited_per_ray"], "N_ETS": st["cells.leaves_per_ray"],
+            "N_EETS": st["cells.empty_per_ray"], "rays": st["rays.total"]}
+
+
+def cell(theirs, ours) -> str:
+    if ours is None:
+        return f"{theirs:g} / -"
+    diff = (ours - theirs) / theirs * 100 if theirs else float("inf")
+    fmt = "{:,}" if isinstance(ours, int) else "{:.2f}"
+    return f"{theirs:g} / {fmt.format(ours)} ({diff:+.1f}%)"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--resolution", type=int, default=512)
+    ap.add_argument("--depths", type=int, nargs="*", default=[4, 5, 6, 7])
+    ap.add_argument("--walks", nargs="*", default=list(WALKS))
+    ap.add_argument("--scenes", nargs="*", default=list(SCENES))
+    ap.add_argument("--build-only", action="store_true")
+    ap.add_argument("--rules", action="store_true", help="also count the builds under the half-open overlap rule")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    import raykernel
+    pub = published()
+    build_rows, walk_rows, rule_rows = [], [], []
+    for name in args.scenes:
+        scene = raykernel.load(SCENES[name])
+        for depth in args.depths:
+            theirs = pub["Octree84-C"][name]["depths"][str(depth)]
+            ours = build_counts(scene, depth)
+            build_rows.append((name, depth, theirs, ours))
+            print(name, depth, {k: cell(theirs[k], ours[k]) for k in BUILD}, flush=True)
+            if args.rules:
+                model = rule_counts(scene, depth, "halfopen")
+                rule_rows.append((name, depth, theirs, model))
+                print("  half-open", {k: cell(theirs[k], model[k]) for k in BUILD}, flush=True)
+            if args.build_only:
+                continue
+            for walk in args.walks:
+                t0 = time.perf_counter()
+                theirs_w = pub[WALKS[walk]][name]["depths"][str(depth)]
+                ours_w = traversal_counts(scene, depth, walk, args.resolution)
+                walk_rows.append((name, depth, walk, theirs_w, ours_w))
+                print(" ", walk, {k: cell(theirs_w[k], ours_w[k]) for k in TRAVERSAL},
+                      f"{time.perf_counter() - t0:.1f} s", flush=True)
+    lines = ["## Havran's 1999 octree tables reproduced", "", f"Machine: {machine()}.", "",
+             f"Command: `.venv/bin/python bench/havran.py --resolution {args.resolution} --depths "
+             f"{' '.join(map(str, args.depths))} --walks {' '.join(args.walks)}"
+             f"{' --build-only' if args.build_only else ''}{' --rules' if args.rules else ''}` "
+             f"({time.strftime('%Y-%m-%d')})", "",
+             " ".join(__doc__.split("\n\n")[2:4]).replace("\n", " "), "",
+             "Each cell: Havran's number / raykernel's (raykernel's difference).", "",
+             "| scene | depth | " + " | ".join(BUILD) + " |", "|---|---:|" + "---:|" * len(BUILD)]
+    for name, depth, theirs, ours in build_rows:
+        lines.append(f"| {name} | {depth} | " + " | ".join(cell(theirs[k], ours[k]) for k in BUILD) + " |")
+    if rule_rows:
+        lines += ["", "The same builds counted with items placed by the half-open rule (rule_counts):", "",
+                  "| scene | depth | " + " | ".join(BUILD) + " |", "|---|---:|" + "---:|" * len(BUILD)]
+        for name, depth, theirs, ours in rule_rows:
+            lines.append(f"| {name} | {depth} | " + " | ".join(cell(theirs[k], ours[k]) for k in BUILD) + " |")
+    if walk_rows:
+        lines += ["", f"Traversal at {args.resolution} x {args.resolution} (corner rays), per ray of all kinds:", "",
+                  "| scene | depth | walk (his) | " + " | ".join(TRAVERSAL) + " |",
+                  "|---|---:|---|" + "---:|" * len(TRAVERSAL)]
+        for name, depth, walk, theirs, ours in walk_rows:
+            lines.append(f"| {name} | {depth} | {walk} ({WALKS[walk]}) | "
+                         + " | ".join(cell(theirs[k], ours[k]) for k in TRAVERSAL) + " |")
+    text = "\n".join(lines)
+    print(text)
+    if not args.no_write:
+        replace_section("havran", text)
+
+
+if __name__ == "__main__":
+    main()
