@@ -41,34 +41,26 @@ CHUNK = 1024
 INSIDE_DIRECTIONS = np.array([[0.4395064455, 0.617598629942, 0.652231566745],
                               [-0.7235983, 0.2128742, 0.6565432],
                               [0.1836471, -0.8812345, 0.4355117]])
-# the first of them with its signs flipped every way: one a point, toward the scene box's nearest side
-PARITY_DIRECTIONS = np.array([[sx, sy, sz] for sx in (1, -1) for sy in (1, -1) for sz in (1, -1)]) * INSIDE_DIRECTIONS[0]
 
 
 def parity_directions(points: np.ndarray, box: np.ndarray, threads=None) -> np.ndarray:
-    """For each point, the direction of PARITY_DIRECTIONS along which it leaves `box` soonest:
-    any direction gives a closed mesh's parity, and a short ray crosses fewer nodes (about 40%
-    fewer than one fixed direction for points spread over the box)."""
+    """For each point, INSIDE_DIRECTIONS[0] with each component's sign turned toward the nearer
+    face of `box` on that axis: of the eight such directions, the one that leaves the box soonest
+    (each axis' exit distance is the smaller, so their minimum is). Any direction gives a closed
+    mesh's parity, and a short ray crosses fewer nodes (about 40% fewer than one fixed direction
+    for points spread over the box)."""
     out = np.empty_like(points)
-    for_ranges(lambda i0, i1: _toward_nearest_side(points, np.asarray(box, np.float64), PARITY_DIRECTIONS, out,
-                                                   np.int64(i0), np.int64(i1)),
-               len(points), threads, kernel=_toward_nearest_side, min_size=1 << 14)
+    for_ranges(lambda i0, i1: _toward_nearer_faces(points, np.asarray(box, np.float64), np.abs(INSIDE_DIRECTIONS[0]),
+                                                   out, np.int64(i0), np.int64(i1)),
+               len(points), threads, kernel=_toward_nearer_faces, min_size=1 << 16)
     return out
 
 
 @njit
-def _toward_nearest_side(points, box, dirs, out, i0, i1):
+def _toward_nearer_faces(points, box, d, out, i0, i1):
     for i in range(i0, i1):
-        best, pick = np.inf, 0
-        for k in range(dirs.shape[0]):
-            t = np.inf
-            for a in range(3):
-                d = dirs[k, a]
-                t = min(t, ((box[3 + a] if d > 0.0 else box[a]) - points[i, a]) / d)
-            if t < best:
-                best, pick = t, k
         for a in range(3):
-            out[i, a] = dirs[pick, a]
+            out[i, a] = d[a] if box[3 + a] - points[i, a] <= points[i, a] - box[a] else -d[a]
 
 
 @dataclass
