@@ -903,6 +903,9 @@ class RayScene:
         return np.where(self.contains(points, threads), -d, d)
 
     def __repr__(self) -> str:
-        g = self.geo
-        return (f"RayScene({len(g.tri_faces)} triangles, {len(g.sph_radius)} spheres, {len(g.poly_start)} polygons, "
-                f"{len(g.cone_length)} cones, {len(g.inst_agg)} instances)")
+        # from the geometry table: a mesh built straight into its kernel has no Geometry to count in
+        def count(*kinds):
+            return sum(g["count"] for g in self.geometries if g["kind"] in kinds)
+        instances = len(self._geo.inst_agg) if self._geo is not None else 0
+        return (f"RayScene({count('triangle')} triangles, {count('sphere')} spheres, {count('polygon', 'patch')} "
+                f"polygons, {count('cone')} cones, {instances} instances)")

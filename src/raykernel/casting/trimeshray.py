@@ -31,14 +31,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import RayKernelError
-from .meshcast import MESH_ACCEL
 from .rayscene import RayScene
 
 
 class RayMeshIntersector:
     """Ray queries on a trimesh.Trimesh, answered by raykernel (see the module docstring)."""
 
-    def __init__(self, geometry=None, scale_to_box: bool = True, accel: str = MESH_ACCEL, edges: str = "inclusive",
+    def __init__(self, geometry=None, scale_to_box: bool = True, accel: str | None = None, edges: str = "inclusive",
                  *, mesh=None):
         try:
             from trimesh import caching
