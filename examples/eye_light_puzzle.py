@@ -4,7 +4,7 @@
 
 Left: the trick (no shadow rays toward the eye light from eye rays' hits). Right: the same
 light with its shadow rays cast. Under Whitted shading the two are the same image; under the
-Hall model, with the camera under water, the right one is darker with distance (README,
+Hall model, with the camera under water, the right one is darker with distance (docs/guide/rendering.md,
 "The light at the eye").
 """
 

@@ -1,6 +1,6 @@
 """The package's layers hold (raykernel/layers.py): no import goes up a layer, none goes round in a
 circle, no private name crosses a module boundary (every import statement, module-level or inside a
-function), and the README's Layout section lists the layers as the code has them."""
+function), and docs/design.md's Layout section lists the layers as the code has them."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import raykernel
 from raykernel import layers
 
 PACKAGE = Path(raykernel.__file__).parent
-README = PACKAGE.parents[1] / "README.md"
+DESIGN = PACKAGE.parents[1] / "docs" / "design.md"
 EDGES = layers.imports_of(PACKAGE)
 
 
@@ -51,7 +51,7 @@ def test_each_rule_finds_what_breaks_it(tmp_path):
         ("raykernel.engine.high", "raykernel.geometry.low")]
 
 
-def test_readme_layout_lists_the_layers_of_the_code():
-    section = re.search(r"^## Layout\n(.*?)(?=^## |\Z)", README.read_text(), re.S | re.M)
-    assert section, "README.md has no Layout section"
-    assert layers.describe() in section.group(1), "README's Layout is not layers.describe()'s text"
+def test_the_design_page_lists_the_layers_of_the_code():
+    section = re.search(r"^## Layout\n(.*?)(?=^## |\Z)", DESIGN.read_text(), re.S | re.M)
+    assert section, "docs/design.md has no Layout section"
+    assert layers.describe() in section.group(1), "docs/design.md's Layout is not layers.describe()'s text"

@@ -1,6 +1,6 @@
 """The package's layers, lowest first: a module imports only from its own layer or below, never
 in a circle, and no private name crosses a module boundary (tests/test_layers.py holds the code to
-it; the README's Layout section is describe()'s text).
+it; docs/design.md's Layout section is describe()'s text).
 
     rank("raykernel.engine.traverse") > rank("raykernel.aggregates.bvh")
     edges = imports_of(package_folder)          # (module, imported module, imported name, line)
@@ -49,7 +49,7 @@ def rank(module: str) -> int:
 
 
 def describe() -> str:
-    """The layers as the README lists them."""
+    """The layers as docs/design.md lists them."""
     return "\n".join(f"{i + 1}. **{name}** (`{'`, `'.join(p or 'raykernel' for p in places)}`): {what}"
                      for i, (name, places, what) in enumerate(LAYERS))
 

@@ -4,7 +4,7 @@
     counters[tile, TESTS + SPHERE] += 1
     totals = counters.sum(axis=0)
 
-Names follow Glassner 1988, the SPD procedure and Havran 1999 (README, "Statistics").
+Names follow Glassner 1988, the SPD procedure and Havran 1999 (docs/guide/statistics.md).
 """
 
 RAYS_EYE, RAYS_EYE_HIT = 0, 1

@@ -61,7 +61,7 @@ def animation_of(source, time=None):
     scene = load(source) if isinstance(source, (str, Path)) else source
     if scene.animation is None:
         raise SceneError(f"{scene.source or 'the scene'} does not move: give it an \"animation\", \"motion\" keys "
-                         "or a camera \"path\" (README, Animation), or use a scene with a time parameter "
+                         "or a camera \"path\" (docs/guide/animation.md), or use a scene with a time parameter "
                          "(scene:satellite)")
     return scene, scene.animation
 

@@ -5,7 +5,7 @@ transmission, transmitted highlights and filtering by distance inside transparen
                     filtered, tricks, state, rays, ws, cnt)
 
 `raykernel render SCENE --shading hall`. How NFF's `f r g b Kd Ks Shine T ior` maps (our
-choices, README "Shading"):
+choices, docs/guide/rendering.md, "Shading"):
 
 * Ks and T are clamped to [0, 1] and, if Ks + T > 1, scaled to sum to 1. At a transparent
   surface (T > 0) the Fresnel reflectance F of the boundary (unpolarised, from ior and the

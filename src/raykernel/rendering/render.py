@@ -9,7 +9,7 @@
 
 The shading models are whitted.py (NFF's, the default), hall.py and heckbert.py; the samplers
 sampling.py; shadow rays through transparent surfaces shadows.py; Haines's efficiency tricks
-tricks.py and startlists.py. `spd=True` follows the SPD test procedure (README, "Shading"): one
+tricks.py and startlists.py. `spd=True` follows the SPD test procedure (docs/guide/rendering.md, "Shading"): one
 eye ray per pixel corner averaged into pixels, no adaptive cut-off, Whitted shading; otherwise
 one ray per pixel centre and rays whose weight falls below the cut-off (1/512) are not cast.
 Whitted shading without a sampler runs this module's own tile kernel; everything else runs

@@ -39,7 +39,7 @@ class Stats(dict):
         rays = s["rays.eye"] + s["rays.reflect"] + s["rays.refract"] + s["rays.shadow"] + s["rays.cast"]
         s["rays.total"] = rays
         # the SPD's published tables count a refraction ray at every transmitting hit below the
-        # depth limit, total internal reflections included (README, "SPD statistics")
+        # depth limit, total internal reflections included (docs/guide/rendering.md, "Shading")
         s["rays.refract_spd"] = s["rays.refract"] + s["rays.tir"]
         per = max(rays, 1)
         s["tests.per_ray"] = s["tests.total"] / per
