@@ -188,7 +188,7 @@ def test_the_puzzle_scene_shows_the_error_under_hall_and_not_under_whitted():
 @pytest.mark.slow
 def test_gears_refraction_count_follows_the_spd_table_once_total_internal_reflections_count():
     # the SPD authors' table gives 207,564 refraction rays for gears-sf4 at 512x512; their count
-    # includes a refraction ray at every total internal reflection (README, "Shading")
+    # includes a refraction ray at every total internal reflection (docs/guide/rendering.md, "Shading")
     stats = render(load("spd:gears"), resolution=512, spd=True).stats
     assert stats["rays.tir"] > 0
     assert stats["rays.refract_spd"] == pytest.approx(207_564, rel=2e-3)
