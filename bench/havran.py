@@ -1,4 +1,4 @@
-"""Havran's 1999 octree tables (Ray Tracing News 12) beside raykernel's octree, counter for counter.
+"""Havran's 1999 octree and uniform grid tables (Ray Tracing News 12) beside raykernel's, counter for counter.
 
     .venv/bin/python bench/havran.py [--resolution 512] [--depths 4 5 6 7] [--walks point neighbor parametric]
                                      [--scenes BALLS ...] [--build-only] [--no-write]
@@ -14,8 +14,10 @@ mailbox=off)`, its three walks standing for his three traversals: point
 (Glassner 1984, Octree84), neighbor (Samet 1989, Octree89) and parametric
 (Revelles et al. 2000, in the place of Gargantini and Atkinson 1993,
 Octree93). His "-A" octrees split at a cost minimum (Octree-R), which
-raykernel does not build. The published numbers are bench/data/
-havran1999_octrees.json, each with its line in Havran's file.
+raykernel does not build. His uniform grids (Havran and Sixta) are built at
+the resolutions his tables print, `grid(cells=NXxNYxNZ, mailbox=off)`. The
+published numbers are bench/data/havran1999_octrees.json and
+havran1999_grids.json, each with its line in his files.
 
 Build: N_IN interior nodes, N_V leaves (empty ones included), N_EV empty
 leaves, N_OIV object references. Traversal, per ray (all rays: eye,
@@ -38,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import machine, replace_section  # noqa: E402
 
 DATA = Path(__file__).resolve().parent / "data" / "havran1999_octrees.json"
+GRID_DATA = Path(__file__).resolve().parent / "data" / "havran1999_grids.json"
 SCENES = {"BALLS": "spd:balls:4", "GEARS": "spd:gears:4", "LATTICE": "spd:lattice:12", "MOUNT": "spd:mount:6",
           "RINGS": "spd:rings:7", "TEAPOT": "spd:teapot:12", "TETRA": "spd:tetra:6", "TREE": "spd:tree:11"}
 WALKS = {"point": "Octree84-C", "neighbor": "Octree89-C", "parametric": "Octree93-C"}
@@ -59,6 +62,25 @@ def build_counts(scene, depth: int) -> dict:
     _, stats = flatten(scene, spec(depth))
     agg = stats["aggregates"][0]
     return {"N_IN": agg["inner"], "N_V": agg["leaves"], "N_EV": agg["empty_leaves"], "N_OIV": agg["refs"]}
+
+
+def grid_spec(resolution) -> str:
+    return f"grid(cells={'x'.join(map(str, resolution))}, mailbox=off)"
+
+
+def grid_counts(scene, resolution, render: bool, resolution_px: int) -> dict:
+    """Havran's counters of raykernel's uniform grid at his resolution: N_V cells, N_EV empty ones,
+    N_OIV references, and with render the per-ray traversal (N_TS = N_ETS: cells visited)."""
+    import raykernel
+    from raykernel.engine.flatten import flatten
+    _, stats = flatten(scene, grid_spec(resolution))
+    agg = stats["aggregates"][0]
+    out = {"N_V": agg["leaves"], "N_EV": agg["empty_leaves"], "N_OIV": agg["refs"]}
+    if render:
+        st = raykernel.render(scene, accel=grid_spec(resolution), resolution=resolution_px, spd=True).stats
+        out.update(N_IT=st["tests.per_ray"], N_TS=st["cells.visited_per_ray"], N_ETS=st["cells.leaves_per_ray"],
+                   N_EETS=st["cells.empty_per_ray"])
+    return out
 
 
 def rule_counts(scene, depth: int, rule: str) -> dict:
@@ -129,11 +151,13 @@ def main():
     ap.add_argument("--scenes", nargs="*", default=list(SCENES))
     ap.add_argument("--build-only", action="store_true")
     ap.add_argument("--rules", action="store_true", help="also count the builds under the half-open overlap rule")
+    ap.add_argument("--no-grids", action="store_true", help="leave out the uniform grids")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     import raykernel
     pub = published()
-    build_rows, walk_rows, rule_rows = [], [], []
+    build_rows, walk_rows, rule_rows, grid_rows = [], [], [], []
+    grids = json.loads(GRID_DATA.read_text())["scenes"]
     for name in args.scenes:
         scene = raykernel.load(SCENES[name])
         for depth in args.depths:
@@ -154,6 +178,12 @@ def main():
                 walk_rows.append((name, depth, walk, theirs_w, ours_w))
                 print(" ", walk, {k: cell(theirs_w[k], ours_w[k]) for k in TRAVERSAL},
                       f"{time.perf_counter() - t0:.1f} s", flush=True)
+        if args.no_grids or name not in grids:
+            continue
+        for setting, theirs in grids[name]["settings"].items():
+            ours = grid_counts(scene, theirs["Resolution"], not args.build_only, args.resolution)
+            grid_rows.append((name, setting, theirs, ours))
+            print(name, setting, {k: cell(theirs[k], ours[k]) for k in ours}, flush=True)
     lines = ["## Havran's 1999 octree tables reproduced", "", f"Machine: {machine()}.", "",
              f"Command: `.venv/bin/python bench/havran.py --resolution {args.resolution} --depths "
              f"{' '.join(map(str, args.depths))} --walks {' '.join(args.walks)}"
@@ -176,6 +206,15 @@ def main():
         for name, depth, walk, theirs, ours in walk_rows:
             lines.append(f"| {name} | {depth} | {walk} ({WALKS[walk]}) | "
                          + " | ".join(cell(theirs[k], ours[k]) for k in TRAVERSAL) + " |")
+    if grid_rows:
+        lines += ["", "Uniform grids at his resolutions (`grid(cells=NXxNYxNZ, mailbox=off)`; N_TS = N_ETS, cells "
+                  "visited):", "",
+                  "| scene | setting | cells | N_V | N_EV | N_OIV | N_IT | N_TS | N_EETS |",
+                  "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+        for name, setting, theirs, ours in grid_rows:
+            lines.append(f"| {name} | {setting} | {'x'.join(map(str, theirs['Resolution']))} | "
+                         + " | ".join(cell(theirs[k], ours.get(k)) for k in ("N_V", "N_EV", "N_OIV", "N_IT", "N_TS",
+                                                                          "N_EETS")) + " |")
     text = "\n".join(lines)
     print(text)
     if not args.no_write:

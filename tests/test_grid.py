@@ -321,3 +321,14 @@ def test_counters_identical_across_runs_and_chunkings():
     # ray by ray, the counts add up to the batch's
     parts = [cast_rays(geo, o[k:k + 700], d[k:k + 700])[4] for k in range(0, 3000, 700)]
     np.testing.assert_array_equal(np.sum(parts, axis=0)[:C.RAYS_CAST], a[4][:C.RAYS_CAST])
+
+
+@pytest.mark.parametrize("cells", ["1x1x1", "7x3x11", "40x40x2"])
+def test_explicit_cells_give_that_resolution_and_the_list_hits(cells):
+    from support import same_hits_as_list
+    rng = np.random.default_rng(4)
+    scene = new_scene()
+    fill_group(scene.root, rng, n=40)
+    o, d = random_rays(rng, 400)
+    got = same_hits_as_list(scene, f"grid(cells={cells}, mailbox=off)", o, d)
+    assert got.build_stats["aggregates"][0]["res"] == tuple(int(x) for x in cells.split("x"))

@@ -48,3 +48,30 @@ def test_the_published_numbers_are_his_file_as_printed(published):
     for scene in published.values():
         for row in scene["depths"].values():
             assert row["N_V"] == 7 * row["N_IN"] + 1
+
+
+GRIDS = Path(__file__).resolve().parents[1] / "bench" / "data" / "havran1999_grids.json"
+GRID_SCENES = dict(SCENES, TETRA="spd:tetra:6")
+# (scene, setting): the counts equal at his printed resolution
+GRID_MATCHED = {("BALLS", "Woo's D = 1.0"): ("N_V", "N_EV"), ("LATTICE", "Woo's D = 1.0"): ("N_V", "N_EV", "N_OIV"),
+                ("LATTICE", "Woo's D = 10.0"): ("N_V", "N_EV"), ("TETRA", "Woo's D = 10.0"): ("N_V", "N_EV", "N_OIV"),
+                ("TREE", "Woo's D = 1.0"): ("N_V", "N_EV"), ("TREE", "Woo's D = 10.0"): ("N_V", "N_EV"),
+                ("TREE", "Customary setting"): ("N_V", "N_EV")}
+
+
+@pytest.mark.parametrize("scene,setting", sorted(GRID_MATCHED))
+def test_the_uniform_grid_builds_as_havran_counted(scene, setting):
+    theirs = json.loads(GRIDS.read_text())["scenes"][scene]["settings"][setting]
+    cells = "x".join(map(str, theirs["Resolution"]))
+    _, stats = flatten(raykernel.load(GRID_SCENES[scene]), f"grid(cells={cells}, mailbox=off)")
+    agg = stats["aggregates"][0]
+    ours = {"N_V": agg["leaves"], "N_EV": agg["empty_leaves"], "N_OIV": agg["refs"]}
+    assert tuple(agg["res"]) == tuple(theirs["Resolution"])
+    assert {k: ours[k] for k in GRID_MATCHED[scene, setting]} == {k: theirs[k] for k in GRID_MATCHED[scene, setting]}
+
+
+def test_grid_cells_must_be_three_positive_numbers():
+    from raykernel.errors import OptionError
+    for bad in ("46x46", "0x4x4", "ax4x4"):
+        with pytest.raises(OptionError, match="grid cells must be three positive whole numbers"):
+            flatten(raykernel.load("spd:balls:1"), f"grid(cells={bad})")

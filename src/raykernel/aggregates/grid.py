@@ -230,13 +230,14 @@ def _check_bounds(bounds) -> np.ndarray:
 
 
 def build_grid(bounds, *, res_rule="regular", density=2.0, max_res=256, max_cells=MAX_CELLS,
-               max_refs=MAX_REFS, name=None, max_bytes=None):
+               max_refs=MAX_REFS, name=None, max_bytes=None, cells=None):
     """Build a uniform grid over item boxes.
 
     bounds: (n, 6) item boxes (xmin, ymin, zmin, xmax, ymax, zmax), finite,
     n >= 1; an item with the empty box (+inf, +inf, +inf, -inf, -inf, -inf)
     is in no cell. res_rule: one of RULES. density > 0, max_res >= 1 (cells per
-    axis). Returns (GridArrays, stats) with stats = {"nodes" (cells),
+    axis). cells: (nx, ny, nz) cells per axis instead of a rule's (a published
+    grid's resolution, bench/havran.py). Returns (GridArrays, stats) with stats = {"nodes" (cells),
     "empty_leaves" (N_EV), "refs" (N_OIV), "bytes", "seconds", "res"}.
     """
     t0 = time.perf_counter()
@@ -256,6 +257,8 @@ def build_grid(bounds, *, res_rule="regular", density=2.0, max_res=256, max_cell
         origin, extent = grid_box(items[solid])
         size = np.mean(items[solid, 3:] - items[solid, :3], axis=0)
         res = grid_resolution(extent, int(solid.sum()), res_rule, float(density), int(max_res), item_size=size)
+        if cells is not None:
+            res = np.asarray(cells, np.int64)
     else:
         origin, extent, res = np.zeros(3), np.ones(3), np.ones(3, np.int64)
     ncells = int(np.prod(res))
@@ -320,8 +323,18 @@ def append_grid(flat, grid, cell_start, cell_refs, mailbox: bool, box) -> int:
 
 def flatten(builder, params, refs, bounds, name, box):
     grid, stats = build_grid(bounds, res_rule=params["res"], density=params["density"], max_res=params["max_res"],
-                             name=name or "(unnamed)", max_bytes=builder.max_bytes)
+                             name=name or "(unnamed)", max_bytes=builder.max_bytes, cells=_cells(params["cells"]))
     return append_grid(builder.flat, grid, grid.cell_start, refs[grid.items], params["mailbox"], box), dict(stats)
+
+
+def _cells(text: str):
+    """The cells parameter, "NXxNYxNZ", as three positive integers (None when empty)."""
+    if not text:
+        return None
+    parts = text.lower().split("x")
+    if len(parts) != 3 or not all(p.strip().isdigit() and int(p) > 0 for p in parts):
+        raise OptionError(f"grid cells must be three positive whole numbers as NXxNYxNZ (e.g. 46x46x3), got {text!r}")
+    return tuple(int(p) for p in parts)
 
 
 @njit(inline="always")
@@ -441,5 +454,7 @@ KIND = Kind("grid", "uniform grid (Fujimoto) traversed with the 3D-DDA (Amanatid
     Param("density", 2.0, "cells per item (regular) or per cube root of the item count (woo)", float, 0.001, 1000.0),
     Param("max_res", 256, "most cells along any axis", int, 1, 4096),
     Param("mailbox", True, "skip items already tested against the ray in an earlier cell", bool),
+    Param("cells", "", "cells per axis as NXxNYxNZ (e.g. 46x46x3), instead of the resolution rule's; "
+          "empty: the rule's", str),
 ), flatten=flatten, walk=WALK, search=Search(start=True, candidates=("grid", "grid(density=0.5)", "grid(density=8)",
                                                                    "grid(res=woo, density=16)")))
