@@ -153,7 +153,7 @@ def test_too_many_cells_is_a_scene_error():
                                            ("grid(density=-1)", "density"),
                                            ("grid(mailbox=maybe)", "on or off"),
                                            ("grid(max_res=0)", "max_res"),
-                                           ("grid(cells=3)", "res, density, max_res, mailbox")])
+                                           ("grid(size=3)", "res, density, max_res, mailbox, cells")])
 def test_bad_parameters_are_option_errors(spec, allowed):
     with pytest.raises(OptionError, match=allowed):
         parse_spec(spec)
