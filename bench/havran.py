@@ -184,7 +184,7 @@ def main():
             ours = grid_counts(scene, theirs["Resolution"], not args.build_only, args.resolution)
             grid_rows.append((name, setting, theirs, ours))
             print(name, setting, {k: cell(theirs[k], ours[k]) for k in ours}, flush=True)
-    lines = ["## Havran's 1999 octree tables reproduced", "", f"Machine: {machine()}.", "",
+    lines = ["## Havran's 1999 octree and grid tables reproduced", "", f"Machine: {machine()}.", "",
              f"Command: `.venv/bin/python bench/havran.py --resolution {args.resolution} --depths "
              f"{' '.join(map(str, args.depths))} --walks {' '.join(args.walks)}"
              f"{' --build-only' if args.build_only else ''}{' --rules' if args.rules else ''}` "

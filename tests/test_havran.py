@@ -15,7 +15,7 @@ DATA = Path(__file__).resolve().parents[1] / "bench" / "data" / "havran1999_octr
 SCENES = {"BALLS": "spd:balls:4", "LATTICE": "spd:lattice:12", "MOUNT": "spd:mount:6", "RINGS": "spd:rings:7",
           "TEAPOT": "spd:teapot:12", "TREE": "spd:tree:11"}
 # (scene, depth): the counts that are equal; the others differ by the overlap rule at octant faces
-# (BENCHMARKS.md, "Havran's 1999 octree tables reproduced")
+# (BENCHMARKS.md, "Havran's 1999 octree and grid tables reproduced")
 MATCHED = {("BALLS", 4): ("N_IN", "N_V", "N_EV"), ("BALLS", 5): ("N_IN", "N_V"),
            ("LATTICE", 4): ("N_IN", "N_V", "N_EV", "N_OIV"), ("LATTICE", 5): ("N_IN", "N_V", "N_EV", "N_OIV"),
            ("LATTICE", 6): ("N_IN", "N_V"), ("MOUNT", 4): ("N_IN", "N_V"), ("RINGS", 4): ("N_IN", "N_V", "N_EV"),
