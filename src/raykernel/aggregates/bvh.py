@@ -652,7 +652,7 @@ def build_rows(data, method="sah", leaf_size=4, bins=16, traversal_cost=1.0, int
 PARALLEL_ITEMS = 1 << 15
 DEFER_ITEMS = 1 << 12
 TOP_STACK = 1 << 16         # work items the top's stack holds (a deeper top defers the rest as tasks)
-TOP_WORK = 1 << 22          # items the top of a build splits in one call (about a tenth of a second)
+TOP_WORK = 1 << 22          # items the top of a build splits in one call (well under the second Ctrl-C may wait)
 
 
 def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None):

@@ -6,8 +6,8 @@
 Why: a scene's general build (engine/flatten.py) copies the triangles into
 the Geometry every aggregate kind can walk (vertices, faces, per-reference
 records for the render's fast walk, the binary tree) before the mesh kernel
-takes its own blocks from it: about 330 bytes a triangle held, and most of
-a build's time. Here the kernel's arrays are made from the user's vertex and
+takes its own blocks from it: several times the memory the kernel needs,
+and most of a build's time. Here the kernel's arrays are made from the user's vertex and
 face arrays alone, which it reads but does not copy:
 
 * the tree over the triangles' boxes, built on every core (bvh.py's binned
@@ -50,9 +50,9 @@ from .meshcast import NO_CORNERS, MeshArrays, MeshKernel, wide_leaves
 QUALITY = {"fast": "bvh(block=4, build=morton)", "medium": "bvh(block=4)",
            "high": "bvh(block=4, optimize=reinsertion)"}      # each level's tree as a spec
 LEAF, BINS, BLOCK = 4, 16, 4      # bvh(block=4)'s leaves, bins and pricing
-PROGRESS_TRIANGLES = 1 << 19     # builds from which a line says what is being built (about 0.3 s and more)
+PROGRESS_TRIANGLES = 1 << 19     # builds from which a line says what is being built, if it takes a second
 # the build's peak a triangle: its rows (80 bytes), order (8), the binary nodes (64 each, up to
-# two a triangle and the parallel build's top), and the kernel's arrays it makes (about 100)
+# two a triangle and the parallel build's top), and the kernel's arrays it makes (blocks, nodes, lanes)
 BUILD_BYTES = 340
 _COMPILING = "raykernel: compiling the mesh builder (first use after install, a few seconds)"
 

@@ -480,8 +480,9 @@ class RayScene:
         quality: the build, as Embree's build qualities: "fast" (Morton order: quickest to
         build, for few rays), "medium" (binned SAH, the default) or "high" (the SAH tree with
         nodes reinserted: slowest to build, for many rays); the tree is built straight into the
-        mesh kernel's arrays, which hold about 100 bytes a triangle beyond the vertex and face
-        arrays (float64 vertices and int64 faces are read, not copied; `stats`).
+        mesh kernel's arrays: the triangles' corners once, in float64 blocks of four, the 4-wide
+        nodes and a triangle index a lane (`stats["bytes_per_triangle"]`); float64 vertices and int64
+        faces are read, not copied.
         accel: any spec instead (built through the scene's general path). max_memory: the budget
         of the build (bytes or "8G"); threads: the build's threads (default: all)."""
         if faces is None and hasattr(vertices, "vertices") and hasattr(vertices, "faces"):
