@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -85,16 +86,15 @@ def worker(lib, name, threads, qualities):
                                       lambda s: s.intersect(one_o, one_d, threads=threads),
                                       1 if len(f) > 6e6 or q == "high" else 3)
             st = rs.stats
-            sah = st.get("sah_cost") or st["aggregates"][0].get("sah_after") or st["aggregates"][0].get("sah_cost")
             rates = {}
-            for kind, (o, d) in (("coherent", camera_rays(v, RAYS)), ("incoherent", random_rays(v, RAYS, np.random.default_rng(5)))):
+            rays = (("coherent", camera_rays(v, RAYS)), ("incoherent", random_rays(v, RAYS, np.random.default_rng(5))))
+            for kind, (o, d) in rays:
                 rs.intersect(o[:1000], d[:1000], threads=threads, fields=("t", "prim_id"))
                 t0 = time.perf_counter()
                 rs.intersect(o, d, threads=threads, fields=("t", "prim_id"))
                 rates[kind] = len(o) / (time.perf_counter() - t0) / 1e6
             rows.append(dict(lib=f"raykernel {q}", mesh=name, triangles=len(f), seconds=seconds, held=held / len(f),
-                             own=st["bytes_per_triangle"], sah=sah, **rates))
-        import resource
+                             own=st["bytes_per_triangle"], sah=st["sah_cost"], **rates))
         rows[-1]["peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 2 ** 30
     elif lib == "embreex":
         from embreex import rtcore_scene

@@ -618,7 +618,6 @@ def _morton(data, leaf_size, threads=None):
     """_build_sah's result by Morton order (Lauterbach et al. 2009's linear BVH, split top-down):
     a sort and a binary search a node instead of binning every level; data stays as it is."""
     n = len(data)
-    order = np.arange(n, dtype=np.int64)
     if n == 0:
         return _build_sah(data, leaf_size, 2, 1.0, 1.0, 1)
     lo, hi = _centre_box(data)

@@ -138,8 +138,9 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
                    kernel=_triangle_data, min_size=1 << 14)
         bad = _first_out_of_range(data)
         if bad >= 0:        # the scene's error for it
+            box = data[bad:bad + 1, :6]
             with np.errstate(over="ignore", invalid="ignore"):
-                check_range("triangle", data[bad:bad + 1, :6], bad, np.max(data[bad:bad + 1, 3:6] - data[bad:bad + 1, :3]))
+                check_range("triangle", box, bad, np.max(box[:, 3:] - box[:, :3], axis=1))
         method = "morton" if quality == "fast" else "sah"
         bounds, first, count, order, n_nodes, depth = build_rows(data, method, LEAF, BINS, 1.0, 1.0, BLOCK, threads)
         data = None     # (its memory back before the wide tree is made)

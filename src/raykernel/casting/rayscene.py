@@ -59,8 +59,9 @@ from ..scene.model import Scene, TriangleMesh
 from .hitsurface import store_miss, store_surface
 from .meshbuild import BUILD_BYTES, QUALITY, build_mesh
 from .meshcast import MESH_ACCEL, MeshKernel
+from .proximity import (INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, parity_directions, point_index,
+                        surface_normals)
 from .winding import dipoles, winding_numbers
-from .proximity import INSIDE_DIRECTIONS, ClosestPoints, parity_directions, inside_spheres, kinds_of, point_index, surface_normals
 from .rayinput import valid_ray
 
 CHUNK = 1024
@@ -332,6 +333,16 @@ def coarse_to_fine(n: int) -> np.ndarray:
     return np.concatenate(parts)
 
 
+def _closed_mesh(mesh) -> bool:
+    """Every directed edge of the mesh appears once, and so does its reverse."""
+    f = mesh.faces
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key = np.sort(edges[:, 0] * (len(mesh.vertices) + 1) + edges[:, 1])
+    twin = edges[:, 1] * (len(mesh.vertices) + 1) + edges[:, 0]
+    found = key[np.minimum(np.searchsorted(key, twin), len(key) - 1)]
+    return bool(np.all(np.diff(key) > 0)) and bool(np.all(found == twin))
+
+
 class RayScene:
     """Geometry built once into flat arrays and aggregates, queried with batches of rays.
 
@@ -359,11 +370,7 @@ class RayScene:
         as in Embree)."""
         if not isinstance(scene, Scene):
             raise RayInputError(f"scene must be a raykernel Scene, got {type(scene).__name__}")
-        if edges not in EDGE_RULES:
-            raise RayInputError(f"edges must be one of {', '.join(EDGE_RULES)}, got {edges!r}")
-        self.scene = scene
-        self.edges = edges
-        self._accel, self._max_memory = accel, max_memory
+        self._start(scene, accel, max_memory, edges)
         geo, self.build_stats = flatten(scene, accel, max_memory)
         self._geo = geo._replace(tri_edges=np.array([EDGE_RULES[edges]], np.int64))
         table = self.build_stats.pop("geometries")
@@ -380,6 +387,13 @@ class RayScene:
         self._lazy = self.build_stats.get("lazy")
         self._may_repeat = self._may_repeat or self._lazy is not None or edges == "inclusive"
         self._mesh = MeshKernel.of(self.geo, table)
+
+    def _start(self, scene: Scene, accel: str, max_memory, edges: str) -> None:
+        """What every RayScene holds, however it is built: its scene and options, the memory
+        budget, the lock and the per-thread statistics."""
+        if edges not in EDGE_RULES:
+            raise RayInputError(f"edges must be one of {', '.join(EDGE_RULES)}, got {edges!r}")
+        self.scene, self.edges, self._accel, self._max_memory = scene, edges, accel, max_memory
         self._limit = memory_limit(max_memory)
         self._lock = threading.RLock()      # held by queries that refine lazy structures
         self._local = threading.local()     # last_stats, per thread
@@ -512,8 +526,6 @@ class RayScene:
                 raise RayInputError("normals must be finite")
         if quality not in QUALITY:
             raise RayInputError(f"quality must be one of {', '.join(QUALITY)}, got {quality!r}")
-        if edges not in EDGE_RULES:
-            raise RayInputError(f"edges must be one of {', '.join(EDGE_RULES)}, got {edges!r}")
         v = np.ascontiguousarray(v, np.float64)
         f = np.ascontiguousarray(f, np.int64)
         n = None if n is None else np.ascontiguousarray(n, np.float64)
@@ -521,20 +533,16 @@ class RayScene:
         scene.root.add(TriangleMesh(v, f, normals=n))
         if accel is not None or not len(f):
             return cls(scene, accel or QUALITY[quality], max_memory, edges=edges)
-        limit = memory_limit(max_memory)
-        check(len(f) * BUILD_BYTES, limit, f"building a BVH over {len(f):,} triangles",
-              "build a smaller mesh")
         self = cls.__new__(cls)
-        self.scene, self.edges, self._accel, self._max_memory, self._geo = scene, edges, MESH_ACCEL, max_memory, None
+        self._start(scene, MESH_ACCEL, max_memory, edges)      # the Geometry, if ever built: the medium tree
+        check(len(f) * BUILD_BYTES, self._limit, f"building a BVH over {len(f):,} triangles", "build a smaller mesh")
+        self._geo = None
         self._mesh, self.build_stats = build_mesh(v, f, n, quality, EDGE_RULES[edges], threads)
         self.build_stats["aggregates"] = [dict(self.build_stats, kind="bvh", spec=QUALITY[quality])]
         self.geometries = [{"kind": "triangle", "count": len(f)}]
         self._geom_of = {TRIANGLE: (np.array([0]), np.array([0]))}
         self._may_repeat = edges == "inclusive"
         self._lazy = None
-        self._limit = limit
-        self._lock = threading.RLock()
-        self._local = threading.local()
         return self
 
     @classmethod
@@ -872,18 +880,10 @@ class RayScene:
         return inside.reshape(shape)
 
     def _closed(self) -> bool:
-        """Whether the triangle meshes are closed: every edge is two triangles', once each way."""
+        """Whether the scene is closed triangle meshes, not nested: every edge two triangles', once each way."""
         if not hasattr(self, "_is_closed"):
-            closed = True
-            for mesh in self.scene.root.meshes if not self.scene.root.children else ():
-                f = mesh.faces
-                edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-                key = edges[:, 0] * (len(mesh.vertices) + 1) + edges[:, 1]
-                twin = edges[:, 1] * (len(mesh.vertices) + 1) + edges[:, 0]
-                key.sort()
-                closed = closed and bool(np.all(np.diff(key) > 0)) and bool(
-                    np.all(key[np.minimum(np.searchsorted(key, twin), len(key) - 1)] == twin))
-            self._is_closed = closed and bool(self.scene.root.meshes) and not self.scene.root.children
+            root = self.scene.root
+            self._is_closed = bool(root.meshes) and not root.children and all(map(_closed_mesh, root.meshes))
         return self._is_closed
 
     def _winding_tree(self):
