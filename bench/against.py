@@ -24,10 +24,11 @@ import os
 import subprocess
 import sys
 import tempfile
+from datetime import date
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import ROOT, machine, replace_section  # noqa: E402
+from _report import DETAILS, ROOT, machine, replace_section  # noqa: E402
 
 KINDS = ("list", "bvh", "bvh(build=gs)", "grid", "hgrid", "octree", "octree(walk=point)", "octree(walk=parametric)",
          "hybrid", "lazyoctree", "rc")
@@ -125,12 +126,13 @@ def main() -> int:
             subprocess.run(["git", "worktree", "remove", "--force", str(other)], cwd=ROOT, capture_output=True)
     lines = ["## This tree against an earlier revision",
              "",
-             f"`{('python bench/against.py ' + ' '.join(sys.argv[1:])).strip()}`: SPD mode at "
+             f"`{('python bench/against.py ' + ' '.join(sys.argv[1:])).strip()}` ({date.today().isoformat()}): "
+             "SPD mode at "
              f"{args.resolution}x{args.resolution}, best trace seconds of {args.repeat} renders x {args.rounds} "
              f"alternating rounds per side; ratio = {rev} / this tree (above 1: this tree is faster). Both sides "
              "made the same image bytes and the same ray counts (checked); the primitive tests of each side are "
              "beside them.",
-             "", f"Machine: {machine()}.", "",
+             "", f"Machine: {machine()}.", "", DETAILS, "",
              f"| scene | structure | rays ({rev}) | rays (this) | tests ({rev}) | tests (this) | threads | "
              f"{rev} trace s | this trace s | ratio |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -150,9 +152,10 @@ def main() -> int:
         lines.append(f"| {scene} | `{kind}` | {rays_a:,} | {rays_b:,} | {a[0].get('tests', 0):,} | "
                      f"{b[0].get('tests', 0):,} | {cb['threads']} | {ta:.3f} | {tb:.3f} | {ta / tb:.2f} |")
         print(lines[-1], flush=True)
-    lines += ["", f"Ratios from {min(ratios):.2f} to {max(ratios):.2f}, geometric mean "
-                  f"{(__import__('math').prod(ratios)) ** (1 / len(ratios)):.2f}."]
-    print(lines[-1])
+    verdict = (f"Ratios from {min(ratios):.2f} to {max(ratios):.2f}, geometric mean "
+               f"{(__import__('math').prod(ratios)) ** (1 / len(ratios)):.2f}.")
+    lines[lines.index(DETAILS):lines.index(DETAILS)] = [verdict, ""]     # the summary: that line alone
+    print(verdict)
     if not args.no_write:
         replace_section("against", "\n".join(lines))
     return 0

@@ -22,9 +22,10 @@ import argparse
 import os
 import sys
 import time
+from datetime import date
 
 import numpy as np
-from _report import machine, replace_section
+from _report import DETAILS, machine, replace_section
 
 import raykernel
 from raykernel.engine.incremental import Hierarchy
@@ -122,12 +123,14 @@ def main():
         "",
         f"Command: `.venv/bin/python bench/animation.py --frames {args.frames} --resolution {args.resolution} "
         f"--satellite-prims {args.satellite_prims} --stadium-prims {args.stadium_prims} "
-        f"--render-resolution {args.render_resolution}`. Machine: {machine()}.",
+        f"--render-resolution {args.render_resolution}` ({date.today().isoformat()}). Machine: {machine()}.",
         "",
         "Per-frame build time (`build.seconds`, mean over frames 1 onwards; frame 0 is built from scratch in "
         "both columns), both columns in the same run; every frame's image and ray counts are the same in both.",
         "",
         *lines,
+        "",
+        DETAILS,
         "",
         f"A render of spd:balls at {args.render_resolution}x{args.render_resolution}, SPD mode, wall clock "
         f"(best of {args.repeat}), the same cores on both sides; the images and every ray count are the same:",

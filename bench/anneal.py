@@ -44,13 +44,18 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from datetime import date
 
 import numpy as np
-from _report import machine, replace_section
+from _report import DETAILS, machine, replace_section, subtable
 
 import raykernel
 from raykernel.analysis import anneal, costmodel
 from raykernel.scene import pathological, spd
+
+# the summary in BENCHMARKS.md: the verdicts where auto did work of its own, these columns
+SUMMARY = "Where auto's hierarchy is its own (measured trace time; every scene's verdict in the full tables):"
+COLUMNS = ["scene", "best single kind", "best single / auto", "best hand / auto"]
 
 KINDS = ("bvh", "grid", "hgrid", "octree", "hybrid", "rc", "lazyoctree")
 OPTIMISED = ("bvh(optimize=rotations)", "bvh(optimize=reinsertion)", "bvh(split=16)")   # the SAH BVH's variants
@@ -270,10 +275,10 @@ def main():
                              f"{'' if hand is None else 'x'} | {auto['speed']:.3f} |")
     faster = [n for n, _, a, _ in verdicts if a["vs_best"] >= 1.1 and not a["same_work"]]
     slower = [n for n, _, a, _ in verdicts if a["vs_best"] < 1 / 1.05]
-    verdict_lines += ["", f"Auto at least 10% faster than the best single kind, with work of its own: {len(faster)} "
-                      f"of {len(verdicts)} ({', '.join(faster) or 'none'}); slower than 1.05x: {len(slower)} "
-                      f"({', '.join(slower) or 'none'}). Where auto's work is the same as the best single kind's "
-                      "(every counter equal: it kept that structure), the ratio is the machine's noise."]
+    verdict = (f"Auto at least 10% faster than the best single kind, with work of its own: {len(faster)} "
+               f"of {len(verdicts)} ({', '.join(faster) or 'none'}); slower than 1.05x: {len(slower)} "
+               f"({', '.join(slower) or 'none'}). Where auto's work is the same as the best single kind's "
+               "(every counter equal: it kept that structure), the ratio is the machine's noise.")
     stadium_lines = ["| scene | hand-nested (fewest tests per ray) | tests per ray | bounds per ray | auto: tests "
                      "per ray | bounds per ray | auto tests / hand's |", "|---|---|---:|---:|---:|---:|---:|"]
     for name, (hand, auto) in stadium.items():
@@ -287,8 +292,17 @@ def main():
         "",
         f"Command: `.venv/bin/python bench/anneal.py --resolution {args.resolution} --seconds {args.seconds:g} "
         f"--frames {args.frames} --repeat {args.repeat} --min-seconds {args.min_seconds:g} "
-        f"--head-to-head {args.head_to_head}{' --calibrate' if args.calibrate else ''}`. Machine: {machine()}. "
+        f"--head-to-head {args.head_to_head}{' --calibrate' if args.calibrate else ''}` "
+        f"({date.today().isoformat()}). Machine: {machine()}. "
         f"Cost model: {calibrated} ({len(model.calibration)} calibration renders).",
+        "",
+        SUMMARY,
+        "",
+        *subtable(verdict_lines, COLUMNS, {"auto's work": ["its own"]}),
+        "",
+        verdict,
+        "",
+        DETAILS,
         "",
         f"SPD mode, {args.resolution}x{args.resolution}, every structure of a scene casts the same rays "
         f"(checked). Trace seconds: the best of at least {args.repeat} rounds, more (up to {MAX_ROUNDS}) until a "

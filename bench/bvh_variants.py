@@ -16,17 +16,27 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from datetime import date
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import machine, replace_section  # noqa: E402
+from _report import DETAILS, machine, replace_section, subtable  # noqa: E402
 from raycast import MESHES, camera_rays, random_rays  # noqa: E402
 
 import raykernel  # noqa: E402
 from raykernel.analysis.anneal import without_specs  # noqa: E402
 from raykernel.casting.meshcast import MESH_ACCEL  # noqa: E402
+
+RENDER_TABLE = ["| scene | structure | rays | refs | tests/ray | bounds/ray | preprocess s | trace s | speed |",
+                "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+# the summary in BENCHMARKS.md: the renders of the scenes where a variant gains or loses most
+SUMMARY = ("Renders where a variant gains or loses most (every scene and the mesh casts in the full tables); "
+           "speed: the plain BVH's trace time over this one's, the same images and rays on every row.")
+SUMMARY_SCENES = ["scene:diamond", "scene:stadium"]
+SUMMARY_SPECS = ["bvh", "bvh(split=16)", "bvh(optimize=reinsertion)"]
+COLUMNS = ["scene", "structure", "refs", "tests/ray", "trace s", "speed"]
 
 SCENES = ("scene:diamond", "scene:stadium", "scene:teapot-room", "scene:park", "spd:teapot", "spd:gears",
           "spd:mount", "spd:tetra", "spd:sombrero")
@@ -116,15 +126,20 @@ def main():
         "## The BVH's variants against the plain tree: split clipping and reinsertion",
         "",
         f"Command: `.venv/bin/python bench/bvh_variants.py --resolution {args.resolution} --rays {args.rays} "
-        f"--rounds {args.rounds}`. Machine: {machine()}.",
+        f"--rounds {args.rounds}` ({date.today().isoformat()}). Machine: {machine()}.",
+        "",
+        SUMMARY,
+        "",
+        *subtable(RENDER_TABLE + renders, COLUMNS, {"scene": SUMMARY_SCENES, "structure": SUMMARY_SPECS}),
+        "",
+        DETAILS,
         "",
         f"Renders: SPD mode, {args.resolution}x{args.resolution}, 2 threads, each scene under one BVH; every "
         "variant renders the same image bytes and casts the same rays (checked). Trace seconds: the best of "
         f"{args.rounds} rounds, the variants alternating. refs: references in the leaves (a primitive split into "
         "pieces can sit in several leaves). speed: the plain BVH's trace time over this one's.",
         "",
-        "| scene | structure | rays | refs | tests/ray | bounds/ray | preprocess s | trace s | speed |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        *RENDER_TABLE,
         *renders,
         "",
         f"Mesh casting: `RayScene.from_mesh` (the mesh kernel) on the meshes of bench/raycast.py, {args.rays:,} "

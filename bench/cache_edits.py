@@ -24,10 +24,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from datetime import date
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import ROOT, machine, replace_section  # noqa: E402
+from _report import DETAILS, ROOT, machine, replace_section  # noqa: E402
 
 PROBE = r"""
 import json
@@ -105,13 +106,17 @@ def main() -> int:
         print(f"a counter column swapped: compile {changed['compile']:.1f} s", flush=True)
     lines = ["## A docstring edit recompiles nothing",
              "",
-             "`python bench/cache_edits.py`: the package copied with a kernel cache of its own, warmed by a "
+             f"`python bench/cache_edits.py` ({date.today().isoformat()}): the package copied with a kernel cache "
+             "of its own, warmed by a "
              "probe (renders with every kind of structure, a CSG scene, Hall shading with antialiasing and "
              "tricks, ray casting on a mesh); then every module that defines a kernel, one at a time, gets "
              "every docstring changed, a comment after every `def` and blank lines, and the probe runs again "
              "in a fresh process. `time.compile` is what that run spent compiling (0: every kernel loaded "
              "from the cache).",
              "", f"Machine: {machine()}.", "",
+             *summary([f"{got['compile']:.2f}" for _, got in rows], f"{warm['compile']:.1f}",
+                      f"{changed['compile']:.1f}"),
+             "", DETAILS, "",
              f"Warm-up (an empty cache): {warm['compile']:.1f} s compiling.", "",
              "| module edited | time.compile s | time.load s |", "|---|---:|---:|"]
     lines += [f"| `{name}` | {got['compile']:.2f} | {got['load']:.2f} |" for name, got in rows]
@@ -120,6 +125,15 @@ def main() -> int:
     if not args.no_write:
         replace_section("cache_edits", "\n".join(lines))
     return 0
+
+
+def summary(compiles: list[str], warm: str, changed: str) -> list[str]:
+    """The summary's table, from the full table's time.compile cells as printed and the warm-up's and the
+    last run's compile seconds as printed (so a migration of an old section gets the same)."""
+    return ["| modules edited | runs after an edit that compiled | most seconds compiling after an edit | "
+            "warm-up compile s | a frozen constant changed: compile s |", "|---:|---:|---:|---:|---:|",
+            f"| {len(compiles)} | {sum(c != '0.00' for c in compiles)} | "
+            f"{max(compiles, key=float, default='-')} | {warm} | {changed} |"]
 
 
 if __name__ == "__main__":

@@ -79,9 +79,10 @@ def main() -> None:
         rows.append(f"| {t} | {n:,} | {counts[t, 'answered']:,} | {counts[t, 'refused']:,} | {counts[t, 'failed']:,} |")
     total = sum(counts.values())
     text = "\n".join([
-        f"## Fuzzing ({date.today().isoformat()})", "",
+        "## Fuzzing", "",
         f"`.venv/bin/python bench/fuzz.py --inputs {args.inputs} --processes {args.processes} --seed {args.seed}` "
-        f"on {machine()}: {total:,} inputs in {seconds / 60:.0f} min. Each is loaded and rendered at 4x4 under bvh, "
+        f"({date.today().isoformat()}) on {machine()}: {total:,} inputs in {seconds / 60:.0f} min. Each is "
+        "loaded and rendered at 4x4 under bvh, "
         "grid and octree, cast, or run on the command line, and must be answered or refused with one "
         "RayKernelError of one line; any other exception, a warning that is not raykernel's own (numpy's "
         "above all) or a batch with no answer within "

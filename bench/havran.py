@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import machine, replace_section  # noqa: E402
+from _report import DETAILS, machine, replace_section, subtable, tables  # noqa: E402
 
 DATA = Path(__file__).resolve().parent / "data" / "havran1999_octrees.json"
 GRID_DATA = Path(__file__).resolve().parent / "data" / "havran1999_grids.json"
@@ -46,6 +46,9 @@ SCENES = {"BALLS": "spd:balls:4", "GEARS": "spd:gears:4", "LATTICE": "spd:lattic
 WALKS = {"point": "Octree84-C", "neighbor": "Octree89-C", "parametric": "Octree93-C"}
 BUILD = ("N_IN", "N_V", "N_EV", "N_OIV")
 TRAVERSAL = ("N_IT", "N_TS", "N_ETS", "N_EETS")
+# the summary in BENCHMARKS.md: the build table's rows at the first depth
+SUMMARY = "Each cell: Havran's number / raykernel's (raykernel's difference). The octrees built at depth {depth}:"
+BUILD_COLUMNS = ("scene", "depth") + BUILD
 
 
 def spec(depth: int, walk: str = "point") -> str:
@@ -189,6 +192,7 @@ def main():
              f"{' '.join(map(str, args.depths))} --walks {' '.join(args.walks)}"
              f"{' --build-only' if args.build_only else ''}{' --rules' if args.rules else ''}` "
              f"({time.strftime('%Y-%m-%d')})", "",
+             DETAILS, "",
              " ".join(__doc__.split("\n\n")[2:4]).replace("\n", " "), "",
              "Each cell: Havran's number / raykernel's (raykernel's difference).", "",
              "| scene | depth | " + " | ".join(BUILD) + " |", "|---|---:|" + "---:|" * len(BUILD)]
@@ -215,6 +219,9 @@ def main():
             lines.append(f"| {name} | {setting} | {'x'.join(map(str, theirs['Resolution']))} | "
                          + " | ".join(cell(theirs[k], ours.get(k)) for k in ("N_V", "N_EV", "N_OIV", "N_IT", "N_TS",
                                                                           "N_EETS")) + " |")
+    at = lines.index(DETAILS)             # the summary: the build counts at the first depth
+    lines[at:at] = [SUMMARY.format(depth=args.depths[0]), "",
+                    *subtable(tables(lines)[0], BUILD_COLUMNS, {"depth": [str(args.depths[0])]}), ""]
     text = "\n".join(lines)
     print(text)
     if not args.no_write:

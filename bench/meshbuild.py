@@ -32,13 +32,17 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import machine, replace_section  # noqa: E402
+from _report import DETAILS, machine, replace_section, subtable  # noqa: E402
 from raycast import camera_rays, obj_triangles, random_rays, scene_triangles  # noqa: E402
 
 MESHES = {"stadium": ("scene", "stadium"), "icosphere(6)": ("ico", 6), "tetra-sf8": ("spd", "tetra:8"),
           "icosphere(8)": ("ico", 8), "icosphere(9)": ("ico", 9)}
 BIG = {"icosphere(10)": ("ico", 10)}
 RAYS = 1_000_000
+# the summary in BENCHMARKS.md: the rows of the two largest meshes, these columns
+SUMMARY = ("The build and a first ray on the two largest meshes, seconds (every mesh, memory and casting speed "
+           "in the full table); vs Open3D: Open3D's seconds over this row's (above 1: faster than Open3D).")
+COLUMNS = ["mesh", "triangles", "library", "build + 1 ray s", "vs Open3D", "own B/tri"]
 
 
 def make(kind, arg):
@@ -150,9 +154,8 @@ def main():
             rows += got
     lines = ["## Mesh builds (raykernel vs embreex and Open3D)", "",
              f"Machine: {machine()}.", "", f"Command: `.venv/bin/python bench/meshbuild.py --threads {args.threads}"
-             f"{' --big' if args.big else ''}` ({time.strftime('%Y-%m-%d')})", "",
-             __doc__.split("\n\n")[2].replace("\n", " "), "",
-             "| mesh | triangles | library | build + 1 ray s | vs Open3D | held B/tri | own B/tri | SAH | "
+             f"{' --big' if args.big else ''}` ({time.strftime('%Y-%m-%d')})", ""]
+    table = ["| mesh | triangles | library | build + 1 ray s | vs Open3D | held B/tri | own B/tri | SAH | "
              "coherent Mrays/s | incoherent Mrays/s |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
     o3d_s = {r["mesh"]: r["seconds"] for r in rows if r["lib"] == "open3d"}
     peaks = []
@@ -160,11 +163,13 @@ def main():
         if "peak_gb" in r:
             peaks.append(f"{r['mesh']} {r['peak_gb']:.1f} GiB")
         ratio = f"{o3d_s[r['mesh']] / r['seconds']:.2f}" if r["mesh"] in o3d_s else ""
-        lines.append(f"| {r['mesh']} | {r['triangles']:,} | {r['lib']} | {r['seconds']:.3f} | {ratio} | "
+        table.append(f"| {r['mesh']} | {r['triangles']:,} | {r['lib']} | {r['seconds']:.3f} | {ratio} | "
                      f"{r['held']:.0f} | {r.get('own', float('nan')):.0f} | {r.get('sah', float('nan')):.1f} | "
                      f"{r.get('coherent', float('nan')):.2f} | {r.get('incoherent', float('nan')):.2f} |"
                      .replace("nan", ""))
-    lines.append("")
+    big = sorted({r["mesh"]: r["triangles"] for r in rows}.items(), key=lambda kv: kv[1])[-2:]
+    lines += [SUMMARY, "", *subtable(table, COLUMNS, {"mesh": [name for name, _ in big]}), "", DETAILS, "",
+              __doc__.split("\n\n")[2].replace("\n", " "), "", *table, ""]
     lines.append("vs Open3D: Open3D's seconds over this row's (above 1: faster than Open3D). Mrays/s at "
                  f"{args.threads} threads, 1,000,000 rays each. Peak resident memory of raykernel's process "
                  f"(making the mesh, every build and the casts): {', '.join(peaks)}.")

@@ -16,12 +16,13 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from datetime import date
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import machine, replace_section  # noqa: E402
+from _report import DETAILS, machine, replace_section  # noqa: E402
 from raycast import PEER_FIELDS  # noqa: E402
 
 
@@ -59,14 +60,15 @@ def main() -> int:
         rows.append((label, scene.last_stats["rays.cast"], mb, best_kernel, best_call))
         print(f"{label:40s} {mb:7.1f} MB  kernel {best_kernel * 1e3:7.1f} ms  call {best_call * 1e3:7.1f} ms", flush=True)
     lines = ["## RayScene.intersect: the cost of one call around its kernel", "",
-             f"`{('python bench/overhead.py ' + ' '.join(sys.argv[1:])).strip()}`: {n:,} coherent rays at an "
+             f"`{('python bench/overhead.py ' + ' '.join(sys.argv[1:])).strip()}` ({date.today().isoformat()}): "
+             f"{n:,} coherent rays at an "
              f"80k-triangle sphere (the mesh kernel), {args.threads} threads, best of 7; kernel = the query's "
              "time.trace, call = the whole intersect call (checks, outputs, identities).", "",
              f"Machine: {machine()}.", "",
              "| call | rays | output MB | kernel ms | call ms | outside the kernel ms |", "|---|---:|---:|---:|---:|---:|"]
     for label, rays, mb, k, c in rows:
         lines.append(f"| {label} | {rays:,} | {mb:.0f} | {k * 1e3:.1f} | {c * 1e3:.1f} | {(c - k) * 1e3:.1f} |")
-    lines += small_batches(mesh, scene)
+    lines += ["", DETAILS] + small_batches(mesh, scene)
     if not args.no_write:
         replace_section("overhead", "\n".join(lines) + "\n")
     return 0

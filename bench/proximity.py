@@ -23,12 +23,19 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from datetime import date
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import machine, replace_section, spd_file  # noqa: E402
+from _report import DETAILS, machine, replace_section, spd_file, subtable, tables  # noqa: E402
+
+# the summary in BENCHMARKS.md: the first table's times and ratios (columns by place: their headers
+# name the thread count)
+SUMMARY = ("Seconds, best of 2; ratio = peer seconds / raykernel seconds (above 1: raykernel is faster); "
+           "trimesh, which has one thread, against raykernel on 1 thread and a tenth of the points.")
+COLUMNS = [0, 2, 3, 4, 5, 7, 8, 9]
 
 
 def best(fn, repeat=2):
@@ -103,10 +110,11 @@ def main() -> None:
             row["tm_cp_error"] = f"{type(e).__name__}: {e}"
         rows.append(row)
         print(row, flush=True)
-    lines = [f"Machine: {machine()}; Open3D {o3d.__version__ if o3d else 'not installed'}, "
-             f"trimesh {trimesh.__version__}.", "",
-             f"Command: `.venv/bin/python bench/proximity.py --points {args.points} --threads {args.threads}`", "",
-             f"{args.points:,} points uniform in each mesh's box (5% margin), the same for every library; raykernel "
+    head = [f"Machine: {machine()}; Open3D {o3d.__version__ if o3d else 'not installed'}, "
+            f"trimesh {trimesh.__version__}.", "",
+            f"Command: `.venv/bin/python bench/proximity.py --points {args.points} --threads {args.threads}` "
+            f"({date.today().isoformat()})", ""]
+    lines = [f"{args.points:,} points uniform in each mesh's box (5% margin), the same for every library; raykernel "
              f"and Open3D on {args.threads} threads on all of them; trimesh, which has one thread, against raykernel "
              "on 1 thread on the same tenth of the points (the 1-thread column). Seconds, best of 2 after a "
              "warm-up; ratio = peer seconds / raykernel seconds "
@@ -131,7 +139,7 @@ def main() -> None:
     for r in rows:
         lines.append(f"| {r['mesh']} | {r['rk_w']:.3f} | {r['rk_cp']:.3f} | {r['rk_w'] / r['rk_cp']:.2f} | "
                      f"{r['w_agree']:.4f} |")
-    text = "\n".join(lines)
+    text = "\n".join(head + [SUMMARY, "", *subtable(tables(lines)[0], COLUMNS), "", DETAILS, ""] + lines)
     print(text)
     if not args.no_write:
         replace_section("proximity", "## Point queries (raykernel vs Open3D and trimesh)\n\n" + text)

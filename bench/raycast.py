@@ -22,16 +22,21 @@ import subprocess
 import sys
 import tempfile
 import time
+from datetime import date
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import machine, replace_section, spd_file  # noqa: E402
+from _report import DETAILS, machine, replace_section, spd_file, subtable, tables  # noqa: E402
 
 SPD_MESHES = ["gears-sf4", "mount-sf6", "teapot-sf6", "tetra-sf6"]
 # what embreex's run(output=1) returns (tfar, primID, geomID, u, v, Ng, float32), asked of raykernel in float32
 PEER_FIELDS = ("t", "prim_id", "geom_id", "uv", "normal")
+# the summary in BENCHMARKS.md: the table's rows at 2 threads, these columns
+SUMMARY = ("At 2 threads, Mrays/s of the same outputs on both sides (t, ids, uv and normal in float32); "
+           "ratio = raykernel / peer (above 1: raykernel is faster).")
+COLUMNS = ["mesh", "rays", "raykernel Mrays/s", "embreex Mrays/s", "ratio", "mitsuba Mrays/s", "open3d Mrays/s"]
 
 
 def scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
@@ -299,9 +304,9 @@ def main():
     cold, warm = jit_times()
     import embreex
     command = f".venv/bin/python bench/raycast.py --rays {args.rays}" + (f" --meshes {args.meshes}" if args.meshes else "")
-    lines = [f"Machine: {machine()}; embreex {getattr(embreex, '__version__', '4.4.0.post1')} (Embree 4, float32).",
-             "", f"Command: `{command}`", "",
-             f"{args.rays} rays per set (coherent: one pinhole camera, square grid; incoherent: origins uniform in the "
+    head = [f"Machine: {machine()}; embreex {getattr(embreex, '__version__', '4.4.0.post1')} (Embree 4, float32).",
+            "", f"Command: `{command}` ({date.today().isoformat()})", ""]
+    lines = [f"{args.rays} rays per set (coherent: one pinhole camera, square grid; incoherent: origins uniform in the "
              "mesh's box, uniform random directions), the same rays for both libraries and both thread counts; "
              "the same outputs from both: the closest hit's t, triangle and mesh ids, uv and geometric normal in "
              "float32, from embreex's run(output=1) and from raykernel's `RayScene.intersect(o, d, fields=(\"t\", "
@@ -344,7 +349,8 @@ def main():
         lines += ["", f"{peer} is not in this table: it does not run here ({why})."]
     lines += ["", f"JIT compile in a fresh process (import, build a 1-triangle scene, intersect and count_hits): "
               f"cold {cold:.1f} s (empty NUMBA_CACHE_DIR), warm {warm:.1f} s (from the cache)."]
-    text = "\n".join(lines)
+    text = "\n".join(head + [SUMMARY, "", *subtable(tables(lines)[0], COLUMNS, {"threads": ["2"]}), "", DETAILS, ""]
+                     + lines)
     print(text)
     if not args.no_report:
         replace_section("raycast", "## Ray casting (raykernel vs embreex, Mitsuba 3 and Open3D)\n\n" + text)

@@ -45,12 +45,19 @@ import subprocess
 import sys
 import tempfile
 import time
+from datetime import date
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import ROOT, machine, replace_section, spd_file  # noqa: E402
+from _report import DETAILS, ROOT, machine, replace_section, spd_file, subtable  # noqa: E402
 
 from raykernel.scene import spd  # noqa: E402
+
+# the renders section's summary in BENCHMARKS.md: the full table's times and ratios
+SUMMARY = ("Seconds of the whole process (wall) and of the work alone (raykernel's parse, preprocess and trace; "
+           "POV-Ray's parse, bounding and trace); ratios POV-Ray / raykernel, above 1: raykernel is faster. "
+           "The ray counts of both sides are in the full table.")
+COLUMNS = ["scene", "raykernel s", "POV-Ray s", "wall", "raykernel work s", "POV-Ray work s", "work"]
 
 RAYKERNEL = [sys.executable, "-m", "raykernel.cli"]
 
@@ -147,7 +154,7 @@ def antialiased(args) -> None:
         f"Machine: {machine()}; {povray_version()}.",
         "",
         f"Command: `.venv/bin/python bench/renders.py --antialiased {args.antialiased} --threads {args.threads} "
-        f"--repeat {args.repeat}`",
+        f"--repeat {args.repeat}` ({date.today().isoformat()})",
         "",
         f"512x512, depth 5, fresh processes on {args.threads} threads, best of {args.repeat}. raykernel: "
         f"`raykernel render X.nff --resolution 512 --aa jitter --samples 9 --cutoff 0 --max-depth 5` (9 jittered "
@@ -199,7 +206,7 @@ def work_layers(args) -> None:
         f"Machine: {machine()}.",
         "",
         f"Command: `.venv/bin/python bench/renders.py --work-layers {args.work_layers} --threads {args.threads} "
-        f"--repeat {args.repeat}`",
+        f"--repeat {args.repeat}` ({date.today().isoformat()})",
         "",
         f"`raykernel render X.nff --spd --resolution 512 --threads {args.threads}`, without and with `--work X.npz`, "
         f"fresh processes, alternating, best of {args.repeat}; both cast the same rays (rays.total, printed). trace: "
@@ -260,12 +267,35 @@ def main() -> None:
                   f"(work {min(pwork):.2f} s); eye {ours['eye']:,} / {ps['pixels']:,}, shadow {ours['shadow']:,} / "
                   f"{ps['shadow']:,}, reflect {ours['reflect']:,} / {ps['reflect']:,}, refract "
                   f"{ours['refract']:,} / {ps['refract']:,}", flush=True)
+    table = [
+        "| scene | eye rays | shadow rays | reflected | refracted | raykernel s | POV-Ray s | wall | load s | "
+        "raykernel work s | POV-Ray work s | work |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        o, p = r["ours"], r["theirs"]
+        table.append(f"| {r['scene']} | {o['eye']:,} / {p['pixels']:,} | {o['shadow']:,} / {p['shadow']:,} | "
+                     f"{o['reflect']:,} / {p['reflect']:,} | {o['refract']:,} / {p['refract']:,} | "
+                     f"{r['raykernel']:.2f} | {r['povray']:.2f} | {r['povray'] / r['raykernel']:.2f} | "
+                     f"{r['load']:.2f} | {r['work']:.2f} | {r['pov_work']:.2f} | {r['pov_work'] / r['work']:.2f} |")
+    if rows:
+        total = {k: sum(r[k] for r in rows) for k in ("raykernel", "povray", "work", "pov_work", "load")}
+        table.append(f"| all | | | | | {total['raykernel']:.2f} | {total['povray']:.2f} | "
+                     f"{total['povray'] / total['raykernel']:.2f} | {total['load']:.2f} | {total['work']:.2f} | "
+                     f"{total['pov_work']:.2f} | {total['pov_work'] / total['work']:.2f} |")
     lines = [
         "## SPD renders (raykernel vs POV-Ray)",
         "",
         f"Machine: {machine()}; {povray_version()}.",
         "",
-        f"Command: `.venv/bin/python bench/renders.py --threads {args.threads} --repeat {args.repeat}`",
+        f"Command: `.venv/bin/python bench/renders.py --threads {args.threads} --repeat {args.repeat}` "
+        f"({date.today().isoformat()})",
+        "",
+        SUMMARY,
+        "",
+        *subtable(table, COLUMNS),
+        "",
+        DETAILS,
         "",
         "Each SPD generator at its default size, 512x512, depth 5, both renderers as fresh processes on "
         f"{args.threads} threads, best of {args.repeat}. raykernel: `raykernel render X.nff --spd --resolution "
@@ -278,21 +308,8 @@ def main() -> None:
         "our parse + preprocess + trace seconds. load: our seconds loading the cached kernels (start-up, in the "
         "wall clock, not in the work). Above 1: raykernel is faster.",
         "",
-        "| scene | eye rays | shadow rays | reflected | refracted | raykernel s | POV-Ray s | wall | load s | "
-        "raykernel work s | POV-Ray work s | work |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        *table,
     ]
-    for r in rows:
-        o, p = r["ours"], r["theirs"]
-        lines.append(f"| {r['scene']} | {o['eye']:,} / {p['pixels']:,} | {o['shadow']:,} / {p['shadow']:,} | "
-                     f"{o['reflect']:,} / {p['reflect']:,} | {o['refract']:,} / {p['refract']:,} | "
-                     f"{r['raykernel']:.2f} | {r['povray']:.2f} | {r['povray'] / r['raykernel']:.2f} | "
-                     f"{r['load']:.2f} | {r['work']:.2f} | {r['pov_work']:.2f} | {r['pov_work'] / r['work']:.2f} |")
-    if rows:
-        total = {k: sum(r[k] for r in rows) for k in ("raykernel", "povray", "work", "pov_work", "load")}
-        lines.append(f"| all | | | | | {total['raykernel']:.2f} | {total['povray']:.2f} | "
-                     f"{total['povray'] / total['raykernel']:.2f} | {total['load']:.2f} | {total['work']:.2f} | "
-                     f"{total['pov_work']:.2f} | {total['pov_work'] / total['work']:.2f} |")
     replace_section("renders", "\n".join(lines))
     print(f"wrote the renders section of {ROOT / 'BENCHMARKS.md'}")
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from datetime import date
 
 from _report import machine, replace_section
 
@@ -43,7 +44,7 @@ def main():
     lines = [
         "## SPD default scenes, SPD test procedure",
         "",
-        f"`{cmd.strip()}` at {args.resolution}x{args.resolution}, accelerator `{args.accel}`, "
+        f"`{cmd.strip()}` ({date.today().isoformat()}) at {args.resolution}x{args.resolution}, accelerator `{args.accel}`, "
         f"corner rays (513x513 eye rays at 512), depth 5, no cut-off.",
         "",
         f"Machine: {machine()}.",

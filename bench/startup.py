@@ -6,11 +6,12 @@ Each entry point runs in a fresh process twice: first with an empty
 NUMBA_CACHE_DIR (everything compiles), then again with the cache the first
 run left (everything loads). numba's compile events (`numba:compile`) give
 the seconds spent compiling, per top-level function. Writes the `startup`
-section of BENCHMARKS.md, keeping the rows of other labels, so a table
-measured before a change and one after sit side by side. With --against REV
-each entry point runs for REV (checked out into a temporary git worktree) and
-then for this tree, back to back, so that both rows meet the same machine
-load; this machine's speed drifts by a third within minutes.
+section of BENCHMARKS.md (the latest run's rows) and its page,
+docs/benchmarks/startup.md, with the rows of every label kept in
+bench/startup.json, so a table measured before a change and one after sit
+side by side. With --against REV each entry point runs for REV (checked out
+into a temporary git worktree) and then for this tree, back to back, so that
+both rows meet the same machine load: a machine's speed drifts within minutes.
 """
 
 from __future__ import annotations
@@ -19,13 +20,15 @@ import argparse
 import contextlib
 import json
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
+from datetime import date
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _report import BENCHMARKS, ROOT, machine, replace_section  # noqa: E402
+from _report import BENCHMARKS, DETAILS, ROOT, machine, replace_section, subtable  # noqa: E402
 
 ENTRY_POINTS = {
     "render-balls": "from raykernel.scene.loading import load; from raykernel.rendering.render import render\n"
@@ -77,6 +80,9 @@ def run_child(code: str, cache: str, src: str | None = None) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+COLUMNS = ["label", "entry point", "cold total s", "cold compile s", "warm total s"]    # of the summary's table
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--label", default="now", help="row label, e.g. before or after")
@@ -115,21 +121,37 @@ def main() -> int:
     old["rows"] = [r for r in old["rows"] if (r["label"], r["entry"]) not in fresh] + rows
     for label in {r["label"] for r in rows}:
         old.setdefault("machines", {})[label] = machine()
+    if rows:        # the latest run: its labels (REV's first), command and date, the summary's rows
+        old["latest"] = dict(labels=[label for label, _ in sides], date=date.today().isoformat(),
+                             command=shlex.join([".venv/bin/python", "bench/startup.py"] + sys.argv[1:]))
     store.write_text(json.dumps(old, indent=1) + "\n")
-    lines = ["## Start-up: compile time, cold and warm",
-             "",
-             "`.venv/bin/python bench/startup.py --label LABEL`. Each entry point runs in a fresh process on an "
-             "empty numba cache (cold), then again on the cache it left (warm). Seconds of the whole process "
-             "after interpreter start; `compile` is the time inside numba's compile events; the last column "
-             "names the functions whose compiles took longest, callees included. Targets: "
-             "render-balls cold compile at most 20 s, rayscene cold at most 10 s, every warm start under 1 s.",
-             "",
-             "| label | entry point | cold total s | cold compile s | warm total s | warm compile s | "
+    latest = old.get("latest") or dict(labels=[], date="", command=".venv/bin/python bench/startup.py --label LABEL")
+    here = old.get("machines", {}).get(latest["labels"][-1] if latest["labels"] else "", "not recorded")
+    table = ["| label | entry point | cold total s | cold compile s | warm total s | warm compile s | "
              "largest compiles (s) |",
              "|---|---|---|---|---|---|---|"]
     for r in old["rows"]:
-        lines.append(f"| {r['label']} | {r['entry']} | {r['cold']:.1f} | {r['cold_compile']:.1f} | {r['warm']:.2f} | "
+        table.append(f"| {r['label']} | {r['entry']} | {r['cold']:.1f} | {r['cold_compile']:.1f} | {r['warm']:.2f} | "
                      f"{r['warm_compile']:.2f} | {r['top']} |")
+    lines = ["## Start-up: compile time, cold and warm",
+             "",
+             f"`{latest['command']}` ({latest['date']}). Each entry point runs in a fresh process on an "
+             "empty numba cache (cold), then again on the cache it left (warm). Seconds of the whole process "
+             "after interpreter start; `compile` is the time inside numba's compile events (the full table also "
+             "names the functions whose compiles took longest, callees included). Targets: "
+             "render-balls cold compile at most 20 s, rayscene cold at most 10 s, every warm start under 1 s.",
+             "",
+             f"Machine: {here}.",
+             "",
+             "The latest run, this tree's rows (every run kept in bench/startup.json is in the full table):",
+             "",
+             *subtable(table, COLUMNS, {"label": latest["labels"][-1:]}),
+             "",
+             DETAILS,
+             "",
+             "Every run kept, by label (each label's machine below the table):",
+             "",
+             *table]
     lines += [""] + [f"- {label}: {m}" for label, m in old["machines"].items()]
     replace_section("startup", "\n".join(lines))
     return 0

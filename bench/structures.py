@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from datetime import date
 
-from _report import machine, replace_section
+from _report import DETAILS, machine, pivot, replace_section
 
 import raykernel
 from raykernel.aggregates.registry import KINDS
@@ -36,6 +37,7 @@ OCTREE_WALKS = ("octree(walk=point, collapse=off)", "octree(walk=neighbor, colla
                 "octree(walk=parametric, collapse=off)", "octree(walk=wall)")
 # the lazy structures beside the eager octree, at several image sizes
 LAZY_SPECS = ("octree", "lazyoctree", "rc")
+SUMMARY = "Tests per ray (N_IT), each kind at its defaults (the full tables: every count, memory and time):"
 
 
 def run(scenes, specs, resolution):
@@ -96,11 +98,14 @@ def main():
     warm = raykernel.load("spd:balls:1")
     for spec in dict.fromkeys(kinds + list(OCTREE_VARIANTS) + list(OCTREE_WALKS) + list(LAZY_SPECS)):
         raykernel.render(warm, accel=spec, resolution=8, spd=True)   # compile or load the cache first
-    rows = run(scenes, kinds, args.resolution)
+    main_table = table(run(scenes, kinds, args.resolution))
     lines = ["## Acceleration structures side by side", "",
-             f"`{('python bench/structures.py ' + ' '.join(sys.argv[1:])).strip()}`: SPD mode at {args.resolution}x{args.resolution}, each kind with its default parameters; "
+             f"`{('python bench/structures.py ' + ' '.join(sys.argv[1:])).strip()}` ({date.today().isoformat()}): "
+             f"SPD mode at {args.resolution}x{args.resolution}, each kind with its default parameters; "
              "per-ray figures divide by all rays (eye, reflect, refract, shadow). Ray counts agree across kinds "
-             "(checked by the script).", "", f"Machine: {machine()}.", ""] + table(rows)
+             "(checked by the script).", "", f"Machine: {machine()}.", "", SUMMARY, "",
+             *pivot(main_table, "scene", "structure", "N_IT"), "", DETAILS, "",
+             "Each kind at its defaults, every count and time:", ""] + main_table
     if "octree" in KINDS:
         oct_scenes = [(n, s) for n, s in scenes if n in args.octree_scenes.split(",")] or \
             [(n, load(n)) for n in args.octree_scenes.split(",")]

@@ -55,8 +55,8 @@ move along an axis takes the same vector test with an infinite inverse there
 origin lies on, and NaN for an origin on the plane, which the test skips (its
 maxima and minima keep the other operand), so the ray is in the closed slab or
 outside it for every t, as the scalar `slab` decides. One test for every ray
-keeps a branch and a second box test out of the walk's inner loop: the mesh
-kernel ran 1.03-1.12x faster without them (BENCHMARKS.md, "Ray casting").
+keeps a branch and a second box test out of the walk's inner loop, which made
+the mesh kernel faster (BENCHMARKS.md, "Ray casting").
 """
 
 from __future__ import annotations
