@@ -1,6 +1,6 @@
 """Haines's puzzle, answered: the light at the eye rendered naively and correctly, side by side.
 
-    .venv/bin/python examples/eye_light_puzzle.py [-o docs/eye-light-puzzle.png]
+    .venv/bin/python examples/eye_light_puzzle.py [-o eye-light-puzzle.png]
 
 Left: the trick (no shadow rays toward the eye light from eye rays' hits). Right: the same
 light with its shadow rays cast. Under Whitted shading the two are the same image; under the

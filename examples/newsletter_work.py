@@ -1,6 +1,6 @@
 """Where the work goes in Haines's pathological scenes: work images of several structures side by side.
 
-    .venv/bin/python examples/newsletter_work.py [-o docs/work] [--resolution 160] [--counter tests.total]
+    .venv/bin/python examples/newsletter_work.py [-o work] [--resolution 160] [--counter tests.total]
 
 For the teapot in the stadium (octree, the octree with BVHs in its problem voxels, grid, BVH and
 `auto`), the satellite and the sun, it renders each structure with work layers and writes one
@@ -35,7 +35,7 @@ SCENES = {
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("-o", "--output", default="docs/work", help="folder for the figures (default docs/work)")
+    ap.add_argument("-o", "--output", default="work", help="folder for the figures (default work)")
     ap.add_argument("--resolution", type=int, default=160)
     ap.add_argument("--counter", default="tests.total", help="the work layer drawn (default tests.total)")
     args = ap.parse_args()

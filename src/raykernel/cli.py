@@ -773,7 +773,8 @@ def main(argv=None) -> int:
 def run() -> None:
     """The console script: main(), then the objects it made frozen out of the garbage collector
     (gc.freeze), so that the full collections of the interpreter's exit do not walk the
-    hundreds of thousands of objects numba's compiler keeps: 0.15-0.35 s of every command."""
+    hundreds of thousands of objects numba's compiler keeps: a noticeable part of a second of every
+    command."""
     status = main()
     gc.freeze()
     sys.exit(status)

@@ -1,4 +1,6 @@
-"""Renders that span processes and machines, on Dask distributed (`pip install raykernel[distributed]`).
+"""Renders that span processes and machines, on Dask distributed (``pip install raykernel[distributed]``).
+
+::
 
     from raykernel.cluster import Cluster
     with Cluster("local:2") as cluster:                 # a LocalCluster of 2 worker processes
@@ -6,8 +8,8 @@
     with Cluster("tcp://scheduler:8786") as cluster:    # a running scheduler and its workers
         ...
 
-The command line takes the same addresses: `raykernel render scene.nff --dask local:2`, and
-likewise `animate`, `compare` and `sweep`.
+The command line takes the same addresses: ``raykernel render scene.nff --dask local:2``, and
+likewise ``animate``, ``compare`` and ``sweep``.
 
 A render's tiles are Dask tasks. The scene goes to every worker once; each worker
 builds its structures on its first task and keeps them (a few renders per worker process),
@@ -23,7 +25,7 @@ scheduler runs its tasks again elsewhere, and they give the same results (the sc
 workers as a task's result, which the scheduler can make again, not as scattered data, whose
 dependents it forgets when a worker is lost with it). Tasks the scheduler cancels anyway are a
 ClusterError. A scheduler that
-cannot be reached within `timeout` seconds is an OptionError naming the address; one lost while
+cannot be reached within ``timeout`` seconds is an OptionError naming the address; one lost while
 work is on the cluster (the client out of touch with it for LOST_SECONDS) is a ClusterError
 naming it, and an animation keeps the frames written so far: the same command goes on from them.
 """
@@ -50,7 +52,7 @@ POLL_SECONDS = 0.25
 
 
 class ClusterError(RayKernelError):
-    """The Dask scheduler was lost while work was on the cluster."""
+    """The Dask scheduler was lost, or cancelled the tasks, while work was on the cluster."""
 
 _jobs: OrderedDict = OrderedDict()      # in each worker process: (scene key, options) -> RenderJob
 _jobs_lock = threading.Lock()           # a worker with several threads may run tasks of one job at once
@@ -128,7 +130,39 @@ def _warm_task(options):
 
 
 class Cluster:
-    """A Dask client, and the cluster it started ("local" or "local:N") or joined ("tcp://...")."""
+    """A Dask client, and the cluster it started (``"local"`` or ``"local:N"``) or joined (``"tcp://..."``).
+
+    Use it as a context manager (or call `close`): leaving it closes the client and a local
+    cluster it started.
+
+    Parameters
+    ----------
+    address : str, default "local"
+        ``"local"``: a LocalCluster of one worker process a core; ``"local:N"``: of N worker
+        processes, each running one task at a time over its share of the cores;
+        ``"tcp://HOST:PORT"`` (any ``scheme://`` address): a running scheduler and its
+        workers, which use all their cores.
+    timeout : float, default CONNECT_TIMEOUT
+        Seconds to wait for the scheduler.
+
+    Attributes
+    ----------
+    address : str
+        The address given.
+    client : distributed.Client
+        The Dask client.
+
+    Raises
+    ------
+    OptionError
+        Dask distributed is not installed, the address is not one of these forms, or the
+        scheduler cannot be reached within `timeout` seconds.
+
+    Examples
+    --------
+    >>> with Cluster("local:2") as cluster:
+    ...     result = cluster.render(scene, accel="bvh", spd=True)
+    """
 
     def __init__(self, address: str = "local", timeout: float = CONNECT_TIMEOUT):
         distributed = _import_distributed()
@@ -167,38 +201,92 @@ class Cluster:
         self.close()
 
     def close(self) -> None:
+        """Close the client, and the local cluster where this Cluster started one."""
         self.client.close()
         if self.local is not None:
             self.local.close()
 
     @property
     def workers(self) -> int:
+        """The number of workers the scheduler has now (at least 1)."""
         return max(1, len(self.client.scheduler_info()["workers"]))
 
     def worker_pids(self) -> dict:
-        """Worker address -> process id (for tests that stop one)."""
+        """Worker address -> process id (for tests that stop one), as a dict."""
         return self.client.run(os.getpid)
 
     def task_options(self, options: dict) -> dict:
-        """Render options for a task: a local worker's share of the cores unless threads are given."""
+        """Render options for a task: a local worker's share of the cores unless threads are given.
+
+        Parameters
+        ----------
+        options : dict
+            Keywords of `raykernel.render`.
+
+        Returns
+        -------
+        dict
+            `options`, with ``threads`` set to a local worker's share of the cores where it is
+            None or absent.
+        """
         if options.get("threads") is None and self.threads_per_worker is not None:
             return {**options, "threads": self.threads_per_worker}
         return options
 
     def share(self, obj):
-        """(future, key): obj for the tasks, and a key that names it in the workers' caches. obj
-        is the result of a task, not scattered data: a worker lost with it (killed, out of
-        memory) has it made again, where the scheduler forgets scattered data's dependents."""
+        """Send `obj` to the cluster for tasks to take as an argument.
+
+        `obj` becomes the result of a task, not scattered data: a worker lost with it (killed,
+        out of memory) has it made again, where the scheduler forgets scattered data's
+        dependents.
+
+        Parameters
+        ----------
+        obj : object
+            Anything picklable (a Scene, say).
+
+        Returns
+        -------
+        future : distributed.Future
+            `obj`, for the tasks.
+        key : str
+            A key that names it in the workers' caches.
+        """
         future = self.client.submit(_given, obj, pure=False)
         return future, f"{future.key}-{next(self._keys)}-{time.monotonic_ns()}"
 
     def warm_up(self, options: dict | None = None) -> None:
-        """Compile (or load from the cache) the kernels on every worker before anything is timed."""
+        """Compile (or load from the cache) the kernels on every worker before anything is timed.
+
+        Parameters
+        ----------
+        options : dict, optional
+            Keywords of `raykernel.render` for the warm-up render of each worker.
+        """
         self.client.run(_warm_task, self.task_options(dict(options or {})))
 
     def completed(self, futures, doing: str = "rendering"):
-        """(future, result) as the futures finish; ClusterError if the scheduler is lost meanwhile
-        (`doing`: what was on the cluster, for the message). A task's own error is raised as it is."""
+        """``(future, result)`` pairs as the futures finish (a generator).
+
+        Parameters
+        ----------
+        futures : iterable of distributed.Future
+            The tasks.
+        doing : str, default "rendering"
+            What was on the cluster, for the message of a ClusterError.
+
+        Yields
+        ------
+        tuple
+            ``(future, result)`` of each task, in the order they finish.
+
+        Raises
+        ------
+        ClusterError
+            The scheduler is lost, or cancels the tasks, meanwhile.
+        Exception
+            A task's own error, raised as it is.
+        """
         distributed = _import_distributed()
         pending, lost_since = list(futures), None
         while pending:
@@ -234,12 +322,49 @@ class Cluster:
         return ClusterError(f"lost the Dask scheduler at {self.address} while {doing} ({why})")
 
     def result(self, future, doing: str = "rendering"):
-        """future's result, or ClusterError if the scheduler is lost first."""
+        """The result of one task, or ClusterError if the scheduler is lost first.
+
+        Parameters
+        ----------
+        future : distributed.Future
+            The task.
+        doing : str, default "rendering"
+            What was on the cluster, for the message of a ClusterError.
+
+        Returns
+        -------
+        object
+            The task's result.
+        """
         for _, value in self.completed([future], doing):
             return value
 
     def map(self, fn, items, progress=None, pure=False, doing: str = "rendering") -> list:
-        """fn(*item) for every item as tasks; the results in the items' order."""
+        """``fn(*item)`` for every item, as tasks; the results in the items' order.
+
+        Parameters
+        ----------
+        fn : callable
+            The function each task calls.
+        items : iterable of tuple
+            Each task's arguments.
+        progress : callable, optional
+            ``progress(done, total)``, called as each task finishes.
+        pure : bool, default False
+            Dask's `pure` (False: every task runs, even with equal arguments).
+        doing : str, default "rendering"
+            What was on the cluster, for the message of a ClusterError.
+
+        Returns
+        -------
+        list
+            The tasks' results, in the items' order.
+
+        Raises
+        ------
+        ClusterError
+            The scheduler is lost, or cancels the tasks, meanwhile.
+        """
         futures = [self.client.submit(fn, *item, pure=pure) for item in items]
         results = {}
         for f, value in self.completed(futures, doing):
@@ -249,9 +374,22 @@ class Cluster:
         return [results[f.key] for f in futures]
 
     def animate(self, segments, work, finished) -> None:
-        """animate()'s frames (rendering/animate.py), each segment of them a task; each frame handed
-        to finished(index, image, record) as its segment returns. work: (subject, times, pending
-        frames, options, incremental, rebuild threshold)."""
+        """Render animate()'s frames (rendering/animate.py), each segment of them a task.
+
+        Parameters
+        ----------
+        segments : iterable
+            The frames' indices, one sequence a segment (a task).
+        work : tuple
+            ``(subject, times, pending frames, options, incremental, rebuild threshold)``.
+        finished : callable
+            ``finished(index, image, record)``, called for each frame as its segment returns.
+
+        Raises
+        ------
+        ClusterError
+            The scheduler is lost meanwhile; the frames handed to `finished` so far are kept.
+        """
         subject, times, pending, options, incremental, threshold = work
         future, _ = self.share(subject)
         options = self.task_options(options)
@@ -263,7 +401,34 @@ class Cluster:
                 finished(i, image, record)
 
     def render(self, scene, progress=None, **options):
-        """render(scene, **options) with its tiles traced on the workers; the same image and counters."""
+        """``render(scene, **options)`` with its tiles traced on the workers: the same image and counters.
+
+        The scene goes to every worker once; each builds its structures on its first task and
+        keeps them. Lazy structures refine between passes from the counts of the whole pass.
+
+        Parameters
+        ----------
+        scene : Scene
+            The scene to render.
+        progress : callable, optional
+            ``progress(done, total)``, called as each task finishes, in samples.
+        **options
+            Keywords of `raykernel.render` (``builder`` is ignored); ``auto`` specs are
+            annealed here, once, before the tasks.
+
+        Returns
+        -------
+        RenderResult
+            As `raykernel.render`'s; ``stats.info["dask"]`` gives the address and the number of
+            workers, and the trace time is the wall-clock time of the tasks.
+
+        Raises
+        ------
+        ClusterError
+            The scheduler is lost, or cancels the tasks, meanwhile.
+        OptionError
+            An option is not valid.
+        """
         from .analysis.auto import tune
         from .geometry.compiletime import CompileClock
         from .rendering.render import RenderJob

@@ -8,12 +8,41 @@ from __future__ import annotations
 
 
 class RayKernelError(Exception):
-    """Base of the errors raykernel raises on purpose; the CLI prints them
-    as one line instead of a traceback."""
+    """Base of the errors raykernel raises on purpose.
+
+    The command line prints them as one line instead of a traceback.
+    """
 
 
 class SceneError(RayKernelError):
-    """A scene (file, JSON or Python model) is not valid."""
+    """A scene (file, JSON or Python model) is not valid.
+
+    The message starts with where: ``path:line: message``, ``path: message`` or
+    ``line N: message``.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong.
+    path : str or path-like, optional
+        The file (or other source) of the scene.
+    line : int, optional
+        The line in it.
+
+    Attributes
+    ----------
+    message : str
+        What is wrong, without where.
+    path : str or None
+        The file, as a string.
+    line : int or None
+        The line.
+
+    Examples
+    --------
+    >>> str(SceneError("expected 3 numbers after 'from'", path="a.nff", line=4))
+    "a.nff:4: expected 3 numbers after 'from'"
+    """
 
     def __init__(self, message: str, path: str | None = None, line: int | None = None):
         self.message = message

@@ -1,6 +1,12 @@
-"""raykernel as trimesh's ray engine: `mesh.ray = raykernel.trimesh.RayMeshIntersector(mesh)`.
+"""raykernel as trimesh's ray engine: ``mesh.ray = raykernel.trimesh.RayMeshIntersector(mesh)``.
 
-See raykernel.casting.trimeshray for what each query answers.
+RayMeshIntersector says what each query answers (its code is raykernel.casting.trimeshray)::
+
+    import trimesh, raykernel.trimesh
+    mesh = trimesh.creation.icosphere()
+    mesh.ray = raykernel.trimesh.RayMeshIntersector(mesh)
+    index_tri, index_ray = mesh.ray.intersects_id(origins, directions)
+    mesh.contains(points)          # trimesh's own queries now cast with raykernel
 """
 
 from .casting.trimeshray import RayMeshIntersector

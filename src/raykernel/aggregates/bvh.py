@@ -86,8 +86,9 @@ __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item
 
 _MAX_BINS = 1024
 _COMPILING = "raykernel: compiling the BVH builder (first use after install, a few seconds)"
-# corners a polygon's inside test walks in the time of one whole primitive test (reference
-# costs: about 1 ns per corner walked against 5-15 ns per test)
+# corners a polygon's inside test walks in the time of one whole primitive test (a corner
+# walked costs a fraction of a whole test; the cost model's calibration measures both:
+# polygon.corner and test.*)
 CORNERS_PER_TEST = 8
 
 
@@ -890,7 +891,7 @@ def walked_wide(stats) -> bool:
 
 def features(stats, f, used) -> None:
     """The cost model's features of a render walked 4-wide (walked_wide): its node visits and
-    tests cost what the general walk's do not (a polygon test about a third as much, its
+    tests cost what the general walk's do not (a polygon test much less, its
     primitives' numbers read in leaf order), so its walk is priced as `wide` and its tests,
     hits and corners as test.KIND.wide, hit.KIND.wide and polygon.corner.wide; the eye rays of
     culled tiles, counted as one bound test each, are priced as ray.culled."""
@@ -1041,7 +1042,7 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
           "(Kensler 2008) or reinsertion (Bittner, Hapala and Havran 2013)", str,
           choices=("none", "rotations", "reinsertion")),
     Param("corners", 1, "1: the SAH weighs a polygon of more than 8 corners as corners / 8 items, since its "
-          "test walks them all (about a nanosecond each against some 8 for a whole test; sah only); 0: every "
+          "test walks them all (a corner costs a fraction of a whole test; sah only); 0: every "
           "item weighs one", int, 0, 1),
     Param("split", 1, "early split clipping (Ernst and Greiner 2007): each polygon or triangle is cut across "
           "its box's longest axis, again and again while that shrinks its boxes' surface by a quarter, into at "

@@ -39,12 +39,13 @@ the budget cannot pay for stays a leaf for good.
 Defaults: depth 16, rays 2, k 0, budget 16, rule60 off. Criterion V is off
 by default because it delays exactly the leaves that cost most: every ray
 that reaches a leaf of M items tests M of them, so waiting for k*M passes
-costs about k*M^2 tests (k=0.1 on SPD balls: 198 tests per ray at 96x96,
-against 11 with k=0). The budget stands in for it: where two items' boxes
-overlap, no split separates them, and rays passing between them would
+costs about k*M^2 tests (even a small k makes SPD balls test many times
+more items per ray than k=0). The budget stands in for it: where two items'
+boxes overlap, no split separates them, and rays passing between them would
 split their cells down to the depth limit (SPD balls at 512x512 without a
-budget: 20 million nodes, MAX_NODES, and 3.5 GB; with it 87k and 16 MB,
-and `octree` 62k).
+budget reach MAX_NODES and gigabytes; with it, a tree of the eager
+`octree`'s order of size: bench/structures.py measures both, docs/benchmarks/
+structures.md, "Lazy structures and image size").
 A ray *passes through* a leaf when, after the leaf's items are tested, its
 closest hit so far (or its tmax) is not before the leaf's exit distance; a
 ray that stops in the leaf, meets its end there or, as an any-hit ray, finds
@@ -82,8 +83,8 @@ by a few rays at a time; then the samples halfway between those traced,
 level by level (steps of 8, 4, 2 and 1 sample), in batches of tiles. Each
 ray then meets a tree that the rays of its neighbours have already
 refined; traced tile by tile instead, each new tile's rays met the coarse
-leaves of a region seen for the first time (at 96x96, tests per ray tile
-by tile -> coarse to fine: SPD balls 205 -> 10.9, the stadium 388 -> 24.7). RayScene takes its rays coarse to fine
+leaves of a region seen for the first time (on SPD balls and the stadium,
+tile by tile tested many times more items per ray). RayScene takes its rays coarse to fine
 too (rayscene.coarse_to_fine: ray 0, then every odd multiple of 2^k for k
 from high to low) in passes (pass_ranges) of FIRST_PASS = 16 rays, 16, 32,
 ... up to PASS_CHUNKS chunks of CHUNK rays (8192). Boundaries depend only

@@ -69,23 +69,23 @@ depth=16, leaf=3, budget=16, rule60 off, density off, collapse on. Items that
 no split separates (the triangles around a shared mesh vertex, spheres that
 overlap each other) keep a node above ``leaf`` at every level, so depth and
 leaf alone let the tree grow as 8**depth around them: at the old defaults
-(depth 8, no budget) SPD shells (5,761 overlapping spheres) took 12.6
-million nodes, 11.6 GB and 164 s, tetra 981 and sample 13,096 references per
-item. The budget keeps memory proportional to the item count (fewer nodes
-than references: at most 18 MB on every SPD default scene and the stadium),
-so the depth limit can be deep enough for a small cluster in a big box: at
-the stadium's default ratio of 600 the teapot is resolved 12 to 15 levels
-down, 9.3 tests per ray instead of 1,565 (SPD mode at 32x32; the tree scene:
-7.3 instead of 28). The price is paid on meshes, whose finest cells the old
-octree could afford only by the hundreds of references per item: tetra
-tests 21 items per ray instead of 2.2, sample 19 instead of 7.9, gears 5.2
-instead of 2.7; budget=32 halves the gap (tetra 12, gears 3.3) for twice
-the memory. At a ratio of 10**6 the teapot lies 20 levels down in one cell
-with the field; no budget or depth fixes that (2,300 tests per ray), a BVH
-nested around the teapot does (see pathological.stadium, teapot_bvh).
+(depth 8, no budget) SPD shells (overlapping spheres) took gigabytes and
+minutes to build, and meshes such as tetra and sample hundreds to thousands
+of references per item. The budget keeps memory proportional to the item
+count (fewer nodes than references), so the depth limit can be deep enough
+for a small cluster in a big box: at the stadium's default ratio the teapot
+is resolved many levels down, with far fewer tests per ray than the old
+defaults made (the tree scene gains too). The price is paid on meshes, whose
+finest cells the old octree could afford only by the hundreds of references
+per item: tetra, sample and gears test more items per ray; budget=32
+narrows the gap for up to twice the memory. At a ratio of 10**6 the
+teapot lies in one deep cell with the field; no budget or depth fixes that,
+a BVH nested around the teapot does (see pathological.stadium, teapot_bvh).
 rule60 stays off: wherever a large floor or backdrop polygon reaches into
-the other octants it stops the subdivision within a few levels (SPD balls:
-97 nodes and 1,609 tests per ray; teapot: 9 nodes and 664).
+the other octants it stops the subdivision within a few levels (SPD balls
+and teapot stay shallow trees that test many times more items per ray).
+bench/structures.py measures these variants (docs/benchmarks/structures.md,
+"Octree criteria and traversals").
 
 Collapse
 --------
@@ -622,7 +622,7 @@ def walk_step(geo, step, a, te, ray, lo, best_t, f, sp, ws, cnt):
     return answer(sp, s, e, ray, best_t)
 
 
-@njit(inline="always")   # the choice of walk only: the walks are compiled apart (their IR inlined would cost 15 s)
+@njit(inline="always")   # the choice of walk only: the walks are compiled apart (their IR inlined would add a lot of compile time)
 def octree_step(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_mailbox, oct_nbr, oct_origin, oct_pass,
                 oct_quad, oct_root, oct_scale, oct_slot, oct_unit, oct_walk, kind_step, a, te, oi, ray, tmin, best_t,
                 frame_f, f, ws, sp, cnt):
@@ -922,8 +922,8 @@ WALK = Walk(code=CODE, name="octree", fields=FIELDS, step=walk_step, counters=CO
 KIND = Kind("octree", "octree (Glassner 1984): centre subdivision of the scene box (not made cubic), "
               "objects in every child their box overlaps; nodes with the most items times box area are split "
               "first, until depth, leaf, the criteria or the reference budget stop them. Defaults: depth 16 and "
-              "budget 16 keep memory proportional to the items (under 20 MB on every SPD default scene; without "
-              "a budget, items no split separates grow the tree as 8^depth: 11.6 GB on SPD shells at depth 8) "
+              "budget 16 keep memory proportional to the items (without a budget, items no split separates grow "
+              "the tree as 8^depth: gigabytes on SPD shells at depth 8) "
               "while small clusters in big boxes still get resolved; rule60 stays off, as it stops subdivision "
               "early wherever a large floor polygon reaches into the other octants", (
     Param("depth", 16, "maximum subdivision depth (the root is level 0)", int, 0, 24),

@@ -121,9 +121,9 @@ split, and images, hits and counters are the same at any thread count.
 Refinement appends nodes and lists in candidate order, one split after
 another; only the beam tests of a list of at least PARALLEL_LIST (256)
 candidates are shared among the threads, each writing its own entries of a
-mask, so the trees do not depend on the thread count either (SPD balls at
-256x256 on 2 cores: 4.0 s of refinement one split at a time, 2.4 s now,
-moving the lists together in compiled code included).
+mask, so the trees do not depend on the thread count either (on SPD balls
+this shortened refinement markedly against one split at a time, moving the
+lists together in compiled code included).
 
 The progress rule allows LAZY_STALE_SPLITS (40, eight rounds) splits in a
 row without progress instead of five: near the root of a scene with a large
@@ -132,9 +132,8 @@ floor still sweeps the whole cluster of balls), in a cluster of thousands
 of items a split keeps most of them until the beams are narrow, and lazily
 the rule only guards paths rays actually take, where the budget bounds the
 cost anyway. With five, lazy trees stopped there and tested more candidates
-per ray than the eager ones (SPD teapot at 128x128: 558 against 413); with
-15 and depth 20, SPD balls at 96x96 made 1,421 tests per ray, with 40 and
-depth 40 (the default) 609.
+per ray than the eager ones (SPD teapot); with 15 and depth 20, SPD balls
+made many more tests per ray than with 40 and depth 40 (the default).
 
 Storage: LazyRC keeps the scene's rc node and candidate arrays with room to
 grow (doubling); the Geometry handed back views the used part. A split
@@ -1007,14 +1006,14 @@ TESTS_PER_STEP = 8       # test.rc: the first tests of each hypercube's list; te
 def features(stats, f, used) -> None:
     """The cost model's features. In a render walked by ray classification alone, the first
     TESTS_PER_STEP ray/primitive tests of each hypercube visited (test.rc): its candidate lists,
-    sorted by distance, send them to primitives scattered in memory (some 9 ns more a test than a
+    sorted by distance, send them to primitives scattered in memory (clearly more a test than a
     grid's in the reference costs); the tests further down a long list (test.rc.more) cost no
     more than a grid's (priced as the first, SPD balls' and shells' long lists of spheres were
-    over-predicted by 40-70%); and the corners its tests walked (polygon.corner.rc). A lazy one's
+    much over-predicted); and the corners its tests walked (polygon.corner.rc). A lazy one's
     rays weighted by log2(1 + MiB of its structure) (ray.lazy.rc_mb: a ray's hypercube and
     candidates are found in memory that grows with the refinement), and its refinement's
     references by the MiB themselves (refine.rc.ref_size: past the caches, at the hundreds of
-    MiB rc reaches on a 256-pixel render, a reference costs twice what it does at a few MiB)."""
+    MiB rc reaches on a 256-pixel render, a reference costs markedly more than at a few MiB)."""
     if used == {"rc"}:
         tests = sum(float(stats.get(f"tests.{k}", 0)) for k in PRIMITIVE_KINDS)
         f["test.rc"] = min(tests, TESTS_PER_STEP * f["step.rc"])

@@ -477,7 +477,7 @@ def _under_one(group: Group, spec: str) -> Group:
     """`group` under one structure: `spec` on it and no spec on the groups it merges (instances
     and operators kept whole, as atoms keep them). The scene's own groups and sets are kept, so
     a single kind found over everything renders exactly as that kind does (the same layout: a
-    regrouped copy of the park, as fast by its counters, traced 10% slower)."""
+    regrouped copy of the park, as fast by its counters, traced measurably slower)."""
     def visit(g: Group) -> Group:
         kids = [c if isinstance(c, Instance) or is_operator(c) else visit(c) for c in g.children]
         return dataclasses.replace(g, children=kids, accel=None)
@@ -615,14 +615,80 @@ def anneal(scene: Scene, target: Group | None = None, seconds: float = 30.0, see
            evaluations: int = 0, moves: int = 0, cooling: float = 0.8, accept0: float = 0.8, patience: int = 3,
            sample: int = 24, margin: float = 0.05, start: Node | None = None, short: bool = False, model=None,
            default: str = "bvh", log=None, options: dict | None = None, atoms: Atoms | None = None) -> Annealed:
-    """Anneal the hierarchy of `target` (a group of `scene`, default its root) for a render with
-    `options` (a dict of render()'s keywords: resolution, spd, max_depth, shading, ...). seconds: the time budget;
-    evaluations: the most candidates priced (0: no limit); moves: per temperature (0: 4 per
-    atom, 16 to 48); margin: the best state is kept only where its energy is at least this
-    fraction below the best kind of START_SPECS over the whole target, which is kept otherwise;
-    start: a state of an earlier anneal of the same scene's structure (another
-    frame; rebind gives it and its `atoms`), with short=True for a short schedule from it.
-    log: callable(str) for progress."""
+    """Find a hierarchy for `target` by simulated annealing, for a render with `options`.
+
+    The energy of a candidate hierarchy is the predicted trace time of the render, from the
+    exact counts of a small render of it, plus `memory` seconds per MiB its structures take
+    (see the module docstring for the moves and the schedule). Counts are exact, so a run is
+    deterministic for a seed, except where the time budget cuts it short.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene.
+    target : Group, optional
+        The group of `scene` whose hierarchy is annealed (default: its root).
+    seconds : float, default 30
+        The time budget (compiling, on a first run, is not counted).
+    seed : int, default 0
+        The random numbers of the search.
+    memory : float, default 0
+        Seconds of energy per MiB the structures take.
+    evaluations : int, default 0
+        The most candidates priced (0: no limit).
+    moves : int, default 0
+        Moves tried per temperature (0: 4 per atom, 16 to 48).
+    cooling : float, default 0.8
+        The temperature's factor from one temperature to the next.
+    accept0 : float, default 0.8
+        The probability with which a typical uphill move is accepted at the start.
+    patience : int, default 3
+        Temperatures in a row accepting changes in under 2% of their moves, after which the
+        search stops (frozen).
+    sample : int, default 24
+        The candidates' renders have this many pixels along the image's longer side (its
+        aspect kept); their counts are scaled to the full render.
+    margin : float, default 0.05
+        The best state is kept only where its energy is at least this fraction below that of
+        the best kind of START_SPECS over the whole target, which is kept otherwise.
+    start : Node, optional
+        A state of an earlier anneal of the same scene's structure (another frame; `rebind`
+        gives it and its `atoms`).
+    short : bool, default False
+        A short schedule from `start` (the starting temperature a tenth).
+    model : CostModel, optional
+        The cost model that prices the counts (default: ``costmodel.current()``, this
+        machine's calibration, else the reference costs).
+    default : str, default "bvh"
+        The spec of groups outside the annealed tree that name none.
+    log : callable, optional
+        ``log(str)``, called with the progress.
+    options : dict, optional
+        The render's keywords (``resolution``, ``spd``, ``max_depth``, ``shading``, ...), as
+        for `raykernel.render`.
+    atoms : Atoms, optional
+        The atoms `rebind` gave with `start`.
+
+    Returns
+    -------
+    Annealed
+        ``scene`` (the scene with the target regrouped, each group with its spec), ``state``
+        and ``start`` (the hierarchies found and started from, ``after`` and ``before`` as
+        text), ``energy``, the energies of the starts, the history of the run, its seconds,
+        evaluations and why it ``stopped``.
+
+    Raises
+    ------
+    OptionError
+        A parameter is out of its range, `atoms` are given without `start` or `start` does not
+        hold this scene's atoms, or no starting structure can be built.
+
+    Examples
+    --------
+    >>> found = anneal(scene, seconds=30, seed=0)
+    >>> found.scene                                     # the scene regrouped, each group with its spec
+    >>> print(found.before, found.after)                # the hierarchies as trees
+    """
     from ..geometry.compiletime import CompileClock
     with CompileClock() as clock:       # compiling (a first run) is not searching: not in the budget
         return _anneal(scene, target, seconds, seed, memory, evaluations, moves, cooling, accept0, patience, sample,
@@ -805,7 +871,7 @@ def resolve_auto(scene: Scene, accel: str, options: dict, log=None):
 # ---- the report ------------------------------------------------------------------------------------
 
 def plot(found: Annealed, path) -> None:
-    """Energy (current and best) and temperature over the run, as a PNG written atomically."""
+    """figure(found) as a PNG written atomically."""
     import io
 
     import matplotlib
@@ -813,6 +879,16 @@ def plot(found: Annealed, path) -> None:
     import matplotlib.pyplot as plt
 
     from ..atomicfile import write_bytes
+    fig = figure(found)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    write_bytes(path, buf.getvalue())
+
+
+def figure(found: Annealed):
+    """Energy (current and best) and temperature over the run: a matplotlib figure."""
+    import matplotlib.pyplot as plt
     h = np.array(found.history, float).reshape(-1, 4)
     fig, ax = plt.subplots(figsize=(7, 3.6), dpi=110)
     ax.plot(h[:, 0], h[:, 2], label="energy", color="tab:blue")
@@ -825,7 +901,4 @@ def plot(found: Annealed, path) -> None:
     fig.legend(loc="upper right")
     ax.set_title(f"annealing ({found.evaluations} candidates, {found.seconds:.1f} s, seed {found.seed})")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    plt.close(fig)
-    write_bytes(path, buf.getvalue())
+    return fig

@@ -170,10 +170,55 @@ def _cell(scene, label, params, accel, options, work=None) -> Run:
 
 def compare(scenes, accels, spd=False, resolution=None, threads=None, max_depth=5, model="default",
             log=None, command=None, warm_up=True, cluster=None, work=None) -> Comparison:
-    """Render every scene with every structure; scenes are names or (label, Scene, params) triples.
-    cluster: a cluster.Cluster to run the cells on, one task each (same counts; times are each worker's).
-    work: a counter name (e.g. "tests.total"): every run keeps that counter's work layer
-    (analysis/workimages.py draws them)."""
+    """Render every scene with every structure.
+
+    The ray counts (``rays.*``) depend only on the scene and the options, never on the
+    structure, so any difference between structures is a correctness failure, listed in the
+    result's ``disagreements``.
+
+    Parameters
+    ----------
+    scenes : sequence
+        Scene names (as for `raykernel.load`) or ``(label, Scene, params)`` triples.
+    accels : sequence of str
+        The accelerator specs to compare, at least one.
+    spd, resolution, threads, max_depth
+        As for `raykernel.render`.
+    model : CostModel, str, None or "default"
+        The cost model that predicts each run's trace time: ``"default"``, this machine's
+        calibration (none where it has none); a path to a calibration file; a CostModel; or
+        None or False for no prediction.
+    log : callable, optional
+        ``log(str)``, called after each run with its trace time (not on a cluster).
+    command : str, optional
+        The command line recorded in the result (default: this process's).
+    warm_up : bool, default True
+        Compile (or load from the cache) every kernel before anything is timed.
+    cluster : Cluster, optional
+        A ``cluster.Cluster`` to run the cells on, one task each (the same counts; the times
+        are each worker's).
+    work : str, optional
+        A counter name (e.g. ``"tests.total"``): every run keeps that counter's work layer
+        (analysis/workimages.py draws them).
+
+    Returns
+    -------
+    Comparison
+        ``runs`` (one Run per scene and structure: its stats, image and predicted time),
+        ``disagreements`` (empty when every structure cast the same rays), the options, the
+        machine and the command.
+
+    Raises
+    ------
+    OptionError
+        No structure is named, a spec or the work counter is not valid, or a run has no work
+        layer of that name.
+
+    Examples
+    --------
+    >>> cmp = compare(["spd:balls", "spd:gears"], ["list", "grid", "bvh"], spd=True, resolution=128)
+    >>> cmp.disagreements          # [] when every structure cast the same rays
+    """
     from .costmodel import machine_info
     _check_accels(accels)
     if work is not None:
@@ -258,6 +303,34 @@ def _load_scene(text: str):
 
 def sweep(template, params: dict, accels, spd=False, resolution=None, threads=None, max_depth=5,
           model="default", log=None, command=None, cluster=None) -> Comparison:
+    """Compare structures over a family of scenes: `compare` of every value of the parameters.
+
+    Parameters
+    ----------
+    template : str
+        A scene name with ``{NAME}`` placeholders, e.g. ``"scene:stadium:ratio={ratio}"``.
+    params : dict
+        NAME -> list of values (strings), each NAME a placeholder of `template`; every
+        combination of values is one scene.
+    accels, spd, resolution, threads, max_depth, model, log, command, cluster
+        As for `compare`.
+
+    Returns
+    -------
+    Comparison
+        As `compare`'s, with ``params`` and ``options["template"]`` set; each run's ``params``
+        holds its values.
+
+    Raises
+    ------
+    OptionError
+        A placeholder has no parameter, or a parameter no placeholder; or as for `compare`.
+
+    Examples
+    --------
+    >>> sw = sweep("scene:stadium:ratio={ratio}", {"ratio": ["1", "100", "10000"]}, ["grid", "bvh"])
+    >>> plot_sweep(sw, "stadium.png")
+    """
     # on a cluster the workers load each scene themselves: only its name travels
     items = [(scene, scene if cluster is not None else _load_scene(scene), values)
              for scene, values in expand(template, params)]
@@ -288,10 +361,25 @@ SWEEP_PANELS = (
 )
 
 
-def sweep_figure_png(cmp: Comparison) -> bytes:
-    """The four sweep panels against the first parameter, one line per structure (and other values)."""
+def _png(make, cmp: Comparison) -> bytes:
+    """The figure make(cmp) as PNG bytes, drawn without a display."""
     import matplotlib
     matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig = make(cmp)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def sweep_figure_png(cmp: Comparison) -> bytes:
+    """sweep_figure(cmp) as PNG bytes."""
+    return _png(sweep_figure, cmp)
+
+
+def sweep_figure(cmp: Comparison):
+    """The four sweep panels against the first parameter, one line per structure (and other values)."""
     import matplotlib.pyplot as plt
     names = list(cmp.params)
     xname = names[0]
@@ -322,16 +410,16 @@ def sweep_figure_png(cmp: Comparison) -> bytes:
         ax.legend(fontsize=8)
     fig.suptitle(cmp.options.get("template", ""))
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return buf.getvalue()
+    return fig
 
 
 def compare_figure_png(cmp: Comparison) -> bytes:
+    """compare_figure(cmp) as PNG bytes."""
+    return _png(compare_figure, cmp)
+
+
+def compare_figure(cmp: Comparison):
     """Grouped bars per scene: N_IT, N_TS, trace seconds, and predicted against measured time."""
-    import matplotlib
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     scenes, accels = cmp.scenes(), cmp.accels()
     fig, axes = plt.subplots(2, 2, figsize=(12, 8))
@@ -374,10 +462,7 @@ def compare_figure_png(cmp: Comparison) -> bytes:
     ax.set_ylabel("predicted trace s")
     ax.set_title("cost model: predicted against measured (dashed: ±25%)")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return buf.getvalue()
+    return fig
 
 
 def plot_sweep(cmp: Comparison, path) -> None:

@@ -1,12 +1,14 @@
 """A linear cost model of trace time: seconds per counted operation, fitted on this machine.
 
-    model = costmodel.calibrate()                   # renders the calibration set: 8 minutes on 2 cores
+::
+
+    model = costmodel.calibrate()                   # renders the calibration set with every structure kind
     model.save(costmodel.default_path())
     model.predict(result.stats)                     # predicted trace seconds
     costmodel.current()                             # this machine's model, else the reference one
     costmodel.SpeedProbe(model)                     # the machine's speed now against the calibration's
 
-Trace time is modelled as  sum(count * cost)  over these features:
+Trace time is modelled as ``sum(count * cost)`` over these features::
 
   render         one per render: fixed overhead (tile dispatch, allocation)
   ray.shaded     eye + reflection + refraction rays (camera, shading, spawning)
@@ -20,8 +22,8 @@ Trace time is modelled as  sum(count * cost)  over these features:
   test.KIND      ray/primitive tests, one cost per primitive kind
   hit.KIND       and those that found the primitive in range (a hit computes its root and
                  takes the closest hit: dearer than a miss)
-  polygon.corner corners walked by polygon and patch tests (testing a 144-corner gear face
-                 costs some ten triangle tests)
+  polygon.corner corners walked by polygon and patch tests (a polygon's test costs more
+                 the more corners it has)
   mailbox        references passed over because their mailbox had the ray already
   leaf           non-empty leaves and cells visited (each starts a loop over references)
   entry.W        rays entering an aggregate of walk W (its set-up: a grid's first cell, an
@@ -42,17 +44,17 @@ W is one of the kernel's walks (registry.WALK_NAMES); every structure kind runs 
 (hgrid runs grids, hybrid and lazyoctree octrees with BVHs inside), and the kernel counts
 each walk's share apart (walk.W.*), so one model prices any nesting of any kinds. Costs
 are wall-clock seconds at the thread count of the calibration, so a model only predicts
-renders made with that many threads on that machine; REFERENCE_PATH holds one fitted on a 2-core machine, used where this machine has
-none (analysis.anneal ranks candidates with it: rankings move less between machines than
-seconds do).
+renders made with that many threads on that machine; REFERENCE_PATH holds one fitted on a
+2-core machine, used where this machine has none (analysis.anneal ranks candidates with it:
+rankings move less between machines than seconds do).
 
 Calibration set (CALIBRATION_SCENES): small SPD scenes, a triangle scene and nested scenes
 (a small park among them), rendered in SPD mode at two resolutions (128 and 256 pixels: at
 256 ray classification grows to the sizes it reaches on full scenes) with every structure
 kind, the nested ones both with their own structures inside and wholly under the kind (a
 kind offered only to small groups, the brute-force list, only on scenes of at most
-SMALL_SCENE_PRIMS primitives); each render is repeated REPEATS times and its shortest trace time kept, since other work on the machine
-only ever adds time.
+SMALL_SCENE_PRIMS primitives); each render is repeated REPEATS times and its shortest trace
+time kept, since other work on the machine only ever adds time.
 The fit is least squares on relative error (each render weighs the same, whatever its
 length), with costs held non-negative and a small ridge term so that features that always
 move together (a grid's one root bound test per ray and the ray count) split their cost
@@ -218,30 +220,81 @@ def fit(rows: list[dict], times, ridge: float = RIDGE) -> dict:
 
 @dataclass
 class CostModel:
+    """Seconds per counted operation, fitted by `calibrate` on one machine at one thread count.
+
+    Attributes
+    ----------
+    costs : dict
+        Feature name (see the module docstring) -> seconds per operation.
+    threads : int
+        The thread count of the calibration: the model predicts renders made with as many.
+    machine : dict
+        The machine it was fitted on: CPU, cores, threads, host, system and versions.
+    calibration : list of dict
+        The renders it was fitted on: scene, accel, resolution, trace and predicted seconds.
+    """
+
     costs: dict                       # feature name -> seconds per operation
     threads: int
     machine: dict = field(default_factory=dict)
     calibration: list = field(default_factory=list)   # the renders it was fitted on
 
     def walks(self) -> set:
-        """The walks calibrated."""
+        """The walks calibrated (registry.WALK_NAMES), as a set of names."""
         return {n.split(".", 1)[1] for n in self.costs if n.startswith(("step.", "bound.", "entry."))}
 
     def covers(self, stats) -> bool:
-        """Whether every walk that did work in the render of `stats` was calibrated."""
+        """Whether every walk that did work in the render of `stats` was calibrated.
+
+        Parameters
+        ----------
+        stats : Stats
+            A render's statistics (``RenderResult.stats``).
+
+        Returns
+        -------
+        bool
+        """
         return walks_used(stats) <= self.walks()
 
     def predict(self, stats, scale: float = 1.0, partial: bool = False) -> float | None:
-        """Predicted trace seconds, or None when a walk the render used was not calibrated
-        (partial: price what was, leaving the rest out). scale: multiplies every count but
-        the render's own (a sample of rays standing for `scale` times as many)."""
+        """Predicted trace seconds of a render, from its counts.
+
+        Parameters
+        ----------
+        stats : Stats
+            The render's statistics (``RenderResult.stats``).
+        scale : float, default 1
+            Multiplies every count but the render's own (a sample of rays standing for `scale`
+            times as many).
+        partial : bool, default False
+            Where a walk the render used was not calibrated, price what was, leaving the rest
+            out (else None).
+
+        Returns
+        -------
+        float or None
+            The seconds; None when a walk the render used was not calibrated and `partial` is
+            False.
+        """
         if not partial and not self.covers(stats):
             return None
         return sum(count * (1.0 if unscaled(name) else scale) * self.costs.get(name, 0.0)
                    for name, count in features(stats).items())
 
     def breakdown(self, stats) -> dict:
-        """Predicted seconds per feature group (rays, tests, traversal)."""
+        """Predicted seconds per feature group.
+
+        Parameters
+        ----------
+        stats : Stats
+            The render's statistics (``RenderResult.stats``).
+
+        Returns
+        -------
+        dict
+            ``{"rays": seconds, "tests": seconds, "traversal": seconds}``.
+        """
         out = {"rays": 0.0, "tests": 0.0, "traversal": 0.0}
         for name, count in features(stats).items():
             group = GROUPS.get(name.split(".")[0], "traversal")
@@ -249,10 +302,18 @@ class CostModel:
         return out
 
     def to_dict(self) -> dict:
+        """The model as the JSON-ready dict a calibration file holds (with its format's version)."""
         return {"version": VERSION, "costs": self.costs, "threads": self.threads, "machine": self.machine,
                 "calibration": self.calibration}
 
     def save(self, path) -> None:
+        """Write the model to a calibration file, atomically, making its directory if needed.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file, e.g. ``default_path()``.
+        """
         from ..atomicfile import atomic_write
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -262,6 +323,23 @@ class CostModel:
 
     @classmethod
     def load(cls, path) -> CostModel:
+        """Read a model from a calibration file.
+
+        Parameters
+        ----------
+        path : str or path-like
+            A file written by `save`.
+
+        Returns
+        -------
+        CostModel
+
+        Raises
+        ------
+        OptionError
+            The file cannot be read, is not a calibration file, or was written by a raykernel
+            whose features differ (run ``raykernel calibrate`` again).
+        """
         try:
             data = json.loads(Path(path).read_text())
             if data.get("version") != VERSION:
@@ -286,8 +364,15 @@ def load_default() -> CostModel | None:
 
 
 def current() -> CostModel:
-    """This machine's calibration, else the reference costs shipped with raykernel (also when
-    this machine's was made by a raykernel that priced other features: a warning says so)."""
+    """This machine's calibration, else the reference costs shipped with raykernel.
+
+    The reference costs are used also when this machine's calibration was made by a raykernel
+    that priced other features: a RayKernelWarning says so.
+
+    Returns
+    -------
+    CostModel
+    """
     try:
         model = load_default()
     except OptionError as err:
@@ -325,15 +410,26 @@ def machine_info() -> dict:
 
 
 class SpeedProbe:
-    """The machine's speed now against its speed during the calibration: a few of the
-    calibration's own renders (per kind, the ANCHORS_PER_KIND whose trace took nearest
-    ANCHOR_SECONDS) timed again. A shared machine's speed drifts after the costs were fitted
-    (5% on average over a 40-minute benchmark, more on some renders), which adds to the
-    model's own error.
+    """The machine's speed now against its speed during the calibration.
 
-        probe = costmodel.SpeedProbe(model)
-        probe.measure()                     # each anchor rendered once; again between other work
-        model.predict(stats) * probe.factor()   # seconds at the speed of the last measurements
+    A few of the calibration's own renders (per kind, the `per_kind` whose trace took nearest
+    ANCHOR_SECONDS) are timed again. A shared machine's speed drifts after the costs were
+    fitted, which adds to the model's own error.
+
+    Parameters
+    ----------
+    model : CostModel
+        The model whose calibration renders are the anchors.
+    per_kind : int, optional
+        Anchors per structure kind (default ANCHORS_PER_KIND).
+    threads : int, optional
+        The threads of the anchors' renders (default: all cores).
+
+    Examples
+    --------
+    >>> probe = costmodel.SpeedProbe(model)
+    >>> probe.measure()                     # each anchor rendered once; again between other work
+    >>> model.predict(stats) * probe.factor()   # seconds at the speed of the last measurements
     """
 
     def __init__(self, model: CostModel, per_kind: int | None = None, threads: int | None = None):
@@ -370,12 +466,23 @@ class SpeedProbe:
             self.best[i] = min(self.best[i], stats["time.trace"])
 
     def ratios(self) -> list[float]:
-        """Per anchor: its best trace time now over its time in the calibration."""
+        """Per anchor measured: its best trace time now over its time in the calibration.
+
+        Returns
+        -------
+        list of float
+        """
         return [best / run["trace"] for best, run in zip(self.best, self.anchors) if math.isfinite(best)]
 
     def factor(self) -> float:
-        """The geometric mean of the ratios: 1.1 when the machine runs 10% slower than during the
-        calibration (1.0 before any measurement)."""
+        """The geometric mean of the ratios (1.0 before any measurement).
+
+        Returns
+        -------
+        float
+            Above 1 when the machine runs slower than during the calibration: 1.1 for 10%
+            slower.
+        """
         ratios = self.ratios()
         return statistics.geometric_mean(ratios) if ratios else 1.0
 
@@ -391,7 +498,38 @@ def _names_structures(group, seen=None) -> bool:
 
 def calibrate(kinds=None, scenes=CALIBRATION_SCENES, resolutions=CALIBRATION_RESOLUTIONS,
               threads: int | None = None, log=None, repeats: int = REPEATS) -> CostModel:
-    """Render the calibration set with every structure kind and fit the costs."""
+    """Render the calibration set with every structure kind and fit the costs.
+
+    Each render is made in SPD mode, repeated `repeats` times, its shortest trace time kept
+    (see the module docstring for the set and the fit).
+
+    Parameters
+    ----------
+    kinds : sequence of str, optional
+        The structure kinds to calibrate (default: every registered kind that takes no
+        operands).
+    scenes : sequence of str, default CALIBRATION_SCENES
+        Scene names, as for `raykernel.load`.
+    resolutions : sequence of int, default CALIBRATION_RESOLUTIONS
+        The image sizes each scene is rendered at.
+    threads : int, optional
+        The renders' threads (default: all cores); the model predicts renders made with as
+        many.
+    log : callable, optional
+        ``log(str)``, called after each render with its trace time.
+    repeats : int, default REPEATS
+        Renders of each scene, kind and resolution.
+
+    Returns
+    -------
+    CostModel
+        The fitted model, with the machine's description and the renders it was fitted on.
+
+    Raises
+    ------
+    OptionError
+        No render counted any operation to fit.
+    """
     import numba
 
     from ..rendering.render import render

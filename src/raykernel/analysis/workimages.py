@@ -67,7 +67,36 @@ class WorkImages:
 
 
 def work_images(cmp, scene: str, baseline: str | None = None) -> WorkImages:
-    """The work images of one scene of a comparison made with compare(..., work=COUNTER)."""
+    """The work images of one scene of a comparison made with ``compare(..., work=COUNTER)``.
+
+    Parameters
+    ----------
+    cmp : Comparison
+        A comparison whose runs kept a work layer (`compare`'s `work`).
+    scene : str
+        The scene's label in the comparison.
+    baseline : str, optional
+        The structure the others are compared against (default: the first compared).
+
+    Returns
+    -------
+    WorkImages
+        ``layers``: structure -> (h, w) integer array of the counter, one value a sample;
+        ``ratio(accel)``: the signed log2 ratio against the baseline, per sample,
+        ``log2((this + 1) / (baseline + 1))``; ``winner`` and ``shares``: which structure did
+        the least work at each sample (-1 for a tie), and the share of samples each won.
+
+    Raises
+    ------
+    OptionError
+        The comparison has no such scene or no work layers, or `baseline` was not compared.
+
+    Examples
+    --------
+    >>> cmp = compare(["scene:stadium"], ["grid", "octree", "bvh"], work="tests.total")
+    >>> w = work_images(cmp, "scene:stadium")
+    >>> write_figure(w, "stadium-work.png")
+    """
     runs = [r for r in cmp.runs if r.scene == scene]
     if not runs:
         raise OptionError(f"no scene {scene!r} in this comparison; it has: {', '.join(cmp.scenes())}")
@@ -81,11 +110,21 @@ def work_images(cmp, scene: str, baseline: str | None = None) -> WorkImages:
 
 
 def figure_png(w: WorkImages, scale: str = "log") -> bytes:
-    """One PNG: every structure's layer on one shared scale (top row), each structure's signed log2
-    ratio against the baseline and the winner map with each structure's share (bottom row); every
-    panel's legend (colour bar or key) in the picture."""
+    """figure(w, scale) as PNG bytes."""
     import matplotlib
     matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig = figure(w, scale)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def figure(w: WorkImages, scale: str = "log"):
+    """A matplotlib figure: every structure's layer on one shared scale (top row), each structure's
+    signed log2 ratio against the baseline and the winner map with each structure's share (bottom
+    row); every panel's legend (colour bar or key) in the picture."""
     import matplotlib.pyplot as plt
     from matplotlib import colors
     from matplotlib.patches import Patch
@@ -148,10 +187,7 @@ def figure_png(w: WorkImages, scale: str = "log") -> bytes:
     keys.append(Patch(color=(0.85, 0.85, 0.85), label=f"tie: {shares['tie']:.1%}"))
     ax.legend(handles=keys, loc="upper left", bbox_to_anchor=(0.0, -0.02), fontsize=7, frameon=False)
     fig.suptitle(f"{w.scene}: {w.counter}, every structure on one scale", fontsize=10)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", bbox_inches="tight")
-    plt.close(fig)
-    return buf.getvalue()
+    return fig
 
 
 def write_figure(w: WorkImages, path, scale: str = "log") -> None:

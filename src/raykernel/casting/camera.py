@@ -19,7 +19,44 @@ from .rayscene import RayInputError
 
 
 def camera_rays(eye, look_at, up=(0.0, 0.0, 1.0), fov: float = 60.0, width: int = 640, height: int = 480):
-    """(height, width, 3) origins and unit directions of a pinhole camera (see the module docstring)."""
+    """Origins and unit directions of a pinhole camera's rays, shaped as an image.
+
+    Pixel (row i from the top, column j from the left) looks through its centre. The
+    directions are unit vectors, so a query's t is the distance.
+
+    Parameters
+    ----------
+    eye : (3,) array_like
+        The camera's position.
+    look_at : (3,) array_like
+        The point it looks at, different from `eye`.
+    up : (3,) array_like, default (0, 0, 1)
+        The up direction, not parallel to the viewing direction.
+    fov : float, default 60
+        The horizontal field of view in degrees, in (0, 180); the vertical one follows from the
+        aspect ratio (square pixels), as in Open3D's ``create_rays_pinhole``.
+    width : int, default 640
+        The image's width in pixels.
+    height : int, default 480
+        The image's height in pixels.
+
+    Returns
+    -------
+    origins : (height, width, 3) float64 array
+        Every ray's origin: `eye`.
+    directions : (height, width, 3) float64 array
+        Unit directions through the pixels' centres.
+
+    Raises
+    ------
+    RayInputError
+        An argument is not valid (the message names it).
+
+    Examples
+    --------
+    >>> origins, directions = camera_rays(eye=(0, -5, 2), look_at=(0, 0, 0), fov=60, width=320, height=240)
+    >>> depth = scene.intersect(origins, directions).t          # (240, 320)
+    """
     eye = np.asarray(eye, np.float64).reshape(3)
     look_at = np.asarray(look_at, np.float64).reshape(3)
     up = np.asarray(up, np.float64).reshape(3)

@@ -68,7 +68,8 @@ STACK4 = 384                 # the 4-wide tree is no deeper: 4 entries per level
 
 class MeshArrays(NamedTuple):
     """The scene Geometry's arrays that the mesh kernel reads. Given the whole Geometry (79
-    fields) the kernel compiled their unpacking as well: 2.7 s more of a first query."""
+    fields) the kernel compiled their unpacking as well: seconds more of a first query (BENCHMARKS.md,
+    "Start-up")."""
     agg_bounds: np.ndarray
     root: int
     tri_edges: np.ndarray

@@ -6,10 +6,9 @@ raykernel answers exactly; NaN and infinities fail too).
         continue            # left out of the chunk's rays.cast
 
 RayScene checks the values of its rays inside the kernels, as each ray is
-read, rather than with numpy before them: the whole-array tests cost about
-7 ms per million rays on one thread, a fifth of a coherent query's time at 2
-threads, where the kernels' own test costs a few comparisons of numbers
-already loaded. A kernel skips a ray that fails and leaves it out of its
+read, rather than with numpy before them: the whole-array tests pass over
+every ray's memory again, a sizeable share of a coherent query's time, where
+the kernels' own test costs a few comparisons of numbers already loaded. A kernel skips a ray that fails and leaves it out of its
 `rays.cast` counter; RayScene then runs the numpy checks over the rays to
 raise the error that names the first bad one (rayscene.check_ray_values).
 """

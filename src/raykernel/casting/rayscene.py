@@ -77,13 +77,46 @@ KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone"
 
 
 class RayInputError(RayKernelError, ValueError):
-    """Rays or geometry given to RayScene are not valid; the message names the argument."""
+    """Rays or geometry given to RayScene are not valid; the message names the argument.
+
+    It is a ValueError too.
+    """
 
 
 @dataclass
 class Hits:
-    """Closest hits of a batch of rays, shaped as the rays were: (N,) for (N, 3) origins and
-    directions, (H, W) for an image of rays; the vector fields add a last axis."""
+    """Closest hits of a batch of rays (RayScene.intersect), shaped as the rays were.
+
+    Each field has the rays' shape: (N,) for (N, 3) origins and directions, (H, W) for an
+    image of rays; the vector fields add a last axis. The float fields are float64 and the ids
+    int64, or float32 and int32 with ``intersect(..., dtype="float32")``; a field not asked for
+    (intersect's `fields`) is None.
+
+    Attributes
+    ----------
+    t : (N,) float array
+        The ray parameter of the hit, in units of the direction given; inf on a miss.
+    prim_id : (N,) int array
+        The primitive's index within its geometry (the face index for a mesh); -1 on a miss.
+    geom_id : (N,) int array
+        The geometry (mesh or primitive set) in ``RayScene.geometries``; -1 on a miss.
+    inst_id : (N,) int array
+        The innermost instance; -1 outside instances or on a miss.
+    kind : (N,) int array
+        The primitive kind (0 sphere, 1 polygon, 2 patch, 3 cone, 4 triangle); -1 on a miss.
+    uv : (N, 2) float array
+        Triangles: barycentric (p = (1-u-v) v0 + u v1 + v v2); spheres: (longitude / 2 pi,
+        colatitude / pi) in the sphere's frame; cones: (angle around the axis / 2 pi,
+        height / length); NaN otherwise.
+    normal : (N, 3) float array
+        The unit geometric normal in world space (by winding, or outward); NaN on a miss.
+    shading_normal : (N, 3) float array
+        The unit interpolated normal (vertex normals, patches), else equal to `normal`.
+    origins : (N, 3) float64 array
+        The rays' origins, as given (broadcast).
+    directions : (N, 3) float64 array
+        The rays' directions, as given (broadcast).
+    """
 
     t: np.ndarray               # (N,) ray parameter of the hit, inf on a miss
     prim_id: np.ndarray         # (N,) index within its geometry (face index for a mesh), -1 on a miss
@@ -103,11 +136,12 @@ class Hits:
 
     @property
     def hit(self) -> np.ndarray:
+        """(N,) bool array: True where the ray hit something (t is finite)."""
         return np.isfinite(self.t)
 
     @property
     def points(self) -> np.ndarray:
-        """(N, 3) hit points origin + t direction, NaN on a miss."""
+        """(N, 3) float64 array: the hit points, origin + t direction; NaN on a miss."""
         t = np.where(self.hit, self.t, np.nan)[..., None]
         return self.origins + t * self.directions
 
@@ -271,7 +305,7 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf, budget=None):
 
 def _plain(origins, directions) -> bool:
     """Both are C-contiguous float64 ndarrays of the same shape (N, 3): check_rays then skips numpy's
-    broadcasting machinery, about 25 us a call (most of a small batch's time)."""
+    broadcasting machinery, most of a small batch's time."""
     return (type(origins) is np.ndarray and type(directions) is np.ndarray and origins.dtype == np.float64
             and directions.dtype == np.float64 and origins.ndim == 2 and origins.shape == directions.shape
             and origins.shape[1] == 3 and origins.flags.c_contiguous and directions.flags.c_contiguous)
@@ -346,28 +380,62 @@ def _closed_mesh(mesh) -> bool:
 class RayScene:
     """Geometry built once into flat arrays and aggregates, queried with batches of rays.
 
-    Build with from_mesh, from_spheres or from_scene. Queries take origins and
-    directions ((N, 3) or (3,), any real dtype) and optional tmin/tmax (numbers
-    or (N,) arrays); a hit counts when tmin <= t <= tmax. Invalid input raises
-    RayInputError (a ValueError) naming the argument. After each query,
-    `last_stats` holds the counters of that query (rays.cast, tests.triangle,
-    bounds.tests, cells.visited, ...) and its time.trace in seconds.
+    Build with `from_mesh`, `from_file`, `from_trimesh`, `from_spheres` or `from_scene` (or
+    with the constructor, from a Scene). Queries take origins and directions ((N, 3) arrays,
+    or one (3,) row, any real dtype) and optional `tmin` and `tmax` (numbers or (N,) arrays);
+    a hit counts when tmin <= t <= tmax. Invalid input raises RayInputError (a ValueError)
+    naming the argument. After each query, `last_stats` holds the counters of that query
+    (``rays.cast``, ``tests.triangle``, ``bounds.tests``, ``cells.visited``, ...) and its
+    ``time.trace`` in seconds.
 
-    Any number of Python threads may query one RayScene at once; `last_stats`
-    is the calling thread's own last query. Lazy structures (lazyoctree, rc)
-    refine between passes of one query, so their queries take turns (a lock);
-    the others run side by side. Hits never depend on the order: only the
-    counters of lazy kinds do, as the trees they meet have grown.
+    Any number of Python threads may query one RayScene at once; `last_stats` is the calling
+    thread's own last query. Lazy structures (lazyoctree, rc) refine between passes of one
+    query, so their queries take turns (a lock); the others run side by side. Hits never
+    depend on the order: only the counters of lazy kinds do, as the trees they meet have
+    grown.
+
+    Parameters
+    ----------
+    scene : Scene
+        Any scene model: all its primitive kinds, nested groups and instances.
+    accel : str, default "bvh"
+        The accelerator spec of groups that name none.
+    max_memory : int or str, optional
+        The memory budget of the build and of lazy refinement, in bytes or as ``"8G"``
+        (default: half of this machine's memory).
+    edges : {"watertight", "inclusive"}
+        ``"watertight"``: a ray through a shared edge or vertex hits exactly one triangle
+        there; ``"inclusive"``: every triangle there, reported once (rays grazing a silhouette
+        edge or running in a face's plane hit, as in Embree).
+
+    Attributes
+    ----------
+    scene : Scene
+        The scene built.
+    geometries : list of dict
+        One ``{"kind": str, "count": int}`` per geometry (a mesh, or a set of spheres,
+        polygons, patches or cones), in the order of ``geom_id``.
+
+    Raises
+    ------
+    RayInputError
+        `scene` is not a Scene, or `edges` is not one of the two rules.
+    MemoryBudgetError
+        The structures would need more than `max_memory`.
+
+    Examples
+    --------
+    >>> scene = RayScene.from_mesh(vertices, faces)
+    >>> hits = scene.intersect(origins, directions)
+    >>> hits.t, hits.prim_id, hits.normal
+    >>> blocked = scene.occluded(origins, directions, tmax=1.0)
+    >>> ray, t, prim = scene.intersect_all(origins, directions)
     """
 
     SPHERE, POLYGON, PATCH, CONE, TRIANGLE = SPHERE, POLYGON, PATCH, CONE, TRIANGLE
 
     def __init__(self, scene: Scene, accel: str = "bvh", max_memory=None, edges: str = "watertight"):
-        """max_memory: the memory budget of the build and of lazy refinement, in bytes or as
-        "8G" (default: half of this machine's memory). edges: "watertight" (a ray through a
-        shared edge or vertex hits exactly one triangle there) or "inclusive" (every triangle
-        there, reported once: rays grazing a silhouette edge or running in a face's plane hit,
-        as in Embree)."""
+        """Build the structures of `scene` (the parameters: see RayScene)."""
         if not isinstance(scene, Scene):
             raise RayInputError(f"scene must be a raykernel Scene, got {type(scene).__name__}")
         self._start(scene, accel, max_memory, edges)
@@ -400,9 +468,11 @@ class RayScene:
 
     @property
     def geo(self):
-        """The scene's flat Geometry (engine/flatten.py), which every query but the mesh kernel's
-        walks. A mesh built straight into the mesh kernel's arrays (from_mesh) builds it on first
-        use, with the scene's spec: point queries and parity tests need it, ray casts do not."""
+        """The scene's flat Geometry (engine/flatten.py), which every query but the mesh kernel's walks.
+
+        A mesh built straight into the mesh kernel's arrays (from_mesh) builds it on first use,
+        with the scene's spec: point queries and parity tests need it, ray casts do not.
+        """
         if self._geo is None:
             with self._lock:
                 if self._geo is None:
@@ -416,8 +486,12 @@ class RayScene:
 
     @property
     def stats(self) -> dict:
-        """The build's statistics, and the bytes held beyond the user's arrays (`bytes`, and
-        `bytes_per_triangle` for meshes): the mesh kernel's arrays and the Geometry where it is built."""
+        """The build's statistics, and the bytes held beyond the user's arrays.
+
+        A dict: the build's figures, ``aggregates`` (one dict per aggregate built), ``bytes``
+        (the mesh kernel's arrays and the Geometry where it is built) and, for meshes,
+        ``bytes_per_triangle``.
+        """
         stats = dict(self.build_stats)
         held = self._mesh.nbytes if self._mesh is not None else 0
         if self._geo is not None:
@@ -430,7 +504,11 @@ class RayScene:
 
     @property
     def last_stats(self) -> dict:
-        """The counters and times of this thread's last query."""
+        """The counters and times of this thread's last query, as a dict.
+
+        Counter names (``rays.cast``, ``tests.triangle``, ...) and ``time.trace``,
+        ``time.compile`` and ``time.load`` in seconds; empty before any query.
+        """
         return getattr(self._local, "stats", {})
 
     @last_stats.setter
@@ -469,7 +547,24 @@ class RayScene:
     @classmethod
     def from_trimesh(cls, mesh, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
                      max_memory=None) -> "RayScene":
-        """A trimesh.Trimesh, or any object with `.vertices` (V, 3) and `.faces` (F, 3)."""
+        """A RayScene of a trimesh.Trimesh, or of any object with ``.vertices`` and ``.faces``.
+
+        Parameters
+        ----------
+        mesh : trimesh.Trimesh or object
+            ``mesh.vertices``: (V, 3) real array; ``mesh.faces``: (F, 3) integer array.
+        accel, edges, quality, max_memory
+            As for `from_mesh`.
+
+        Returns
+        -------
+        RayScene
+
+        Raises
+        ------
+        RayInputError
+            `mesh` has no ``.vertices`` and ``.faces``, or they are not valid.
+        """
         if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
             raise RayInputError(f"expected a mesh with .vertices and .faces, got {type(mesh).__name__}")
         return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel, edges=edges,
@@ -478,8 +573,27 @@ class RayScene:
     @classmethod
     def from_file(cls, path, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
                   max_memory=None) -> "RayScene":
-        """The triangles of a model file (OBJ, PLY, STL, OFF, glTF, GLB; read by trimesh, the mesh
-        extra), every mesh of it in one, placed by the file's transforms (scene/meshfile.py)."""
+        """A RayScene of the triangles of a model file, every mesh of it in one.
+
+        Parameters
+        ----------
+        path : str or path-like
+            An OBJ, PLY, STL, OFF, glTF or GLB file, read by trimesh (the ``mesh`` extra); its
+            meshes are placed by the file's transforms (scene/meshfile.py).
+        accel, edges, quality, max_memory
+            As for `from_mesh`.
+
+        Returns
+        -------
+        RayScene
+
+        Raises
+        ------
+        SceneError
+            The file does not exist, cannot be read, or holds no triangles.
+        OptionError
+            trimesh is not installed.
+        """
         from ..scene.meshfile import mesh_arrays
         vertices, faces = mesh_arrays(path)
         return cls.from_mesh(vertices, faces, accel=accel, edges=edges, quality=quality, max_memory=max_memory)
@@ -487,18 +601,47 @@ class RayScene:
     @classmethod
     def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None, edges: str = "watertight",
                   quality: str = "medium", max_memory=None, threads: int | None = None) -> "RayScene":
-        """A triangle mesh: vertices (V, 3) float32/float64, faces (F, 3) integer vertex
-        indices, optional per-vertex normals (V, 3) for shading_normal. A mesh object
-        (trimesh.Trimesh, anything with .vertices and .faces) may stand for both.
+        """A RayScene of a triangle mesh.
 
-        quality: the build, as Embree's build qualities: "fast" (Morton order: quickest to
-        build, for few rays), "medium" (binned SAH, the default) or "high" (the SAH tree with
-        nodes reinserted: slowest to build, for many rays); the tree is built straight into the
-        mesh kernel's arrays: the triangles' corners once, in float64 blocks of four, the 4-wide
-        nodes and a triangle index a lane (`stats["bytes_per_triangle"]`); float64 vertices and int64
-        faces are read, not copied.
-        accel: any spec instead (built through the scene's general path). max_memory: the budget
-        of the build (bytes or "8G"); threads: the build's threads (default: all)."""
+        Unless `accel` is given (or there are no faces), the tree is built straight into the
+        mesh kernel's arrays: the triangles' corners once, in float64 blocks of four, the
+        4-wide nodes and a triangle index a lane (``stats["bytes_per_triangle"]``); float64
+        vertices and int64 faces are read, not copied.
+
+        Parameters
+        ----------
+        vertices : (V, 3) float32 or float64 array_like
+            The vertices; or a mesh object (trimesh.Trimesh, anything with ``.vertices`` and
+            ``.faces``) standing for both, with `faces` None.
+        faces : (F, 3) integer array_like
+            Vertex indices of each triangle.
+        normals : (V, 3) array_like, optional
+            Per-vertex normals, interpolated into ``Hits.shading_normal``.
+        accel : str, optional
+            Any accelerator spec instead, built through the scene's general path.
+        edges : {"watertight", "inclusive"}
+            The rule at shared edges and vertices (as for RayScene).
+        quality : {"fast", "medium", "high"}
+            The build, as Embree's build qualities: ``"fast"`` (Morton order: quickest to
+            build, for few rays), ``"medium"`` (binned SAH, the default) or ``"high"`` (the SAH
+            tree with nodes reinserted: slowest to build, for many rays).
+        max_memory : int or str, optional
+            The budget of the build, in bytes or as ``"8G"``.
+        threads : int, optional
+            The build's threads (default: all).
+
+        Returns
+        -------
+        RayScene
+
+        Raises
+        ------
+        RayInputError
+            The arrays do not have these shapes and types, vertices or normals are not finite,
+            a face refers to a vertex that does not exist, or `quality` is not one of the three.
+        MemoryBudgetError
+            The build would need more than `max_memory`.
+        """
         if faces is None and hasattr(vertices, "vertices") and hasattr(vertices, "faces"):
             return cls.from_trimesh(vertices, accel, edges, quality, max_memory)
         if faces is None:
@@ -547,7 +690,27 @@ class RayScene:
 
     @classmethod
     def from_spheres(cls, centers, radii, accel: str = "bvh") -> "RayScene":
-        """Spheres: centers (N, 3), radii (N,) or one number, finite and positive."""
+        """A RayScene of spheres.
+
+        Parameters
+        ----------
+        centers : (N, 3) array_like
+            The spheres' centres, finite.
+        radii : float or (N,) array_like
+            Their radii, finite and positive.
+        accel : str, default "bvh"
+            The accelerator spec.
+
+        Returns
+        -------
+        RayScene
+
+        Raises
+        ------
+        RayInputError
+            The arrays do not have these shapes, or a value is not finite or a radius not
+            positive.
+        """
         c = _real_array(centers, "centers")
         if c.ndim == 1 and c.shape[0] == 3:
             c = c[None, :]
@@ -569,9 +732,21 @@ class RayScene:
 
     @classmethod
     def from_scene(cls, scene: Scene, accel: str = "bvh", edges: str = "watertight") -> "RayScene":
-        """Any scene model (loaded NFF/JSON, SPD generator, pathological scenes):
-        all its primitive kinds, nested groups and instances; `accel` is the
-        default for groups without their own spec."""
+        """A RayScene of any scene model (loaded NFF or JSON, SPD generator, pathological scenes).
+
+        Parameters
+        ----------
+        scene : Scene
+            All its primitive kinds, nested groups and instances.
+        accel : str, default "bvh"
+            The accelerator spec of groups without their own.
+        edges : {"watertight", "inclusive"}
+            The rule at shared edges and vertices (as for RayScene).
+
+        Returns
+        -------
+        RayScene
+        """
         return cls(scene, accel, edges=edges)
 
     # ------------------------------------------------------------- queries
@@ -698,18 +873,52 @@ class RayScene:
 
     def intersect(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None, fields=None,
                   dtype: str = "float64", out: Hits | None = None) -> Hits:
-        """Closest hit of every ray in [tmin, tmax]. Ties at equal t go to the
-        smaller (geom_id, prim_id, inst_id), whatever the traversal order.
-        threads: how many to use (default: numba's thread count).
-        fields: the Hits fields to compute, e.g. ("t", "prim_id") (default: all of HIT_FIELDS;
-        t always); the others are None. The surface fields (uv, normal, shading_normal) cost
-        the most.
-        dtype: "float64", or "float32" for float32 t, uv and normals and int32 ids: half the
-        memory to fill (the arithmetic stays in double precision, t is rounded once).
-        out: a Hits of an earlier call with these fields and dtype, for rays of this shape: its arrays
-        are filled in place instead of new ones (no memory to allocate and fault in). A ray that is
-        not finite or has a zero direction raises RayInputError naming it, after the other rays
-        were cast: out's arrays then hold their hits."""
+        """Closest hit of every ray in [tmin, tmax].
+
+        Ties at equal t go to the smaller (geom_id, prim_id, inst_id), whatever the traversal
+        order.
+
+        Parameters
+        ----------
+        origins, directions : (N, 3) array_like
+            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
+            broadcast against the other argument; any real dtype, read as float64. Directions
+            need not be unit length: t is measured in units of the direction given.
+        tmin : float or (N,) array_like, default 0
+            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
+            number for every ray, or one per ray.
+        tmax : float or (N,) array_like, default inf
+            The end of that interval, as `tmin`.
+        threads : int, optional
+            How many threads to use (default: numba's thread count).
+        fields : str or sequence of str, optional
+            The Hits fields to compute, e.g. ``("t", "prim_id")`` (default: all of them; t
+            always); the others are None. The surface fields (uv, normal, shading_normal)
+            cost the most.
+        dtype : {"float64", "float32"}
+            ``"float32"`` gives float32 t, uv and normals and int32 ids: half the memory to
+            fill (the arithmetic stays in double precision, t is rounded once).
+        out : Hits, optional
+            The Hits of an earlier call with these fields and dtype, for rays of this shape:
+            its arrays are filled in place instead of new ones (no memory to allocate).
+
+        Returns
+        -------
+        Hits
+            Shaped as the rays: (N,) fields for (N, 3) rays; `out` itself where given.
+
+        Raises
+        ------
+        RayInputError
+            An argument is not valid: the message names it (and the first bad ray).
+        MemoryBudgetError
+            The outputs and copies of the rays would not fit in the memory budget.
+
+        Notes
+        -----
+        A ray that is not finite or has a zero direction raises RayInputError naming it, after
+        the other rays were cast: `out`'s arrays then hold their hits.
+        """
         per_ray = 0 if out is not None else self._output_bytes(fields, dtype)
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax,
                                          self._budget("intersect", per_ray, "cast fewer rays at a time, or fill the "
@@ -732,7 +941,34 @@ class RayScene:
                        for name in HIT_FIELDS}, origins=o.reshape(shape + (3,)), directions=d.reshape(shape + (3,)))
 
     def occluded(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
-        """True where the ray meets anything in [tmin, tmax] (stops at the first hit found)."""
+        """True where the ray meets anything in [tmin, tmax] (stops at the first hit found).
+
+        Parameters
+        ----------
+        origins, directions : (N, 3) array_like
+            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
+            broadcast against the other argument; any real dtype, read as float64. Directions
+            need not be unit length: t is measured in units of the direction given.
+        tmin : float or (N,) array_like, default 0
+            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
+            number for every ray, or one per ray.
+        tmax : float or (N,) array_like, default inf
+            The end of that interval, as `tmin`.
+        threads : int, optional
+            How many threads to use (default: numba's thread count).
+
+        Returns
+        -------
+        (N,) bool array
+            Shaped as the rays.
+
+        Raises
+        ------
+        RayInputError
+            An argument is not valid: the message names it (and the first bad ray).
+        MemoryBudgetError
+            The outputs and copies of the rays would not fit in the memory budget.
+        """
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax, self._budget("occluded", 9))
         arrays, _ = self._outputs((len(o),), ("t",))
         self.last_stats = self._run(ANY, o, d, lo, hi, arrays, threads=threads)
@@ -782,13 +1018,49 @@ class RayScene:
 
     def intersect_all(self, origins, directions, tmin=0.0, tmax=np.inf, ids: bool = False,
                       threads: int | None = None):
-        """Every primitive each ray meets in [tmin, tmax], once, at its first
-        crossing in the interval (a sphere the ray passes through counts once,
-        where it enters): (ray_index, t, prim_id) sorted by ray, then t, then
-        (geom_id, prim_id, inst_id). With ids=True also geom_id and inst_id.
-        A ray through a shared edge or vertex of a mesh meets exactly one of
-        the triangles there (watertight tests). ray_index counts the rays in
-        row-major order (np.unravel_index(ray_index, shape) for shaped rays)."""
+        """Every primitive each ray meets in [tmin, tmax], once, at its first crossing in the interval.
+
+        A sphere the ray passes through counts once, where it enters. A ray through a shared
+        edge or vertex of a mesh meets exactly one of the triangles there (watertight tests).
+        The hits come sorted by ray, then t, then (geom_id, prim_id, inst_id).
+
+        Parameters
+        ----------
+        origins, directions : (N, 3) array_like
+            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
+            broadcast against the other argument; any real dtype, read as float64. Directions
+            need not be unit length: t is measured in units of the direction given.
+        tmin : float or (N,) array_like, default 0
+            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
+            number for every ray, or one per ray.
+        tmax : float or (N,) array_like, default inf
+            The end of that interval, as `tmin`.
+        ids : bool, default False
+            Return geom_id and inst_id too.
+        threads : int, optional
+            How many threads to use (default: numba's thread count).
+
+        Returns
+        -------
+        ray_index : (K,) int64 array
+            The ray of each hit, counting the rays in row-major order
+            (``np.unravel_index(ray_index, shape)`` for shaped rays).
+        t : (K,) float64 array
+            The ray parameter of each hit.
+        prim_id : (K,) int64 array
+            The primitive within its geometry.
+        geom_id : (K,) int64 array
+            With ``ids=True`` only: the geometry (``RayScene.geometries``).
+        inst_id : (K,) int64 array
+            With ``ids=True`` only: the innermost instance, -1 outside instances.
+
+        Raises
+        ------
+        RayInputError
+            An argument is not valid: the message names it (and the first bad ray).
+        MemoryBudgetError
+            The outputs and copies of the rays would not fit in the memory budget.
+        """
         o, d, lo, hi, _ = check_rays(origins, directions, tmin, tmax, self._budget("intersect_all", 48))
         ray, t, ident, _, stats = self._all(o, d, lo, hi, threads)
         self.last_stats = stats
@@ -797,7 +1069,34 @@ class RayScene:
         return ray, t, ident[:, 1].copy()
 
     def count_hits(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
-        """Number of primitives each ray meets in [tmin, tmax] (the lengths of intersect_all's lists)."""
+        """Number of primitives each ray meets in [tmin, tmax] (the lengths of intersect_all's lists).
+
+        Parameters
+        ----------
+        origins, directions : (N, 3) array_like
+            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
+            broadcast against the other argument; any real dtype, read as float64. Directions
+            need not be unit length: t is measured in units of the direction given.
+        tmin : float or (N,) array_like, default 0
+            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
+            number for every ray, or one per ray.
+        tmax : float or (N,) array_like, default inf
+            The end of that interval, as `tmin`.
+        threads : int, optional
+            How many threads to use (default: numba's thread count).
+
+        Returns
+        -------
+        (N,) int64 array
+            Shaped as the rays.
+
+        Raises
+        ------
+        RayInputError
+            An argument is not valid: the message names it (and the first bad ray).
+        MemoryBudgetError
+            The outputs and copies of the rays would not fit in the memory budget.
+        """
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax, self._budget("count_hits", 48))
         if self._may_repeat:
             ray, _, _, _, stats = self._all(o, d, lo, hi, threads)
@@ -816,9 +1115,31 @@ class RayScene:
         return np.ascontiguousarray(p.reshape(-1, 3)), p.shape[:-1]
 
     def closest_points(self, points, threads: int | None = None) -> ClosestPoints:
-        """The closest point of the scene's surface to each point (..., 3): .points, .distance,
-        .prim_id, .geom_id, .kind and .normal, shaped as the points. Triangles, polygons,
-        patches and spheres; a scene with instances or cones raises RayInputError."""
+        """The closest point of the scene's surface to each point.
+
+        Triangles, polygons, patches and spheres; a scene with instances or cones raises
+        RayInputError.
+
+        Parameters
+        ----------
+        points : (N, 3) array_like
+            The query points ((..., 3): any leading shape), finite.
+        threads : int, optional
+            How many threads to use (default: numba's thread count).
+
+        Returns
+        -------
+        ClosestPoints
+            Shaped as the points: ``points`` (N, 3) float64, the closest surface point;
+            ``distance`` (N,) float64 (inf for an empty scene); ``prim_id``, ``geom_id`` and
+            ``kind`` (N,) int64, the primitive there (-1 for an empty scene); ``normal``
+            (N, 3) float64, its unit geometric normal there.
+
+        Raises
+        ------
+        RayInputError
+            The points are not valid, or the scene has instances or cones.
+        """
         p, shape = self._points(points)
         try:
             index = point_index(self)
@@ -832,19 +1153,51 @@ class RayScene:
                              geom_id=geom.reshape(shape), kind=kind.reshape(shape), normal=normal.reshape(shape + (3,)))
 
     def distance(self, points, threads: int | None = None) -> np.ndarray:
-        """Distance from each point (..., 3) to the scene's surface."""
+        """Distance from each point to the scene's surface (as `closest_points`).
+
+        Parameters
+        ----------
+        points : (N, 3) array_like
+            The query points ((..., 3): any leading shape), finite.
+        threads : int, optional
+            How many threads to use (default: numba's thread count).
+
+        Returns
+        -------
+        (N,) float64 array
+            Shaped as the points.
+        """
         return self.closest_points(points, threads).distance
 
     def contains(self, points, threads: int | None = None, method: str = "auto") -> np.ndarray:
-        """True where a point (..., 3) lies inside the scene.
+        """True where a point lies inside the scene.
 
-        method: "parity" casts one ray a point, toward the nearest side of the scene's box, and
-        counts the triangles it crosses (exact for a closed mesh: the watertight test counts a
-        crossing through a shared edge once); "winding"
-        takes the generalized winding number above one half (winding.py: for meshes with holes,
-        an answer that depends on no ray's direction); "vote", the majority of three parity rays,
-        also for polygons and spheres; "auto" (the default): parity for a closed triangle mesh,
-        winding for one with holes, vote for any other scene."""
+        Parameters
+        ----------
+        points : (N, 3) array_like
+            The query points ((..., 3): any leading shape), finite.
+        threads : int, optional
+            How many threads to use (default: numba's thread count).
+        method : {"auto", "parity", "winding", "vote"}
+            ``"parity"`` casts one ray a point, toward the nearest side of the scene's box, and
+            counts the triangles it crosses (exact for a closed mesh: the watertight test
+            counts a crossing through a shared edge once); ``"winding"`` takes the generalized
+            winding number above one half (winding.py: for meshes with holes, an answer that
+            depends on no ray's direction); ``"vote"``, the majority of three parity rays, also
+            for polygons and spheres; ``"auto"`` (the default): parity for a closed triangle
+            mesh, winding for one with holes, vote for any other scene.
+
+        Returns
+        -------
+        (N,) bool array
+            Shaped as the points.
+
+        Raises
+        ------
+        RayInputError
+            The points or `method` are not valid, parity or winding is asked of a scene that
+            is not triangle meshes, or the scene has instances or cones.
+        """
         p, shape = self._points(points)
         if method not in ("auto", "parity", "winding", "vote"):
             raise RayInputError(f"method must be auto, parity, winding or vote, got {method!r}")
@@ -899,7 +1252,20 @@ class RayScene:
         return self._far
 
     def signed_distance(self, points, threads: int | None = None) -> np.ndarray:
-        """Distance to the surface, negative inside (contains)."""
+        """Distance to the surface, negative inside (`contains`, method ``"auto"``).
+
+        Parameters
+        ----------
+        points : (N, 3) array_like
+            The query points ((..., 3): any leading shape), finite.
+        threads : int, optional
+            How many threads to use (default: numba's thread count).
+
+        Returns
+        -------
+        (N,) float64 array
+            Shaped as the points.
+        """
         d = self.distance(points, threads)
         return np.where(self.contains(points, threads), -d, d)
 

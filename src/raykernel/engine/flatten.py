@@ -122,8 +122,8 @@ _GEOMETRY_TYPES: dict = {}
 @typeof_impl.register(Geometry)
 def _typeof_geometry(geo, context):
     """numba's type of a Geometry, computed once per layout: numba types a named tuple
-    field by field at every call of a kernel (about 0.6 ms for these 70 arrays, with the
-    interpreter lock held), and renders and queries call their kernels once per range of
+    field by field at every call of a kernel (for these dozens of arrays, a large share of a
+    short call, with the interpreter lock held), and renders and queries call their kernels once per range of
     work, lazy structures once per pass."""
     key = tuple((a.dtype, a.ndim, a.flags.c_contiguous, a.flags.f_contiguous, a.flags.writeable, a.flags.aligned)
                 for a in geo[:-1]) + (type(geo.root),)

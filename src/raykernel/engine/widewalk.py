@@ -9,7 +9,7 @@
 
 Why a walk of its own: the general driver carries frames, instances, mailboxes and CSG, and
 every call that takes the scene's Geometry (about 75 arrays, which numba passes as some 650
-numbers) costs about a quarter of a microsecond, more than a coherent ray's whole walk. This
+numbers) costs more than a coherent ray's whole walk. This
 walk takes only the arrays it reads: the root BVH collapsed 4-wide (aggregates/widebvh.py),
 whose node tests its four child boxes in one vector slab test, children entered nearest first
 (widebvh.next_leaf, the 4-wide walk the mesh kernel takes too); and the leaves' primitives laid
@@ -63,10 +63,10 @@ def prepare(geo, agg_stats: list):
 
 
 def wide_only(geo) -> bool:
-    """True when kernels given geo compile this walk alone, without the general driver (about 20 s
-    of a first render's compile). numba compiles a kernel once per argument type, and a read-only
+    """True when kernels given geo compile this walk alone, without the general driver (a large
+    part of a first render's compile: BENCHMARKS.md, "Start-up"). numba compiles a kernel once per argument type, and a read-only
     array is a type of its own: a scene that is one 4-wide BVH has a read-only wide_center. (A
-    field of its own for the mark slowed the general driver's octree walks by a fifth: it made
+    field of its own for the mark slowed the general driver's octree walks measurably: it made
     the Geometry one array longer.)"""
     return not geo.wide_center.flags.writeable
 

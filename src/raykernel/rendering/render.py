@@ -251,16 +251,50 @@ def light_table(scene: Scene, eye_light: float | None = None, eye_light_shadows:
 
 @dataclass
 class RenderResult:
+    """What a render gives: the image, its statistics and, on request, its work layers.
+
+    Attributes
+    ----------
+    image : (height, width, 3) float64 array
+        The RGB image, not clamped.
+    stats : Stats
+        A dict of counters, build statistics and times (``time.trace``, ...), with the built
+        aggregates in ``stats.aggregates`` and the render's settings in ``stats.info``.
+    work : dict or None
+        With ``render(work=True)``: counter name -> its work layer, an integer array with one
+        value a sample (worklayers.py); else None.
+    """
+
     image: np.ndarray       # (height, width, 3) float RGB
     stats: Stats
     work: dict | None = None    # render(work=True): counter name -> its layer (worklayers.py)
 
     def to_uint8(self) -> np.ndarray:
+        """The image as 8-bit RGB, clamped to [0, 1].
+
+        Returns
+        -------
+        (height, width, 3) uint8 array
+            The image itself where it is already uint8.
+        """
         from .imageio import to_uint8
         return to_uint8(self.image)
 
     def save(self, path) -> None:
-        """Write the image in the format the suffix names (imageio.save_image)."""
+        """Write the image in the format the suffix of `path` names (imageio.save_image).
+
+        Parameters
+        ----------
+        path : str or path-like
+            ``.png``, ``.jpg``, ``.jpeg``, ``.tif``, ``.tiff`` or ``.webp`` write 8-bit RGB,
+            clamped to [0, 1]; ``.npy``, ``.pfm`` or ``.exr`` the float image as rendered. The
+            file is written atomically.
+
+        Raises
+        ------
+        OptionError
+            The suffix names no format raykernel writes.
+        """
         from .imageio import save_image
         save_image(self.image, path)
 
@@ -325,7 +359,7 @@ def render_options(scene: Scene, accel="bvh", resolution=None, spd=False, max_de
 def _faulted_zeros(shape, dtype) -> np.ndarray:
     """Zeros whose pages are already mapped. np.zeros of a large array gets pages from the
     system that are mapped on first write, which would then happen inside the timed trace,
-    costing more or less (0.6 ms of a 3 ms trace at 256 pixels) as the process's allocator
+    costing more or less (a noticeable share of a small trace) as the process's allocator
     has memory to reuse or not; written here, that cost is the same in every process and
     counts as preprocessing."""
     out = np.empty(shape, dtype)
@@ -603,36 +637,86 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
            builder=None, annealed: dict | None = None, work: bool = False) -> RenderResult:
     """Render `scene`; returns the float image and the statistics.
 
-    accel: the default accelerator spec for groups that name none.
-    resolution: square image size (default: the scene camera's).
-    spd: follow the SPD test procedure (corner rays, no cut-off, Whitted shading, no anti-aliasing).
-    threads: worker threads (default: all cores).
-    progress: callable(done, total) called after each pass, in samples (of full tiles).
-    max_memory: the memory budget of every build, in bytes or as "8G" (default: half of this
-    machine's memory); a structure that would need more is a MemoryBudgetError.
-    shading: "whitted" (NFF's parameters, whitted.py), "hall" (Hall and Greenberg's model, hall.py)
-    or "heckbert" (the minimal ray tracer's model and camera, heckbert.py).
-    aa: None (one ray per pixel), "jitter" (`samples` rays per pixel, a square number, in
-    jittered strata; `seed` picks the random numbers) or "adaptive" (Whitted's: corners, cut
-    where they differ by more than `aa_threshold` in a channel, at most `aa_depth` cuts).
-    cutoff: rays whose weight (the product of the Ks and T factors on their way) falls below
-    it are not cast (rays.cut_off counts them); default 1/512 (they cannot change an 8-bit
-    pixel), 0 in SPD mode (which allows no other).
-    shadows: "opaque" (any surface blocks a light) or "filtered" (transparent surfaces pass it,
-    times T: shadows.py); heckbert shading has opaque shadows only.
-    eye_light: the intensity of a white point light at the eye (Haines's trick), None: none.
-    eye_light_shadows: "skip" (the trick: eye rays' hits are lit by it without a shadow ray,
-    counted in shadow.eye_light_skipped) or "cast" (shadow rays as for any light).
-    tricks: Haines's efficiency tricks (tricks.py): "all", "none", "default" (closest,
-    lazynormals) or a comma-separated list of closest, raytree,
-    shadowcache, transparentlast, lazynormals, startlists. They change the work, not the image or
-    the ray counts; heckbert shading runs the printed program's searches and takes none.
-    builder: what builds the structures (default: flatten.flatten, from scratch); an
-    engine.incremental.Hierarchy keeps them between the frames of an animation.
-    annealed: what annealing found for the scene's auto specs, for the statistics (a render
-    with auto specs is raykernel.render's, analysis/auto.py, which anneals first).
-    work: True gives result.work, the work of every sample's whole ray tree, counter by counter,
-    ray type by ray type and nesting level by level (worklayers.py); off, nothing is recorded.
+    Parameters
+    ----------
+    scene : Scene
+        The scene to render.
+    accel : str, default "bvh"
+        The default accelerator spec for groups that name none.
+    resolution : int, optional
+        Square image size in pixels (default: the scene camera's width and height).
+    spd : bool, default False
+        Follow the SPD test procedure (rays through pixel corners, no cut-off, Whitted shading,
+        no anti-aliasing).
+    max_depth : int, default 5
+        The deepest level of the ray tree (eye ray = 1), from 1 to 32.
+    threads : int, optional
+        Worker threads (default: all cores).
+    progress : callable, optional
+        ``progress(done, total)``, called after each pass, in samples (of full tiles).
+    max_memory : int or str, optional
+        The memory budget of every build, in bytes or as ``"8G"`` (default: half of this
+        machine's memory); a structure that would need more is a MemoryBudgetError.
+    shading : {"whitted", "hall", "heckbert"}
+        ``"whitted"`` (NFF's parameters, whitted.py), ``"hall"`` (Hall and Greenberg's model,
+        hall.py) or ``"heckbert"`` (the minimal ray tracer's model and camera, heckbert.py).
+    aa : {None, "jitter", "adaptive"}
+        None: one ray per pixel; ``"jitter"``: `samples` rays per pixel in jittered strata,
+        `seed` picking the random numbers; ``"adaptive"``: Whitted's, rays through the corners,
+        a pixel cut where they differ by more than `aa_threshold` in a channel, at most
+        `aa_depth` cuts.
+    samples : int, default 4
+        Rays per pixel of ``aa="jitter"``: a square number (1, 4, 9, 16, ...).
+    seed : int, default 0
+        The random numbers of ``aa="jitter"``.
+    aa_threshold : float, default 0.1
+        The channel difference above which ``aa="adaptive"`` cuts a pixel.
+    aa_depth : int, default 2
+        The most cuts of ``aa="adaptive"``.
+    cutoff : float, optional
+        Rays whose weight (the product of the Ks and T factors on their way) falls below it are
+        not cast (``rays.cut_off`` counts them); default 1/512 (they cannot change an 8-bit
+        pixel), 0 in SPD mode (which allows no other).
+    shadows : {"opaque", "filtered"}
+        ``"opaque"``: any surface blocks a light; ``"filtered"``: transparent surfaces pass it,
+        times T (shadows.py). Heckbert shading has opaque shadows only.
+    eye_light : float, optional
+        The intensity of a white point light at the eye (Haines's trick); None: no such light.
+    eye_light_shadows : {"skip", "cast"}
+        ``"skip"`` (the trick: eye rays' hits are lit by it without a shadow ray, counted in
+        ``shadow.eye_light_skipped``) or ``"cast"`` (shadow rays as for any light).
+    tricks : str, default "default"
+        Haines's efficiency tricks (tricks.py): ``"all"``, ``"none"``, ``"default"`` (closest,
+        lazynormals) or a comma-separated list of closest, raytree, shadowcache,
+        transparentlast, lazynormals, startlists. They change the work, not the image or the
+        ray counts; heckbert shading runs the printed program's searches and takes none.
+    builder : optional
+        What builds the structures (default: flatten.flatten, from scratch); an
+        ``engine.incremental.Hierarchy`` keeps them between the frames of an animation.
+    annealed : dict, optional
+        What annealing found for the scene's auto specs, for the statistics (a render with
+        auto specs is raykernel.render's, analysis/auto.py, which anneals first).
+    work : bool, default False
+        True records ``result.work``: the work of every sample's whole ray tree, counter by
+        counter, ray type by ray type and nesting level by level (worklayers.py); False records
+        nothing.
+
+    Returns
+    -------
+    RenderResult
+        ``image``, the (height, width, 3) float64 RGB image, not clamped; ``stats``, the
+        counters, build statistics and times; ``work``, the work layers where `work` is True.
+
+    Raises
+    ------
+    OptionError
+        An option or accelerator spec is not valid (the message names it), or two options do
+        not go together.
+    MemoryBudgetError
+        The structures or the render's buffers would need more than `max_memory`.
+    SceneError
+        The scene cannot be built (a group cycle, aggregates nested too deep, coordinates
+        beyond the range raykernel answers exactly).
     """
     job = RenderJob(scene, builder=builder, annealed=annealed, accel=accel, resolution=resolution, spd=spd,
                     max_depth=max_depth, threads=threads, max_memory=max_memory, shading=shading, aa=aa,

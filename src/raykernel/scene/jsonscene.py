@@ -1032,7 +1032,24 @@ def parse_json(text: str, path=None, base_dir=None) -> Scene:
 
 
 def read_json(path) -> Scene:
-    """Read a JSON scene file (see the module documentation for the format)."""
+    """Read a JSON scene file (see the module documentation for the format).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The JSON file, UTF-8 (with or without a byte order mark); files it refers to are found
+        relative to its directory.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    SceneError
+        The file cannot be read, is not JSON, or is not a valid scene; the message names the
+        file and where in it.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -1219,6 +1236,21 @@ def _dumps(value, indent: int = 0) -> str:
 
 
 def write_json(scene: Scene, path) -> Path:
-    """Write the scene as JSON, atomically (a temporary file in the same
-    directory replaces `path` only once it is complete)."""
+    """Write the scene as JSON, in the format `read_json` reads.
+
+    The file is written atomically: a temporary file in the same directory replaces `path`
+    only once it is complete.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene to write.
+    path : str or path-like
+        The file to write.
+
+    Returns
+    -------
+    pathlib.Path
+        `path`.
+    """
     return write_text(path, _dumps(scene_to_json(scene)) + "\n")

@@ -15,10 +15,36 @@ from .model import Scene
 
 
 def load(source) -> Scene:
-    """A Scene from a .nff, .json or model file (.obj, .ply, .stl, .off, .gltf, .glb) path,
-    `spd:NAME[:SIZE]`, `scene:NAME` or `example:NAME`;
-    its parse_seconds say how long that took (a render reports them as time.parse), less the
-    kernels' compiling and loading on a first call (its compile_seconds and load_seconds)."""
+    """Load a Scene from a file, an SPD generator, a named scene or an example.
+
+    Parameters
+    ----------
+    source : str or path-like
+        A path to a ``.nff``, ``.json`` or model file (``.obj``, ``.ply``, ``.stl``, ``.off``,
+        ``.gltf``, ``.glb``), or ``spd:NAME[:SIZE]`` (an SPD generator at size factor SIZE,
+        default its own), ``scene:NAME`` (a pathological scene) or ``example:NAME``.
+
+    Returns
+    -------
+    Scene
+        The scene; its ``parse_seconds`` say how long loading took (a render reports them as
+        ``time.parse``), less the kernels' compiling and loading on a first call (its
+        ``compile_seconds`` and ``load_seconds``).
+
+    Raises
+    ------
+    SceneError
+        The file does not exist, its format is unknown, or the scene in it is not valid.
+    OptionError
+        An unknown ``spd:``, ``scene:`` or ``example:`` name, or an SPD size factor that is
+        not a positive integer in range; or a model file without trimesh installed.
+
+    Examples
+    --------
+    >>> scene = load("balls-sf4.nff")
+    >>> scene = load("spd:balls:2")
+    >>> scene = load("example:heckbert")
+    """
     from ..geometry.compiletime import CompileClock, compile_notice, typing_setup
     setup = typing_setup()      # numba's, on a process's first kernel call
     t0 = time.perf_counter()

@@ -340,6 +340,40 @@ class Instance:
 
 @dataclass
 class Scene:
+    """A whole scene: camera, background, lights, materials and the root group of the geometry.
+
+    Attributes
+    ----------
+    camera : Camera
+        The pinhole camera (NFF's view).
+    background : (3,) float64 array
+        The background colour.
+    lights : list of Light
+        The point lights.
+    materials : list of Material
+        The materials; primitives refer to them by index.
+    root : Group
+        The root of the scene graph: primitive sets, child groups and instances.
+    source : str
+        Where the scene came from (a path, ``spd:NAME:SIZE``, ...), for reports.
+    parse_seconds : float
+        Seconds spent reading it from its file or generator (``load``); 0 when built in Python.
+    compile_seconds : float
+        Of that reading, the seconds spent compiling its kernels (left out of `parse_seconds`).
+    load_seconds : float
+        And the seconds spent loading them from the cache (start-up, left out of
+        `parse_seconds`).
+    animation : object
+        An ``animation.Animation``: what moves over time (JSON ``animation`` and ``motion``);
+        None for a still scene.
+
+    Examples
+    --------
+    >>> scene = Scene(camera=Camera(eye=(0, -5, 0), look_at=(0, 0, 0)))
+    >>> m = scene.add_material(Material(color=(1, 0, 0), kd=0.8))
+    >>> scene.root.spheres.add((0, 0, 0), 1.0, m)
+    """
+
     camera: Camera = field(default_factory=Camera)
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     lights: list = field(default_factory=list)
@@ -355,7 +389,19 @@ class Scene:
         self.background = _vec3(self.background, "background colour")
 
     def add_material(self, material: Material) -> int:
-        """Add a material and return its index (identical materials are shared)."""
+        """Add a material and return its index (identical materials are shared).
+
+        Parameters
+        ----------
+        material : Material
+            The material to add.
+
+        Returns
+        -------
+        int
+            The index primitives use to refer to it: that of an identical material already in
+            the scene, else the new one's.
+        """
         try:
             return self.materials.index(material)
         except ValueError:
@@ -363,11 +409,37 @@ class Scene:
             return len(self.materials) - 1
 
     def add_light(self, position, color=None) -> Light:
+        """Add a point light.
+
+        Parameters
+        ----------
+        position : (3,) array_like
+            Where the light is.
+        color : (3,) array_like, optional
+            Its colour; None means white (NFF lights have no colour by default).
+
+        Returns
+        -------
+        Light
+            The light added.
+
+        Raises
+        ------
+        SceneError
+            The position or colour is not 3 finite numbers within the range raykernel answers
+            exactly.
+        """
         light = Light(position, color)
         self.lights.append(light)
         return light
 
     def count_primitives(self) -> int:
+        """The number of primitives reachable from the root, those of instances counted each time.
+
+        Returns
+        -------
+        int
+        """
         return self.root.count_primitives()
 
     def __repr__(self):

@@ -641,7 +641,23 @@ def parse_nff(text: str | bytes, path: str = "<string>") -> Scene:
 
 
 def read_nff(path) -> Scene:
-    """The scene in the NFF file at `path`."""
+    """Read the scene in an NFF file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The NFF file; it becomes the scene's ``source`` and names the file in errors.
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    SceneError
+        The file cannot be read, or is not valid NFF; the message names the file, the line and
+        what was expected there.
+    """
     name = os.fspath(path)
     try:
         with open(name, "rb") as fh:
@@ -822,6 +838,16 @@ def scene_to_nff(scene: Scene) -> str:
 
 
 def write_nff(scene: Scene, path) -> None:
-    """Write `scene` as NFF to `path`, replacing the file atomically: the text
-    goes to a temporary file in the same directory, then takes the name."""
+    """Write `scene` as NFF, with groups and instances flattened.
+
+    The file is replaced atomically: the text goes to a temporary file in the same directory,
+    then takes the name.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene to write.
+    path : str or path-like
+        The file to write.
+    """
     write_text(path, scene_to_nff(scene))
