@@ -1,6 +1,6 @@
 """What NUMBA_CPU_NAME=generic costs: kernels compiled for any x86-64 against kernels for this processor.
 
-    .venv/bin/python bench/cpu_name.py [--rounds 3]
+    .venv/bin/python bench/cpu_name.py [--rounds 5]
 
 A Docker image or a cluster that shares one kernel cache (NUMBA_CACHE_DIR) between machines of
 different processors needs kernels that run on all of them: NUMBA_CPU_NAME=generic compiles for
@@ -32,13 +32,13 @@ import raykernel
 rounds = int(sys.argv[1])
 t0 = time.perf_counter()
 scene = raykernel.load("spd:balls")
-render = lambda: raykernel.render(scene, accel="bvh", resolution=256, spd=True)
+render = lambda: raykernel.render(scene, accel="bvh", resolution=512, spd=True)
 first = render()
 import trimesh
 mesh = trimesh.creation.icosphere(subdivisions=6)
 rs = raykernel.RayScene.from_mesh(mesh.vertices, mesh.faces)
 rng = np.random.default_rng(1)
-n = 500_000
+n = 1_000_000
 origins = rng.uniform(-2, 2, (n, 3))
 directions = rng.normal(size=(n, 3))
 hits = rs.intersect(origins, directions)
@@ -65,7 +65,7 @@ def run(cpu: str, cache: str, rounds: int) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--rounds", type=int, default=5)
     args = ap.parse_args()
     rows = {}
     for cpu in ("host", "generic"):
@@ -82,7 +82,7 @@ def main() -> None:
         f"`.venv/bin/python bench/cpu_name.py --rounds {args.rounds}` ({date.today().isoformat()}). "
         f"Machine: {machine()}.",
         "",
-        f"SPD balls (sf 4) at 256x256 with `--spd` ({host['rays']:,} rays on both sides) and {host['cast_rays']:,} "
+        f"SPD balls (sf 4) at 512x512 with `--spd` ({host['rays']:,} rays on both sides) and {host['cast_rays']:,} "
         f"incoherent rays at an 82k-triangle icosphere ({host['hits']:,} hits on both sides), best of {args.rounds}, "
         "each setting with its own cache; first call: the whole first process on an empty cache (compiles included); "
         "ratio: generic's seconds over this processor's (above 1: generic is slower).",

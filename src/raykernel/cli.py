@@ -78,7 +78,7 @@ class _Progress:
 
 def cmd_render(args, console) -> int:
     from .atomicfile import check_output_directory
-    from .geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS
+    from .geometry.compiletime import OTHER_RENDERS
     from .geometry.config import tell_once
     from .rendering.imageio import image_format
     from .analysis.auto import render
@@ -118,7 +118,7 @@ def cmd_render(args, console) -> int:
     compiling = first_run()
     if compiling:
         tell_once("render", None)       # the line below says it, and the spinner covers the wait
-        console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
+        console.print(f"Compiling raykernel's kernels: first run after install only, tens of seconds "
                       f"on 2 cores ({OTHER_RENDERS}); later runs start from the cache.", markup=False,
                       highlight=False)
     progress = _Progress(console, f"rendering {args.scene}", compiling)
@@ -223,21 +223,20 @@ def _cluster(args, console):
         yield None
         return
     from .cluster import Cluster
-    from .geometry.compiletime import FIRST_RUN_SECONDS
     from .rendering.render import first_run
     with Cluster(args.dask) as cluster:
         console.print(f"Dask: {cluster.workers} worker(s) at {cluster.client.scheduler.address}", markup=False,
                       highlight=False)
         if first_run():
-            console.print(f"Compiling raykernel's kernels on the workers: first run after install only, about "
-                          f"{FIRST_RUN_SECONDS} s or more; later runs start from the cache.", markup=False,
+            console.print("Compiling raykernel's kernels on the workers: first run after install only, tens "
+                          "of seconds or more; later runs start from the cache.", markup=False,
                           highlight=False)
         cluster.warm_up({"threads": args.threads} if getattr(args, "threads", None) else {})
         yield cluster
 
 
 def cmd_animate(args, console) -> int:
-    from .geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS
+    from .geometry.compiletime import OTHER_RENDERS
     from .geometry.config import tell_once
     from .rendering.animate import animate
     from .rendering.render import first_run
@@ -246,7 +245,7 @@ def cmd_animate(args, console) -> int:
     options = {k: getattr(args, k) for k in ("max_depth", "shading", "shadows", "tricks") if getattr(args, k) is not None}
     if first_run() and not args.dask:
         tell_once("render", None)
-        console.print(f"Compiling raykernel's kernels: first run after install only, about {FIRST_RUN_SECONDS} s "
+        console.print(f"Compiling raykernel's kernels: first run after install only, tens of seconds "
                       f"on 2 cores ({OTHER_RENDERS}); later runs start from the cache.", markup=False,
                       highlight=False)
     progress = _Progress(console, f"animating {args.scene} (frames)")

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.compiletime import FIRST_MESH_SECONDS, FIRST_QUERY_SECONDS, CompileClock, compile_notice
+from ..geometry.compiletime import CompileClock, compile_notice
 from ..aggregates.memory import check, describe_bytes, memory_limit
 from ..aggregates.registry import COUNTER_NAMES
 from ..engine.flatten import flatten
@@ -766,10 +766,10 @@ class RayScene:
         counters = np.zeros((max(1, (n + CHUNK - 1) // CHUNK), C.N_COUNTERS), np.int64)
         kernel = self._mesh.kernel if self._mesh is not None else _query
         name = f"meshcast.{kernel.__name__}" if self._mesh is not None else "rayscene._query"
-        about = (f"{FIRST_MESH_SECONDS} s" if self._mesh is not None
-                 else f"{FIRST_QUERY_SECONDS} s, 35 s for other structures")
+        about = ("several seconds" if self._mesh is not None
+                 else "tens of seconds, longer for other structures than one BVH")
         notice = compile_notice(name, f"raykernel: compiling the ray-casting kernels (first use after install, "
-                                      f"about {about}; cached for later processes)")
+                                      f"{about}; cached for later processes)")
         with self._turn(), CompileClock(notice=notice) as clock:
             start = time.perf_counter()         # (after waiting for the lock)
             if n and self._mesh is not None:

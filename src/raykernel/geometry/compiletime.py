@@ -30,13 +30,10 @@ from .config import tell_once
 # the name of the threads parallel.for_ranges and on_threads run kernels on: their compiles are the caller's
 WORKER_PREFIX = "raykernel-worker"
 
-# about how long a first compile takes on a 2-core machine (bench/startup.py), for the notices
-FIRST_RUN_SECONDS = 20      # a first render of a scene that is one BVH (every SPD scene); other structures 35 s
-FIRST_QUERY_SECONDS = 20    # a first RayScene query on a scene that is one BVH; other structures about 35 s
-FIRST_MESH_SECONDS = 10     # and on a mesh (the mesh kernel)
-# how long the other kinds of render take, after FIRST_RUN_SECONDS in every notice
-OTHER_RENDERS = ("35 s for other structures, 20-40 s for Heckbert's or Hall's shading, antialiasing or "
-                 "filtered shadows")
+# the notices say "tens of seconds" for a first compile; bench/startup.py measures it (BENCHMARKS.md, "Start-up")
+# how the other kinds of render compare, after the first render's estimate in every notice
+OTHER_RENDERS = ("other structures take longer, and Heckbert's or Hall's shading, antialiasing or "
+                 "filtered shadows may too")
 NOTICE_AFTER = 1.0          # seconds of compiling before CompileClock's notice
 
 
@@ -136,9 +133,9 @@ _typing_ready = threading.Event()
 
 def typing_setup() -> float:
     """Seconds numba took to set up its typing of arguments, when this is the first call in
-    the process (0 afterwards): the first typeof of an array loads that machinery, about
-    20 ms, and the first dispatch scans the installed packages for numba extensions, about
-    3 ms; both would otherwise fall into whatever kernel's call came first (a render's BVH
+    the process (0 afterwards): the first typeof of an array loads that machinery (tens
+    of milliseconds), and the first dispatch scans the installed packages for numba extensions
+    (a few more); both would otherwise fall into whatever kernel's call came first (a render's BVH
     build). Start-up, reported with time.load."""
     if _typing_ready.is_set():
         return 0.0

@@ -55,9 +55,9 @@ def njit(func=None, *, private=False, borrows=False, **kwargs):
     """numba.njit with the project's options; extra keywords override them.
     Use as @njit or @njit(parallel=True). private=True: called only from other
     kernels, so numba builds no Python wrapper for it; a wrapper unboxes every
-    array of its arguments, and for the scene's Geometry (about 70 arrays)
-    that costs about 0.6 s of compile time per function. A private kernel also
-    borrows its arguments: without reference counting, a call does not touch
+    array of its arguments, and for the scene's Geometry (dozens of arrays)
+    that costs a noticeable part of a second of compile time per function. A
+    private kernel also borrows its arguments: without reference counting, a call does not touch
     each array's shared count (atomics that threads fight over), so a walk
     step compiled apart costs about what it cost inlined. Such a kernel may
     not allocate: numba refuses to compile one that does. borrows=True: borrows its

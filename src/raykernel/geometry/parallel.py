@@ -8,8 +8,8 @@
 
 Why not numba's prange: a parallel=True kernel is compiled twice over (the
 loop body as a gufunc, then the kernel around it), with everything it calls
-optimised again each time; on the render and the ray queries that was about
-a third of the first call's compile time. Threads over a serial kernel
+optimised again each time; on the render and the ray queries that was a
+large share of the first call's compile time. Threads over a serial kernel
 cost one call per range instead (a few microseconds, plus unboxing the
 arguments). Ranges are handed out as threads become free, so uneven work
 balances; each item's results have their own place (a tile's counter row),
@@ -48,7 +48,7 @@ def _pool(threads: int) -> ThreadPoolExecutor:
             pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=WORKER_PREFIX)
             # start every thread now, all waiting for each other: a pool starts a thread per call
             # of submit, and a thread started while another already runs a kernel call waits for
-            # the GIL that call holds while it unboxes its arguments (1-7 ms on a first render)
+            # the GIL that call holds while it unboxes its arguments (milliseconds on a first render)
             barrier = threading.Barrier(threads)
             for future in [pool.submit(barrier.wait) for _ in range(threads)]:
                 future.result()
@@ -60,7 +60,7 @@ def for_ranges(fn, n: int, threads: int | None = None, kernel=None, min_size: in
     """Call fn(lo, hi) over ranges covering 0..n, on up to `threads` threads at once.
     kernel: the compiled function fn calls; until it has been compiled (or loaded from the
     cache) the first range runs alone on this thread, since threads calling an uncompiled
-    kernel at once compile it once each (a first render took 52 s instead of 30).
+    kernel at once compile it once each (a first render took markedly longer).
     min_size: items a range holds at least, so that small work (a lazy render's first
     passes, a few rays each) runs on this thread instead of paying a hand-over per range.
     Each thread takes ranges one after another, sized to take about RANGE_SECONDS (from one

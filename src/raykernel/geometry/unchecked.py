@@ -8,7 +8,7 @@ Why: numba indexes with a signed integer as Python does, so every `a[i]` whose
 index LLVM cannot prove non-negative adds `i < 0 ? i + len : i` (a compare and
 a conditional move on the address, and the length kept live in a register or
 reloaded from the stack). In the 4-wide walk's loop that shifts stack entries
-to insert a child, that came to about a third of its instructions. These read
+to insert a child, that came to a large share of its instructions. These read
 and write the element at the flat index directly: the caller guarantees
 0 <= i < a.size, as a walk does for its stack (bounded by its depth) and for
 the nodes it reads (indices the builder wrote). Neither checks bounds, as

@@ -39,7 +39,7 @@ import numba
 import numpy as np
 
 from ..aggregates.lazyset import pass_ranges
-from ..geometry.compiletime import FIRST_RUN_SECONDS, OTHER_RENDERS, CompileClock, compile_notice, typing_setup
+from ..geometry.compiletime import OTHER_RENDERS, CompileClock, compile_notice, typing_setup
 from ..engine.flatten import flatten
 from ..geometry.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
@@ -625,8 +625,8 @@ def _lattice(h: int, w: int, step: int, coarse: int) -> np.ndarray:
 
 # CompileClock's notice for a render's kernels, whichever specialisation compiles
 tell_compiling = compile_notice(
-    "render", f"raykernel: compiling the renderer's kernels for this kind of render (once after install: about "
-              f"{FIRST_RUN_SECONDS} s, {OTHER_RENDERS}; cached for later processes)")
+    "render", f"raykernel: compiling the renderer's kernels for this kind of render (once after install: tens "
+              f"of seconds; {OTHER_RENDERS}; cached for later processes)")
 
 
 def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd: bool = False,
