@@ -59,10 +59,11 @@ from ..scene.model import Scene, TriangleMesh
 from .hitsurface import store_miss, store_surface
 from .meshbuild import BUILD_BYTES, QUALITY, build_mesh
 from .meshcast import MESH_ACCEL, MeshKernel
+from .occupancy import occupancy_grid
 from .proximity import (INSIDE_DIRECTIONS, ClosestPoints, inside_spheres, kinds_of, parity_directions, point_index,
                         surface_normals)
-from .winding import dipoles, winding_numbers
 from .rayinput import valid_ray
+from .winding import dipoles, winding_numbers
 
 CHUNK = 1024
 CLOSEST, ANY = 0, 1
@@ -524,6 +525,7 @@ class RayScene:
         del state["_lock"], state["_local"]
         state.pop("_point_index", None)      # rebuilt on demand
         state.pop("_far", None)
+        state.pop("_grid", None)
         return state
 
     def __setstate__(self, state):
@@ -1214,7 +1216,18 @@ class RayScene:
             return (winding_numbers(mesh, p, far, threads) > 0.5).reshape(shape)
         if method == "parity":
             box = self._mesh.geo.agg_bounds[0] if self._mesh is not None else self.geo.agg_bounds[self.geo.root]
-            return (self.count_hits(p, parity_directions(p, box, threads), threads=threads) % 2 == 1).reshape(shape)
+
+            def odd_crossings(q):
+                return self.count_hits(q, parity_directions(q, box, threads), threads=threads) % 2 == 1
+
+            if not self._closed():
+                return odd_crossings(p).reshape(shape)
+            # a closed mesh: points in cells no triangle touches take their region's answer (occupancy.py)
+            inside, known = self._occupancy(odd_crossings).lookup(p, threads)
+            rest = np.flatnonzero(~known)
+            if len(rest):
+                inside[rest] = odd_crossings(p[rest])
+            return inside.reshape(shape)
         spheres = [g for g, info in enumerate(self.geometries) if info["kind"] == "sphere"]
 
         def odd(q, direction):
@@ -1238,6 +1251,16 @@ class RayScene:
             root = self.scene.root
             self._is_closed = bool(root.meshes) and not root.children and all(map(_closed_mesh, root.meshes))
         return self._is_closed
+
+    def _occupancy(self, odd_crossings):
+        """The closed meshes' occupancy grid (built once; its regions decided by odd_crossings)."""
+        if not hasattr(self, "_grid"):
+            meshes = self.scene.root.meshes
+            offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+            vertices = np.concatenate([np.asarray(m.vertices, np.float64) for m in meshes])
+            faces = np.concatenate([np.asarray(m.faces, np.int64) + o for m, o in zip(meshes, offsets)])
+            self._grid = occupancy_grid(vertices, faces, odd_crossings)
+        return self._grid
 
     def _winding_tree(self):
         """The 4-wide mesh kernel and its dipoles for winding numbers (built once: for a scene
