@@ -173,6 +173,26 @@ def test_the_parallel_build_is_the_serial_tree_at_any_thread_count(monkeypatch):
     assert sorted(i for leaf in leaves_of(one) for i in leaf) == list(range(len(items)))
 
 
+@pytest.mark.parametrize("stack", [1 << 16, 8])
+def test_every_stage_of_the_parallel_build_keeps_the_serial_tree(monkeypatch, stack):
+    """Small stages, so that the head, the middle (its blocks filled, and its stack too when small) and the
+    small tasks all split nodes: the same splits as the serial build, the same arrays at 1 and 2 threads."""
+    items = random_boxes(6000, 4)
+    monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1000)
+    monkeypatch.setattr(bvh, "DEFER_ITEMS", 40)
+    monkeypatch.setattr(bvh, "HEAD_PARTS", 16)
+    monkeypatch.setattr(bvh, "TOP_STACK", stack)
+    one, _ = bvh.build_bvh(items, block=4, threads=1)
+    two, _ = bvh.build_bvh(items, block=4, threads=2)
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a, b)
+    monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1 << 40)
+    serial, _ = bvh.build_bvh(items, block=4)
+    assert leaves_of(serial) == leaves_of(one)
+    assert sorted(i for leaf in leaves_of(one) for i in leaf) == list(range(len(items)))
+    assert len(one.count) == len(serial.count)      # no node lost or left over by the compaction
+
+
 @pytest.mark.parametrize("n", [1, 2, 5, 1000, 40000])
 def test_the_morton_build_holds_every_item_once_in_small_leaves(n):
     items = random_boxes(n, n)

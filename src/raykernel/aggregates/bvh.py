@@ -479,6 +479,31 @@ def _build_tasks(data, order, bounds, first, count, tasks, task_cb, base, k0, k1
 
 
 @njit
+def _build_middle(data, order, bounds, first, count, tasks, task_cb, block_start, block_cap, small_offset, small,
+                  small_cb, small_count, defer, stack, k0, k1, leaf_size, bins, traversal_cost, intersection_cost,
+                  block):
+    """Split the head's tasks k0..k1-1 down to `defer` items, with a stack of `stack` work items:
+    task k's nodes from block_start[k] on (at most block_cap[k]), the tasks it defers into small[o:]
+    and small_cb[o:], o = block_start[k] - small_offset, their number into small_count[k].
+    Returns the deepest depth."""
+    deepest = 0
+    for k in range(k0, k1):
+        s = tasks[k, 1]
+        e = tasks[k, 2]
+        st_node, st_start, st_end, st_depth, st_cb = _work_stack(min(e - s, stack))
+        top = _push_work(st_node, st_start, st_end, st_depth, st_cb, np.int64(0), tasks[k, 0], s, e, tasks[k, 3],
+                         task_cb[k])
+        offset = block_start[k] - small_offset
+        _, _, depth, n_small = _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st_depth,
+                                           st_cb, top, block_start[k], leaf_size, bins, traversal_cost,
+                                           intersection_cost, block, defer, block_start[k] + block_cap[k], small,
+                                           small_cb, offset, np.int64(0))
+        small_count[k] = n_small - offset
+        deepest = max(deepest, depth)
+    return deepest
+
+
+@njit
 def _compact(bounds, first, count):
     """Close the gaps the tasks' node blocks leave, in place, keeping the nodes' order (children
     after parents, siblings side by side); returns the node count."""
@@ -651,6 +676,7 @@ def build_rows(data, method="sah", leaf_size=4, bins=16, traversal_cost=1.0, int
 # items from which a build is split over threads, and the largest subtree built by one thread's call
 PARALLEL_ITEMS = 1 << 15
 DEFER_ITEMS = 1 << 12
+HEAD_PARTS = 8              # the head, on the calling thread, splits nodes of more than 1/8 of the items
 TOP_STACK = 1 << 16         # work items the top's stack holds (a deeper top defers the rest as tasks)
 TOP_WORK = 1 << 22          # items the top of a build splits in one call (well under the second Ctrl-C may wait)
 
@@ -658,9 +684,9 @@ TOP_WORK = 1 << 22          # items the top of a build splits in one call (well 
 def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None):
     """Build the tree over `data` (_item_data's rows, permuted in place); returns (bounds,
     first, count, order, node count, max depth). From PARALLEL_ITEMS items on, the nodes of
-    more than DEFER_ITEMS items are split on the calling thread, and the subtrees below them
-    built on `threads` threads; the tree is the same (the same splits) with one thread or many,
-    its nodes numbered the same for any thread count."""
+    more than n / HEAD_PARTS items are split on the calling thread, and the subtrees below them
+    built on `threads` threads (split down to DEFER_ITEMS items, then those); the tree is the same
+    (the same splits) with one thread or many, its nodes numbered the same for any thread count."""
     n = data.shape[0]
     order = np.arange(n, dtype=np.int64)
     if n == 0:
@@ -674,22 +700,48 @@ def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None):
         none = np.empty((0, 4), np.int64), np.empty((0, 6))
         n_nodes, depth, _ = _build_top(data, order, bounds, first, count, args, 0, cap, *none)
         return bounds, first, count, order, n_nodes, depth
-    # the top: at most 8 nodes for every DEFER_ITEMS items (beyond, the rest is deferred as it is)
-    top_cap = min(2 * n - 1, 8 * (n // DEFER_ITEMS) + 64)
-    cap = top_cap + 2 * n
+    # three stages, each node where any thread count puts it, so the tree and its numbering are
+    # the same with one thread or many: the head splits the nodes of more than n / HEAD_PARTS items
+    # on this thread; the middle splits the head's tasks down to DEFER_ITEMS items on the threads,
+    # each in a block of nodes of its own; the small tasks below, on the threads too, take their
+    # nodes from small_base + 2 s on. At most 8 nodes for every `defer` items in a stage's blocks
+    # (beyond, the rest is deferred as it is).
+    head_defer = max(DEFER_ITEMS, n // HEAD_PARTS)
+    head_cap = min(2 * n - 1, 8 * (n // head_defer) + 64)
+    head = np.empty((head_cap, 6)), np.empty(head_cap, np.int64), np.empty(head_cap, np.int64)
+    tasks, task_cb = np.empty((head_cap, 4), np.int64), np.empty((head_cap, 6))
+    _, depth, n_tasks = _build_top(data, order, *head, args, head_defer, head_cap, tasks, task_cb)
+    tasks, task_cb = _largest_first(tasks[:n_tasks], task_cb[:n_tasks])
+    # the middle: task k's nodes in block_start[k] .. + block_cap[k], its own tasks at the same offsets
+    block_cap = 8 * ((tasks[:, 2] - tasks[:, 1]) // DEFER_ITEMS) + 64
+    block_start = head_cap + np.concatenate([[0], np.cumsum(block_cap)[:-1]]).astype(np.int64)
+    small_base = head_cap + int(block_cap.sum())
+    cap = small_base + 2 * n
     bounds, first, count = np.empty((cap, 6)), np.empty(cap, np.int64), np.empty(cap, np.int64)
-    tasks, task_cb = np.empty((top_cap, 4), np.int64), np.empty((top_cap, 6))
-    _, depth, n_tasks = _build_top(data, order, bounds, first, count, args, DEFER_ITEMS, top_cap, tasks, task_cb)
-    tasks, task_cb = tasks[:n_tasks], task_cb[:n_tasks]
-    # the largest first, so that threads finish together
-    big = np.argsort(tasks[:, 1] - tasks[:, 2], kind="stable")
-    tasks, task_cb = np.ascontiguousarray(tasks[big]), np.ascontiguousarray(task_cb[big])
-    depths = []
-    for_ranges(lambda k0, k1: depths.append(_build_tasks(data, order, bounds, first, count, tasks, task_cb,
-                                                         np.int64(top_cap), np.int64(k0), np.int64(k1), *args)),
-               n_tasks, threads, kernel=_build_tasks)
+    bounds[:head_cap], first[:head_cap], count[:head_cap] = head
+    head = None
+    small, small_cb = np.empty((int(block_cap.sum()), 4), np.int64), np.empty((int(block_cap.sum()), 6))
+    small_count = np.zeros(n_tasks, np.int64)
+    depths = [depth]
+    for_ranges(lambda k0, k1: depths.append(_build_middle(data, order, bounds, first, count, tasks, task_cb, block_start,
+                                                          block_cap, np.int64(head_cap), small, small_cb, small_count,
+                                                          np.int64(DEFER_ITEMS), np.int64(TOP_STACK), np.int64(k0),
+                                                          np.int64(k1), *args)),
+               n_tasks, threads, kernel=_build_middle)
+    keep = np.concatenate([np.arange(o - head_cap, o - head_cap + c) for o, c in zip(block_start, small_count)]
+                          + [np.zeros(0, np.int64)]).astype(np.int64)
+    small, small_cb = _largest_first(small[keep], small_cb[keep])
+    for_ranges(lambda k0, k1: depths.append(_build_tasks(data, order, bounds, first, count, small, small_cb,
+                                                         np.int64(small_base), np.int64(k0), np.int64(k1), *args)),
+               len(small), threads, kernel=_build_tasks)
     n_nodes = _compact(bounds, first, count)
-    return bounds, first, count, order, n_nodes, max([depth, *depths])
+    return bounds, first, count, order, n_nodes, max(depths)
+
+
+def _largest_first(tasks, task_cb):
+    """The tasks (and their centroid boxes) by size, largest first, so that threads finish together."""
+    big = np.argsort(tasks[:, 1] - tasks[:, 2], kind="stable")
+    return np.ascontiguousarray(tasks[big]), np.ascontiguousarray(task_cb[big])
 
 
 @njit
