@@ -71,6 +71,7 @@ from numba.extending import intrinsic
 from ..errors import SceneError
 from ..geometry.boxes import CONSERVATIVE, INF, STILL
 from ..geometry.config import njit
+from ..geometry.parallel import for_ranges
 from ..geometry.unchecked import load, store
 
 
@@ -106,10 +107,10 @@ def _up(x):
 
 
 @njit
-def _pack(box, child, count, center, nodes, boxes):
-    """The wide nodes' records (see above): float32 boxes rounded outwards from the float64 ones
-    moved by center (so that each contains its original), child and count."""
-    for w in range(box.shape[0]):
+def _pack(box, child, count, center, nodes, boxes, w0, w1):
+    """Records w0..w1-1 of the wide nodes (see above): float32 boxes rounded outwards from the
+    float64 ones moved by center (so that each contains its original), child and count."""
+    for w in range(w0, w1):
         for s in range(4):
             for a in range(3):
                 boxes[w, 4 * a + s] = _down(box[w, s, a] - center[a])
@@ -122,10 +123,12 @@ def _pack(box, child, count, center, nodes, boxes):
 def _collapse_kernel(bounds, first, count, root):
     """Wide nodes in depth-first order: float64 boxes (W, 4, 6), child and count (W, 4)."""
     n = bounds.shape[0]
-    cap = max(1, n)
+    # a wide node for the root and for each inner node below it: trees' inner nodes are at most half
+    # their nodes (each has two children of its own); written only as they are made
+    cap = n // 2 + 1
     box = np.empty((cap, 4, 6))
-    child = np.full((cap, 4), -1, np.int64)
-    cnt = np.full((cap, 4), -1, np.int64)
+    child = np.empty((cap, 4), np.int64)
+    cnt = np.empty((cap, 4), np.int64)
     todo = np.empty(cap, np.int64)            # binary inner node of each wide node not yet filled
     slots = np.empty(4, np.int64)
     todo[0] = root
@@ -165,6 +168,8 @@ def _collapse_kernel(bounds, first, count, root):
                 for a in range(3):
                     box[w, s, a] = INF
                     box[w, s, 3 + a] = -INF
+                child[w, s] = -1
+                cnt[w, s] = -1
                 continue
             c = slots[s]
             for a in range(6):
@@ -197,7 +202,9 @@ def collapse(node_bounds, node_first, node_count, root: int) -> WideBVH:
     root_box = node_bounds[root]
     center = np.where(np.isfinite(root_box[:3] + root_box[3:]), (root_box[:3] + root_box[3:]) / 2, 0.0)
     nodes = _aligned(len(box))
-    _pack(box, child, count, center, nodes, nodes.view(np.float32))
+    boxes = nodes.view(np.float32)
+    for_ranges(lambda w0, w1: _pack(box, child, count, center, nodes, boxes, np.int64(w0), np.int64(w1)), len(box),
+               kernel=_pack, min_size=1 << 14)
     return WideBVH(nodes, center)
 
 
