@@ -75,6 +75,8 @@ def occupancy_grid(vertices: np.ndarray, faces: np.ndarray, classify) -> Occupan
 def _mark(v, f, lo, cell, res, region):
     """region[c] = -1 for every cell c a triangle may touch."""
     nx, ny = res[0], res[1]
+    first = np.empty(3, np.int64)
+    last = np.empty(3, np.int64)
     for t in range(f.shape[0]):
         a, b, c = f[t, 0], f[t, 1], f[t, 2]
         ex0 = v[b, 0] - v[a, 0]
@@ -87,8 +89,6 @@ def _mark(v, f, lo, cell, res, region):
         n1 = ex2 * ey0 - ex0 * ey2
         n2 = ex0 * ey1 - ex1 * ey0
         d = n0 * v[a, 0] + n1 * v[a, 1] + n2 * v[a, 2]
-        first = np.empty(3, np.int64)
-        last = np.empty(3, np.int64)
         for k in range(3):
             mn = min(v[a, k], v[b, k], v[c, k])
             mx = max(v[a, k], v[b, k], v[c, k])
@@ -160,24 +160,26 @@ def _regions(res, region, seeds):
 
 @njit
 def _lookup(points, lo, cell, res, region, answer, inside, known, i0, i1):
-    nx, ny = res[0], res[1]
     for i in range(i0, i1):
         out = False
-        index = np.empty(3, np.int64)
         on_box = False
+        cell_index = 0
+        stride = 1
         for k in range(3):
             f = (points[i, k] - lo[k]) / cell[k]
             if f < 0.0 or f > res[k]:
                 out = True
             elif f == 0.0 or f == res[k]:
                 on_box = True
-            index[k] = min(res[k] - 1, int(math.floor(f))) if f >= 0.0 else 0
+            else:
+                cell_index += stride * min(res[k] - 1, int(math.floor(f)))
+            stride *= res[k]
         if out:
             known[i] = True                     # outside the mesh's box: outside the mesh
             continue
         if on_box:
             continue
-        r = region[index[0] + nx * (index[1] + ny * index[2])]
+        r = region[cell_index]
         if r >= 0:
             inside[i] = answer[r]
             known[i] = True
