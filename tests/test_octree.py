@@ -296,7 +296,8 @@ def test_rays_starting_inside_stop_at_the_first_hit(walk):
     geo, _ = flatten(scene, default_accel=spec(walk, "mailbox=off, leaf=1, budget=0"))
     t, kind, index, _, cnt = cast_rays(geo, [[4.5, 0, 0], [4.5, 0, 0]], [[1.0, 0, 0], [-1.0, 0, 0]])
     assert index.tolist() == [5, 4] and t[0] == pytest.approx(0.2)
-    assert cnt[C.TESTS + 0] <= 8    # of 40 for a list
+    # of 40 for a list; along the centre planes a walk may meet a cell or two more (widened nodes: parametric)
+    assert cnt[C.TESTS + 0] <= 10
 
 
 # ---------------------------------------------------------------- instances
@@ -443,3 +444,37 @@ def test_default_octree_resolves_the_teapot_in_the_stadium():
         per_ray[accel] = counts[tests].sum() / len(o)
     assert stats["aggregates"][0]["max_depth"] == 8
     assert per_ray["octree"] < 30 and per_ray["octree(depth=8)"] > 300
+
+
+@pytest.mark.parametrize("walk", WALKS)
+def test_every_face_at_a_grazed_edge_is_found(walk):
+    """All hits of rays that graze an edge of a box (from outside both faces' planes to outside the
+    box): rounding puts each ray a hair off the edge, where the faces' tests still report both
+    faces, and every walk must reach the cells that hold them (the parametric walk tests its nodes'
+    boxes widened by the margin the faces got when they were put in cells)."""
+    lo, hi = np.array([-0.42241697, -0.98081173, 0.16123369]), np.array([0.84137433, 0.35837896, 0.77204955])
+
+    def box_scene(accel):
+        scene = new_scene()
+        scene.root.accel = accel
+        for axis in range(3):
+            for side in (lo, hi):
+                quad = []
+                for u, v in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    corner = lo.copy()
+                    corner[axis] = side[axis]
+                    corner[(axis + 1) % 3] = (hi if u else lo)[(axis + 1) % 3]
+                    corner[(axis + 2) % 3] = (hi if v else lo)[(axis + 2) % 3]
+                    quad.append(corner)
+                scene.root.polygons.add(quad)
+        return scene
+
+    edge = np.array([0.2, lo[1], lo[2]])                     # on the edge y = lo, z = lo
+    d = np.array([7.4268202210410195, -0.04714429305371814, 5.456349010347257])    # in from y > lo, z < lo
+    o = edge[None] - np.linspace(0.5, 1.99, 20001)[:, None] * d[None]
+    d = np.broadcast_to(d, o.shape)
+    want = raykernel.RayScene.from_scene(box_scene("list"), "list").intersect_all(o, d, ids=True)
+    got = raykernel.RayScene.from_scene(box_scene(spec(walk, "leaf=1")), "list").intersect_all(o, d, ids=True)
+    assert len(want[0]) > len(o)                    # most rays report both faces at the edge
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)

@@ -483,6 +483,23 @@ def wall_quadtrees(first, count, nbr):
     return walls, quads[:nq].copy()
 
 
+def cell_margin(origin, extent, depth) -> np.ndarray:
+    """(3,) how much item boxes grow when they are put in the cells of an octree over the box at
+    `origin` of `extent`, `depth` levels deep (the parametric walk widens a node's box by the
+    margin of its own level, no less: _node_margin)."""
+    return 1e-9 * max(float(extent.max()), float(np.abs(origin).max())) + 1e-7 * (extent / float(1 << depth))
+
+
+@njit(inline="always")
+def _node_margin(oct_origin, oct_unit, oi, level, a):
+    """cell_margin on axis a for a node at `level` of octree oi: at least the items' margin, whose
+    depth is the node's or deeper."""
+    big = 0.0
+    for k in range(3):
+        big = max(big, max(oct_unit[oi, k] * float(1 << ADDRESS_BITS), abs(oct_origin[oi, k])))
+    return 1e-9 * big + 1e-7 * oct_unit[oi, a] * float(np.int64(1) << (ADDRESS_BITS - level))
+
+
 def octree_frame(bounds, depth, what):
     """The frame every octree (and lazy octree) builds in: item boxes as (n, 6), which of them
     are solid (finite, lo <= hi), the root's origin and 28-bit address unit, and the boxes
@@ -493,8 +510,7 @@ def octree_frame(bounds, depth, what):
         raise ValueError(f"{what} needs at least one item with a box")
     origin, extent = grid_box(items[solid])
     unit = extent / float(1 << ADDRESS_BITS)
-    finest = extent / float(1 << depth)
-    margin = 1e-9 * max(float(extent.max()), float(np.abs(origin).max())) + 1e-7 * finest
+    margin = cell_margin(origin, extent, depth)
     widened = np.hstack([items[:, :3] - margin, items[:, 3:] + margin])
     widened[~solid] = np.array([np.inf] * 3 + [-np.inf] * 3)
     return items, solid, origin, unit, widened
@@ -672,20 +688,26 @@ def _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin
         nb = oct_bounds
         top = oct_root[oi]
         amask = 0
+        # the node's box widened by the margin its items got, so that a ray meeting an item within
+        # it (through an edge on the node's wall, rounded by an instance's map) meets the node too
+        lv = oct_level[node]
+        mx = _node_margin(oct_origin, oct_unit, oi, lv, 0)
+        my = _node_margin(oct_origin, oct_unit, oi, lv, 1)
+        mz = _node_margin(oct_origin, oct_unit, oi, lv, 2)
         if ix >= 0.0:
-            tx0, tx1 = _cell_slab(nb[node, 0], nb[node, 3], ox, ix, nb[top, 3])
+            tx0, tx1 = _cell_slab(nb[node, 0] - mx, nb[node, 3] + mx, ox, ix, nb[top, 3] + mx)
         else:
-            tx0, tx1 = (nb[node, 3] - ox) * ix, (nb[node, 0] - ox) * ix
+            tx0, tx1 = (nb[node, 3] + mx - ox) * ix, (nb[node, 0] - mx - ox) * ix
             amask |= 1
         if iy >= 0.0:
-            ty0, ty1 = _cell_slab(nb[node, 1], nb[node, 4], oy, iy, nb[top, 4])
+            ty0, ty1 = _cell_slab(nb[node, 1] - my, nb[node, 4] + my, oy, iy, nb[top, 4] + my)
         else:
-            ty0, ty1 = (nb[node, 4] - oy) * iy, (nb[node, 1] - oy) * iy
+            ty0, ty1 = (nb[node, 4] + my - oy) * iy, (nb[node, 1] - my - oy) * iy
             amask |= 2
         if iz >= 0.0:
-            tz0, tz1 = _cell_slab(nb[node, 2], nb[node, 5], oz, iz, nb[top, 5])
+            tz0, tz1 = _cell_slab(nb[node, 2] - mz, nb[node, 5] + mz, oz, iz, nb[top, 5] + mz)
         else:
-            tz0, tz1 = (nb[node, 5] - oz) * iz, (nb[node, 2] - oz) * iz
+            tz0, tz1 = (nb[node, 5] + mz - oz) * iz, (nb[node, 2] - mz - oz) * iz
             amask |= 4
         ot0 = max(max(tx0, ty0), tz0)
         ot1 = min(min(tx1, ty1), tz1)
