@@ -161,8 +161,9 @@ def random_boxes(n, seed):
     return np.c_[lo, lo + rng.exponential(0.5, (n, 3))]
 
 
-def test_the_parallel_build_is_the_serial_tree_at_any_thread_count(monkeypatch):
-    items = random_boxes(bvh.PARALLEL_ITEMS + 5000, 9)
+def assert_parallel_build_is_serial_tree(items, monkeypatch):
+    """The same arrays at 1 and 2 threads, and the same splits as the serial build (every item once,
+    no node lost or left over by the compaction)."""
     one, _ = bvh.build_bvh(items, block=4, threads=1)
     two, _ = bvh.build_bvh(items, block=4, threads=2)
     for a, b in zip(one, two):
@@ -171,26 +172,22 @@ def test_the_parallel_build_is_the_serial_tree_at_any_thread_count(monkeypatch):
     serial, _ = bvh.build_bvh(items, block=4)
     assert leaves_of(serial) == leaves_of(one)
     assert sorted(i for leaf in leaves_of(one) for i in leaf) == list(range(len(items)))
+    assert len(one.count) == len(serial.count)
+
+
+def test_the_parallel_build_is_the_serial_tree_at_any_thread_count(monkeypatch):
+    assert_parallel_build_is_serial_tree(random_boxes(bvh.PARALLEL_ITEMS + 5000, 9), monkeypatch)
 
 
 @pytest.mark.parametrize("stack", [1 << 16, 8])
 def test_every_stage_of_the_parallel_build_keeps_the_serial_tree(monkeypatch, stack):
-    """Small stages, so that the head, the middle (its blocks filled, and its stack too when small) and the
-    small tasks all split nodes: the same splits as the serial build, the same arrays at 1 and 2 threads."""
-    items = random_boxes(6000, 4)
+    """Small stages, so that the head, the middle (its blocks filled, and its stack too when small)
+    and the small tasks all split nodes."""
     monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1000)
     monkeypatch.setattr(bvh, "DEFER_ITEMS", 40)
     monkeypatch.setattr(bvh, "HEAD_PARTS", 16)
     monkeypatch.setattr(bvh, "TOP_STACK", stack)
-    one, _ = bvh.build_bvh(items, block=4, threads=1)
-    two, _ = bvh.build_bvh(items, block=4, threads=2)
-    for a, b in zip(one, two):
-        np.testing.assert_array_equal(a, b)
-    monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1 << 40)
-    serial, _ = bvh.build_bvh(items, block=4)
-    assert leaves_of(serial) == leaves_of(one)
-    assert sorted(i for leaf in leaves_of(one) for i in leaf) == list(range(len(items)))
-    assert len(one.count) == len(serial.count)      # no node lost or left over by the compaction
+    assert_parallel_build_is_serial_tree(random_boxes(6000, 4), monkeypatch)
 
 
 @pytest.mark.parametrize("n", [1, 2, 5, 1000, 40000])

@@ -378,6 +378,30 @@ def _closed_mesh(mesh) -> bool:
     return bool(np.all(np.diff(key) > 0)) and bool(np.all(found == twin))
 
 
+# the parts of the ray queries' docstrings they share (_ray_query_doc puts them in)
+_RAYS_DOC = """origins, directions : (N, 3) array_like
+            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
+            broadcast against the other argument; any real dtype, read as float64. Directions
+            need not be unit length: t is measured in units of the direction given.
+        tmin : float or (N,) array_like, default 0
+            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
+            number for every ray, or one per ray.
+        tmax : float or (N,) array_like, default inf
+            The end of that interval, as `tmin`."""
+_RAISES_DOC = """Raises
+        ------
+        RayInputError
+            An argument is not valid: the message names it (and the first bad ray).
+        MemoryBudgetError
+            The outputs and copies of the rays would not fit in the memory budget."""
+
+
+def _ray_query_doc(method):
+    """`method` with {rays} and {raises} in its docstring replaced by the shared parts."""
+    method.__doc__ = method.__doc__.replace("{rays}", _RAYS_DOC).replace("{raises}", _RAISES_DOC)
+    return method
+
+
 class RayScene:
     """Geometry built once into flat arrays and aggregates, queried with batches of rays.
 
@@ -873,6 +897,7 @@ class RayScene:
             arrays["geom"] = np.empty(0, np.int64)
         return arrays, hits
 
+    @_ray_query_doc
     def intersect(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None, fields=None,
                   dtype: str = "float64", out: Hits | None = None) -> Hits:
         """Closest hit of every ray in [tmin, tmax].
@@ -882,15 +907,7 @@ class RayScene:
 
         Parameters
         ----------
-        origins, directions : (N, 3) array_like
-            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
-            broadcast against the other argument; any real dtype, read as float64. Directions
-            need not be unit length: t is measured in units of the direction given.
-        tmin : float or (N,) array_like, default 0
-            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
-            number for every ray, or one per ray.
-        tmax : float or (N,) array_like, default inf
-            The end of that interval, as `tmin`.
+        {rays}
         threads : int, optional
             How many threads to use (default: numba's thread count).
         fields : str or sequence of str, optional
@@ -909,12 +926,7 @@ class RayScene:
         Hits
             Shaped as the rays: (N,) fields for (N, 3) rays; `out` itself where given.
 
-        Raises
-        ------
-        RayInputError
-            An argument is not valid: the message names it (and the first bad ray).
-        MemoryBudgetError
-            The outputs and copies of the rays would not fit in the memory budget.
+        {raises}
 
         Notes
         -----
@@ -942,20 +954,13 @@ class RayScene:
         return Hits(**{name: (hits[name].reshape(shape + FIELD_COLUMNS.get(name, ())) if name in hits else None)
                        for name in HIT_FIELDS}, origins=o.reshape(shape + (3,)), directions=d.reshape(shape + (3,)))
 
+    @_ray_query_doc
     def occluded(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
         """True where the ray meets anything in [tmin, tmax] (stops at the first hit found).
 
         Parameters
         ----------
-        origins, directions : (N, 3) array_like
-            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
-            broadcast against the other argument; any real dtype, read as float64. Directions
-            need not be unit length: t is measured in units of the direction given.
-        tmin : float or (N,) array_like, default 0
-            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
-            number for every ray, or one per ray.
-        tmax : float or (N,) array_like, default inf
-            The end of that interval, as `tmin`.
+        {rays}
         threads : int, optional
             How many threads to use (default: numba's thread count).
 
@@ -964,12 +969,7 @@ class RayScene:
         (N,) bool array
             Shaped as the rays.
 
-        Raises
-        ------
-        RayInputError
-            An argument is not valid: the message names it (and the first bad ray).
-        MemoryBudgetError
-            The outputs and copies of the rays would not fit in the memory budget.
+        {raises}
         """
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax, self._budget("occluded", 9))
         arrays, _ = self._outputs((len(o),), ("t",))
@@ -1018,6 +1018,7 @@ class RayScene:
             ray, all_t, all_i = ray[keep], all_t[keep], all_i[keep]
         return ray, all_t, all_i, counts, stats
 
+    @_ray_query_doc
     def intersect_all(self, origins, directions, tmin=0.0, tmax=np.inf, ids: bool = False,
                       threads: int | None = None):
         """Every primitive each ray meets in [tmin, tmax], once, at its first crossing in the interval.
@@ -1028,15 +1029,7 @@ class RayScene:
 
         Parameters
         ----------
-        origins, directions : (N, 3) array_like
-            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
-            broadcast against the other argument; any real dtype, read as float64. Directions
-            need not be unit length: t is measured in units of the direction given.
-        tmin : float or (N,) array_like, default 0
-            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
-            number for every ray, or one per ray.
-        tmax : float or (N,) array_like, default inf
-            The end of that interval, as `tmin`.
+        {rays}
         ids : bool, default False
             Return geom_id and inst_id too.
         threads : int, optional
@@ -1056,12 +1049,7 @@ class RayScene:
         inst_id : (K,) int64 array
             With ``ids=True`` only: the innermost instance, -1 outside instances.
 
-        Raises
-        ------
-        RayInputError
-            An argument is not valid: the message names it (and the first bad ray).
-        MemoryBudgetError
-            The outputs and copies of the rays would not fit in the memory budget.
+        {raises}
         """
         o, d, lo, hi, _ = check_rays(origins, directions, tmin, tmax, self._budget("intersect_all", 48))
         ray, t, ident, _, stats = self._all(o, d, lo, hi, threads)
@@ -1070,20 +1058,13 @@ class RayScene:
             return ray, t, ident[:, 1].copy(), ident[:, 0].copy(), ident[:, 2].copy()
         return ray, t, ident[:, 1].copy()
 
+    @_ray_query_doc
     def count_hits(self, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:
         """Number of primitives each ray meets in [tmin, tmax] (the lengths of intersect_all's lists).
 
         Parameters
         ----------
-        origins, directions : (N, 3) array_like
-            The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
-            broadcast against the other argument; any real dtype, read as float64. Directions
-            need not be unit length: t is measured in units of the direction given.
-        tmin : float or (N,) array_like, default 0
-            The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
-            number for every ray, or one per ray.
-        tmax : float or (N,) array_like, default inf
-            The end of that interval, as `tmin`.
+        {rays}
         threads : int, optional
             How many threads to use (default: numba's thread count).
 
@@ -1092,12 +1073,7 @@ class RayScene:
         (N,) int64 array
             Shaped as the rays.
 
-        Raises
-        ------
-        RayInputError
-            An argument is not valid: the message names it (and the first bad ray).
-        MemoryBudgetError
-            The outputs and copies of the rays would not fit in the memory budget.
+        {raises}
         """
         o, d, lo, hi, shape = check_rays(origins, directions, tmin, tmax, self._budget("count_hits", 48))
         if self._may_repeat:
