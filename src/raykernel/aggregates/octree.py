@@ -486,18 +486,20 @@ def wall_quadtrees(first, count, nbr):
 def cell_margin(origin, extent, depth) -> np.ndarray:
     """(3,) how much item boxes grow when they are put in the cells of an octree over the box at
     `origin` of `extent`, `depth` levels deep (the parametric walk widens a node's box by the
-    margin of its own level, no less: _node_margin)."""
+    margin of its own level, no less: _node_margins)."""
     return 1e-9 * max(float(extent.max()), float(np.abs(origin).max())) + 1e-7 * (extent / float(1 << depth))
 
 
 @njit(inline="always")
-def _node_margin(oct_origin, oct_unit, oi, level, a):
-    """cell_margin on axis a for a node at `level` of octree oi: at least the items' margin, whose
-    depth is the node's or deeper."""
+def _node_margins(oct_origin, oct_unit, oi, level):
+    """cell_margin on each axis for a node at `level` of octree oi: at least the items' margin,
+    whose depth is the node's or deeper."""
     big = 0.0
     for k in range(3):
         big = max(big, max(oct_unit[oi, k] * float(1 << ADDRESS_BITS), abs(oct_origin[oi, k])))
-    return 1e-9 * big + 1e-7 * oct_unit[oi, a] * float(np.int64(1) << (ADDRESS_BITS - level))
+    size = float(np.int64(1) << (ADDRESS_BITS - level))
+    return (1e-9 * big + 1e-7 * oct_unit[oi, 0] * size, 1e-9 * big + 1e-7 * oct_unit[oi, 1] * size,
+            1e-9 * big + 1e-7 * oct_unit[oi, 2] * size)
 
 
 def octree_frame(bounds, depth, what):
@@ -690,10 +692,7 @@ def _parametric(oct_bounds, oct_count, oct_first, oct_level, oct_loc, oct_origin
         amask = 0
         # the node's box widened by the margin its items got, so that a ray meeting an item within
         # it (through an edge on the node's wall, rounded by an instance's map) meets the node too
-        lv = oct_level[node]
-        mx = _node_margin(oct_origin, oct_unit, oi, lv, 0)
-        my = _node_margin(oct_origin, oct_unit, oi, lv, 1)
-        mz = _node_margin(oct_origin, oct_unit, oi, lv, 2)
+        mx, my, mz = _node_margins(oct_origin, oct_unit, oi, oct_level[node])
         if ix >= 0.0:
             tx0, tx1 = _cell_slab(nb[node, 0] - mx, nb[node, 3] + mx, ox, ix, nb[top, 3] + mx)
         else:
