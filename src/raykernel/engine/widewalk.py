@@ -8,7 +8,7 @@
                                hit_i, t4, cnt, ws.work)
 
 Why a walk of its own: the general driver carries frames, instances, mailboxes and CSG, and
-every call that takes the scene's Geometry (about 75 arrays, which numba passes as some 650
+every call that takes the scene's Geometry (dozens of arrays, each passed by numba as several
 numbers) costs more than a coherent ray's whole walk. This
 walk takes only the arrays it reads: the root BVH collapsed 4-wide (aggregates/widebvh.py),
 whose node tests its four child boxes in one vector slab test, children entered nearest first
@@ -129,7 +129,7 @@ def intersect_wide(nodes, center, agg_bounds, root, refs, prims, verts, band_f, 
     """traverse.intersect (modes CLOSEST, ANY_HIT, ALL_HITS, ANY_OPAQUE) on the arrays prepare()
     made, with the workspace's stack, frames, hit record and t4. The scene's box is tested
     here, in the caller's body: a ray that misses the whole scene (most eye rays of a small
-    one) pays no call of the walk, which passes some 150 numbers."""
+    one) pays no call of the walk and the arrays it passes."""
     ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
     te = box_entry(agg_bounds, root, ox, oy, oz, ix, iy, iz, tmin, tmax)
     note(work, ENTER, 0, root, -1, 0 if te == INF else 1, 0, 0, 0, 0, 0)      # nothing unless a sample is probed

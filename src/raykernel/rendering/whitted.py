@@ -9,7 +9,7 @@ luminance) adds Kl times its colour. filtered: True or False: shadow rays pass t
 surfaces, times T, or not (shadows.py); None: not, without compiling that code. tricks, state: Haines's efficiency tricks and their per-tile memory (tricks.py).
 rays: a (RAY_STACK, RAY_COLUMNS) scratch array; ws: traverse.workspace().
 One call traces a batch of eye rays (a tile's), since a call that takes the scene's Geometry
-passes some 650 numbers, about as long as a ray that misses takes to trace.
+passes every one of its arrays' pointers and sizes, about as long as a ray that misses takes to trace.
 """
 
 import math
