@@ -22,8 +22,11 @@ havran1999_grids.json, each with its line in his files.
 Build: N_IN interior nodes, N_V leaves (empty ones included), N_EV empty
 leaves, N_OIV object references. Traversal, per ray (all rays: eye,
 reflected, refracted, shadow): N_IT intersection tests, N_TS traversal steps
-(nodes visited), N_ETS leaves visited, N_EETS empty leaves visited. Writes
-the `havran` section of BENCHMARKS.md.
+(nodes visited), N_ETS leaves visited, N_EETS empty leaves visited. N_IT_HIT
+is the same tests over the rays that hit a surface (his IntersRequired): his
+octree tables count N_IT so, his grid tables per ray. The rays themselves are
+compared with his invariants and the SPD README's counts. Writes the `havran`
+section of BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -45,10 +48,17 @@ SCENES = {"BALLS": "spd:balls:4", "GEARS": "spd:gears:4", "LATTICE": "spd:lattic
           "RINGS": "spd:rings:7", "TEAPOT": "spd:teapot:12", "TETRA": "spd:tetra:6", "TREE": "spd:tree:11"}
 WALKS = {"point": "Octree84-C", "neighbor": "Octree89-C", "parametric": "Octree93-C"}
 BUILD = ("N_IN", "N_V", "N_EV", "N_OIV")
-TRAVERSAL = ("N_IT", "N_TS", "N_ETS", "N_EETS")
+TRAVERSAL = ("N_IT", "N_IT_HIT", "N_TS", "N_ETS", "N_EETS")
+R_TRAVERSAL = ("N_IT_HIT", "N_ETS", "N_EETS")
+README_RAYS = ("eye_hit", "reflect", "refract", "shadow")
+INVARIANTS = ("UsedIntPrimRay", "ShadowRay", "UsedIntShadRay", "SecondaryRay", "UsedIntSecRay", "IntersRequired")
 # the summary in BENCHMARKS.md: the build table's rows at the first depth
 SUMMARY = "Each cell: Havran's number / raykernel's (raykernel's difference). The octrees built at depth {depth}:"
 BUILD_COLUMNS = ("scene", "depth") + BUILD
+WALK_SUMMARY = ("Tests and steps per ray, point walk at depth {depth}: his N_IT beside raykernel's tests per ray "
+                "(N_IT) and per ray that hits a surface (N_IT_HIT), the rule his octree tables follow:")
+WALK_COLUMNS = ("scene", "N_IT", "N_IT_HIT", "N_TS")
+GRID_COLUMNS = ("N_V", "N_EV", "N_OIV", "N_IT", "N_IT_HIT", "N_TS", "N_EETS")
 
 
 def spec(depth: int, walk: str = "point") -> str:
@@ -59,12 +69,17 @@ def published() -> dict:
     return json.loads(DATA.read_text())["variants"]
 
 
-def build_counts(scene, depth: int) -> dict:
-    """Havran's build counters of raykernel's octree over `scene` at `depth`."""
+def octree_r_spec(depth: int) -> str:
+    return f"octree-r(depth={depth}, leaf=1, mailbox=off)"
+
+
+def build_counts(scene, depth: int, adaptive: bool = False) -> dict:
+    """Havran's build counters of raykernel's octree (adaptive: its Octree-R) over `scene` at `depth`."""
     from raykernel.engine.flatten import flatten
-    _, stats = flatten(scene, spec(depth))
+    _, stats = flatten(scene, octree_r_spec(depth) if adaptive else spec(depth))
     agg = stats["aggregates"][0]
-    return {"N_IN": agg["inner"], "N_V": agg["leaves"], "N_EV": agg["empty_leaves"], "N_OIV": agg["refs"]}
+    return {"N_IN": agg["octree_inner" if adaptive else "inner"], "N_V": agg["leaves"], "N_EV": agg["empty_leaves"],
+            "N_OIV": agg["refs"]}
 
 
 def grid_spec(resolution) -> str:
@@ -81,7 +96,8 @@ def grid_counts(scene, resolution, render: bool, resolution_px: int) -> dict:
     out = {"N_V": agg["leaves"], "N_EV": agg["empty_leaves"], "N_OIV": agg["refs"]}
     if render:
         st = raykernel.render(scene, accel=grid_spec(resolution), resolution=resolution_px, spd=True).stats
-        out.update(N_IT=st["tests.per_ray"], N_TS=st["cells.visited_per_ray"], N_ETS=st["cells.leaves_per_ray"],
+        out.update(N_IT=st["tests.per_ray"], N_IT_HIT=st["tests.total"] / max(rays_that_hit(st), 1),
+                   N_TS=st["cells.visited_per_ray"], N_ETS=st["cells.leaves_per_ray"],
                    N_EETS=st["cells.empty_per_ray"])
     return out
 
@@ -130,20 +146,44 @@ def item_boxes(scene) -> np.ndarray:
     return caught[0]
 
 
+def rays_that_hit(st) -> int:
+    """Havran's IntersRequired: the rays that meet a surface (eye, secondary, and blocked shadow rays)."""
+    return st["rays.eye_hit"] + st["rays.reflect_hit"] + st["rays.refract_hit"] + st["rays.shadow_blocked"]
+
+
 def traversal_counts(scene, depth: int, walk: str, resolution: int) -> dict:
-    """Havran's per-ray traversal counters of a render with the SPD procedure (corner rays, depth 5)."""
+    """Havran's per-ray traversal counters of a render with the SPD procedure (corner rays, depth 5);
+    N_IT_HIT: the tests over the rays that hit, the rule his octree tables' N_IT follows. walk
+    "kd": the Octree-R, walked as a k-d tree (its N_TS counts k-d nodes, three levels an octree's)."""
     import raykernel
-    st = raykernel.render(scene, accel=spec(depth, walk), resolution=resolution, spd=True).stats
-    return {"N_IT": st["tests.per_ray"], "N_TS": st["cells.visited_per_ray"], "N_ETS": st["cells.leaves_per_ray"],
+    accel = octree_r_spec(depth) if walk == "kd" else spec(depth, walk)
+    st = raykernel.render(scene, accel=accel, resolution=resolution, spd=True).stats
+    return {"N_IT": st["tests.per_ray"], "N_IT_HIT": st["tests.total"] / max(rays_that_hit(st), 1),
+            "N_TS": st["cells.visited_per_ray"], "N_ETS": st["cells.leaves_per_ray"],
             "N_EETS": st["cells.empty_per_ray"], "rays": st["rays.total"]}
 
 
+def ray_counts(scene, resolution: int) -> dict:
+    """The SPD procedure's ray counts in Havran's names (any structure gives the same; the BVH is quickest)."""
+    import raykernel
+    st = raykernel.render(scene, accel="bvh", resolution=resolution, spd=True).stats
+    return {"PrimaryRay": st["rays.eye"], "UsedIntPrimRay": st["rays.eye_hit"], "ShadowRay": st["rays.shadow"],
+            "UsedIntShadRay": st["rays.shadow_blocked"], "SecondaryRay": st["rays.reflect"] + st["rays.refract"],
+            "UsedIntSecRay": st["rays.reflect_hit"] + st["rays.refract_hit"], "IntersRequired": rays_that_hit(st),
+            # the SPD README's names; it counts a refraction ray at each total internal reflection too
+            "eye_hit": st["rays.eye_hit"], "reflect": st["rays.reflect"], "refract": st["rays.refract_spd"],
+            "shadow": st["rays.shadow"]}
+
+
 def cell(theirs, ours) -> str:
+    mine = f"{theirs:,}" if isinstance(theirs, int) else f"{theirs:g}"
     if ours is None:
-        return f"{theirs:g} / -"
-    diff = (ours - theirs) / theirs * 100 if theirs else float("inf")
+        return f"{mine} / -"
+    if not theirs:
+        return f"{mine} / {ours:,}" if ours == 0 else f"{mine} / {ours:,.2f}"
+    diff = (ours - theirs) / theirs * 100
     fmt = "{:,}" if isinstance(ours, int) else "{:.2f}"
-    return f"{theirs:g} / {fmt.format(ours)} ({diff:+.1f}%)"
+    return f"{mine} / {fmt.format(ours)} ({diff:+.1f}%)"
 
 
 def main():
@@ -155,14 +195,20 @@ def main():
     ap.add_argument("--build-only", action="store_true")
     ap.add_argument("--rules", action="store_true", help="also count the builds under the half-open overlap rule")
     ap.add_argument("--no-grids", action="store_true", help="leave out the uniform grids")
+    ap.add_argument("--octree-r", action="store_true", help="also his -A octrees, as raykernel's octree-r")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     import raykernel
     pub = published()
-    build_rows, walk_rows, rule_rows, grid_rows = [], [], [], []
-    grids = json.loads(GRID_DATA.read_text())["scenes"]
+    build_rows, walk_rows, rule_rows, grid_rows, ray_rows, r_rows, r_walk_rows = [], [], [], [], [], [], []
+    grid_data = json.loads(GRID_DATA.read_text())
+    grids, invariants, readme = grid_data["scenes"], grid_data["invariants"]["scenes"], grid_data["spd_readme_rays"]
     for name in args.scenes:
         scene = raykernel.load(SCENES[name])
+        if not args.build_only:
+            ours = ray_counts(scene, args.resolution)
+            ray_rows.append((name, invariants[name], readme["scenes"].get(name), ours))
+            print(name, {k: cell(invariants[name][k], ours[k]) for k in INVARIANTS}, flush=True)
         for depth in args.depths:
             theirs = pub["Octree84-C"][name]["depths"][str(depth)]
             ours = build_counts(scene, depth)
@@ -172,11 +218,22 @@ def main():
                 model = rule_counts(scene, depth, "halfopen")
                 rule_rows.append((name, depth, theirs, model))
                 print("  half-open", {k: cell(theirs[k], model[k]) for k in BUILD}, flush=True)
+            if args.octree_r:
+                theirs_r = pub["Octree84-A"][name]["depths"][str(depth)]
+                ours_r = build_counts(scene, depth, adaptive=True)
+                r_rows.append((name, depth, theirs_r, ours_r))
+                print("  octree-r", {k: cell(theirs_r[k], ours_r[k]) for k in BUILD}, flush=True)
+                if not args.build_only:
+                    theirs_w = dict(theirs_r, N_IT_HIT=theirs_r["N_IT"])
+                    ours_w = traversal_counts(scene, depth, "kd", args.resolution)
+                    r_walk_rows.append((name, depth, theirs_w, ours_w))
+                    print("  octree-r", {k: cell(theirs_w[k], ours_w[k]) for k in R_TRAVERSAL}, flush=True)
             if args.build_only:
                 continue
             for walk in args.walks:
                 t0 = time.perf_counter()
-                theirs_w = pub[WALKS[walk]][name]["depths"][str(depth)]
+                theirs_w = dict(pub[WALKS[walk]][name]["depths"][str(depth)])
+                theirs_w["N_IT_HIT"] = theirs_w["N_IT"]
                 ours_w = traversal_counts(scene, depth, walk, args.resolution)
                 walk_rows.append((name, depth, walk, theirs_w, ours_w))
                 print(" ", walk, {k: cell(theirs_w[k], ours_w[k]) for k in TRAVERSAL},
@@ -184,14 +241,13 @@ def main():
         if args.no_grids or name not in grids:
             continue
         for setting, theirs in grids[name]["settings"].items():
+            theirs = dict(theirs, N_IT_HIT=theirs["N_IT"])
             ours = grid_counts(scene, theirs["Resolution"], not args.build_only, args.resolution)
             grid_rows.append((name, setting, theirs, ours))
             print(name, setting, {k: cell(theirs[k], ours[k]) for k in ours}, flush=True)
     lines = ["## Havran's 1999 octree and grid tables reproduced", "", f"Machine: {machine()}.", "",
-             f"Command: `.venv/bin/python bench/havran.py --resolution {args.resolution} --depths "
-             f"{' '.join(map(str, args.depths))} --walks {' '.join(args.walks)}"
-             f"{' --build-only' if args.build_only else ''}{' --rules' if args.rules else ''}` "
-             f"({time.strftime('%Y-%m-%d')})", "",
+             f"Command: `.venv/bin/python bench/havran.py {' '.join(sys.argv[1:])}` ({time.strftime('%Y-%m-%d')})",
+             "",
              DETAILS, "",
              " ".join(__doc__.split("\n\n")[2:4]).replace("\n", " "), "",
              "Each cell: Havran's number / raykernel's (raykernel's difference).", "",
@@ -203,25 +259,58 @@ def main():
                   "| scene | depth | " + " | ".join(BUILD) + " |", "|---|---:|" + "---:|" * len(BUILD)]
         for name, depth, theirs, ours in rule_rows:
             lines.append(f"| {name} | {depth} | " + " | ".join(cell(theirs[k], ours[k]) for k in BUILD) + " |")
+    if ray_rows:
+        lines += ["", f"The rays at {args.resolution} x {args.resolution}: the SPD README's counts / raykernel's "
+                  "(refraction rays counted as the README counts them, total internal reflections included; the "
+                  "README lists no lattice):", "",
+                  "| scene | " + " | ".join(README_RAYS) + " |", "|---|" + "---:|" * len(README_RAYS)]
+        for name, _, spd, ours in ray_rows:
+            if spd:
+                lines.append(f"| {name} | " + " | ".join(cell(spd[k], ours[k]) for k in README_RAYS) + " |")
+        lines += ["", "Havran's invariants (the grid file's line 70 on) / raykernel's; IntersRequired: the rays that "
+                  "hit a surface:", "",
+                  "| scene | " + " | ".join(INVARIANTS) + " |", "|---|" + "---:|" * len(INVARIANTS)]
+        for name, theirs, _, ours in ray_rows:
+            lines.append(f"| {name} | " + " | ".join(cell(theirs[k], ours[k]) for k in INVARIANTS) + " |")
     if walk_rows:
-        lines += ["", f"Traversal at {args.resolution} x {args.resolution} (corner rays), per ray of all kinds:", "",
+        lines += ["", f"Traversal at {args.resolution} x {args.resolution} (corner rays): N_IT, N_TS, N_ETS and "
+                  "N_EETS per ray of all kinds; N_IT_HIT: the same tests per ray that hits a surface "
+                  "(IntersRequired), each beside his N_IT:", "",
                   "| scene | depth | walk (his) | " + " | ".join(TRAVERSAL) + " |",
                   "|---|---:|---|" + "---:|" * len(TRAVERSAL)]
         for name, depth, walk, theirs, ours in walk_rows:
             lines.append(f"| {name} | {depth} | {walk} ({WALKS[walk]}) | "
                          + " | ".join(cell(theirs[k], ours[k]) for k in TRAVERSAL) + " |")
+    if r_rows:
+        lines += ["", "His -A octrees (Octree-R) beside raykernel's `octree-r(depth=D, leaf=1, mailbox=off)`, whose "
+                  "planes follow his statement of the rule (its docstring), stored and walked as a k-d tree: "
+                  "the build (N_IN: octree nodes split)" + (", then tests and leaves per ray beside his Octree84-A "
+                  "(N_TS left out: the k-d tree steps through three levels an octree node)" if r_walk_rows else "")
+                  + ":", "",
+                  "| scene | depth | " + " | ".join(BUILD) + " |", "|---|---:|" + "---:|" * len(BUILD)]
+        for name, depth, theirs, ours in r_rows:
+            lines.append(f"| {name} | {depth} | " + " | ".join(cell(theirs[k], ours[k]) for k in BUILD) + " |")
+    if r_walk_rows:
+        lines += ["", "| scene | depth | " + " | ".join(R_TRAVERSAL) + " |", "|---|---:|" + "---:|" * len(R_TRAVERSAL)]
+        for name, depth, theirs, ours in r_walk_rows:
+            lines.append(f"| {name} | {depth} | " + " | ".join(cell(theirs[k], ours[k]) for k in R_TRAVERSAL) + " |")
     if grid_rows:
         lines += ["", "Uniform grids at his resolutions (`grid(cells=NXxNYxNZ, mailbox=off)`; N_TS = N_ETS, cells "
                   "visited):", "",
-                  "| scene | setting | cells | N_V | N_EV | N_OIV | N_IT | N_TS | N_EETS |",
-                  "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+                  "| scene | setting | cells | " + " | ".join(GRID_COLUMNS) + " |",
+                  "|---|---|---|" + "---:|" * len(GRID_COLUMNS)]
         for name, setting, theirs, ours in grid_rows:
             lines.append(f"| {name} | {setting} | {'x'.join(map(str, theirs['Resolution']))} | "
-                         + " | ".join(cell(theirs[k], ours.get(k)) for k in ("N_V", "N_EV", "N_OIV", "N_IT", "N_TS",
-                                                                          "N_EETS")) + " |")
+                         + " | ".join(cell(theirs[k], ours.get(k)) for k in GRID_COLUMNS) + " |")
     at = lines.index(DETAILS)             # the summary: the build counts at the first depth
-    lines[at:at] = [SUMMARY.format(depth=args.depths[0]), "",
-                    *subtable(tables(lines)[0], BUILD_COLUMNS, {"depth": [str(args.depths[0])]}), ""]
+    summary = [SUMMARY.format(depth=args.depths[0]), "",
+               *subtable(tables(lines)[0], BUILD_COLUMNS, {"depth": [str(args.depths[0])]}), ""]
+    walked = [t for t in tables(lines) if "walk (his)" in t[0]]
+    if walked:                            # and the point walk's tests at that depth, per ray and per ray that hits
+        summary += [WALK_SUMMARY.format(depth=args.depths[0]), "",
+                    *subtable(walked[0], WALK_COLUMNS, {"depth": [str(args.depths[0])],
+                                                        "walk (his)": [f"point ({WALKS['point']})"]}), ""]
+    lines[at:at] = summary
     text = "\n".join(lines)
     print(text)
     if not args.no_write:

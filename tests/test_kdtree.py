@@ -1,6 +1,7 @@
-"""The k-d tree (aggregates/kdtree.py): its build against the item boxes, its walk against the
-brute-force list on rays that graze, lie in and start on its planes, its counts, its options, and
-what adding it took outside its module."""
+"""The k-d tree (aggregates/kdtree.py) and Octree-R, stored as one: their builds against the item
+boxes, their walk against the brute-force list on rays that graze, lie in and start on its planes,
+Octree-R's planes against its cost estimate, its centre planes against the octree's, the counts, the
+options, and what adding the k-d tree took outside its module."""
 
 from __future__ import annotations
 
@@ -40,14 +41,20 @@ def leaf_regions(tree):
     return out
 
 
+BUILDERS = {"kdtree": lambda boxes: kdtree.build_kdtree(boxes, leaf=2),
+            "octree-r": lambda boxes: kdtree.build_octree_r(boxes, depth=4),
+            "octree-r centre": lambda boxes: kdtree.build_octree_r(boxes, depth=3, split="centre")}
+
+
+@pytest.mark.parametrize("builder", BUILDERS)
 @pytest.mark.parametrize("seed", range(4))
-def test_every_leaf_holds_every_item_its_region_meets(seed):
+def test_every_leaf_holds_every_item_its_region_meets(seed, builder):
     rng = np.random.default_rng(seed)
     lo = rng.uniform(-5, 5, (80, 3))
     boxes = np.hstack([lo, lo + rng.exponential(0.8, (80, 3))])
     boxes[:5, 3:] = boxes[:5, :3]                   # points: zero-extent boxes
     boxes[5:10, 0] = boxes[5:10, 3] = 1.0           # flat boxes, all in one plane
-    tree, stats = kdtree.build_kdtree(boxes, leaf=2)
+    tree, stats = BUILDERS[builder](boxes)
     regions = leaf_regions(tree)
     assert stats["nodes"] == len(tree.count) and stats["leaves"] == len(regions)
     assert stats["refs"] == len(tree.order) == sum(len(items) for _, items in regions)
@@ -71,7 +78,8 @@ def test_the_sah_cuts_off_empty_space_and_stops_on_coincident_items():
 
 
 @pytest.mark.parametrize("spec", ["kdtree", "kdtree(leaf=4)", "kdtree(mailbox=off)", "kdtree(depth=3)",
-                                  "kdtree(empty_bonus=0, traversal=20)"])
+                                  "kdtree(empty_bonus=0, traversal=20)", "octree-r",
+                                  "octree-r(split=centre, depth=3, mailbox=off)", "octree-r(leaf=4, candidates=1)"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_random_scenes_match_the_list(spec, seed):
     rng = np.random.default_rng(seed)
@@ -113,7 +121,7 @@ def test_rays_on_and_along_its_planes_match_the_list():
             origins.append((u, 0.8, v))
             directions.append((0.3, 1.0, 0.2))
     o, d = np.array(origins, float), np.array(directions, float)
-    for spec in ("kdtree", "kdtree(leaf=2, mailbox=off)"):
+    for spec in ("kdtree", "kdtree(leaf=2, mailbox=off)", "octree-r(depth=4)", "octree-r(split=centre, depth=4)"):
         assert_same_hits(cast(scene, spec, o, d), cast(scene, "list", o, d))
 
 
@@ -127,7 +135,8 @@ def test_huge_and_tiny_scales_match_the_list():
         big = new_scene()
         big.root = s
         o, d = random_rays(rng, 800)
-        assert_same_hits(cast(big, "kdtree", o * scale, d), cast(big, "list", o * scale, d))
+        for spec in ("kdtree", "octree-r"):
+            assert_same_hits(cast(big, spec, o * scale, d), cast(big, "list", o * scale, d))
 
 
 def test_nested_in_and_around_other_kinds_matches_the_list():
@@ -145,9 +154,10 @@ def test_nested_in_and_around_other_kinds_matches_the_list():
     assert_same_hits(cast(scene, "kdtree", o, d), cast(scene, "list", o, d))
 
 
-def test_counts_are_its_walks_and_do_not_depend_on_threads():
+@pytest.mark.parametrize("spec", ["kdtree", "octree-r(depth=4)"])
+def test_counts_are_its_walks_and_do_not_depend_on_threads(spec):
     scene = raykernel.load("spd:gears:1")
-    runs = [raykernel.render(scene, accel="kdtree", resolution=24, spd=True, threads=t) for t in (1, 2)]
+    runs = [raykernel.render(scene, accel=spec, resolution=24, spd=True, threads=t) for t in (1, 2)]
     a, b = (r.stats for r in runs)
     assert runs[0].image.tobytes() == runs[1].image.tobytes()
     assert work_counts(a) == work_counts(b)
@@ -160,7 +170,9 @@ def test_counts_are_its_walks_and_do_not_depend_on_threads():
 
 @pytest.mark.parametrize("spec, words", [("kdtree(leaf=0)", "leaf"), ("kdtree(depth=200)", "depth"),
                                          ("kdtree(isect=0)", "isect"), ("kdtree(empty_bonus=2)", "empty_bonus"),
-                                         ("kdtree(split=3)", "no parameter 'split'")])
+                                         ("kdtree(split=3)", "no parameter 'split'"),
+                                         ("octree-r(split=median)", "split"), ("octree-r(depth=40)", "depth"),
+                                         ("octree-r(candidates=0)", "candidates"), ("octree-r(leaf=0)", "leaf")])
 def test_bad_parameters_are_option_errors(spec, words):
     with pytest.raises(OptionError, match=words):
         parse_spec(spec)
@@ -175,6 +187,54 @@ def test_bad_arguments_and_the_memory_budget():
     lo = rng.uniform(0, 10, (3000, 3))
     with pytest.raises(MemoryBudgetError, match="k-d tree"):
         kdtree.build_kdtree(np.hstack([lo, lo + 3.0]), max_bytes=200_000)
+    with pytest.raises(OptionError, match="octree-r split"):
+        kdtree.build_octree_r(np.zeros((3, 6)), split="median")
+    with pytest.raises(MemoryBudgetError, match="octree-r"):
+        kdtree.build_octree_r(np.hstack([lo, lo + 3.0]), depth=8, max_bytes=200_000)
+
+
+def octree_r_cost(boxes, box, axis, x):
+    """Octree-R's estimate for a plane at x (Havran 1999): items wholly below, wholly above, cut."""
+    lo, hi = np.maximum(boxes[:, axis], box[axis]), np.minimum(boxes[:, axis + 3], box[axis + 3])
+    left, right = np.sum(hi < x), np.sum((hi >= x) & (lo > x))
+    cut = len(boxes) - left - right
+    b, c = (box[(axis + k) % 3 + 3] - box[(axis + k) % 3] for k in (1, 2))
+    return (left + cut) * ((x - box[axis]) * 2 * (b + c) + b * c) + (right + cut) * ((box[axis + 3] - x) * 2 * (b + c)
+                                                                                   + b * c)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_octree_r_planes_are_the_cheapest_of_its_candidates(seed):
+    rng = np.random.default_rng(seed)
+    lo = np.vstack([rng.uniform(0, 2, (60, 3)), rng.uniform(0, 10, (20, 3))])      # a cluster in a corner
+    boxes = np.hstack([lo, lo + rng.exponential(0.3, (80, 3))])
+    tree, _ = kdtree.build_octree_r(boxes, depth=1, candidates=10)
+    box = tree.box
+    centres = 0.5 * (np.maximum(boxes[:, :3], box[:3]) + np.minimum(boxes[:, 3:], box[3:]))
+    # the root's x plane, the y plane of its lower half, the z plane of that half's lower half
+    for axis, node in ((0, 0), (1, 1), (2, 2)):
+        assert tree.count[node] == -1 - axis
+        centre, mean = 0.5 * (box[axis] + box[axis + 3]), centres[:, axis].mean()
+        places = [centre + (mean - centre) * i / 10 for i in range(10)]
+        costs = [octree_r_cost(boxes, box, axis, x) for x in places]
+        assert tree.split[node] == pytest.approx(places[int(np.argmin(costs))], rel=1e-12)
+        assert tree.split[node] != pytest.approx(centre)          # the cluster pulls every plane off the centre
+    # the same plane across both halves, as an octree cuts: every y node holds the root's y plane
+    ys = tree.split[tree.count == -2]
+    assert len(ys) == 2 and ys[0] == ys[1]
+
+
+@pytest.mark.parametrize("scene", ["spd:balls:2", "spd:teapot:6", "spd:lattice:4"])
+def test_octree_r_centre_planes_build_the_octrees_leaves(scene):
+    from raykernel.engine.flatten import flatten
+    loaded = raykernel.load(scene)
+    for depth in (2, 4):
+        _, st = flatten(loaded, f"octree(depth={depth}, leaf=1, collapse=off, budget=0)")
+        _, sr = flatten(loaded, f"octree-r(depth={depth}, split=centre)")
+        a, b = st["aggregates"][0], sr["aggregates"][0]
+        assert (a["inner"], a["leaves"], a["empty_leaves"], a["refs"]) == (
+            b["octree_inner"], b["leaves"], b["empty_leaves"], b["refs"])
+        assert b["inner"] == 7 * b["octree_inner"]
 
 
 def test_its_cells_tile_its_box_and_hold_every_item():

@@ -1,8 +1,11 @@
 """k-d tree: space cut by axis-aligned planes placed by the surface-area heuristic, walked by
-Havran's recursive traversal.
+Havran's recursive traversal; and Octree-R, an octree with planes placed by a cost estimate, stored
+and walked as a k-d tree.
 
     tree, stats = build_kdtree(item_bounds)          # the defaults: leaf=1, depth=0 (automatic)
     spec "kdtree(leaf=1, depth=0, isect=80, traversal=1, empty_bonus=0.5, mailbox=on)"
+    tree, stats = build_octree_r(item_bounds, depth=6, split="cost")     # or split="centre"
+    spec "octree-r(depth=6, leaf=1, split=cost, candidates=10, mailbox=on)"
 
 The other subdivision scheme of the 1988 literature beside the octree (Kaplan's
 BSP trees, GOLEM's and pbrt's k-d trees): each inner node cuts its box in two
@@ -26,6 +29,24 @@ the lower axis, then the lower plane). A node is a leaf when it holds at most
 its best plane costs more than four times a leaf with fewer than 16 items; a
 plane dearer than a leaf is still taken, up to twice along a path (the third
 makes a leaf), as later cuts may pay for it.
+
+Octree-R (Whang et al. 1995, as Havran's 1999 octree tables state it)
+---------------------------------------------------------------------
+An octree node that holds more than `leaf` items above level `depth` is cut
+by three planes, one per axis, each placed independently: of `candidates`
+places from the node's centre (the spatial median) towards the mean of its
+items' centres (the object median), in steps of 1 / candidates of the way,
+the one of least (left + cut) * A_lower + (right + cut) * A_upper (A: half a
+child's surface area; left and right: items wholly on one side, cut: the
+others; items clipped to the node), ties to the place nearer the centre.
+Havran leaves the object median and the places' spacing open; this reading
+is the one nearest his counts (bench/havran.py). As a k-d tree the node is
+three levels of planes: x, then the same y plane in both halves, then the
+same z plane in all four, so the leaves are the octree's eight octants
+(every octant of a split node a leaf of its own or a node). split=centre
+places the planes at the centre: the octree's leaves (octree.py, with
+collapse and the budget off). Items go into every child their closed box
+meets, as above.
 
 Traversal (Havran 2000, TA_B^rec)
 ---------------------------------
@@ -68,6 +89,7 @@ import numpy as np
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, slab
 from ..geometry.config import njit
+from ..errors import OptionError
 from ..options import number
 from .memory import check, grown, memory_limit
 from .spec import Kind, Param, Search
@@ -270,6 +292,172 @@ def build_kdtree(bounds, *, leaf=1, depth=0, isect=80.0, traversal=1.0, empty_bo
     return tree, stats
 
 
+# ----------------------------------------------------------------- Octree-R: an octree's planes, stored as a k-d tree
+
+CENTRE, COST = 0, 1     # octree-r's split rules
+
+
+@njit
+def _octree_plane(items, lists, s, m, box, axis, candidates, rule):
+    """The plane on `axis` of an octree node over the m items lists[s:s + m] in `box`: its centre
+    (CENTRE), or (COST) the cheapest of `candidates` positions from the centre (the spatial median)
+    towards the mean of the items' centres (the object median) in steps of 1 / candidates of the
+    way, by Octree-R's estimate as Havran states it,
+        (left + cut) * A(lower child) + (right + cut) * A(upper child),
+    left and right the items wholly on one side, cut the others, A half a child's surface area;
+    ties to the position nearer the centre. Items are clipped to the box first."""
+    centre = 0.5 * (box[axis] + box[axis + 3])
+    if rule == CENTRE or m == 0:
+        return centre
+    k1, k2 = (axis + 1) % 3, (axis + 2) % 3
+    b, c = box[k1 + 3] - box[k1], box[k2 + 3] - box[k2]
+    mean = 0.0
+    for j in range(m):
+        it = lists[s + j]
+        mean += 0.5 * (max(items[it, axis], box[axis]) + min(items[it, axis + 3], box[axis + 3]))
+    mean /= m
+    best, best_x = INF, centre
+    for i in range(candidates):
+        x = centre + (mean - centre) * (i / candidates)
+        left = right = 0
+        for j in range(m):
+            it = lists[s + j]
+            if min(items[it, axis + 3], box[axis + 3]) < x:
+                left += 1
+            elif max(items[it, axis], box[axis]) > x:
+                right += 1
+        cut = m - left - right
+        t = x - box[axis]
+        cost = ((left + cut) * (t * 2.0 * (b + c) + b * c)
+                + (right + cut) * ((box[axis + 3] - x) * 2.0 * (b + c) + b * c))
+        if cost < best:
+            best, best_x = cost, x
+    return best_x
+
+
+@njit
+def _octree_kernel(items, leaf, max_depth, candidates, rule, root_box, max_bytes):
+    """An octree over item boxes as a k-d tree: each split node cut by its three planes, x, then y,
+    then z, into eight octant leaves or nodes (the same plane across both halves, as an octree
+    cuts). Returns what _build_kernel does; max depth in octree levels."""
+    n = items.shape[0]
+    cap = 64
+    split = np.zeros(cap)
+    child = np.zeros(cap, np.int64)
+    count = np.zeros(cap, np.int64)
+    lists = np.empty(max(16, 4 * n), np.int64)
+    order = np.empty(max(16, 2 * n), np.int64)
+    for i in range(n):
+        lists[i] = i
+    size = 3 * (2 * max_depth + 4)
+    w_start = np.empty(size, np.int64)
+    w_n = np.empty(size, np.int64)
+    w_box = np.empty((size, 6))
+    w_level = np.empty(size, np.int64)      # 3 x octree level + the axis cut next
+    w_planes = np.empty((size, 3))          # the octree node's planes
+    w_parent = np.empty(size, np.int64)
+    w_start[0], w_n[0], w_level[0], w_parent[0] = 0, n, 0, -1
+    for k in range(6):
+        w_box[0, k] = root_box[k]
+    top = 1
+    used = n
+    nodes = refs = deepest = 0
+    while top > 0:
+        top -= 1
+        s, m, level, parent = w_start[top], w_n[top], w_level[top], w_parent[top]
+        box = w_box[top].copy()
+        planes = w_planes[top].copy()
+        node = nodes
+        nodes += 1
+        if nodes > split.shape[0]:
+            split, child, count = grown(split, nodes, node), grown(child, nodes, node), grown(count, nodes, node)
+        if parent >= 0:
+            child[parent] = node
+        axis = level % 3
+        if axis == 0:               # an octree node: a leaf, or cut by its three planes
+            deepest = max(deepest, level // 3)
+            if m <= leaf or level // 3 >= max_depth:
+                if refs + m > order.shape[0]:
+                    order = grown(order, refs + m, refs)
+                for j in range(m):
+                    order[refs + j] = lists[s + j]
+                child[node] = refs
+                count[node] = m
+                refs += m
+                continue
+            for k in range(3):
+                planes[k] = _octree_plane(items, lists, s, m, box, k, candidates, rule)
+        pos = planes[axis]
+        while used + 2 * m > lists.shape[0]:
+            need = (nodes * NODE_BYTES + 2 * lists.shape[0] * 8) * 2 + refs * 8
+            if need > max_bytes:
+                return split[:nodes], child[:nodes], count[:nodes], order[:refs], nodes, deepest, need
+            lists = grown(lists, 2 * lists.shape[0], used)
+        n_below = n_above = 0
+        for j in range(m):
+            it = lists[s + j]
+            if max(items[it, axis], box[axis]) <= pos:
+                lists[used + n_below] = it
+                n_below += 1
+        for j in range(m):
+            it = lists[s + j]
+            if min(items[it, axis + 3], box[axis + 3]) >= pos:
+                lists[used + n_below + n_above] = it
+                n_above += 1
+        split[node] = pos
+        count[node] = -1 - axis
+        for half in range(2):       # the upper half under the lower on the stack: the lower is node + 1
+            w_start[top] = used + n_below if half == 0 else used
+            w_n[top] = n_above if half == 0 else n_below
+            w_level[top] = level + 1
+            w_parent[top] = node if half == 0 else -1
+            for k in range(6):
+                w_box[top, k] = box[k]
+            w_box[top, axis if half == 0 else axis + 3] = pos
+            for k in range(3):
+                w_planes[top, k] = planes[k]
+            top += 1
+        used += n_below + n_above
+    return split[:nodes], child[:nodes], count[:nodes], order[:refs], nodes, deepest, 0
+
+
+def build_octree_r(bounds, *, depth=6, leaf=1, split="cost", candidates=10, name=None, max_bytes=None):
+    """Build an octree whose planes are placed by Octree-R's cost estimate (split="cost"; Whang et
+    al. 1995, as Havran's 1999 tables state it) or at the centre (split="centre", Glassner's planes),
+    stored as a k-d tree, over item boxes (n, 6). Returns (KdArrays, stats) with build_kdtree's
+    stats plus "octree_inner", the octree's split nodes (a k-d tree's inner nodes / 7)."""
+    t0 = time.perf_counter()
+    depth = int(number(depth, "octree-r depth", 1, (MAX_TREE_DEPTH - 2) // 3, integer=True))
+    leaf = int(number(leaf, "octree-r leaf", 1, 1 << 20, integer=True))
+    candidates = int(number(candidates, "octree-r candidates", 1, 1000, integer=True))
+    if split not in ("cost", "centre"):
+        raise OptionError(f"octree-r split must be cost or centre, got {split!r}")
+    items = np.ascontiguousarray(np.asarray(bounds, np.float64)).reshape(-1, 6)
+    solid = np.all(items[:, :3] <= items[:, 3:], axis=1) & np.all(np.isfinite(items), axis=1)
+    if not solid.any():
+        raise ValueError("an octree needs at least one item with a box")
+    lo, hi = items[solid, :3].min(axis=0), items[solid, 3:].max(axis=0)
+    margin = 1e-9 * max(float((hi - lo).max()), float(np.abs(np.concatenate([lo, hi])).max()))
+    widened = np.hstack([items[:, :3] - margin, items[:, 3:] + margin])
+    box = np.concatenate([lo - margin, hi + margin])
+    keep = np.flatnonzero(solid)
+    budget = memory_limit() if max_bytes is None else int(max_bytes)
+    planes, child, count, order, nodes, deepest, need = _octree_kernel(
+        np.ascontiguousarray(widened[keep]), np.int64(leaf), np.int64(depth), np.int64(candidates),
+        np.int64(COST if split == "cost" else CENTRE), box, np.int64(budget))
+    check(need, budget, f"the octree-r of group {name or '(unnamed)'}", "lower depth or raise leaf")
+    tree = KdArrays(planes.copy(), child.copy(), count.copy(), keep[order], box)
+    leaves = count >= 0
+    inner = int(np.count_nonzero(~leaves))
+    stats = {
+        "nodes": int(nodes), "inner": inner, "octree_inner": inner // 7, "leaves": int(np.count_nonzero(leaves)),
+        "empty_leaves": int(np.count_nonzero(count == 0)), "refs": int(len(order)),
+        "bytes": int(nodes * NODE_BYTES + 8 * len(order) + 64), "seconds": time.perf_counter() - t0,
+        "max_depth": int(deepest), "depth_limit": depth,
+    }
+    return tree, stats
+
+
 # ----------------------------------------------------------------- flat layout (see the module docstring) and walk
 
 FIELDS = (Field("kd_split", np.float64), Field("kd_child", np.int64), Field("kd_count", np.int64),
@@ -382,6 +570,12 @@ def cells(geo, a) -> Cells:
                  np.array([r[4] for r in rows], np.int64))
 
 
+def flatten_octree_r(builder, params, refs, bounds, name, box):
+    tree, stats = build_octree_r(bounds, depth=params["depth"], leaf=params["leaf"], split=params["split"],
+                                 candidates=params["candidates"], name=name, max_bytes=builder.max_bytes)
+    return append_kdtree(builder.flat, tree, refs, params["mailbox"], box), stats
+
+
 WALK = Walk(code=CODE, name="kdtree", fields=FIELDS, step=walk_step, cells=cells, keys="kd_count")
 KIND = Kind("kdtree", "k-d tree: axis-aligned planes placed by the surface-area heuristic on the items' sides "
             "(pbrt's build), walked by Havran's recursive traversal (TA_B^rec)", (
@@ -392,3 +586,13 @@ KIND = Kind("kdtree", "k-d tree: axis-aligned planes placed by the surface-area 
     Param("empty_bonus", 0.5, "the share of a plane's cost forgiven when one side holds no item", float, 0.0, 1.0),
     Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
 ), flatten=flatten, walk=WALK, search=Search(start=True, candidates=("kdtree", "kdtree(leaf=4)")))
+OCTREE_R = Kind("octree-r", "Octree-R (Whang et al. 1995): an octree whose three planes a node sit at the cheapest of "
+                "`candidates` places from its centre towards its items' mean centre, stored and walked as a k-d tree", (
+    Param("depth", 6, "most octree levels below the root", int, 1, (MAX_TREE_DEPTH - 2) // 3),
+    Param("leaf", 1, "a node holding at most this many items is a leaf", int, 1, 1 << 20),
+    Param("split", "cost", "cost: Octree-R's planes; centre: Glassner's (an octree's leaves)", str,
+          choices=("cost", "centre")),
+    Param("candidates", 10, "places tried per axis, from the centre towards the items' mean centre", int, 1, 1000),
+    Param("mailbox", True, "skip items already tested against the ray in an earlier leaf", bool),
+), flatten=flatten_octree_r, walk=WALK)
+KINDS = (KIND, OCTREE_R)
