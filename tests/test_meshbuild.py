@@ -132,6 +132,26 @@ def test_bad_quality_and_the_memory_budget():
         RayScene.from_mesh(v, f, max_memory="64K")
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_first_triangle_out_of_range_is_named_whichever_thread_made_it(threads):
+    from raykernel.errors import SceneError
+    rng = np.random.default_rng(0)
+    n = 100_000                   # rows made in several ranges, on the threads
+    v = rng.uniform(-1, 1, (3 * n, 3))
+    f = np.arange(3 * n, dtype=np.int64).reshape(n, 3)
+    v[f[90_000]] = [[0, 0, 0], [1e-32, 0, 0], [0, 1e-32, 0]]   # too small, not zero
+    v[f[60_000, 1], 2] = 1e31                                                                 # too far
+    v[f[99_000, 0], 0] = -1e31
+    with pytest.raises(SceneError, match="triangle 60000"):
+        RayScene.from_mesh(v, f, threads=threads)
+    v[f[60_000, 1], 2] = 0.0
+    with pytest.raises(SceneError, match="triangle 90000"):
+        RayScene.from_mesh(v, f, threads=threads)
+    v[f[90_000]] = 0.0                              # a point: zero size is allowed
+    with pytest.raises(SceneError, match="triangle 99000"):
+        RayScene.from_mesh(v, f, threads=threads)
+
+
 def test_an_empty_mesh():
     rs = RayScene.from_mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
     assert not np.isfinite(rs.intersect([0, 0, 0.0], [1.0, 0, 0]).t).any()

@@ -37,7 +37,10 @@ Traversal code may also return early when ``order.size == 0``.
 Splitting rules
 ---------------
 Centroids are binned into ``bins`` equal bins along each axis whose centroid
-extent is non-zero, and every boundary between bins is scored with
+extent is non-zero (a node of n >= 2 SAMPLE_ITEMS items bins a sample: every
+(n // SAMPLE_ITEMS)-th item, its children's boxes then gathered from all its
+items as they are partitioned: a split as good by the SAH for a fraction of
+the binning), and every boundary between bins is scored with
 
     cost = traversal_cost + (M_left * N_left + M_right * N_right) / M_parent * intersection_cost
 
@@ -85,11 +88,22 @@ from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, 
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item_bounds"]
 
 _MAX_BINS = 1024
+SAMPLE_ITEMS = 1 << 10      # a node of n items bins every (n // SAMPLE_ITEMS)-th: about this many to 2x as many
+# a build's row of an item: its box (6) and its weight; the centre the SAH bins is computed from the
+# box as it is needed (_centre), which reads less memory a pass than storing it
+ROW_COLUMNS = 7
+WEIGHT = 6
 _COMPILING = "raykernel: compiling the BVH builder (first use after install, a few seconds)"
 # corners a polygon's inside test walks in the time of one whole primitive test (a corner
 # walked costs a fraction of a whole test; the cost model's calibration measures both:
 # polygon.corner and test.*)
 CORNERS_PER_TEST = 8
+
+
+@njit(inline="always")
+def _centre(lo, hi):
+    """An item box's centre on one axis, the centroid the SAH bins (not stored: a row stays lean)."""
+    return 0.5 * lo + 0.5 * hi
 
 
 @njit
@@ -104,7 +118,7 @@ def _range_bounds(data, start, end, box, cbox):
         for k in range(3):
             lo = data[p, k]
             hi = data[p, k + 3]
-            c = data[p, k + 6]
+            c = _centre(lo, hi)
             box[k] = min(box[k], lo)
             box[k + 3] = max(box[k + 3], hi)
             cbox[k] = min(cbox[k], c)
@@ -125,19 +139,19 @@ def _empty_box(box):
 
 
 @njit(private=True)
-def _bin_range(data, s, e, cmin, scale, bins, bin_count, bin_weight, bin_box):
-    """Drop the centroids of data[s:e] into the bins of every axis with a scale (0: not binned);
-    returns the range's total weight."""
+def _bin_range(data, s, e, stride, cmin, scale, bins, bin_count, bin_weight, bin_box):
+    """Drop the centroids of every stride-th item of data[s:e] into the bins of every axis with a
+    scale (0: not binned); returns the binned items' total weight."""
     weight = 0.0
     last = bins - 1
-    for p in range(s, e):
-        w = data[p, 9]
+    for p in range(s, e, stride):
+        w = data[p, WEIGHT]
         weight += w
         lx, ly, lz, hx, hy, hz = data[p, 0], data[p, 1], data[p, 2], data[p, 3], data[p, 4], data[p, 5]
         for a in range(3):
             if scale[a] == 0.0:
                 continue
-            f = (data[p, a + 6] - cmin[a]) * scale[a]
+            f = (_centre(data[p, a], data[p, a + 3]) - cmin[a]) * scale[a]
             b = last
             if f < last:
                 b = int(f)
@@ -235,30 +249,40 @@ def _clear_bins(bin_count, bin_weight, bin_box, scale, bins):
 
 
 @njit(private=True)
-def _partition(data, order, s, e, a, cmin, scale, bins, split_bin, lcb, rcb):
+def _partition(data, order, s, e, a, cmin, scale, bins, split_bin, lcb, rcb, boxes, lbox, rbox):
     """Move the items of data[s:e] (and order) whose centroid falls left of split_bin on axis a
-    before the others, gathering each side's centroid box; returns the first of the right side."""
+    before the others, gathering each side's centroid box, and with `boxes` each side's box
+    (lbox, rbox); returns the first of the right side."""
     _empty_box(lcb)
     _empty_box(rcb)
+    if boxes:
+        _empty_box(lbox)
+        _empty_box(rbox)
     i = s
     j = e - 1
     while i <= j:
-        f = (data[i, a + 6] - cmin[a]) * scale[a]
+        f = (_centre(data[i, a], data[i, a + 3]) - cmin[a]) * scale[a]
         b = bins - 1
         if f < bins - 1:
             b = int(f)
-        cb = lcb if b < split_bin else rcb
+        left = b < split_bin
+        cb = lcb if left else rcb
         for k in range(3):
-            c = data[i, k + 6]
+            c = _centre(data[i, k], data[i, k + 3])
             cb[k] = min(cb[k], c)
             cb[k + 3] = max(cb[k + 3], c)
-        if b < split_bin:
+        if boxes:
+            box = lbox if left else rbox
+            for k in range(3):
+                box[k] = min(box[k], data[i, k])
+                box[k + 3] = max(box[k + 3], data[i, k + 3])
+        if left:
             i += 1
             continue
         it = order[i]
         order[i] = order[j]
         order[j] = it
-        for k in range(10):
+        for k in range(ROW_COLUMNS):
             x = data[i, k]
             data[i, k] = data[j, k]
             data[j, k] = x
@@ -272,7 +296,7 @@ def _leaf_is_cheapest(data, s, e, block, traversal_cost, intersection_cost):
     costs at least): a leaf with no need to bin."""
     weight = 0.0
     for p in range(s, e):
-        weight += data[p, 9]
+        weight += data[p, WEIGHT]
     return _priced(weight, block) * intersection_cost <= traversal_cost
 
 
@@ -306,13 +330,11 @@ def _push_work(st_node, st_start, st_end, st_depth, st_cb, top, node, s, e, dept
 
 @njit
 def _item_data(items, weights, data, i0, i1):
-    """Rows i0..i1-1 of the build's per-item data: the item box, its centroid and its weight."""
+    """Rows i0..i1-1 of the build's per-item data: the item box and its weight."""
     for i in range(i0, i1):
-        for k in range(3):
+        for k in range(6):
             data[i, k] = items[i, k]
-            data[i, k + 3] = items[i, k + 3]
-            data[i, k + 6] = 0.5 * items[i, k] + 0.5 * items[i, k + 3]
-        data[i, 9] = weights[i]
+        data[i, WEIGHT] = weights[i]
 
 
 @njit
@@ -378,6 +400,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
 
         split_axis = -1
         split_bin = 0
+        stride = np.int64(1)
         mid = s + cnt // 2
         if cnt == 1 or cnt <= leaf_size and _leaf_is_cheapest(data, s, e, block, traversal_cost, intersection_cost):
             pass
@@ -386,7 +409,10 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             if cnt > leaf_size:
                 split_axis = 3
         else:
-            weight = _bin_range(data, s, e, cmin, scale, bins, bin_count, bin_weight, bin_box)
+            # a large node bins a sample of its items (every stride-th): its split is as good, for
+            # far less work; its children's boxes then come from the items themselves
+            stride = max(stride, cnt // SAMPLE_ITEMS)
+            weight = _bin_range(data, s, e, stride, cmin, scale, bins, bin_count, bin_weight, bin_box)
             # measures on boxes scaled by the parent's largest extent
             inv, parent_measure, use_area = _scaled_measure(bounds, node)
             best, split_axis, split_bin = _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area,
@@ -398,7 +424,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
                     split_axis = -1
             elif cnt > leaf_size:
                 split_axis = 3  # no usable boundary (non-finite measures): middle split
-            if 0 <= split_axis < 3:
+            if 0 <= split_axis < 3 and stride == 1:
                 _child_boxes(bin_count, bin_box, split_axis, bins, split_bin, lbox, rbox)
             _clear_bins(bin_count, bin_weight, bin_box, scale, bins)
 
@@ -411,7 +437,8 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             _range_bounds(data, s, mid, lbox, lcb)
             _range_bounds(data, mid, e, rbox, rcb)
         else:
-            mid = _partition(data, order, s, e, split_axis, cmin, scale, bins, split_bin, lcb, rcb)
+            mid = _partition(data, order, s, e, split_axis, cmin, scale, bins, split_bin, lcb, rcb, stride > 1,
+                             lbox, rbox)
 
         left = next_node
         next_node += 2
@@ -550,7 +577,7 @@ def _morton_codes(data, grid, codes, i0, i1):
     for i in range(i0, i1):
         code = np.uint64(0)
         for a in range(3):
-            q = np.int64(min(2097151.0, max(0.0, (data[i, a + 6] - grid[a]) * grid[a + 3])))
+            q = np.int64(min(2097151.0, max(0.0, (_centre(data[i, a], data[i, a + 3]) - grid[a]) * grid[a + 3])))
             code |= np.uint64(_spread(q)) << np.uint64(a)
         codes[i] = code
 
@@ -562,7 +589,7 @@ def _centre_box(data):
     hi = np.full(3, -np.inf)
     for i in range(data.shape[0]):
         for a in range(3):
-            c = data[i, a + 6]
+            c = _centre(data[i, a], data[i, a + 3])
             lo[a] = min(lo[a], c)
             hi[a] = max(hi[a], c)
     return lo, hi
@@ -659,12 +686,9 @@ def _morton(data, leaf_size, threads=None):
     return bounds, first, count, order, n_nodes, depth
 
 
-ROW_COLUMNS = 10        # a build's row of an item: its box (6), the box's centre (3), its weight
-
-
 def build_rows(data, method="sah", leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0, block=1,
                threads=None):
-    """build_bvh's tree over rows already made ((n, ROW_COLUMNS) float64: box, centre, weight;
+    """build_bvh's tree over rows already made ((n, ROW_COLUMNS) float64: box, weight;
     the SAH permutes them): (bounds, first, count, order, node count, max depth), the node arrays
     possibly longer than the node count. For builders that make the rows themselves, faster than
     boxes (casting/meshbuild.py makes a mesh's from its vertices)."""

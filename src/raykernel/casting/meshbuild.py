@@ -34,7 +34,7 @@ import time
 
 import numpy as np
 
-from ..aggregates.bvh import ROW_COLUMNS, build_rows
+from ..aggregates.bvh import ROW_COLUMNS, WEIGHT, build_rows
 from ..aggregates.bvhopt import optimize
 from ..aggregates.bvhtree import BVHArrays
 from ..aggregates.walk import MAX_TREE_DEPTH
@@ -51,39 +51,34 @@ QUALITY = {"fast": "bvh(block=4, build=morton)", "medium": "bvh(block=4)",
            "high": "bvh(block=4, optimize=reinsertion)"}      # each level's tree as a spec
 LEAF, BINS, BLOCK = 4, 16, 4      # bvh(block=4)'s leaves, bins and pricing
 PROGRESS_TRIANGLES = 1 << 19     # builds from which a line says what is being built, if it takes a second
-# the build's peak a triangle: its rows (80 bytes), order (8), the binary nodes (64 each, up to
+# the build's peak a triangle: its rows (56 bytes), order (8), the binary nodes (64 each, up to
 # two a triangle and the parallel build's top), and the kernel's arrays it makes (blocks, nodes, lanes)
-BUILD_BYTES = 340
+BUILD_BYTES = 316
 _COMPILING = "raykernel: compiling the mesh builder (first use after install, a few seconds)"
 
 
 @njit
 def _triangle_data(verts, faces, data, i0, i1):
-    """bvh.build_rows' rows for triangles i0..i1-1: box, centre of the box, weight 1."""
+    """bvh.build_rows' rows for triangles i0..i1-1: box, weight 1. Returns the first of these rows
+    whose box leaves +-MAX_COORDINATE or is smaller than MIN_SIZE but not zero (flatten.check_range's
+    rule), or -1: checked as the rows are made, on the threads."""
+    bad = -1
     for i in range(i0, i1):
         a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
+        size = 0.0
         for k in range(3):
             lo = min(verts[a, k], min(verts[b, k], verts[c, k]))
             hi = max(verts[a, k], max(verts[b, k], verts[c, k]))
             data[i, k] = lo
             data[i, k + 3] = hi
-            data[i, k + 6] = 0.5 * lo + 0.5 * hi
-        data[i, 9] = 1.0
-
-
-@njit
-def _first_out_of_range(data):
-    """The first row whose box leaves +-MAX_COORDINATE or is smaller than MIN_SIZE but not zero
-    (flatten.check_range's rule), or -1."""
-    for i in range(data.shape[0]):
-        size = 0.0
-        for k in range(3):
-            if not (abs(data[i, k]) <= MAX_COORDINATE and abs(data[i, k + 3]) <= MAX_COORDINATE):
-                return i
-            size = max(size, data[i, k + 3] - data[i, k])
-        if size != 0.0 and size < MIN_SIZE:
-            return i
-    return -1
+            if not (abs(lo) <= MAX_COORDINATE and abs(hi) <= MAX_COORDINATE):
+                size = -1.0         # out of range (or not a number): bad whatever the other axes
+            elif size >= 0.0:
+                size = max(size, hi - lo)
+        data[i, WEIGHT] = 1.0
+        if bad < 0 and (size < 0.0 or (size != 0.0 and size < MIN_SIZE)):
+            bad = i
+    return bad
 
 
 @njit
@@ -134,9 +129,10 @@ def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
 def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
     with CompileClock(notice=compile_notice("meshbuild", _COMPILING), after=0.0):
         data = np.empty((n, ROW_COLUMNS))
-        for_ranges(lambda i0, i1: _triangle_data(verts, faces, data, np.int64(i0), np.int64(i1)), n, threads,
-                   kernel=_triangle_data, min_size=1 << 14)
-        bad = _first_out_of_range(data)
+        found = []
+        for_ranges(lambda i0, i1: found.append(_triangle_data(verts, faces, data, np.int64(i0), np.int64(i1))), n,
+                   threads, kernel=_triangle_data, min_size=1 << 14)
+        bad = min((i for i in found if i >= 0), default=-1)
         if bad >= 0:        # the scene's error for it
             box = data[bad:bad + 1, :6]
             with np.errstate(over="ignore", invalid="ignore"):
