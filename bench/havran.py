@@ -129,6 +129,19 @@ def rule_counts(scene, depth: int, rule: str) -> dict:
     return {"N_IN": inner, "N_V": leaves, "N_EV": empty, "N_OIV": refs}
 
 
+def grid_rule_refs(scene, resolution) -> int:
+    """The references of the uniform grid at `resolution` over raykernel's grid box with items
+    placed by the half-open rule: a box in the cells from the one its low corner falls in to the
+    one its high corner falls in (cells as [lo, hi)), counted in numpy."""
+    from raykernel.aggregates.grid import grid_box
+    items = item_boxes(scene)
+    lo, ext = grid_box(items)
+    res = np.asarray(resolution)
+    first = np.clip(np.floor((items[:, :3] - lo) / ext * res), 0, res - 1)
+    last = np.clip(np.floor((items[:, 3:] - lo) / ext * res), 0, res - 1)
+    return int(np.prod(last - first + 1, axis=1).sum())
+
+
 def item_boxes(scene) -> np.ndarray:
     """The item boxes raykernel's octree is built over (caught on their way to build_octree)."""
     from raykernel.aggregates import octree
@@ -243,6 +256,9 @@ def main():
         for setting, theirs in grids[name]["settings"].items():
             theirs = dict(theirs, N_IT_HIT=theirs["N_IT"])
             ours = grid_counts(scene, theirs["Resolution"], not args.build_only, args.resolution)
+            if args.rules:
+                ours["N_OIV_HALFOPEN"] = grid_rule_refs(scene, theirs["Resolution"])
+                theirs["N_OIV_HALFOPEN"] = theirs["N_OIV"]
             grid_rows.append((name, setting, theirs, ours))
             print(name, setting, {k: cell(theirs[k], ours[k]) for k in ours}, flush=True)
     lines = ["## Havran's 1999 octree and grid tables reproduced", "", f"Machine: {machine()}.", "",
@@ -295,13 +311,15 @@ def main():
         for name, depth, theirs, ours in r_walk_rows:
             lines.append(f"| {name} | {depth} | " + " | ".join(cell(theirs[k], ours[k]) for k in R_TRAVERSAL) + " |")
     if grid_rows:
+        columns = GRID_COLUMNS + (("N_OIV_HALFOPEN",) if args.rules else ())
         lines += ["", "Uniform grids at his resolutions (`grid(cells=NXxNYxNZ, mailbox=off)`; N_TS = N_ETS, cells "
-                  "visited):", "",
-                  "| scene | setting | cells | " + " | ".join(GRID_COLUMNS) + " |",
-                  "|---|---|---|" + "---:|" * len(GRID_COLUMNS)]
+                  "visited" + ("; N_OIV_HALFOPEN: the references with items placed by the half-open rule, beside "
+                               "his N_OIV (grid_rule_refs)" if args.rules else "") + "):", "",
+                  "| scene | setting | cells | " + " | ".join(columns) + " |",
+                  "|---|---|---|" + "---:|" * len(columns)]
         for name, setting, theirs, ours in grid_rows:
             lines.append(f"| {name} | {setting} | {'x'.join(map(str, theirs['Resolution']))} | "
-                         + " | ".join(cell(theirs[k], ours.get(k)) for k in GRID_COLUMNS) + " |")
+                         + " | ".join(cell(theirs[k], ours.get(k)) for k in columns) + " |")
     at = lines.index(DETAILS)             # the summary: the build counts at the first depth
     summary = [SUMMARY.format(depth=args.depths[0]), "",
                *subtable(tables(lines)[0], BUILD_COLUMNS, {"depth": [str(args.depths[0])]}), ""]
