@@ -236,11 +236,14 @@ def main():
                 ours_r = build_counts(scene, depth, adaptive=True)
                 r_rows.append((name, depth, theirs_r, ours_r))
                 print("  octree-r", {k: cell(theirs_r[k], ours_r[k]) for k in BUILD}, flush=True)
-                if not args.build_only:
-                    theirs_w = dict(theirs_r, N_IT_HIT=theirs_r["N_IT"])
+                if not args.build_only:         # one walk of raykernel's beside both of his over that tree
                     ours_w = traversal_counts(scene, depth, "kd", args.resolution)
-                    r_walk_rows.append((name, depth, theirs_w, ours_w))
-                    print("  octree-r", {k: cell(theirs_w[k], ours_w[k]) for k in R_TRAVERSAL}, flush=True)
+                    for variant in ("Octree84-A", "Octree93-A"):
+                        his = pub[variant][name]["depths"][str(depth)]
+                        theirs_w = dict(his, N_IT_HIT=his["N_IT"])
+                        r_walk_rows.append((name, depth, variant, theirs_w, ours_w))
+                        print("  octree-r", variant, {k: cell(theirs_w[k], ours_w[k]) for k in R_TRAVERSAL},
+                              flush=True)
             if args.build_only:
                 continue
             for walk in args.walks:
@@ -300,16 +303,19 @@ def main():
     if r_rows:
         lines += ["", "His -A octrees (Octree-R) beside raykernel's `octree-r(depth=D, leaf=1, mailbox=off)`, whose "
                   "planes follow his statement of the rule (its docstring), stored and walked as a k-d tree: "
-                  "the build (N_IN: octree nodes split)" + (", then tests and leaves per ray beside his Octree84-A "
-                  "(N_TS left out: the k-d tree steps through three levels an octree node)" if r_walk_rows else "")
+                  "the build (N_IN: octree nodes split)" + (", then tests and leaves per ray beside his Octree84-A and "
+                  "Octree93-A (N_TS left out: the k-d tree steps through three levels an octree node)"
+                  if r_walk_rows else "")
                   + ":", "",
                   "| scene | depth | " + " | ".join(BUILD) + " |", "|---|---:|" + "---:|" * len(BUILD)]
         for name, depth, theirs, ours in r_rows:
             lines.append(f"| {name} | {depth} | " + " | ".join(cell(theirs[k], ours[k]) for k in BUILD) + " |")
     if r_walk_rows:
-        lines += ["", "| scene | depth | " + " | ".join(R_TRAVERSAL) + " |", "|---|---:|" + "---:|" * len(R_TRAVERSAL)]
-        for name, depth, theirs, ours in r_walk_rows:
-            lines.append(f"| {name} | {depth} | " + " | ".join(cell(theirs[k], ours[k]) for k in R_TRAVERSAL) + " |")
+        lines += ["", "| scene | depth | his | " + " | ".join(R_TRAVERSAL) + " |",
+                  "|---|---:|---|" + "---:|" * len(R_TRAVERSAL)]
+        for name, depth, variant, theirs, ours in r_walk_rows:
+            lines.append(f"| {name} | {depth} | {variant} | "
+                         + " | ".join(cell(theirs[k], ours[k]) for k in R_TRAVERSAL) + " |")
     if grid_rows:
         columns = GRID_COLUMNS + (("N_OIV_HALFOPEN",) if args.rules else ())
         lines += ["", "Uniform grids at his resolutions (`grid(cells=NXxNYxNZ, mailbox=off)`; N_TS = N_ETS, cells "
