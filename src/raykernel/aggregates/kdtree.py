@@ -86,10 +86,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, INF, slab
 from ..geometry.config import njit
-from ..errors import OptionError
 from ..options import number
 from .memory import check, grown, memory_limit
 from .spec import Kind, Param, Search
@@ -265,31 +265,38 @@ def build_kdtree(bounds, *, leaf=1, depth=0, isect=80.0, traversal=1.0, empty_bo
     isect = float(number(isect, "kdtree isect", 0.0, 1e9, above=True))
     traversal = float(number(traversal, "kdtree traversal", 0.0, 1e9))
     empty_bonus = float(number(empty_bonus, "kdtree empty_bonus", 0.0, 1.0))
-    items = np.ascontiguousarray(np.asarray(bounds, np.float64)).reshape(-1, 6)
-    solid = np.all(items[:, :3] <= items[:, 3:], axis=1) & np.all(np.isfinite(items), axis=1)
-    if not solid.any():
-        raise ValueError("a k-d tree needs at least one item with a box")
-    lo, hi = items[solid, :3].min(axis=0), items[solid, 3:].max(axis=0)
-    margin = 1e-9 * max(float((hi - lo).max()), float(np.abs(np.concatenate([lo, hi])).max()))
-    widened = np.hstack([items[:, :3] - margin, items[:, 3:] + margin])
-    widened[~solid] = np.array([np.inf] * 3 + [-np.inf] * 3)
-    box = np.concatenate([lo - margin, hi + margin])
-    keep = np.flatnonzero(solid)
+    widened, keep, box = _widened_items(bounds, "a k-d tree")
     limit = depth if depth else min(MAX_TREE_DEPTH - 2, round(8 + 1.3 * math.floor(math.log2(max(1, len(keep))))))
     budget = memory_limit() if max_bytes is None else int(max_bytes)
     split, child, count, order, nodes, deepest, need = _build_kernel(
-        np.ascontiguousarray(widened[keep]), np.int64(leaf), np.int64(limit), isect, traversal, empty_bonus, box,
-        np.int64(budget))
+        widened, np.int64(leaf), np.int64(limit), isect, traversal, empty_bonus, box, np.int64(budget))
     check(need, budget, f"the k-d tree of group {name or '(unnamed)'}", "lower depth or raise leaf")
     tree = KdArrays(split.copy(), child.copy(), count.copy(), keep[order], box)
-    leaves = count >= 0
-    stats = {
+    return tree, _build_stats(tree, nodes, deepest, limit, t0)
+
+
+def _widened_items(bounds, what: str):
+    """The item boxes (n, 6) that have a box, widened by a small margin (contiguous), their indices
+    among bounds, and the tree's box around them; ValueError naming `what` when none has a box."""
+    items = np.ascontiguousarray(np.asarray(bounds, np.float64)).reshape(-1, 6)
+    solid = np.all(items[:, :3] <= items[:, 3:], axis=1) & np.all(np.isfinite(items), axis=1)
+    if not solid.any():
+        raise ValueError(f"{what} needs at least one item with a box")
+    lo, hi = items[solid, :3].min(axis=0), items[solid, 3:].max(axis=0)
+    margin = 1e-9 * max(float((hi - lo).max()), float(np.abs(np.concatenate([lo, hi])).max()))
+    keep = np.flatnonzero(solid)
+    widened = np.hstack([items[keep, :3] - margin, items[keep, 3:] + margin])
+    return np.ascontiguousarray(widened), keep, np.concatenate([lo - margin, hi + margin])
+
+
+def _build_stats(tree: KdArrays, nodes, deepest, limit, t0) -> dict:
+    leaves = tree.count >= 0
+    return {
         "nodes": int(nodes), "inner": int(np.count_nonzero(~leaves)), "leaves": int(np.count_nonzero(leaves)),
-        "empty_leaves": int(np.count_nonzero(count == 0)), "refs": int(len(order)),
-        "bytes": int(nodes * NODE_BYTES + 8 * len(order) + 64), "seconds": time.perf_counter() - t0,
+        "empty_leaves": int(np.count_nonzero(tree.count == 0)), "refs": int(len(tree.order)),
+        "bytes": int(nodes * NODE_BYTES + 8 * len(tree.order) + 64), "seconds": time.perf_counter() - t0,
         "max_depth": int(deepest), "depth_limit": int(limit),
     }
-    return tree, stats
 
 
 # ----------------------------------------------------------------- Octree-R: an octree's planes, stored as a k-d tree
@@ -432,29 +439,15 @@ def build_octree_r(bounds, *, depth=6, leaf=1, split="cost", candidates=10, name
     candidates = int(number(candidates, "octree-r candidates", 1, 1000, integer=True))
     if split not in ("cost", "centre"):
         raise OptionError(f"octree-r split must be cost or centre, got {split!r}")
-    items = np.ascontiguousarray(np.asarray(bounds, np.float64)).reshape(-1, 6)
-    solid = np.all(items[:, :3] <= items[:, 3:], axis=1) & np.all(np.isfinite(items), axis=1)
-    if not solid.any():
-        raise ValueError("an octree needs at least one item with a box")
-    lo, hi = items[solid, :3].min(axis=0), items[solid, 3:].max(axis=0)
-    margin = 1e-9 * max(float((hi - lo).max()), float(np.abs(np.concatenate([lo, hi])).max()))
-    widened = np.hstack([items[:, :3] - margin, items[:, 3:] + margin])
-    box = np.concatenate([lo - margin, hi + margin])
-    keep = np.flatnonzero(solid)
+    widened, keep, box = _widened_items(bounds, "an octree")
     budget = memory_limit() if max_bytes is None else int(max_bytes)
     planes, child, count, order, nodes, deepest, need = _octree_kernel(
-        np.ascontiguousarray(widened[keep]), np.int64(leaf), np.int64(depth), np.int64(candidates),
-        np.int64(COST if split == "cost" else CENTRE), box, np.int64(budget))
+        widened, np.int64(leaf), np.int64(depth), np.int64(candidates), np.int64(COST if split == "cost" else CENTRE),
+        box, np.int64(budget))
     check(need, budget, f"the octree-r of group {name or '(unnamed)'}", "lower depth or raise leaf")
     tree = KdArrays(planes.copy(), child.copy(), count.copy(), keep[order], box)
-    leaves = count >= 0
-    inner = int(np.count_nonzero(~leaves))
-    stats = {
-        "nodes": int(nodes), "inner": inner, "octree_inner": inner // 7, "leaves": int(np.count_nonzero(leaves)),
-        "empty_leaves": int(np.count_nonzero(count == 0)), "refs": int(len(order)),
-        "bytes": int(nodes * NODE_BYTES + 8 * len(order) + 64), "seconds": time.perf_counter() - t0,
-        "max_depth": int(deepest), "depth_limit": depth,
-    }
+    stats = _build_stats(tree, nodes, deepest, depth, t0)
+    stats["octree_inner"] = stats["inner"] // 7
     return tree, stats
 
 
