@@ -164,6 +164,48 @@ def _best_plane(items, lists, s, n, box, lo, hi, isect, traversal, empty_bonus):
 
 
 @njit
+def _append_leaf(order, refs, lists, s, m):
+    """A leaf's items lists[s:s + m] appended to order at refs (grown as needed); returns (order,
+    refs after them)."""
+    if refs + m > order.shape[0]:
+        order = grown(order, refs + m, refs)
+    for j in range(m):
+        order[refs + j] = lists[s + j]
+    return order, refs + m
+
+
+@njit
+def _lists_with_room(lists, used, m, nodes, refs, max_bytes):
+    """lists grown to hold two children's lists of m items after its `used` part; returns (lists,
+    bytes needed: > 0 when growing would pass max_bytes, lists then as they were)."""
+    while used + 2 * m > lists.shape[0]:
+        need = (nodes * NODE_BYTES + 2 * lists.shape[0] * 8) * 2 + refs * 8
+        if need > max_bytes:
+            return lists, need
+        lists = grown(lists, 2 * lists.shape[0], used)
+    return lists, 0
+
+
+@njit
+def _split_lists(items, lists, s, m, box, axis, pos, used):
+    """The children's lists of the items lists[s:s + m] cut at pos on axis, written after the used
+    part: below (every item whose box clipped to `box` starts at or below pos), then above (ends at
+    or above it); returns (below, above) counts."""
+    n_below = n_above = 0
+    for j in range(m):
+        it = lists[s + j]
+        if max(items[it, axis], box[axis]) <= pos:
+            lists[used + n_below] = it
+            n_below += 1
+    for j in range(m):
+        it = lists[s + j]
+        if min(items[it, axis + 3], box[axis + 3]) >= pos:
+            lists[used + n_below + n_above] = it
+            n_above += 1
+    return n_below, n_above
+
+
+@njit
 def _build_kernel(items, leaf, max_depth, isect, traversal, empty_bonus, root_box, max_bytes):
     """The tree over item boxes: (split, child, count, order, nodes, max depth, bytes needed), the
     arrays cut at `nodes`; bytes needed > 0 when the budget stopped the build."""
@@ -211,31 +253,14 @@ def _build_kernel(items, leaf, max_depth, isect, traversal, empty_bonus, root_bo
         if axis >= 0 and cost > leaf_cost:
             bad += 1
         if axis < 0 or (cost > 4.0 * leaf_cost and m < 16) or bad >= MAX_BAD_REFINES:
-            if refs + m > order.shape[0]:
-                order = grown(order, refs + m, refs)
-            for j in range(m):
-                order[refs + j] = lists[s + j]
             child[node] = refs
             count[node] = m
-            refs += m
+            order, refs = _append_leaf(order, refs, lists, s, m)
             continue
-        # the children's lists after the used part: below, then above
-        while used + 2 * m > lists.shape[0]:
-            need = (nodes * NODE_BYTES + 2 * lists.shape[0] * 8) * 2 + refs * 8
-            if need > max_bytes:
-                return split[:nodes], child[:nodes], count[:nodes], order[:refs], nodes, deepest, need
-            lists = grown(lists, 2 * lists.shape[0], used)
-        n_below = n_above = 0
-        for j in range(m):
-            it = lists[s + j]
-            if max(items[it, axis], box[axis]) <= pos:
-                lists[used + n_below] = it
-                n_below += 1
-        for j in range(m):
-            it = lists[s + j]
-            if min(items[it, axis + 3], box[axis + 3]) >= pos:
-                lists[used + n_below + n_above] = it
-                n_above += 1
+        lists, need = _lists_with_room(lists, used, m, nodes, refs, max_bytes)
+        if need > 0:
+            return split[:nodes], child[:nodes], count[:nodes], order[:refs], nodes, deepest, need
+        n_below, n_above = _split_lists(items, lists, s, m, box, axis, pos, used)
         split[node] = pos
         count[node] = -1 - axis
         # the upper child below the lower on the stack: the lower is built first, as node + 1
@@ -384,33 +409,17 @@ def _octree_kernel(items, leaf, max_depth, candidates, rule, root_box, max_bytes
         if axis == 0:               # an octree node: a leaf, or cut by its three planes
             deepest = max(deepest, level // 3)
             if m <= leaf or level // 3 >= max_depth:
-                if refs + m > order.shape[0]:
-                    order = grown(order, refs + m, refs)
-                for j in range(m):
-                    order[refs + j] = lists[s + j]
                 child[node] = refs
                 count[node] = m
-                refs += m
+                order, refs = _append_leaf(order, refs, lists, s, m)
                 continue
             for k in range(3):
                 planes[k] = _octree_plane(items, lists, s, m, box, k, candidates, rule)
         pos = planes[axis]
-        while used + 2 * m > lists.shape[0]:
-            need = (nodes * NODE_BYTES + 2 * lists.shape[0] * 8) * 2 + refs * 8
-            if need > max_bytes:
-                return split[:nodes], child[:nodes], count[:nodes], order[:refs], nodes, deepest, need
-            lists = grown(lists, 2 * lists.shape[0], used)
-        n_below = n_above = 0
-        for j in range(m):
-            it = lists[s + j]
-            if max(items[it, axis], box[axis]) <= pos:
-                lists[used + n_below] = it
-                n_below += 1
-        for j in range(m):
-            it = lists[s + j]
-            if min(items[it, axis + 3], box[axis + 3]) >= pos:
-                lists[used + n_below + n_above] = it
-                n_above += 1
+        lists, need = _lists_with_room(lists, used, m, nodes, refs, max_bytes)
+        if need > 0:
+            return split[:nodes], child[:nodes], count[:nodes], order[:refs], nodes, deepest, need
+        n_below, n_above = _split_lists(items, lists, s, m, box, axis, pos, used)
         split[node] = pos
         count[node] = -1 - axis
         for half in range(2):       # the upper half under the lower on the stack: the lower is node + 1
