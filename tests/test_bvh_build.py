@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from support import box_area, same_arrays
 
-from raykernel.aggregates.bvh import BVHArrays, build_bvh, is_leaf, refit
+from raykernel.aggregates.bvh import AXIS_SHARE, SMALL_NODE, BVHArrays, build_bvh, is_leaf, refit
 from raykernel.errors import OptionError
 
 EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
@@ -493,6 +493,59 @@ def test_sah_beats_median_split():
     fixed_axis = median_split_sah_cost(items, 4, axis=0)
     assert sah < 0.2 * fixed_axis
     assert sah < min(median_split_sah_cost(items, 4, axis=a) for a in (1, 2))
+
+
+def exact_split_costs(items, block=1):
+    """Every split of items by rank of centroid on every axis whose centroid extent is at least
+    AXIS_SHARE of the longest: the summed child cost (area times items in blocks), brute force."""
+    centre = (items[:, :3] + items[:, 3:]) / 2
+    extent = centre.max(0) - centre.min(0)
+    costs = []
+    for a in range(3):
+        if extent[a] == 0 or extent[a] < AXIS_SHARE * extent.max():
+            continue
+        srt = np.argsort(centre[:, a], kind="stable")
+        for j in range(1, len(items)):
+            sides = srt[:j], srt[j:]
+            costs.append(sum(float(box_area(np.concatenate([items[s, :3].min(0), items[s, 3:].max(0)])))
+                             * math.ceil(len(s) / block) for s in sides))
+    return costs
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("n, block", [(5, 1), (9, 1), (SMALL_NODE, 1), (SMALL_NODE, 4), (12, 4)])
+def test_a_small_node_takes_the_exact_sah_split(seed, n, block):
+    rng = np.random.default_rng(seed)
+    items = random_boxes(rng, n, size=0.3)
+    bvh, _ = build_bvh(items, leaf_size=1, block=block)
+    left, right = bvh.first[0], bvh.first[0] + 1
+    chosen = sum(box_area(bvh.bounds[c]) * math.ceil(bvh_items(bvh, c).size / block) for c in (left, right))
+    assert chosen == pytest.approx(min(exact_split_costs(items, block)), rel=1e-12)
+
+
+def bvh_items(bvh, node):
+    """The items under node."""
+    if bvh.count[node] > 0:
+        return bvh.order[bvh.first[node]:bvh.first[node] + bvh.count[node]]
+    return np.concatenate([bvh_items(bvh, bvh.first[node]), bvh_items(bvh, bvh.first[node] + 1)])
+
+
+@pytest.mark.parametrize("n", [12, 200])
+def test_a_thin_axis_is_not_split(n):
+    # two long slabs apart in y by less than half their length in x: by the SAH the split between
+    # them (across y) is the cheapest, but y's centroid extent is under AXIS_SHARE of x's, so the
+    # split is across x, as documented
+    x = np.random.default_rng(3).permutation(np.linspace(0.0, 1.0, n))
+    y = np.where(np.arange(n) % 2 == 0, 0.0, 0.4)
+    items = np.column_stack([x, y, np.zeros(n), x + 0.01, y + 0.01, np.full(n, 0.01)])
+    bvh, _ = build_bvh(items, leaf_size=4)
+    sides = [items[bvh_items(bvh, c)] for c in (bvh.first[0], bvh.first[0] + 1)]
+    centre_x = [(s[:, 0] + s[:, 3]) / 2 for s in sides]
+    assert centre_x[0].max() <= centre_x[1].min() or centre_x[1].max() <= centre_x[0].min()
+    y_split = sum(float(box_area(np.concatenate([s[:, :3].min(0), s[:, 3:].max(0)]))) * len(s)
+                  for s in (items[y == 0.0], items[y == 0.4]))
+    x_split = sum(float(box_area(np.concatenate([s[:, :3].min(0), s[:, 3:].max(0)]))) * len(s) for s in sides)
+    assert y_split < x_split        # the rule, not the SAH, chose
 
 
 def test_traversal_finds_exactly_the_boxes_a_ray_hits():

@@ -18,7 +18,7 @@ from numba import njit
 from support import MESHES, rays_through, targets
 
 from raykernel import Group, Instance, RayScene, Scene, TriangleMesh
-from raykernel.aggregates.widebvh import CHILD, COUNT, box4_entries, collapse, wide_ray
+from raykernel.aggregates.widebvh import CHILD, COUNT, _down, _up, box4_entries, collapse, wide_ray
 from raykernel.geometry.boxes import box_entry, inverse
 from raykernel.geometry.primitives import SPHERE, TRIANGLE
 
@@ -204,6 +204,32 @@ def test_collapse_keeps_every_leaf_and_contains_every_box():
         b = g.node_bounds[by_first[int(child[w, s])]] - np.tile(wide.center, 2)     # stored relative to center
         assert np.all(box[w, :3, s].astype(float) <= b[:3]) and np.all(box[w, 3:, s].astype(float) >= b[3:])
     assert np.all(box[:, :3][~np.broadcast_to(used[:, None, :], box[:, :3].shape)] == np.inf)
+
+
+@njit
+def _rounded(x, lo, hi):
+    for i in range(len(x)):
+        lo[i] = _down(x[i])
+        hi[i] = _up(x[i])
+
+
+def test_float32_boxes_round_outwards_by_at_most_one_step():
+    """The wide boxes' rounding gives the float32 just at or below (above) each float64 value:
+    equal to numpy's nextafter rule at every scale, signed zeros, the tiniest and the largest
+    floats, beyond float32's range and infinities."""
+    rng = np.random.default_rng(4)
+    x = rng.standard_normal(200_000) * 10.0 ** rng.integers(-60, 60, 200_000)
+    edge = [0.0, -0.0, 1e-50, -1e-50, 1.4e-45, -1.4e-45, 1e-45, 3.4028234663852886e38, 3.5e38, -3.5e38,
+            1e300, -1e300, np.inf, -np.inf, 1.0, -1.0, 1.0 + 2.0 ** -30, -(1.0 + 2.0 ** -30)]
+    x = np.concatenate([x, edge])
+    lo, hi = np.empty(len(x), np.float32), np.empty(len(x), np.float32)
+    _rounded(x, lo, hi)
+    with np.errstate(over="ignore"):
+        f = x.astype(np.float32)
+    want_lo = np.where(f.astype(float) > x, np.nextafter(f, np.float32(-np.inf)), f)
+    want_hi = np.where(f.astype(float) < x, np.nextafter(f, np.float32(np.inf)), f)
+    assert np.array_equal(lo, want_lo) and np.array_equal(hi, want_hi)
+    assert np.all(lo.astype(float) <= x) and np.all(hi.astype(float) >= x)
 
 
 @njit

@@ -37,10 +37,12 @@ Traversal code may also return early when ``order.size == 0``.
 Splitting rules
 ---------------
 Centroids are binned into ``bins`` equal bins along each axis whose centroid
-extent is non-zero (a node of n >= 2 SAMPLE_ITEMS items bins a sample: every
-(n // SAMPLE_ITEMS)-th item, its children's boxes then gathered from all its
-items as they are partitioned: a split as good by the SAH for a fraction of
-the binning), and every boundary between bins is scored with
+extent is non-zero and at least AXIS_SHARE of the longest (a split across a
+thin axis rarely wins, and binning it is a third of a node's work; a node of
+n >= 2 SAMPLE_ITEMS items bins a sample: every (n // SAMPLE_ITEMS)-th item,
+its children's boxes then gathered from all its items as they are
+partitioned: a split as good by the SAH for a fraction of the binning), and
+every boundary between bins is scored with
 
     cost = traversal_cost + (M_left * N_left + M_right * N_right) / M_parent * intersection_cost
 
@@ -52,7 +54,10 @@ When the parent box has zero area (all
 items lie on one line or are one point) M is the half-perimeter instead,
 which still favours splits into short, balanced pieces. Measures are taken on
 boxes scaled by the parent's largest extent, so neither 1e-200 nor 1e200
-coordinates underflow or overflow the areas.
+coordinates underflow or overflow the areas. A node of at most SMALL_NODE
+items is not binned: its items are sorted by centroid on each of those axes
+and every boundary between them is scored (the exact SAH split, for less work
+than the bins' sweeps at that size).
 
 A node becomes a leaf when it has at most ``leaf_size`` items and its leaf
 cost ``blocks(weight) * intersection_cost`` is not worse than the best split;
@@ -88,6 +93,8 @@ from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, 
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item_bounds"]
 
 _MAX_BINS = 1024
+AXIS_SHARE = 0.5            # an axis whose centroid extent is under this share of the longest is not split
+SMALL_NODE = 16             # nodes of at most this many items take the exact SAH over their sorted centroids
 SAMPLE_ITEMS = 1 << 10      # a node of n items bins every (n // SAMPLE_ITEMS)-th: about this many to 2x as many
 # a build's row of an item: its box (6) and its weight; the centre the SAH bins is computed from the
 # box as it is needed (_centre), which reads less memory a pass than storing it
@@ -291,6 +298,102 @@ def _partition(data, order, s, e, a, cmin, scale, bins, split_bin, lcb, rcb, box
 
 
 @njit(private=True)
+def _grow(box, data, p):
+    """Grow box by item p's box."""
+    for k in range(3):
+        box[k] = min(box[k], data[p, k])
+        box[k + 3] = max(box[k + 3], data[p, k + 3])
+
+
+@njit(inline="always")
+def _measure(box, inv, use_area):
+    ex = (box[3] - box[0]) * inv
+    ey = (box[4] - box[1]) * inv
+    ez = (box[5] - box[2]) * inv
+    return 2.0 * (ex * ey + ey * ez + ez * ex) if use_area else ex + ey + ez
+
+
+@njit(private=True)
+def _small_split(data, s, e, scale, inv, use_area, block, keys, idx, best_idx, right, box):
+    """The exact SAH split of a small node, data[s:e] (at most SMALL_NODE items): on each axis
+    with a scale, the items sorted by centroid (insertion sort) and every boundary between them
+    priced. Returns (summed child cost, axis or -1, items on the left, total weight); best_idx[:n]
+    the chosen axis' order (positions from s)."""
+    cnt = e - s
+    best = np.inf
+    split_axis = -1
+    n_left = 0
+    weight = 0.0
+    for i in range(cnt):
+        weight += data[s + i, WEIGHT]
+    for a in range(3):
+        if scale[a] == 0.0:
+            continue
+        for i in range(cnt):
+            key = data[s + i, a] + data[s + i, a + 3]       # twice the centroid: the order is the same
+            keys[i] = key
+            j = i
+            while j > 0 and keys[idx[j - 1]] > key:
+                idx[j] = idx[j - 1]
+                j -= 1
+            idx[j] = i
+        _empty_box(box)
+        w = 0.0
+        for j in range(cnt - 1, 0, -1):
+            p = s + idx[j]
+            _grow(box, data, p)
+            w += data[p, WEIGHT]
+            right[j] = _measure(box, inv, use_area) * _priced(w, block)
+        _empty_box(box)
+        w = 0.0
+        better = False
+        for j in range(cnt - 1):
+            p = s + idx[j]
+            _grow(box, data, p)
+            w += data[p, WEIGHT]
+            c = _measure(box, inv, use_area) * _priced(w, block) + right[j + 1]
+            if c < best:
+                best = c
+                split_axis = a
+                n_left = j + 1
+                better = True
+        if better:
+            for i in range(cnt):
+                best_idx[i] = idx[i]
+    return best, split_axis, n_left, weight
+
+
+@njit(private=True)
+def _small_partition(data, order, s, e, best_idx, n_left, rows, rows_order, lcb, rcb, lbox, rbox):
+    """Put data[s:e] (and order) in best_idx's order, gathering the boxes and centroid boxes of
+    its first n_left items and the rest."""
+    cnt = e - s
+    for i in range(cnt):
+        p = s + best_idx[i]
+        for k in range(ROW_COLUMNS):
+            rows[i, k] = data[p, k]
+        rows_order[i] = order[p]
+    _empty_box(lcb)
+    _empty_box(rcb)
+    _empty_box(lbox)
+    _empty_box(rbox)
+    for i in range(cnt):
+        p = s + i
+        for k in range(ROW_COLUMNS):
+            data[p, k] = rows[i, k]
+        order[p] = rows_order[i]
+        left = i < n_left
+        cb = lcb if left else rcb
+        box = lbox if left else rbox
+        for k in range(3):
+            c = _centre(data[p, k], data[p, k + 3])
+            cb[k] = min(cb[k], c)
+            cb[k + 3] = max(cb[k + 3], c)
+            box[k] = min(box[k], data[p, k])
+            box[k + 3] = max(box[k + 3], data[p, k + 3])
+
+
+@njit(private=True)
 def _leaf_is_cheapest(data, s, e, block, traversal_cost, intersection_cost):
     """A leaf of data[s:e] costs no more than the traversal of a split alone (which every split
     costs at least): a leaf with no need to bin."""
@@ -355,7 +458,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             _empty_box(bin_box[a, b])
     nonempty = np.empty(bins, dtype=np.int64)
     left_measure = np.empty(bins, dtype=np.float64)
-    right_measure = np.empty(bins, dtype=np.float64)
+    right_measure = np.empty(max(bins, SMALL_NODE), dtype=np.float64)
     box = np.empty(6, dtype=np.float64)
     lbox = np.empty(6, dtype=np.float64)
     rbox = np.empty(6, dtype=np.float64)
@@ -363,6 +466,11 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
     rcb = np.empty(6, dtype=np.float64)
     scale = np.zeros(3, dtype=np.float64)
     cmin = np.zeros(3, dtype=np.float64)
+    keys = np.empty(SMALL_NODE, dtype=np.float64)
+    idx = np.empty(SMALL_NODE, dtype=np.int64)
+    best_idx = np.empty(SMALL_NODE, dtype=np.int64)
+    rows = np.empty((SMALL_NODE, ROW_COLUMNS), dtype=np.float64)
+    rows_order = np.empty(SMALL_NODE, dtype=np.int64)
     max_depth = 0
     done = 0
 
@@ -386,13 +494,16 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             max_depth = depth
         done += cnt
 
-        # axes that can be binned: positive, finite centroid extent and finite bins/extent
+        # axes that can be binned: positive, finite centroid extent and finite bins/extent, and
+        # at least AXIS_SHARE of the largest (a split across a thin axis rarely wins; not binning
+        # it is a good part of a node's work saved)
         any_axis = False
+        longest = max(st_cb[top, 3] - st_cb[top, 0], max(st_cb[top, 4] - st_cb[top, 1], st_cb[top, 5] - st_cb[top, 2]))
         for k in range(3):
             cmin[k] = st_cb[top, k]
             ext = st_cb[top, k + 3] - st_cb[top, k]
             scale[k] = 0.0
-            if ext > 0.0 and ext < np.inf:
+            if ext > 0.0 and ext < np.inf and ext >= AXIS_SHARE * longest:
                 sc = bins / ext
                 if sc < np.inf:
                     scale[k] = sc
@@ -407,6 +518,20 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         elif not any_axis:
             # all centroids coincide: a leaf, or a middle split by count when too many
             if cnt > leaf_size:
+                split_axis = 3
+        elif cnt <= SMALL_NODE:
+            inv, parent_measure, use_area = _scaled_measure(bounds, node)
+            best, split_axis, n_left, weight = _small_split(data, s, e, scale, inv, use_area, block, keys, idx,
+                                                            best_idx, right_measure, box)
+            if split_axis >= 0:
+                if cnt <= leaf_size and _priced(weight, block) * intersection_cost <= (
+                        traversal_cost + best / parent_measure * intersection_cost):
+                    split_axis = -1
+                else:
+                    _small_partition(data, order, s, e, best_idx, n_left, rows, rows_order, lcb, rcb, lbox, rbox)
+                    mid = s + n_left
+                    split_axis = 4
+            elif cnt > leaf_size:
                 split_axis = 3
         else:
             # a large node bins a sample of its items (every stride-th): its split is as good, for
@@ -436,7 +561,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         if split_axis == 3:
             _range_bounds(data, s, mid, lbox, lcb)
             _range_bounds(data, mid, e, rbox, rcb)
-        else:
+        elif split_axis < 3:
             mid = _partition(data, order, s, e, split_axis, cmin, scale, bins, split_bin, lcb, rcb, stride > 1,
                              lbox, rbox)
 

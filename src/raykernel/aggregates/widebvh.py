@@ -95,15 +95,22 @@ class WideBVH(NamedTuple):
 
 @njit(inline="always")
 def _down(x):
-    """The largest float32 at or below x (x - center in float64)."""
+    """The largest float32 at or below x (x - center in float64): x rounded, then one step down
+    by its bits where that went up (np.nextafter is a library call per value)."""
     y = np.float32(x)
-    return np.nextafter(y, np.float32(-np.inf)) if np.float64(y) > x else y
+    if np.float64(y) > x:
+        b = y.view(np.int32)
+        y = np.int32(b - 1 if y > 0 else b + 1 if y < 0 else -2147483647).view(np.float32)
+    return y
 
 
 @njit(inline="always")
 def _up(x):
     y = np.float32(x)
-    return np.nextafter(y, np.float32(np.inf)) if np.float64(y) < x else y
+    if np.float64(y) < x:
+        b = y.view(np.int32)
+        y = np.int32(b + 1 if y > 0 else b - 1 if y < 0 else 1).view(np.float32)
+    return y
 
 
 @njit
@@ -121,7 +128,9 @@ def _pack(box, child, count, center, nodes, boxes, w0, w1):
 
 @njit
 def _collapse_kernel(bounds, first, count, root):
-    """Wide nodes in depth-first order: float64 boxes (W, 4, 6), child and count (W, 4)."""
+    """Wide nodes, each node's inner children side by side and the subtrees depth first: float64
+    boxes (W, 4, 6), child and count (W, 4). Depth first so that the binary nodes are read in
+    about the order the build wrote them (a level-by-level order reads them all over memory)."""
     n = bounds.shape[0]
     # a wide node for the root and for each inner node below it: trees' inner nodes are at most half
     # their nodes (each has two children of its own); written only as they are made
@@ -130,12 +139,15 @@ def _collapse_kernel(bounds, first, count, root):
     child = np.empty((cap, 4), np.int64)
     cnt = np.empty((cap, 4), np.int64)
     todo = np.empty(cap, np.int64)            # binary inner node of each wide node not yet filled
+    stack = np.empty(cap, np.int64)           # wide nodes made but not yet filled, the next on top
     slots = np.empty(4, np.int64)
     todo[0] = root
     made = 1
-    for w in range(cap):
-        if w >= made:
-            break
+    stack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        w = stack[sp]
         b = todo[w]
         if count[b] > 0 or first[b] <= b:       # a leaf at the root: one leaf child
             slots[0] = b
@@ -163,6 +175,7 @@ def _collapse_kernel(bounds, first, count, root):
             slots[pick] = first[c]
             slots[k] = first[c] + 1
             k += 1
+        top = sp
         for s in range(4):
             if s >= k:
                 for a in range(3):
@@ -179,9 +192,12 @@ def _collapse_kernel(bounds, first, count, root):
                 cnt[w, s] = 0
                 todo[made] = c
                 made += 1
+                sp += 1
             else:
                 child[w, s] = first[c]
                 cnt[w, s] = count[c]
+        for j in range(sp - top):               # the first inner child on top: filled next
+            stack[sp - 1 - j] = made - (sp - top) + j
     return box[:made], child[:made], cnt[:made]
 
 
