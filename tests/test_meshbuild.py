@@ -10,6 +10,7 @@ import trimesh
 from raykernel import RayScene
 from raykernel.aggregates import bvh
 from raykernel.aggregates.memory import MemoryBudgetError
+from raykernel.aggregates.widebvh import collapse
 from raykernel.casting.meshbuild import QUALITY
 
 QUALITIES = tuple(QUALITY)
@@ -208,6 +209,31 @@ def test_every_stage_of_the_parallel_build_keeps_the_serial_tree(monkeypatch, st
     monkeypatch.setattr(bvh, "HEAD_PARTS", 16)
     monkeypatch.setattr(bvh, "TOP_STACK", stack)
     assert_parallel_build_is_serial_tree(random_boxes(6000, 4), monkeypatch)
+
+
+def test_the_wide_tree_of_the_build_with_gaps_is_the_compacted_ones(monkeypatch):
+    """The mesh build leaves the parallel build's unused node rows in place: collapsed from the root,
+    its 4-wide tree and SAH cost are those of the compacted tree, and the cost is the brute-force
+    sum over the compacted tree's boxes widened by the margin."""
+    monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1000)
+    monkeypatch.setattr(bvh, "DEFER_ITEMS", 40)
+    items = random_boxes(6000, 5)
+    data = np.empty((len(items), bvh.ROW_COLUMNS))
+    bvh._item_data(items, np.ones(len(items)), data, 0, len(items))
+    dense = bvh.build_rows(data.copy(), "sah", 4, 16, 1.0, 1.0, 4, 2)
+    gaps = bvh.build_rows(data.copy(), "sah", 4, 16, 1.0, 1.0, 4, 2, compact=False)
+    n = dense[4]
+    assert gaps[4] > n
+    margin = 0.01
+    wide, cost = collapse(dense[0][:n], dense[1][:n], dense[2][:n], 0, margin)
+    wide_gaps, cost_gaps = collapse(*gaps[:3], 0, margin)
+    np.testing.assert_array_equal(wide.nodes, wide_gaps.nodes)
+    assert cost == cost_gaps
+    box = dense[0][:n] + np.r_[[-margin] * 3, [margin] * 3]
+    ext = box[:, 3:] - box[:, :3]
+    area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 2] * ext[:, 0]
+    count = dense[2][:n]
+    assert cost == pytest.approx(float((area * np.where(count > 0, count, 1)).sum() / area[0]), rel=1e-12)
 
 
 @pytest.mark.parametrize("n", [1, 2, 5, 1000, 40000])

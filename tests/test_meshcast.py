@@ -187,7 +187,7 @@ def test_collapse_keeps_every_leaf_and_contains_every_box():
     rs = RayScene.from_mesh(v, np.arange(3000).reshape(-1, 3), accel="bvh(leaf=2)")
     g = rs.geo
     leaf = g.node_count > 0
-    wide = collapse(g.node_bounds, g.node_first, g.node_count, 0)
+    wide, _ = collapse(g.node_bounds, g.node_first, g.node_count, 0)
     count = wide.nodes[:, COUNT:]
     child = wide.nodes[:, CHILD:COUNT]
     used = count >= 0

@@ -812,14 +812,17 @@ def _morton(data, leaf_size, threads=None):
 
 
 def build_rows(data, method="sah", leaf_size=4, bins=16, traversal_cost=1.0, intersection_cost=1.0, block=1,
-               threads=None):
+               threads=None, compact=True):
     """build_bvh's tree over rows already made ((n, ROW_COLUMNS) float64: box, weight;
     the SAH permutes them): (bounds, first, count, order, node count, max depth), the node arrays
     possibly longer than the node count. For builders that make the rows themselves, faster than
-    boxes (casting/meshbuild.py makes a mesh's from its vertices)."""
+    boxes (casting/meshbuild.py makes a mesh's from its vertices). compact=False: the parallel
+    build's node arrays keep the unused rows between its tasks' nodes (the node count is then
+    their length), for a caller that follows the tree from its root (widebvh.collapse) and so
+    need not pay for closing them."""
     if method == "morton":
         return _morton(data, leaf_size, threads)
-    return _build_sah(data, leaf_size, bins, traversal_cost, intersection_cost, block, threads)
+    return _build_sah(data, leaf_size, bins, traversal_cost, intersection_cost, block, threads, compact)
 
 
 # items from which a build is split over threads, and the largest subtree built by one thread's call
@@ -830,7 +833,7 @@ TOP_STACK = 1 << 16         # work items the top's stack holds (a deeper top def
 TOP_WORK = 1 << 22          # items the top of a build splits in one call (well under the second Ctrl-C may wait)
 
 
-def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None):
+def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None, compact=True):
     """Build the tree over `data` (_item_data's rows, permuted in place); returns (bounds,
     first, count, order, node count, max depth). From PARALLEL_ITEMS items on, the nodes of
     more than n / HEAD_PARTS items are split on the calling thread, and the subtrees below them
@@ -883,7 +886,7 @@ def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None):
     for_ranges(lambda k0, k1: depths.append(_build_tasks(data, order, bounds, first, count, small, small_cb,
                                                          np.int64(small_base), np.int64(k0), np.int64(k1), *args)),
                len(small), threads, kernel=_build_tasks)
-    n_nodes = _compact(bounds, first, count)
+    n_nodes = _compact(bounds, first, count) if compact else len(count)
     return bounds, first, count, order, n_nodes, max(depths)
 
 

@@ -71,7 +71,6 @@ from numba.extending import intrinsic
 from ..errors import SceneError
 from ..geometry.boxes import CONSERVATIVE, INF, STILL
 from ..geometry.config import njit
-from ..geometry.parallel import for_ranges
 from ..geometry.unchecked import load, store
 
 
@@ -113,31 +112,29 @@ def _up(x):
     return y
 
 
-@njit
-def _pack(box, child, count, center, nodes, boxes, w0, w1):
-    """Records w0..w1-1 of the wide nodes (see above): float32 boxes rounded outwards from the
-    float64 ones moved by center (so that each contains its original), child and count."""
-    for w in range(w0, w1):
-        for s in range(4):
-            for a in range(3):
-                boxes[w, 4 * a + s] = _down(box[w, s, a] - center[a])
-                boxes[w, 12 + 4 * a + s] = _up(box[w, s, 3 + a] - center[a])
-            nodes[w, CHILD + s] = child[w, s]
-            nodes[w, COUNT + s] = count[w, s]
+@njit(inline="always")
+def _is_inner(first, count, c):
+    return count[c] == 0 and first[c] > c
+
+
+@njit(inline="always")
+def _area(bounds, c):
+    ex = bounds[c, 3] - bounds[c, 0]
+    ey = bounds[c, 4] - bounds[c, 1]
+    ez = bounds[c, 5] - bounds[c, 2]
+    return ex * ey + ey * ez + ez * ex
 
 
 @njit
-def _collapse_kernel(bounds, first, count, root):
-    """Wide nodes, each node's inner children side by side and the subtrees depth first: float64
-    boxes (W, 4, 6), child and count (W, 4). Depth first so that the binary nodes are read in
-    about the order the build wrote them (a level-by-level order reads them all over memory)."""
-    n = bounds.shape[0]
-    # a wide node for the root and for each inner node below it: trees' inner nodes are at most half
-    # their nodes (each has two children of its own); written only as they are made
-    cap = n // 2 + 1
-    box = np.empty((cap, 4, 6))
-    child = np.empty((cap, 4), np.int64)
-    cnt = np.empty((cap, 4), np.int64)
+def _collapse_kernel(bounds, first, count, root, margin, center, nodes, boxes):
+    """Write the wide nodes' records (see above; boxes widened by margin, then moved by center and
+    rounded outwards) into nodes / boxes (the same memory as int32 and float32), each node's inner
+    children side by side and the subtrees depth first. Returns (wide nodes made, the binary
+    tree's SAH cost: the areas of its nodes, a leaf's times its references, over the root's, and
+    the largest reference a leaf names, which must fit the int32 child word).
+    Depth first so that the binary nodes are read in about the order the build wrote them (a
+    level-by-level order reads them all over memory)."""
+    cap = nodes.shape[0]
     todo = np.empty(cap, np.int64)            # binary inner node of each wide node not yet filled
     stack = np.empty(cap, np.int64)           # wide nodes made but not yet filled, the next on top
     slots = np.empty(4, np.int64)
@@ -145,11 +142,22 @@ def _collapse_kernel(bounds, first, count, root):
     made = 1
     stack[0] = 0
     sp = 1
+    widened = np.empty(6)
+    largest_ref = 0
+    root_area = 1.0
+    total = 0.0
+    for k in range(3):
+        widened[k] = bounds[root, k] - margin
+        widened[k + 3] = bounds[root, k + 3] + margin
+    area = (widened[3] - widened[0]) * (widened[4] - widened[1]) + (widened[4] - widened[1]) * (
+        widened[5] - widened[2]) + (widened[5] - widened[2]) * (widened[3] - widened[0])
+    if area > 0.0:
+        root_area = area
     while sp > 0:
         sp -= 1
         w = stack[sp]
         b = todo[w]
-        if count[b] > 0 or first[b] <= b:       # a leaf at the root: one leaf child
+        if not _is_inner(first, count, b):      # a leaf at the root: one leaf child
             slots[0] = b
             k = 1
         else:
@@ -158,20 +166,18 @@ def _collapse_kernel(bounds, first, count, root):
             k = 2
         while k < 4:                            # open the largest inner child
             pick = -1
-            area = -1.0
+            largest = -1.0
             for s in range(k):
                 c = slots[s]
-                if count[c] == 0 and first[c] > c:
-                    ex = bounds[c, 3] - bounds[c, 0]
-                    ey = bounds[c, 4] - bounds[c, 1]
-                    ez = bounds[c, 5] - bounds[c, 2]
-                    a = ex * ey + ey * ez + ez * ex
-                    if a > area:
-                        area = a
+                if _is_inner(first, count, c):
+                    a = _area(bounds, c)
+                    if a > largest:
+                        largest = a
                         pick = s
             if pick < 0:
                 break
             c = slots[pick]
+            total += _area_widened(bounds, c, margin)
             slots[pick] = first[c]
             slots[k] = first[c] + 1
             k += 1
@@ -179,26 +185,41 @@ def _collapse_kernel(bounds, first, count, root):
         for s in range(4):
             if s >= k:
                 for a in range(3):
-                    box[w, s, a] = INF
-                    box[w, s, 3 + a] = -INF
-                child[w, s] = -1
-                cnt[w, s] = -1
+                    boxes[w, 4 * a + s] = INF
+                    boxes[w, 12 + 4 * a + s] = -INF
+                nodes[w, CHILD + s] = -1
+                nodes[w, COUNT + s] = -1
                 continue
             c = slots[s]
-            for a in range(6):
-                box[w, s, a] = bounds[c, a]
-            if count[c] == 0 and first[c] > c:
-                child[w, s] = made
-                cnt[w, s] = 0
+            for a in range(3):
+                boxes[w, 4 * a + s] = _down(bounds[c, a] - margin - center[a])
+                boxes[w, 12 + 4 * a + s] = _up(bounds[c, 3 + a] + margin - center[a])
+            if _is_inner(first, count, c):
+                nodes[w, CHILD + s] = made
+                nodes[w, COUNT + s] = 0
                 todo[made] = c
                 made += 1
                 sp += 1
+                total += _area_widened(bounds, c, margin)
             else:
-                child[w, s] = first[c]
-                cnt[w, s] = count[c]
+                nodes[w, CHILD + s] = first[c]
+                nodes[w, COUNT + s] = count[c]
+                largest_ref = max(largest_ref, first[c])
+                if c != root:
+                    total += _area_widened(bounds, c, margin) * count[c]
         for j in range(sp - top):               # the first inner child on top: filled next
             stack[sp - 1 - j] = made - (sp - top) + j
-    return box[:made], child[:made], cnt[:made]
+    leaf_root = not _is_inner(first, count, root)
+    total += root_area * (count[root] if leaf_root and count[root] > 0 else 1)
+    return made, total / root_area, largest_ref
+
+
+@njit(inline="always")
+def _area_widened(bounds, c, margin):
+    ex = bounds[c, 3] - bounds[c, 0] + 2.0 * margin
+    ey = bounds[c, 4] - bounds[c, 1] + 2.0 * margin
+    ez = bounds[c, 5] - bounds[c, 2] + 2.0 * margin
+    return ex * ey + ey * ez + ez * ex
 
 
 def _aligned(rows: int) -> np.ndarray:
@@ -208,20 +229,25 @@ def _aligned(rows: int) -> np.ndarray:
     return raw[skip:skip + rows * 128].view(np.int32).reshape(rows, 32)
 
 
-def collapse(node_bounds, node_first, node_count, root: int) -> WideBVH:
+def collapse(node_bounds, node_first, node_count, root: int, margin: float = 0.0) -> tuple[WideBVH, float]:
     """The 4-wide tree of the binary BVH rooted at `root` (flatten's node arrays: inner nodes
-    have count 0 and children first, first + 1; leaves hold references first .. first + count)."""
-    box, child, count = _collapse_kernel(node_bounds, node_first, node_count, np.int64(root))
-    if len(box) >= 2 ** 31 or child.max(initial=0) >= 2 ** 31:
-        raise SceneError(f"a 4-wide BVH holds at most 2**31 - 1 nodes and references; this one needs "
-                         f"{max(len(box), int(child.max()) + 1):,}: use bvh(width=2)")
+    have count 0 and children first, first + 1; leaves hold references first .. first + count;
+    the arrays may hold unused rows, which no node refers to), its boxes widened by margin; and
+    the binary tree's SAH cost (traversal 1, a reference 1) on the widened boxes."""
     root_box = node_bounds[root]
     center = np.where(np.isfinite(root_box[:3] + root_box[3:]), (root_box[:3] + root_box[3:]) / 2, 0.0)
-    nodes = _aligned(len(box))
-    boxes = nodes.view(np.float32)
-    for_ranges(lambda w0, w1: _pack(box, child, count, center, nodes, boxes, np.int64(w0), np.int64(w1)), len(box),
-               kernel=_pack, min_size=1 << 14)
-    return WideBVH(nodes, center)
+    # a wide node for the root and at most one for each inner node (at most half the nodes): the
+    # rows not made are never touched, so hold no memory
+    nodes = _aligned(len(node_count) // 2 + 1)
+    if len(nodes) >= 2 ** 31:
+        raise SceneError(f"a 4-wide BVH holds at most 2**31 - 1 nodes; this one may need {len(nodes):,}: "
+                         f"use bvh(width=2)")
+    made, cost, largest_ref = _collapse_kernel(node_bounds, node_first, node_count, np.int64(root), float(margin),
+                                               center, nodes, nodes.view(np.float32))
+    if largest_ref >= 2 ** 31:
+        raise SceneError(f"a 4-wide BVH names at most 2**31 - 1 references; this one needs {largest_ref + 1:,}: "
+                         f"use bvh(width=2)")
+    return WideBVH(nodes[:made], center), cost
 
 
 @njit(inline="always")

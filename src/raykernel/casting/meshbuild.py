@@ -81,24 +81,6 @@ def _triangle_data(verts, faces, data, i0, i1):
     return bad
 
 
-@njit
-def _widen(bounds, first, count, n_nodes, margin):
-    """Grow the node boxes by margin (as append_bvh grows a scene's BVH); returns the tree's SAH
-    cost (bvh.sah_cost: inner areas and leaf areas times their triangles, over the root's area)."""
-    total = 0.0
-    root = 1.0
-    for i in range(n_nodes):
-        for k in range(3):
-            bounds[i, k] -= margin
-            bounds[i, k + 3] += margin
-        dx, dy, dz = bounds[i, 3] - bounds[i, 0], bounds[i, 4] - bounds[i, 1], bounds[i, 5] - bounds[i, 2]
-        area = dx * dy + dy * dz + dz * dx
-        if i == 0 and area > 0.0:
-            root = area
-        total += area * (count[i] if count[i] > 0 else 1)
-    return total / root
-
-
 def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, quality: str, edges: int,
                threads: int | None = None) -> tuple[MeshKernel, dict]:
     """The mesh kernel's arrays for one mesh: verts (V, 3) float64 and faces (F, 3) int64, both
@@ -138,7 +120,10 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
             with np.errstate(over="ignore", invalid="ignore"):
                 check_range("triangle", box, bad, np.max(box[:, 3:] - box[:, :3], axis=1))
         method = "morton" if quality == "fast" else "sah"
-        bounds, first, count, order, n_nodes, depth = build_rows(data, method, LEAF, BINS, 1.0, 1.0, BLOCK, threads)
+        # the tree is read from its root on (collapse), so the parallel build's gaps may stay, but
+        # reinsertion takes the nodes as an array
+        bounds, first, count, order, n_nodes, depth = build_rows(data, method, LEAF, BINS, 1.0, 1.0, BLOCK, threads,
+                                                                 compact=quality == "high")
         data = None     # (its memory back before the wide tree is made)
         bounds, first, count = bounds[:n_nodes], first[:n_nodes], count[:n_nodes]
         if quality == "high" and n:       # fewer node visits for many rays: bvhopt's reinsertion
@@ -148,8 +133,9 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
                 n_nodes, depth = len(count), info["max_depth"]
         box = bounds[0].copy()
         margin = cull_margin(box) if n else 0.0
-        cost = _widen(bounds, first, count, np.int64(n_nodes), margin) if n else 0.0
-        wide = collapse(bounds, first, count, 0)
+        # boxes widened by the culling margin a scene's BVH gets (as append_bvh does)
+        wide, cost = collapse(bounds, first, count, 0, margin)
+        cost = cost if n else 0.0
         del bounds, first, count
         wide, blocks, lanes = wide_leaves(wide, verts, faces, order, threads)
     del order

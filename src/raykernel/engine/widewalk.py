@@ -54,7 +54,7 @@ def prepare(geo, agg_stats: list):
     if not (len(geo.agg_kind) == 1 and geo.agg_kind[0] == BVH and not len(geo.inst_agg)
             and agg_stats[0].get("width", 4) == 4):
         return geo
-    wide = collapse(geo.node_bounds, geo.node_first, geo.node_count, int(geo.agg_start[geo.root]))
+    wide, _ = collapse(geo.node_bounds, geo.node_first, geo.node_count, int(geo.agg_start[geo.root]))
     prims = _records(geo)
     agg_stats[0].update(wide_nodes=len(wide.nodes), wide_bytes=wide.nbytes + prims.nbytes)
     center = wide.center.copy()
