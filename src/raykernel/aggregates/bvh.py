@@ -156,9 +156,9 @@ def _bin_range(data, s, e, stride, cmin, scale, bins, bin_count, bin_weight, bin
             if scale[a] == 0.0:
                 continue
             f = (_centre(data[p, a], data[p, a + 3]) - cmin[a]) * scale[a]
-            b = last
+            b = np.uint64(last)
             if f < last:
-                b = int(f)
+                b = np.uint64(f)    # unsigned: no negative-index wrap on the bins
             bin_count[a, b] += 1
             bin_weight[a, b] += w
             bin_box[a, b, 0] = min(bin_box[a, b, 0], lx)
