@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from support import box_area, same_arrays
 
-from raykernel.aggregates.bvh import SMALL_NODE, BVHArrays, build_bvh, is_leaf, refit
+from raykernel.aggregates.bvh import FEW_BINS, FEW_BINS_ITEMS, SMALL_NODE, BVHArrays, build_bvh, is_leaf, refit
 from raykernel.errors import OptionError
 
 EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
@@ -521,6 +521,33 @@ def test_a_small_node_takes_the_exact_sah_split(seed, n, block):
     left, right = bvh.first[0], bvh.first[0] + 1
     chosen = sum(box_area(bvh.bounds[c]) * math.ceil(bvh_items(bvh, c).size / block) for c in (left, right))
     assert chosen == pytest.approx(min(exact_split_costs(items, block)), rel=1e-12)
+
+
+def binned_split_costs(items, bins, block=1):
+    """Every boundary between non-empty bins of `bins` equal centroid bins on every axis with a
+    centroid extent (the builder's rule): the summed child cost, brute force."""
+    centre = 0.5 * items[:, :3] + 0.5 * items[:, 3:]
+    lo, ext = centre.min(0), centre.max(0) - centre.min(0)
+    costs = []
+    for a in range(3):
+        if ext[a] == 0:
+            continue
+        b = np.minimum(((centre[:, a] - lo[a]) * (bins / ext[a])).astype(int), bins - 1)
+        for j in np.unique(b)[1:]:
+            sides = np.flatnonzero(b < j), np.flatnonzero(b >= j)
+            costs.append(sum(float(box_area(np.concatenate([items[s, :3].min(0), items[s, 3:].max(0)])))
+                             * math.ceil(len(s) / block) for s in sides))
+    return costs
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("n", [SMALL_NODE + 1, 40, FEW_BINS_ITEMS])
+def test_a_node_of_few_items_bins_into_few_bins(seed, n):
+    rng = np.random.default_rng(seed)
+    items = random_boxes(rng, n, size=0.05)
+    bvh, _ = build_bvh(items, leaf_size=1, bins=16)
+    chosen = sum(box_area(bvh.bounds[c]) * bvh_items(bvh, c).size for c in (bvh.first[0], bvh.first[0] + 1))
+    assert chosen == pytest.approx(min(binned_split_costs(items, FEW_BINS)), rel=1e-12)
 
 
 def bvh_items(bvh, node):

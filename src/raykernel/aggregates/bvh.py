@@ -52,9 +52,12 @@ When the parent box has zero area (all
 items lie on one line or are one point) M is the half-perimeter instead,
 which still favours splits into short, balanced pieces. Measures are taken on
 boxes scaled by the parent's largest extent, so neither 1e-200 nor 1e200
-coordinates underflow or overflow the areas. A node of at most SMALL_NODE
-items is not binned: its items are sorted by centroid on each of those axes
-and every boundary between them is scored (the exact SAH split, for less work
+coordinates underflow or overflow the areas. A node of at most FEW_BINS_ITEMS
+items bins into at most FEW_BINS bins (the sweeps over 16 bins were much of a
+small node's work; its split is as good by the SAH and the casts' work the
+same). A node of at most SMALL_NODE
+items is not binned: its items are sorted by centroid on each axis with a
+centroid extent and every boundary between them is scored (the exact SAH split, for less work
 than the bins' sweeps at that size).
 
 A node becomes a leaf when it has at most ``leaf_size`` items and its leaf
@@ -91,6 +94,7 @@ from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, 
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item_bounds"]
 
 _MAX_BINS = 1024
+FEW_BINS, FEW_BINS_ITEMS = 8, 64   # nodes of at most FEW_BINS_ITEMS items bin into at most FEW_BINS bins
 SMALL_NODE = 16             # nodes of at most this many items take the exact SAH over their sorted centroids
 SAMPLE_ITEMS = 1 << 10      # a node of n items bins every (n // SAMPLE_ITEMS)-th: about this many to 2x as many
 # a build's row of an item: its box (6) and its weight; the centre the SAH bins is computed from the
@@ -495,12 +499,13 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         # such axis, however thin: skipping the thin ones cost the teapot in a stadium a fifth of
         # its SAH cost, the split between the teapot and the ground being across the thin axis)
         any_axis = False
+        nb = bins if cnt > FEW_BINS_ITEMS else min(bins, FEW_BINS)      # this node's bins
         for k in range(3):
             cmin[k] = st_cb[top, k]
             ext = st_cb[top, k + 3] - st_cb[top, k]
             scale[k] = 0.0
             if ext > 0.0 and ext < np.inf:
-                sc = bins / ext
+                sc = nb / ext
                 if sc < np.inf:
                     scale[k] = sc
                     any_axis = True
@@ -533,10 +538,10 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             # a large node bins a sample of its items (every stride-th): its split is as good, for
             # far less work; its children's boxes then come from the items themselves
             stride = max(stride, cnt // SAMPLE_ITEMS)
-            weight = _bin_range(data, s, e, stride, cmin, scale, bins, bin_count, bin_weight, bin_box)
+            weight = _bin_range(data, s, e, stride, cmin, scale, nb, bin_count, bin_weight, bin_box)
             # measures on boxes scaled by the parent's largest extent
             inv, parent_measure, use_area = _scaled_measure(bounds, node)
-            best, split_axis, split_bin = _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area,
+            best, split_axis, split_bin = _best_split(bin_count, bin_box, bin_weight, scale, nb, inv, use_area,
                                                       block, nonempty, left_measure, right_measure, box)
             if split_axis >= 0:
                 split_cost = traversal_cost + best / parent_measure * intersection_cost
@@ -546,8 +551,8 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             elif cnt > leaf_size:
                 split_axis = 3  # no usable boundary (non-finite measures): middle split
             if 0 <= split_axis < 3 and stride == 1:
-                _child_boxes(bin_count, bin_box, split_axis, bins, split_bin, lbox, rbox)
-            _clear_bins(bin_count, bin_weight, bin_box, scale, bins)
+                _child_boxes(bin_count, bin_box, split_axis, nb, split_bin, lbox, rbox)
+            _clear_bins(bin_count, bin_weight, bin_box, scale, nb)
 
         if split_axis < 0:
             first[node] = s
@@ -558,7 +563,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             _range_bounds(data, s, mid, lbox, lcb)
             _range_bounds(data, mid, e, rbox, rcb)
         elif split_axis < 3:
-            mid = _partition(data, order, s, e, split_axis, cmin, scale, bins, split_bin, lcb, rcb, stride > 1,
+            mid = _partition(data, order, s, e, split_axis, cmin, scale, nb, split_bin, lcb, rcb, stride > 1,
                              lbox, rbox)
 
         left = next_node
