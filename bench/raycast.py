@@ -321,7 +321,9 @@ def main():
              "from (bvh(width=2)), one run; generic: "
              "raykernel through the general traversal (traverse.py) instead of the mesh kernel, one run. "
              "tests/ray: triangle tests; boxes/ray: child boxes tested (4-wide: one per used child slot of "
-             "each node visited); nodes/ray: 4-wide nodes visited, and binary nodes with width 2.",
+             "each node visited); nodes/ray: 4-wide nodes visited, and binary nodes with width 2; ns/node: a ray's "
+             "time on one thread (threads / raykernel Mrays/s) over the 4-wide nodes it visits, its triangle tests "
+             "included: where incoherent rays' time goes, next to coherent rays' on the same tree.",
              "",
              "Mitsuba 3 (variant llvm_ad_rgb, `scene.ray_intersect`, Embree underneath, its thread count "
              "set with drjit) and Open3D (`RaycastingScene.cast_rays`, nthreads) on the same rays, float32, "
@@ -333,8 +335,8 @@ def main():
              "| mesh | triangles | rays | threads | raykernel Mrays/s | every field Mrays/s | embreex Mrays/s | "
              "ratio | agree | "
              "mitsuba Mrays/s | ratio | agree | open3d Mrays/s | ratio | agree | "
-             "width 2 Mrays/s | generic Mrays/s | tests/ray | boxes/ray | nodes/ray | nodes/ray width 2 |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "width 2 Mrays/s | generic Mrays/s | tests/ray | boxes/ray | nodes/ray | nodes/ray width 2 | ns/node |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         cells = []
         for peer in ("mitsuba", "open3d"):
@@ -344,7 +346,7 @@ def main():
                      f"{r['em']:.2f} | "
                      f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {' | '.join(cells)} | {r['binary']:.2f} | "
                      f"{r['generic']:.2f} | {r['tests']:.1f} | {r['bounds']:.1f} | {r['nodes']:.1f} | "
-                     f"{r['nodes_binary']:.1f} |")
+                     f"{r['nodes_binary']:.1f} | {r['threads'] * 1e3 / r['rk'] / max(r['nodes'], 1e-9):.0f} |")
     for peer, why in (rows[0]["missing"] if rows else {}).items():
         lines += ["", f"{peer} is not in this table: it does not run here ({why})."]
     lines += ["", f"JIT compile in a fresh process (import, build a 1-triangle scene, intersect and count_hits): "

@@ -11,10 +11,10 @@ and most of a build's time. Here the kernel's arrays are made from the user's ve
 face arrays alone, which it reads but does not copy:
 
 * the tree over the triangles' boxes, built on every core (bvh.py's binned
-  SAH, or its Morton-order build), its boxes widened by the culling margin
-  a scene's BVH gets (boxes.cull_margin);
-* the tree collapsed 4-wide with float32 boxes rounded outwards (widebvh.py,
-  128 bytes a node), its leaves' triangles in float64 blocks of four
+  SAH, or its Morton-order build);
+* the tree collapsed 4-wide, its boxes widened by the culling margin a
+  scene's BVH gets (boxes.cull_margin) and rounded outwards to float32
+  (widebvh.py, 128 bytes a node), its leaves' triangles in float64 blocks of four
   (triangles4.py, 288 bytes a block, and 4 bytes a lane naming the triangle);
 * a bool a triangle (smooth shading where vertex normals are given).
 
