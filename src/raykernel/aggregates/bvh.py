@@ -826,8 +826,9 @@ def build_rows(data, method="sah", leaf_size=4, bins=16, traversal_cost=1.0, int
     return _build_sah(data, leaf_size, bins, traversal_cost, intersection_cost, block, threads, compact)
 
 
-# items from which a build is split over threads, and the largest subtree built by one thread's call
-PARALLEL_ITEMS = 1 << 15
+# items from which a build is split over threads (a mesh of some ten thousand triangles already builds
+# sooner on two), and the largest subtree built by one thread's call
+PARALLEL_ITEMS = 1 << 13
 DEFER_ITEMS = 1 << 12
 HEAD_PARTS = 8              # the head, on the calling thread, splits nodes of more than 1/8 of the items
 TOP_STACK = 1 << 16         # work items the top's stack holds (a deeper top defers the rest as tasks)
