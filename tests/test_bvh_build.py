@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from support import box_area, same_arrays
 
-from raykernel.aggregates.bvh import FEW_BINS, FEW_BINS_ITEMS, SMALL_NODE, BVHArrays, build_bvh, is_leaf, refit
+from raykernel.aggregates.bvh import (FEW_BINS, FEW_BINS_ITEMS, FEWEST_BINS, FEWEST_BINS_ITEMS, BVHArrays, build_bvh,
+                                      is_leaf, refit)
 from raykernel.errors import OptionError
 
 EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
@@ -495,34 +496,6 @@ def test_sah_beats_median_split():
     assert sah < min(median_split_sah_cost(items, 4, axis=a) for a in (1, 2))
 
 
-def exact_split_costs(items, block=1):
-    """Every split of items by rank of centroid on every axis whose centroid extent is not zero: the
-    summed child cost (area times items in blocks), brute force."""
-    centre = (items[:, :3] + items[:, 3:]) / 2
-    extent = centre.max(0) - centre.min(0)
-    costs = []
-    for a in range(3):
-        if extent[a] == 0:
-            continue
-        srt = np.argsort(centre[:, a], kind="stable")
-        for j in range(1, len(items)):
-            sides = srt[:j], srt[j:]
-            costs.append(sum(float(box_area(np.concatenate([items[s, :3].min(0), items[s, 3:].max(0)])))
-                             * math.ceil(len(s) / block) for s in sides))
-    return costs
-
-
-@pytest.mark.parametrize("seed", range(6))
-@pytest.mark.parametrize("n, block", [(5, 1), (9, 1), (SMALL_NODE, 1), (SMALL_NODE, 4), (12, 4)])
-def test_a_small_node_takes_the_exact_sah_split(seed, n, block):
-    rng = np.random.default_rng(seed)
-    items = random_boxes(rng, n, size=0.3)
-    bvh, _ = build_bvh(items, leaf_size=1, block=block)
-    left, right = bvh.first[0], bvh.first[0] + 1
-    chosen = sum(box_area(bvh.bounds[c]) * math.ceil(bvh_items(bvh, c).size / block) for c in (left, right))
-    assert chosen == pytest.approx(min(exact_split_costs(items, block)), rel=1e-12)
-
-
 def binned_split_costs(items, bins, block=1):
     """Every boundary between non-empty bins of `bins` equal centroid bins on every axis with a
     centroid extent (the builder's rule): the summed child cost, brute force."""
@@ -541,13 +514,14 @@ def binned_split_costs(items, bins, block=1):
 
 
 @pytest.mark.parametrize("seed", range(6))
-@pytest.mark.parametrize("n", [SMALL_NODE + 1, 40, FEW_BINS_ITEMS])
-def test_a_node_of_few_items_bins_into_few_bins(seed, n):
+@pytest.mark.parametrize("n, bins", [(5, FEWEST_BINS), (FEWEST_BINS_ITEMS, FEWEST_BINS),
+                                     (FEWEST_BINS_ITEMS + 1, FEW_BINS), (40, FEW_BINS), (FEW_BINS_ITEMS, FEW_BINS)])
+def test_a_node_of_few_items_bins_into_few_bins(seed, n, bins):
     rng = np.random.default_rng(seed)
     items = random_boxes(rng, n, size=0.05)
     bvh, _ = build_bvh(items, leaf_size=1, bins=16)
     chosen = sum(box_area(bvh.bounds[c]) * bvh_items(bvh, c).size for c in (bvh.first[0], bvh.first[0] + 1))
-    assert chosen == pytest.approx(min(binned_split_costs(items, FEW_BINS)), rel=1e-12)
+    assert chosen == pytest.approx(min(binned_split_costs(items, bins)), rel=1e-12)
 
 
 def bvh_items(bvh, node):

@@ -53,12 +53,11 @@ items lie on one line or are one point) M is the half-perimeter instead,
 which still favours splits into short, balanced pieces. Measures are taken on
 boxes scaled by the parent's largest extent, so neither 1e-200 nor 1e200
 coordinates underflow or overflow the areas. A node of at most FEW_BINS_ITEMS
-items bins into at most FEW_BINS bins (the sweeps over 16 bins were much of a
-small node's work; its split is as good by the SAH and the casts' work the
-same). A node of at most SMALL_NODE
-items is not binned: its items are sorted by centroid on each axis with a
-centroid extent and every boundary between them is scored (the exact SAH split, for less work
-than the bins' sweeps at that size).
+items bins into at most FEW_BINS bins, one of at most FEWEST_BINS_ITEMS into
+FEWEST_BINS (the sweeps over 16 bins were much of a small node's work; the
+trees are as good by the SAH and the casts' counted work the same; the exact
+SAH split over sorted centroids, tried at these sizes, built no faster and
+took longer to compile).
 
 A node becomes a leaf when it has at most ``leaf_size`` items and its leaf
 cost ``blocks(weight) * intersection_cost`` is not worse than the best split;
@@ -94,8 +93,9 @@ from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, 
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item_bounds"]
 
 _MAX_BINS = 1024
-FEW_BINS, FEW_BINS_ITEMS = 8, 64   # nodes of at most FEW_BINS_ITEMS items bin into at most FEW_BINS bins
-SMALL_NODE = 16             # nodes of at most this many items take the exact SAH over their sorted centroids
+# a node of at most FEW_BINS_ITEMS items bins into at most FEW_BINS bins, one of at most FEWEST_BINS_ITEMS into
+# FEWEST_BINS
+FEW_BINS, FEW_BINS_ITEMS, FEWEST_BINS, FEWEST_BINS_ITEMS = 8, 64, 6, 16
 SAMPLE_ITEMS = 1 << 10      # a node of n items bins every (n // SAMPLE_ITEMS)-th: about this many to 2x as many
 # a build's row of an item: its box (6) and its weight; the centre the SAH bins is computed from the
 # box as it is needed (_centre), which reads less memory a pass than storing it
@@ -299,102 +299,6 @@ def _partition(data, order, s, e, a, cmin, scale, bins, split_bin, lcb, rcb, box
 
 
 @njit(private=True)
-def _grow(box, data, p):
-    """Grow box by item p's box."""
-    for k in range(3):
-        box[k] = min(box[k], data[p, k])
-        box[k + 3] = max(box[k + 3], data[p, k + 3])
-
-
-@njit(inline="always")
-def _measure(box, inv, use_area):
-    ex = (box[3] - box[0]) * inv
-    ey = (box[4] - box[1]) * inv
-    ez = (box[5] - box[2]) * inv
-    return 2.0 * (ex * ey + ey * ez + ez * ex) if use_area else ex + ey + ez
-
-
-@njit(private=True)
-def _small_split(data, s, e, scale, inv, use_area, block, keys, idx, best_idx, right, box):
-    """The exact SAH split of a small node, data[s:e] (at most SMALL_NODE items): on each axis
-    with a scale, the items sorted by centroid (insertion sort) and every boundary between them
-    priced. Returns (summed child cost, axis or -1, items on the left, total weight); best_idx[:n]
-    the chosen axis' order (positions from s)."""
-    cnt = e - s
-    best = np.inf
-    split_axis = -1
-    n_left = 0
-    weight = 0.0
-    for i in range(cnt):
-        weight += data[s + i, WEIGHT]
-    for a in range(3):
-        if scale[a] == 0.0:
-            continue
-        for i in range(cnt):
-            key = data[s + i, a] + data[s + i, a + 3]       # twice the centroid: the order is the same
-            keys[i] = key
-            j = i
-            while j > 0 and keys[idx[j - 1]] > key:
-                idx[j] = idx[j - 1]
-                j -= 1
-            idx[j] = i
-        _empty_box(box)
-        w = 0.0
-        for j in range(cnt - 1, 0, -1):
-            p = s + idx[j]
-            _grow(box, data, p)
-            w += data[p, WEIGHT]
-            right[j] = _measure(box, inv, use_area) * _priced(w, block)
-        _empty_box(box)
-        w = 0.0
-        better = False
-        for j in range(cnt - 1):
-            p = s + idx[j]
-            _grow(box, data, p)
-            w += data[p, WEIGHT]
-            c = _measure(box, inv, use_area) * _priced(w, block) + right[j + 1]
-            if c < best:
-                best = c
-                split_axis = a
-                n_left = j + 1
-                better = True
-        if better:
-            for i in range(cnt):
-                best_idx[i] = idx[i]
-    return best, split_axis, n_left, weight
-
-
-@njit(private=True)
-def _small_partition(data, order, s, e, best_idx, n_left, rows, rows_order, lcb, rcb, lbox, rbox):
-    """Put data[s:e] (and order) in best_idx's order, gathering the boxes and centroid boxes of
-    its first n_left items and the rest."""
-    cnt = e - s
-    for i in range(cnt):
-        p = s + best_idx[i]
-        for k in range(ROW_COLUMNS):
-            rows[i, k] = data[p, k]
-        rows_order[i] = order[p]
-    _empty_box(lcb)
-    _empty_box(rcb)
-    _empty_box(lbox)
-    _empty_box(rbox)
-    for i in range(cnt):
-        p = s + i
-        for k in range(ROW_COLUMNS):
-            data[p, k] = rows[i, k]
-        order[p] = rows_order[i]
-        left = i < n_left
-        cb = lcb if left else rcb
-        box = lbox if left else rbox
-        for k in range(3):
-            c = _centre(data[p, k], data[p, k + 3])
-            cb[k] = min(cb[k], c)
-            cb[k + 3] = max(cb[k + 3], c)
-            box[k] = min(box[k], data[p, k])
-            box[k + 3] = max(box[k + 3], data[p, k + 3])
-
-
-@njit(private=True)
 def _leaf_is_cheapest(data, s, e, block, traversal_cost, intersection_cost):
     """A leaf of data[s:e] costs no more than the traversal of a split alone (which every split
     costs at least): a leaf with no need to bin."""
@@ -459,7 +363,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             _empty_box(bin_box[a, b])
     nonempty = np.empty(bins, dtype=np.int64)
     left_measure = np.empty(bins, dtype=np.float64)
-    right_measure = np.empty(max(bins, SMALL_NODE), dtype=np.float64)
+    right_measure = np.empty(bins, dtype=np.float64)
     box = np.empty(6, dtype=np.float64)
     lbox = np.empty(6, dtype=np.float64)
     rbox = np.empty(6, dtype=np.float64)
@@ -467,11 +371,6 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
     rcb = np.empty(6, dtype=np.float64)
     scale = np.zeros(3, dtype=np.float64)
     cmin = np.zeros(3, dtype=np.float64)
-    keys = np.empty(SMALL_NODE, dtype=np.float64)
-    idx = np.empty(SMALL_NODE, dtype=np.int64)
-    best_idx = np.empty(SMALL_NODE, dtype=np.int64)
-    rows = np.empty((SMALL_NODE, ROW_COLUMNS), dtype=np.float64)
-    rows_order = np.empty(SMALL_NODE, dtype=np.int64)
     max_depth = 0
     done = 0
 
@@ -499,7 +398,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         # such axis, however thin: skipping the thin ones cost the teapot in a stadium a fifth of
         # its SAH cost, the split between the teapot and the ground being across the thin axis)
         any_axis = False
-        nb = bins if cnt > FEW_BINS_ITEMS else min(bins, FEW_BINS)      # this node's bins
+        nb = bins if cnt > FEW_BINS_ITEMS else min(bins, FEW_BINS if cnt > FEWEST_BINS_ITEMS else FEWEST_BINS)
         for k in range(3):
             cmin[k] = st_cb[top, k]
             ext = st_cb[top, k + 3] - st_cb[top, k]
@@ -519,20 +418,6 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         elif not any_axis:
             # all centroids coincide: a leaf, or a middle split by count when too many
             if cnt > leaf_size:
-                split_axis = 3
-        elif cnt <= SMALL_NODE:
-            inv, parent_measure, use_area = _scaled_measure(bounds, node)
-            best, split_axis, n_left, weight = _small_split(data, s, e, scale, inv, use_area, block, keys, idx,
-                                                            best_idx, right_measure, box)
-            if split_axis >= 0:
-                if cnt <= leaf_size and _priced(weight, block) * intersection_cost <= (
-                        traversal_cost + best / parent_measure * intersection_cost):
-                    split_axis = -1
-                else:
-                    _small_partition(data, order, s, e, best_idx, n_left, rows, rows_order, lcb, rcb, lbox, rbox)
-                    mid = s + n_left
-                    split_axis = 4
-            elif cnt > leaf_size:
                 split_axis = 3
         else:
             # a large node bins a sample of its items (every stride-th): its split is as good, for
@@ -562,7 +447,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         if split_axis == 3:
             _range_bounds(data, s, mid, lbox, lcb)
             _range_bounds(data, mid, e, rbox, rcb)
-        elif split_axis < 3:
+        else:
             mid = _partition(data, order, s, e, split_axis, cmin, scale, nb, split_bin, lcb, rcb, stride > 1,
                              lbox, rbox)
 

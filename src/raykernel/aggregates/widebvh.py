@@ -112,12 +112,12 @@ def _up(x):
     return y
 
 
-@njit(inline="always")
+@njit(private=True)
 def _is_inner(first, count, c):
     return count[c] == 0 and first[c] > c
 
 
-@njit(inline="always")
+@njit(private=True)
 def _area(bounds, c):
     ex = bounds[c, 3] - bounds[c, 0]
     ey = bounds[c, 4] - bounds[c, 1]
@@ -214,7 +214,7 @@ def _collapse_kernel(bounds, first, count, root, margin, center, nodes, boxes):
     return made, total / root_area, largest_ref
 
 
-@njit(inline="always")
+@njit(private=True)
 def _area_widened(bounds, c, margin):
     ex = bounds[c, 3] - bounds[c, 0] + 2.0 * margin
     ey = bounds[c, 4] - bounds[c, 1] + 2.0 * margin
