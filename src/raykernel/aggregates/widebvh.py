@@ -142,17 +142,11 @@ def _collapse_kernel(bounds, first, count, root, margin, center, nodes, boxes):
     made = 1
     stack[0] = 0
     sp = 1
-    widened = np.empty(6)
     largest_ref = 0
-    root_area = 1.0
-    total = 0.0
-    for k in range(3):
-        widened[k] = bounds[root, k] - margin
-        widened[k + 3] = bounds[root, k + 3] + margin
-    area = (widened[3] - widened[0]) * (widened[4] - widened[1]) + (widened[4] - widened[1]) * (
-        widened[5] - widened[2]) + (widened[5] - widened[2]) * (widened[3] - widened[0])
-    if area > 0.0:
-        root_area = area
+    root_area = _area_widened(bounds, root, margin)
+    total = root_area * (count[root] if not _is_inner(first, count, root) and count[root] > 0 else 1)
+    if not root_area > 0.0:
+        root_area = 1.0
     while sp > 0:
         sp -= 1
         w = stack[sp]
@@ -209,8 +203,6 @@ def _collapse_kernel(bounds, first, count, root, margin, center, nodes, boxes):
                     total += _area_widened(bounds, c, margin) * count[c]
         for j in range(sp - top):               # the first inner child on top: filled next
             stack[sp - 1 - j] = made - (sp - top) + j
-    leaf_root = not _is_inner(first, count, root)
-    total += root_area * (count[root] if leaf_root and count[root] > 0 else 1)
     return made, total / root_area, largest_ref
 
 
