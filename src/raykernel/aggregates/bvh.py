@@ -93,8 +93,7 @@ from .walk import MAX_TREE_DEPTH, START, Cells, Field, Walk, answer, entry_tag, 
 __all__ = ["BVHArrays", "build_bvh", "refit", "refit_moved", "is_leaf", "as_item_bounds"]
 
 _MAX_BINS = 1024
-# a node of at most FEW_BINS_ITEMS items bins into at most FEW_BINS bins, one of at most FEWEST_BINS_ITEMS into
-# FEWEST_BINS
+# the bins of small nodes (the module's splitting rules)
 FEW_BINS, FEW_BINS_ITEMS, FEWEST_BINS, FEWEST_BINS_ITEMS = 8, 64, 6, 16
 SAMPLE_ITEMS = 1 << 10      # a node of n items bins every (n // SAMPLE_ITEMS)-th: about this many to 2x as many
 # a build's row of an item: its box (6) and its weight; the centre the SAH bins is computed from the

@@ -118,10 +118,11 @@ def _is_inner(first, count, c):
 
 
 @njit(private=True)
-def _area(bounds, c):
-    ex = bounds[c, 3] - bounds[c, 0]
-    ey = bounds[c, 4] - bounds[c, 1]
-    ez = bounds[c, 5] - bounds[c, 2]
+def _area(bounds, c, margin):
+    """Half the surface area of binary node c's box widened by margin on every side."""
+    ex = bounds[c, 3] - bounds[c, 0] + 2.0 * margin
+    ey = bounds[c, 4] - bounds[c, 1] + 2.0 * margin
+    ez = bounds[c, 5] - bounds[c, 2] + 2.0 * margin
     return ex * ey + ey * ez + ez * ex
 
 
@@ -143,7 +144,7 @@ def _collapse_kernel(bounds, first, count, root, margin, center, nodes, boxes):
     stack[0] = 0
     sp = 1
     largest_ref = 0
-    root_area = _area_widened(bounds, root, margin)
+    root_area = _area(bounds, root, margin)
     total = root_area * (count[root] if not _is_inner(first, count, root) and count[root] > 0 else 1)
     if not root_area > 0.0:
         root_area = 1.0
@@ -164,14 +165,14 @@ def _collapse_kernel(bounds, first, count, root, margin, center, nodes, boxes):
             for s in range(k):
                 c = slots[s]
                 if _is_inner(first, count, c):
-                    a = _area(bounds, c)
+                    a = _area(bounds, c, 0.0)
                     if a > largest:
                         largest = a
                         pick = s
             if pick < 0:
                 break
             c = slots[pick]
-            total += _area_widened(bounds, c, margin)
+            total += _area(bounds, c, margin)
             slots[pick] = first[c]
             slots[k] = first[c] + 1
             k += 1
@@ -194,24 +195,16 @@ def _collapse_kernel(bounds, first, count, root, margin, center, nodes, boxes):
                 todo[made] = c
                 made += 1
                 sp += 1
-                total += _area_widened(bounds, c, margin)
+                total += _area(bounds, c, margin)
             else:
                 nodes[w, CHILD + s] = first[c]
                 nodes[w, COUNT + s] = count[c]
                 largest_ref = max(largest_ref, first[c])
                 if c != root:
-                    total += _area_widened(bounds, c, margin) * count[c]
+                    total += _area(bounds, c, margin) * count[c]
         for j in range(sp - top):               # the first inner child on top: filled next
             stack[sp - 1 - j] = made - (sp - top) + j
     return made, total / root_area, largest_ref
-
-
-@njit(private=True)
-def _area_widened(bounds, c, margin):
-    ex = bounds[c, 3] - bounds[c, 0] + 2.0 * margin
-    ey = bounds[c, 4] - bounds[c, 1] + 2.0 * margin
-    ez = bounds[c, 5] - bounds[c, 2] + 2.0 * margin
-    return ex * ey + ey * ez + ez * ex
 
 
 def _aligned(rows: int) -> np.ndarray:
