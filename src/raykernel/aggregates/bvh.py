@@ -81,6 +81,7 @@ import numpy as np
 from ..errors import OptionError, SceneError
 from ..geometry import counters as C
 from ..geometry.boxes import INF, box_entry, cull_margin
+from ..geometry.boxrows import HI, ROW, bin3, empty, grow, grow_centre, swap
 from ..geometry.compiletime import CompileClock, compile_notice
 from ..geometry.config import njit
 from ..geometry.primitives import PRIMITIVE_KINDS
@@ -96,10 +97,11 @@ _MAX_BINS = 1024
 # the bins of small nodes (the module's splitting rules)
 FEW_BINS, FEW_BINS_ITEMS, FEWEST_BINS, FEWEST_BINS_ITEMS = 8, 64, 6, 16
 SAMPLE_ITEMS = 1 << 10      # a node of n items bins every (n // SAMPLE_ITEMS)-th: about this many to 2x as many
-# a build's row of an item: its box (6) and its weight; the centre the SAH bins is computed from the
-# box as it is needed (_centre), which reads less memory a pass than storing it
-ROW_COLUMNS = 7
-WEIGHT = 6
+# a build's row of an item (boxrows.py): its box's low corner and weight, its high corner (from column
+# HI) and a zero; the centre the SAH bins is computed from the box as it is needed (_centre), which
+# reads less memory a pass than storing it
+ROW_COLUMNS = ROW
+WEIGHT = 3
 _COMPILING = "raykernel: compiling the BVH builder (first use after install, a few seconds)"
 # corners a polygon's inside test walks in the time of one whole primitive test (a corner
 # walked costs a fraction of a whole test; the cost model's calibration measures both:
@@ -115,132 +117,122 @@ def _centre(lo, hi):
 
 @njit
 def _range_bounds(data, start, end, box, cbox):
-    """Union of the item boxes (into box) and centroids (into cbox) of data[start:end]."""
-    for k in range(3):
-        box[k] = np.inf
-        box[k + 3] = -np.inf
-        cbox[k] = np.inf
-        cbox[k + 3] = -np.inf
+    """Union of the item boxes (into box) and centroids (into cbox) of data[start:end], as rows."""
+    empty(box, 0)
+    empty(cbox, 0)
     for p in range(start, end):
-        for k in range(3):
-            lo = data[p, k]
-            hi = data[p, k + 3]
-            c = _centre(lo, hi)
-            box[k] = min(box[k], lo)
-            box[k + 3] = max(box[k + 3], hi)
-            cbox[k] = min(cbox[k], c)
-            cbox[k + 3] = max(cbox[k + 3], c)
+        grow(box, 0, data, p * ROW)
+        grow_centre(cbox, 0, data, p * ROW)
+
+
+@njit(inline="always")
+def _put_box(bounds, node, box):
+    """bounds[node] (six columns) = the box row `box`."""
+    for k in range(3):
+        bounds[node, k] = box[k]
+        bounds[node, k + 3] = box[k + HI]
 
 
 @njit(inline="always")
 def _priced(weight, block):
-    """Items of total `weight` priced in blocks of `block` (rounded up); weight itself for 1."""
-    return weight if block == 1 else float(math.ceil(weight / block))
-
-
-@njit(private=True)
-def _empty_box(box):
-    for k in range(3):
-        box[k] = np.inf
-        box[k + 3] = -np.inf
+    """Items of total `weight` priced in blocks of `block` (rounded up); weight itself for 1.
+    A power of two divides as a product by its inverse (the same number, and no division in a
+    sweep: the inverse is taken once, outside the loop)."""
+    if block == 1:
+        return weight
+    if block & (block - 1) == 0:
+        return float(math.ceil(weight * (1.0 / block)))
+    return float(math.ceil(weight / block))
 
 
 @njit(private=True)
 def _bin_range(data, s, e, stride, cmin, scale, bins, bin_count, bin_weight, bin_box):
     """Drop the centroids of every stride-th item of data[s:e] into the bins of every axis with a
-    scale (0: not binned); returns the binned items' total weight."""
+    scale (0: not binned); returns the binned items' total weight. bin_box: (3, bins, ROW) rows."""
     weight = 0.0
     last = bins - 1
+    stride_a = bin_box.shape[1]     # bins an axis holds (this node may use fewer)
     for p in range(s, e, stride):
         w = data[p, WEIGHT]
         weight += w
-        lx, ly, lz, hx, hy, hz = data[p, 0], data[p, 1], data[p, 2], data[p, 3], data[p, 4], data[p, 5]
+        axis_bins = bin3(data, p * ROW, cmin, scale, last)
         for a in range(3):
             if scale[a] == 0.0:
                 continue
-            f = (_centre(data[p, a], data[p, a + 3]) - cmin[a]) * scale[a]
-            b = np.uint64(last)
-            if f < last:
-                b = np.uint64(f)    # unsigned: no negative-index wrap on the bins
+            b = axis_bins[a]
             bin_count[a, b] += 1
             bin_weight[a, b] += w
-            bin_box[a, b, 0] = min(bin_box[a, b, 0], lx)
-            bin_box[a, b, 1] = min(bin_box[a, b, 1], ly)
-            bin_box[a, b, 2] = min(bin_box[a, b, 2], lz)
-            bin_box[a, b, 3] = max(bin_box[a, b, 3], hx)
-            bin_box[a, b, 4] = max(bin_box[a, b, 4], hy)
-            bin_box[a, b, 5] = max(bin_box[a, b, 5], hz)
+            grow(bin_box, (a * stride_a + b) * ROW, data, p * ROW)
     return weight
 
 
-@njit(private=True)
-def _sweep(bin_box, bin_weight, nonempty, nn, a, inv, use_area, block, backwards, box, out):
-    """The SAH sweep over axis a's non-empty bins nonempty[:nn], in one direction: out[j] is the
-    measure (surface area, or half-perimeter where the parent is flat) of the union of bins
-    nonempty[:j + 1] (forwards) or nonempty[j:] (backwards), boxes scaled by inv, times their
-    priced weight; for j in 0..nn-2 forwards, 1..nn-1 backwards."""
-    _empty_box(box)
-    weight = 0.0
-    for step in range(nn - 1):
-        j = nn - 1 - step if backwards else step
-        b = nonempty[j]
-        weight += bin_weight[a, b]
-        for k in range(3):
-            if bin_box[a, b, k] < box[k]:
-                box[k] = bin_box[a, b, k]
-            if bin_box[a, b, k + 3] > box[k + 3]:
-                box[k + 3] = bin_box[a, b, k + 3]
-        ex = (box[3] - box[0]) * inv
-        ey = (box[4] - box[1]) * inv
-        ez = (box[5] - box[2]) * inv
-        measure = 2.0 * (ex * ey + ey * ez + ez * ex) if use_area else ex + ey + ez
-        out[j] = measure * _priced(weight, block)
+@njit(inline="always")
+def _measure(box, inv, use_area):
+    """The measure of a box row scaled by inv: its surface area, or its half-perimeter (a flat parent)."""
+    ex = (box[HI] - box[0]) * inv
+    ey = (box[HI + 1] - box[1]) * inv
+    ez = (box[HI + 2] - box[2]) * inv
+    return 2.0 * (ex * ey + ey * ez + ez * ex) if use_area else ex + ey + ez
 
 
-@njit(private=True)
-def _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area, block, nonempty, left, right, box):
+@njit(inline="always")
+def _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area, block, nonempty, right, box):
     """The cheapest boundary over the binned axes: (summed child cost, axis, first bin of the
-    right side), axis -1 when no axis has two non-empty bins. Boundaries between empty bins give
-    the same partition as the one just left of the next non-empty bin, so only those are priced;
-    ties go to the later axis' and the right-most boundary's first."""
+    right side), axis -1 when no axis has two non-empty bins. A side's cost is the measure of its
+    bins' box (scaled by inv) times their priced weight. Boundaries between empty bins give the
+    same partition as the one just left of the next non-empty bin, so only those are priced;
+    ties go to the earlier axis and, on one axis, to the right-most boundary."""
     best = np.inf
     split_axis = -1
     split_bin = 0
+    stride = bin_box.shape[1]
     for a in range(3):
         if scale[a] == 0.0:
             continue
-        nn = np.int64(0)        # not the literal 0: numba would compile _sweep again for it
+        nn = 0
         for b in range(bins):
             if bin_count[a, b] > 0:
                 nonempty[nn] = b
                 nn += 1
-        for direction in range(2):      # forwards into left, backwards into right: a runtime flag, one compile
-            _sweep(bin_box, bin_weight, nonempty, nn, a, inv, use_area, block, direction == 1, box,
-                   right if direction == 1 else left)
+        # right[j]: the cost of the bins nonempty[j:], swept backwards; then the left side's forwards
+        empty(box, 0)
+        weight = 0.0
         for j in range(nn - 1, 0, -1):
-            c = left[j - 1] + right[j]
-            if c < best:
-                best = c
-                split_axis = a
-                split_bin = nonempty[j]
+            b = nonempty[j]
+            weight += bin_weight[a, b]
+            grow(box, 0, bin_box, (a * stride + b) * ROW)
+            right[j] = _measure(box, inv, use_area) * _priced(weight, block)
+        empty(box, 0)
+        weight = 0.0
+        axis_best = np.inf
+        axis_j = 0
+        for j in range(1, nn):
+            b = nonempty[j - 1]
+            weight += bin_weight[a, b]
+            grow(box, 0, bin_box, (a * stride + b) * ROW)
+            c = _measure(box, inv, use_area) * _priced(weight, block) + right[j]
+            if c <= axis_best:
+                axis_best = c
+                axis_j = j
+        if axis_best < best:
+            best = axis_best
+            split_axis = a
+            split_bin = nonempty[axis_j]
     return best, split_axis, split_bin
 
 
 @njit(private=True)
 def _child_boxes(bin_count, bin_box, a, bins, split_bin, lbox, rbox):
     """The boxes of the bins left of split_bin and from it on, on axis a."""
-    _empty_box(lbox)
-    _empty_box(rbox)
+    empty(lbox, 0)
+    empty(rbox, 0)
+    stride = bin_box.shape[1]
     for b in range(bins):
-        if bin_count[a, b] == 0:
-            continue
-        box = lbox if b < split_bin else rbox
-        for k in range(3):
-            box[k] = min(box[k], bin_box[a, b, k])
-            box[k + 3] = max(box[k + 3], bin_box[a, b, k + 3])
+        if bin_count[a, b] > 0:
+            grow(lbox if b < split_bin else rbox, 0, bin_box, (a * stride + b) * ROW)
 
 
-@njit(private=True)
+@njit(inline="always")
 def _clear_bins(bin_count, bin_weight, bin_box, scale, bins):
     """Leave every bin empty for the next node."""
     for a in range(3):
@@ -250,9 +242,7 @@ def _clear_bins(bin_count, bin_weight, bin_box, scale, bins):
             if bin_count[a, b] > 0:
                 bin_count[a, b] = 0
                 bin_weight[a, b] = 0.0
-                for k in range(3):
-                    bin_box[a, b, k] = np.inf
-                    bin_box[a, b, k + 3] = -np.inf
+                empty(bin_box, (a * bin_box.shape[1] + b) * ROW)
 
 
 @njit(private=True)
@@ -260,44 +250,34 @@ def _partition(data, order, s, e, a, cmin, scale, bins, split_bin, lcb, rcb, box
     """Move the items of data[s:e] (and order) whose centroid falls left of split_bin on axis a
     before the others, gathering each side's centroid box, and with `boxes` each side's box
     (lbox, rbox); returns the first of the right side."""
-    _empty_box(lcb)
-    _empty_box(rcb)
+    empty(lcb, 0)
+    empty(rcb, 0)
     if boxes:
-        _empty_box(lbox)
-        _empty_box(rbox)
+        empty(lbox, 0)
+        empty(rbox, 0)
     i = s
     j = e - 1
     while i <= j:
-        f = (_centre(data[i, a], data[i, a + 3]) - cmin[a]) * scale[a]
+        f = (_centre(data[i, a], data[i, a + HI]) - cmin[a]) * scale[a]
         b = bins - 1
         if f < bins - 1:
             b = int(f)
         left = b < split_bin
-        cb = lcb if left else rcb
-        for k in range(3):
-            c = _centre(data[i, k], data[i, k + 3])
-            cb[k] = min(cb[k], c)
-            cb[k + 3] = max(cb[k + 3], c)
+        grow_centre(lcb if left else rcb, 0, data, i * ROW)
         if boxes:
-            box = lbox if left else rbox
-            for k in range(3):
-                box[k] = min(box[k], data[i, k])
-                box[k + 3] = max(box[k + 3], data[i, k + 3])
+            grow(lbox if left else rbox, 0, data, i * ROW)
         if left:
             i += 1
             continue
         it = order[i]
         order[i] = order[j]
         order[j] = it
-        for k in range(ROW_COLUMNS):
-            x = data[i, k]
-            data[i, k] = data[j, k]
-            data[j, k] = x
+        swap(data, i * ROW, j * ROW)
         j -= 1
     return i
 
 
-@njit(private=True)
+@njit(inline="always")
 def _leaf_is_cheapest(data, s, e, block, traversal_cost, intersection_cost):
     """A leaf of data[s:e] costs no more than the traversal of a split alone (which every split
     costs at least): a leaf with no need to bin."""
@@ -330,7 +310,7 @@ def _push_work(st_node, st_start, st_end, st_depth, st_cb, top, node, s, e, dept
     st_start[top] = s
     st_end[top] = e
     st_depth[top] = depth
-    for k in range(6):
+    for k in range(ROW):
         st_cb[top, k] = cb[k]
     return top + 1
 
@@ -339,9 +319,11 @@ def _push_work(st_node, st_start, st_end, st_depth, st_cb, top, node, s, e, dept
 def _item_data(items, weights, data, i0, i1):
     """Rows i0..i1-1 of the build's per-item data: the item box and its weight."""
     for i in range(i0, i1):
-        for k in range(6):
+        for k in range(3):
             data[i, k] = items[i, k]
+            data[i, k + HI] = items[i, k + 3]
         data[i, WEIGHT] = weights[i]
+        data[i, ROW - 1] = 0.0
 
 
 @njit
@@ -356,20 +338,18 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
     (node, start, end, depth) and task_cb, for _build_tasks."""
     bin_count = np.zeros((3, bins), dtype=np.int64)
     bin_weight = np.zeros((3, bins), dtype=np.float64)
-    bin_box = np.empty((3, bins, 6), dtype=np.float64)
-    for a in range(3):
-        for b in range(bins):
-            _empty_box(bin_box[a, b])
+    bin_box = np.empty((3, bins, ROW), dtype=np.float64)
+    for b in range(3 * bins):
+        empty(bin_box, b * ROW)
     nonempty = np.empty(bins, dtype=np.int64)
-    left_measure = np.empty(bins, dtype=np.float64)
     right_measure = np.empty(bins, dtype=np.float64)
-    box = np.empty(6, dtype=np.float64)
-    lbox = np.empty(6, dtype=np.float64)
-    rbox = np.empty(6, dtype=np.float64)
-    lcb = np.empty(6, dtype=np.float64)
-    rcb = np.empty(6, dtype=np.float64)
-    scale = np.zeros(3, dtype=np.float64)
-    cmin = np.zeros(3, dtype=np.float64)
+    box = np.empty(ROW, dtype=np.float64)
+    lbox = np.empty(ROW, dtype=np.float64)
+    rbox = np.empty(ROW, dtype=np.float64)
+    lcb = np.empty(ROW, dtype=np.float64)
+    rcb = np.empty(ROW, dtype=np.float64)
+    scale = np.zeros(4, dtype=np.float64)      # boxrows.bin3's: a fourth lane, unused
+    cmin = np.zeros(4, dtype=np.float64)
     max_depth = 0
     done = 0
 
@@ -385,7 +365,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             tasks[n_tasks, 1] = s
             tasks[n_tasks, 2] = e
             tasks[n_tasks, 3] = depth
-            for k in range(6):
+            for k in range(ROW):
                 task_cb[n_tasks, k] = st_cb[top, k]
             n_tasks += 1
             continue
@@ -400,7 +380,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         nb = bins if cnt > FEW_BINS_ITEMS else min(bins, FEW_BINS if cnt > FEWEST_BINS_ITEMS else FEWEST_BINS)
         for k in range(3):
             cmin[k] = st_cb[top, k]
-            ext = st_cb[top, k + 3] - st_cb[top, k]
+            ext = st_cb[top, k + HI] - st_cb[top, k]
             scale[k] = 0.0
             if ext > 0.0 and ext < np.inf:
                 sc = nb / ext
@@ -426,7 +406,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             # measures on boxes scaled by the parent's largest extent
             inv, parent_measure, use_area = _scaled_measure(bounds, node)
             best, split_axis, split_bin = _best_split(bin_count, bin_box, bin_weight, scale, nb, inv, use_area,
-                                                      block, nonempty, left_measure, right_measure, box)
+                                                      block, nonempty, right_measure, box)
             if split_axis >= 0:
                 split_cost = traversal_cost + best / parent_measure * intersection_cost
                 leaf_cost = _priced(weight, block) * intersection_cost
@@ -454,9 +434,8 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
         next_node += 2
         first[node] = left
         count[node] = 0
-        for k in range(6):
-            bounds[left, k] = lbox[k]
-            bounds[left + 1, k] = rbox[k]
+        _put_box(bounds, left, lbox)
+        _put_box(bounds, left + 1, rbox)
         # right child below left on the stack: the left subtree is built first
         top = _push_work(st_node, st_start, st_end, st_depth, st_cb, top, left + 1, mid, e, depth + 1, rcb)
         top = _push_work(st_node, st_start, st_end, st_depth, st_cb, top, left, s, mid, depth + 1, lcb)
@@ -467,17 +446,16 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
 def _work_stack(n):
     """An empty stack of work items for ranges of at most n items."""
     return (np.empty(n + 1, dtype=np.int64), np.empty(n + 1, dtype=np.int64), np.empty(n + 1, dtype=np.int64),
-            np.empty(n + 1, dtype=np.int64), np.empty((n + 1, 6), dtype=np.float64))
+            np.empty(n + 1, dtype=np.int64), np.empty((n + 1, ROW), dtype=np.float64))
 
 
 @njit
 def _push_root(data, bounds, st_node, st_start, st_end, st_depth, st_cb):
     """The root's box, and the root over all of data as the stack's one work item; returns the top."""
-    box = np.empty(6, dtype=np.float64)
-    cbox = np.empty(6, dtype=np.float64)
+    box = np.empty(ROW, dtype=np.float64)
+    cbox = np.empty(ROW, dtype=np.float64)
     _range_bounds(data, np.int64(0), data.shape[0], box, cbox)
-    for k in range(6):
-        bounds[0, k] = box[k]
+    _put_box(bounds, 0, box)
     zero = np.int64(0)      # not the literal 0: numba would compile _push_work again for it
     return _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, data.shape[0], zero, cbox)
 
@@ -587,7 +565,7 @@ def _morton_codes(data, grid, codes, i0, i1):
     for i in range(i0, i1):
         code = np.uint64(0)
         for a in range(3):
-            q = np.int64(min(2097151.0, max(0.0, (_centre(data[i, a], data[i, a + 3]) - grid[a]) * grid[a + 3])))
+            q = np.int64(min(2097151.0, max(0.0, (_centre(data[i, a], data[i, a + HI]) - grid[a]) * grid[a + 3])))
             code |= np.uint64(_spread(q)) << np.uint64(a)
         codes[i] = code
 
@@ -599,7 +577,7 @@ def _centre_box(data):
     hi = np.full(3, -np.inf)
     for i in range(data.shape[0]):
         for a in range(3):
-            c = _centre(data[i, a], data[i, a + 3])
+            c = _centre(data[i, a], data[i, a + HI])
             lo[a] = min(lo[a], c)
             hi[a] = max(hi[a], c)
     return lo, hi
@@ -659,7 +637,7 @@ def _morton_build(data, order, codes, leaf_size):
                 item = order[p]
                 for k in range(3):
                     bounds[i, k] = min(bounds[i, k], data[item, k])
-                    bounds[i, k + 3] = max(bounds[i, k + 3], data[item, k + 3])
+                    bounds[i, k + 3] = max(bounds[i, k + 3], data[item, k + HI])
         else:
             c = first[i]
             for k in range(3):
@@ -735,7 +713,7 @@ def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None, compact=True)
     if n < PARALLEL_ITEMS:
         cap = 2 * n - 1
         bounds, first, count = np.empty((cap, 6)), np.empty(cap, np.int64), np.empty(cap, np.int64)
-        none = np.empty((0, 4), np.int64), np.empty((0, 6))
+        none = np.empty((0, 4), np.int64), np.empty((0, ROW))
         n_nodes, depth, _ = _build_top(data, order, bounds, first, count, args, 0, cap, *none)
         return bounds, first, count, order, n_nodes, depth
     # three stages, each node where any thread count puts it, so the tree and its numbering are
@@ -747,7 +725,7 @@ def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None, compact=True)
     head_defer = max(DEFER_ITEMS, n // HEAD_PARTS)
     head_cap = min(2 * n - 1, 8 * (n // head_defer) + 64)
     head = np.empty((head_cap, 6)), np.empty(head_cap, np.int64), np.empty(head_cap, np.int64)
-    tasks, task_cb = np.empty((head_cap, 4), np.int64), np.empty((head_cap, 6))
+    tasks, task_cb = np.empty((head_cap, 4), np.int64), np.empty((head_cap, ROW))
     _, depth, n_tasks = _build_top(data, order, *head, args, head_defer, head_cap, tasks, task_cb)
     tasks, task_cb = _largest_first(tasks[:n_tasks], task_cb[:n_tasks])
     # the middle: task k's nodes in block_start[k] .. + block_cap[k], its own tasks at the same offsets
@@ -758,7 +736,7 @@ def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None, compact=True)
     bounds, first, count = np.empty((cap, 6)), np.empty(cap, np.int64), np.empty(cap, np.int64)
     bounds[:head_cap], first[:head_cap], count[:head_cap] = head
     head = None
-    small, small_cb = np.empty((int(block_cap.sum()), 4), np.int64), np.empty((int(block_cap.sum()), 6))
+    small, small_cb = np.empty((int(block_cap.sum()), 4), np.int64), np.empty((int(block_cap.sum()), ROW))
     small_count = np.zeros(n_tasks, np.int64)
     depths = [depth]
     for_ranges(lambda k0, k1: depths.append(_build_middle(data, order, bounds, first, count, tasks, task_cb, block_start,

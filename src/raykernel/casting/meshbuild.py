@@ -42,6 +42,7 @@ from ..aggregates.widebvh import collapse
 from ..engine.flatten import check_range
 from ..geometry.parallel import for_ranges, interrupted
 from ..geometry.boxes import cull_margin
+from ..geometry.boxrows import HI
 from ..geometry.compiletime import CompileClock, compile_notice
 from ..geometry.config import njit
 from ..geometry.primitives import MAX_COORDINATE, MIN_SIZE
@@ -51,15 +52,15 @@ QUALITY = {"fast": "bvh(block=4, build=morton)", "medium": "bvh(block=4)",
            "high": "bvh(block=4, optimize=reinsertion)"}      # each level's tree as a spec
 LEAF, BINS, BLOCK = 4, 16, 4      # bvh(block=4)'s leaves, bins and pricing
 PROGRESS_TRIANGLES = 1 << 19     # builds from which a line says what is being built, if it takes a second
-# the build's peak a triangle: its rows (56 bytes), order (8), the binary nodes (64 each, up to
+# the build's peak a triangle: its rows (64 bytes), order (8), the binary nodes (64 each, up to
 # two a triangle and the parallel build's top), and the kernel's arrays it makes (blocks, nodes, lanes)
-BUILD_BYTES = 316
+BUILD_BYTES = 324
 _COMPILING = "raykernel: compiling the mesh builder (first use after install, a few seconds)"
 
 
 @njit
 def _triangle_data(verts, faces, data, i0, i1):
-    """bvh.build_rows' rows for triangles i0..i1-1: box, weight 1. Returns the first of these rows
+    """bvh.build_rows' rows for triangles i0..i1-1: box and weight 1 as boxrows.py lays them out. Returns the first of these rows
     whose box leaves +-MAX_COORDINATE or is smaller than MIN_SIZE but not zero (flatten.check_range's
     rule), or -1: checked as the rows are made, on the threads."""
     bad = -1
@@ -70,12 +71,13 @@ def _triangle_data(verts, faces, data, i0, i1):
             lo = min(verts[a, k], min(verts[b, k], verts[c, k]))
             hi = max(verts[a, k], max(verts[b, k], verts[c, k]))
             data[i, k] = lo
-            data[i, k + 3] = hi
+            data[i, k + HI] = hi
             if not (abs(lo) <= MAX_COORDINATE and abs(hi) <= MAX_COORDINATE):
                 size = -1.0         # out of range (or not a number): bad whatever the other axes
             elif size >= 0.0:
                 size = max(size, hi - lo)
         data[i, WEIGHT] = 1.0
+        data[i, ROW_COLUMNS - 1] = 0.0
         if bad < 0 and (size < 0.0 or (size != 0.0 and size < MIN_SIZE)):
             bad = i
     return bad
@@ -116,7 +118,7 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
                    threads, kernel=_triangle_data, min_size=1 << 14)
         bad = min((i for i in found if i >= 0), default=-1)
         if bad >= 0:        # the scene's error for it
-            box = data[bad:bad + 1, :6]
+            box = np.c_[data[bad:bad + 1, :3], data[bad:bad + 1, HI:HI + 3]]
             with np.errstate(over="ignore", invalid="ignore"):
                 check_range("triangle", box, bad, np.max(box[:, 3:] - box[:, :3], axis=1))
         method = "morton" if quality == "fast" else "sah"
