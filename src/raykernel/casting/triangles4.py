@@ -46,8 +46,9 @@ def leaf_blocks(verts, faces, prims, first, count, threads=None) -> tuple[np.nda
     per_leaf = (count + BLOCK - 1) // BLOCK
     start = np.zeros(len(first) + 1, np.int64)
     np.cumsum(per_leaf, out=start[1:])
-    blocks = np.zeros((int(start[-1]), COLUMNS))
-    lane_prims = np.full(BLOCK * len(blocks), -1, np.int32)
+    # every lane is written on the threads (unused ones too), so nothing is cleared first on this one
+    blocks = np.empty((int(start[-1]), COLUMNS))
+    lane_prims = np.empty(BLOCK * len(blocks), np.int32)
     start *= BLOCK
     for_ranges(lambda i0, i1: _fill_blocks(verts, faces, prims, first, count, start, blocks, lane_prims, i0, i1),
                len(first), threads, kernel=_fill_blocks, min_size=4096)
@@ -56,13 +57,20 @@ def leaf_blocks(verts, faces, prims, first, count, threads=None) -> tuple[np.nda
 
 @njit
 def _fill_blocks(verts, faces, prims, first, count, start, blocks, lane_prims, i0, i1):
-    """Leaves i0..i1-1 of leaf_blocks: each reference's corners into its lane."""
+    """Leaves i0..i1-1 of leaf_blocks: each reference's corners into its lane, the lanes after
+    them in the leaf's last block -1 with zero corners (a triangle no ray hits)."""
     for i in range(i0, i1):
-        for k in range(count[i]):
-            p = prims[first[i] + k]
+        used = count[i]
+        for k in range((used + BLOCK - 1) // BLOCK * BLOCK):
             lane = start[i] + k
-            lane_prims[lane] = p
             b = lane >> 2
+            if k >= used:
+                lane_prims[lane] = -1
+                for c in range(9):
+                    blocks[b, c * BLOCK + (lane & 3)] = 0.0
+                continue
+            p = prims[first[i] + k]
+            lane_prims[lane] = p
             for c in range(3):
                 v = faces[p, c]
                 for axis in range(3):
