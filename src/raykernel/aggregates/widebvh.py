@@ -95,21 +95,21 @@ class WideBVH(NamedTuple):
 @njit(inline="always")
 def _down(x):
     """The largest float32 at or below x (x - center in float64): x rounded, then one step down
-    by its bits where that went up (np.nextafter is a library call per value)."""
+    by its bits where that went up (np.nextafter is a library call per value). Both candidates are
+    computed and one chosen, with no branch: which way a value rounds is a coin toss."""
     y = np.float32(x)
-    if np.float64(y) > x:
-        b = y.view(np.int32)
-        y = np.int32(b - 1 if y > 0 else b + 1 if y < 0 else -2147483647).view(np.float32)
-    return y
+    b = y.view(np.int32)
+    stepped = b - 1 if y > 0 else (b + 1 if y < 0 else np.int32(-2147483647))
+    return np.int32(stepped if np.float64(y) > x else b).view(np.float32)
 
 
 @njit(inline="always")
 def _up(x):
+    """The smallest float32 at or above x, as _down."""
     y = np.float32(x)
-    if np.float64(y) < x:
-        b = y.view(np.int32)
-        y = np.int32(b + 1 if y > 0 else b - 1 if y < 0 else 1).view(np.float32)
-    return y
+    b = y.view(np.int32)
+    stepped = b + 1 if y > 0 else (b - 1 if y < 0 else np.int32(1))
+    return np.int32(stepped if np.float64(y) < x else b).view(np.float32)
 
 
 @njit(private=True)
