@@ -151,7 +151,7 @@ def _bin_range(data, s, e, stride, cmin, scale, bins, bin_count, bin_weight, bin
     scale (0: not binned); returns the binned items' total weight. bin_box: (3, bins, ROW) rows."""
     weight = 0.0
     last = bins - 1
-    stride_a = bin_box.shape[1]     # bins an axis holds (this node may use fewer)
+    held = bin_box.shape[1]     # the bins an axis holds (this node may use fewer)
     for p in range(s, e, stride):
         w = data[p, WEIGHT]
         weight += w
@@ -162,7 +162,7 @@ def _bin_range(data, s, e, stride, cmin, scale, bins, bin_count, bin_weight, bin
             b = axis_bins[a]
             bin_count[a, b] += 1
             bin_weight[a, b] += w
-            grow(bin_box, (a * stride_a + b) * ROW, data, p * ROW)
+            grow(bin_box, (a * held + b) * ROW, data, p * ROW)
     return weight
 
 
@@ -185,7 +185,7 @@ def _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area, bloc
     best = np.inf
     split_axis = -1
     split_bin = 0
-    stride = bin_box.shape[1]
+    held = bin_box.shape[1]
     for a in range(3):
         if scale[a] == 0.0:
             continue
@@ -200,7 +200,7 @@ def _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area, bloc
         for j in range(nn - 1, 0, -1):
             b = nonempty[j]
             weight += bin_weight[a, b]
-            grow(box, 0, bin_box, (a * stride + b) * ROW)
+            grow(box, 0, bin_box, (a * held + b) * ROW)
             right[j] = _measure(box, inv, use_area) * _priced(weight, block)
         empty(box, 0)
         weight = 0.0
@@ -209,7 +209,7 @@ def _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area, bloc
         for j in range(1, nn):
             b = nonempty[j - 1]
             weight += bin_weight[a, b]
-            grow(box, 0, bin_box, (a * stride + b) * ROW)
+            grow(box, 0, bin_box, (a * held + b) * ROW)
             c = _measure(box, inv, use_area) * _priced(weight, block) + right[j]
             if c <= axis_best:
                 axis_best = c
@@ -226,10 +226,10 @@ def _child_boxes(bin_count, bin_box, a, bins, split_bin, lbox, rbox):
     """The boxes of the bins left of split_bin and from it on, on axis a."""
     empty(lbox, 0)
     empty(rbox, 0)
-    stride = bin_box.shape[1]
+    held = bin_box.shape[1]
     for b in range(bins):
         if bin_count[a, b] > 0:
-            grow(lbox if b < split_bin else rbox, 0, bin_box, (a * stride + b) * ROW)
+            grow(lbox if b < split_bin else rbox, 0, bin_box, (a * held + b) * ROW)
 
 
 @njit(inline="always")
