@@ -122,6 +122,21 @@ def test_leaf_blocks_layout():
         assert [_corner(corners, ref, i) for i in range(9)] == corners[ref, :9].tolist()
 
 
+def test_every_lane_of_a_leafs_blocks_is_written_whatever_the_memory_held():
+    from raykernel.casting.triangles4 import COLUMNS, _fill_blocks
+    rng = np.random.default_rng(7)
+    verts, faces = rng.normal(size=(30, 3)), np.arange(30, dtype=np.int64).reshape(10, 3)
+    first, count = np.array([0, 5, 6]), np.array([5, 1, 4])
+    start = np.array([0, 8, 12, 16])        # each leaf's first lane, as leaf_blocks lays them out
+    blocks = np.full((4, COLUMNS), np.nan)          # what np.empty may hand over
+    lanes = np.full(16, 12345, np.int32)
+    _fill_blocks(verts, faces, np.arange(10), first, count, start, blocks, lanes, 0, 3)
+    assert lanes.tolist() == [0, 1, 2, 3, 4, -1, -1, -1, 5, -1, -1, -1, 6, 7, 8, 9]
+    unused = [(1, lane) for lane in (1, 2, 3)] + [(2, lane) for lane in (1, 2, 3)]
+    assert all((blocks[b, [c * BLOCK + lane for c in range(9)]] == 0).all() for b, lane in unused)
+    assert not np.isnan(blocks).any()
+
+
 @njit
 def _corner(src, row, i):
     return corner(src, row, i)

@@ -60,9 +60,9 @@ _COMPILING = "raykernel: compiling the mesh builder (first use after install, a 
 
 @njit
 def _triangle_data(verts, faces, data, i0, i1):
-    """bvh.build_rows' rows for triangles i0..i1-1: box and weight 1 as boxrows.py lays them out. Returns the first of these rows
-    whose box leaves +-MAX_COORDINATE or is smaller than MIN_SIZE but not zero (flatten.check_range's
-    rule), or -1: checked as the rows are made, on the threads."""
+    """bvh.build_rows' rows for triangles i0..i1-1: box and weight 1, as boxrows.py lays them out.
+    Returns the first of these rows whose box leaves +-MAX_COORDINATE or is smaller than MIN_SIZE
+    but not zero (flatten.check_range's rule), or -1: checked as the rows are made, on the threads."""
     bad = -1
     for i in range(i0, i1):
         a, b, c = faces[i, 0], faces[i, 1], faces[i, 2]
