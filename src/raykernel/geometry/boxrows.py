@@ -60,20 +60,32 @@ def _centre(builder, lo, hi):
     return builder.fadd(builder.fmul(half, lo), builder.fmul(half, hi))
 
 
+def _box_and_row(box, b, data, d):
+    return _float_array(box) and _float_array(data) and isinstance(b, types.Integer) and isinstance(d, types.Integer)
+
+
+def _unite(context, builder, sig, args, low, high):
+    """box[b:b+8] (args 0, 1) united with the vectors low (its low half by min) and high (by max)."""
+    for lane0, unite, value in ((0, _lower, low), (HI, _upper, high)):
+        target = _half(context, builder, sig.args[0], args[0], sig.args[1], args[1], lane0)
+        builder.store(unite(builder, builder.load(target, align=8), value), target, align=8)
+    return context.get_dummy_value()
+
+
+def _row(context, builder, sig, args, k=2):
+    """The low and high halves of data[d:d+8] (data args[k], d args[k + 1])."""
+    return [builder.load(_half(context, builder, sig.args[k], args[k], sig.args[k + 1], args[k + 1], lane0), align=8)
+            for lane0 in (0, HI)]
+
+
 @intrinsic
 def grow(typingctx, box, b, data, d):
     """box[b:b+8] united with the box of data[d:d+8]: low half by min, high half by max."""
-    if not (_float_array(box) and _float_array(data) and isinstance(b, types.Integer)
-            and isinstance(d, types.Integer)):
+    if not _box_and_row(box, b, data, d):
         return None
 
     def codegen(context, builder, sig, args):
-        for lane0, unite in ((0, _lower), (HI, _upper)):
-            target = _half(context, builder, sig.args[0], args[0], sig.args[1], args[1], lane0)
-            source = _half(context, builder, sig.args[2], args[2], sig.args[3], args[3], lane0)
-            value = unite(builder, builder.load(target, align=8), builder.load(source, align=8))
-            builder.store(value, target, align=8)
-        return context.get_dummy_value()
+        return _unite(context, builder, sig, args, *_row(context, builder, sig, args))
 
     return types.none(box, b, data, d), codegen
 
@@ -81,18 +93,12 @@ def grow(typingctx, box, b, data, d):
 @intrinsic
 def grow_centre(typingctx, box, b, data, d):
     """box[b:b+8] united with the centre of data[d:d+8]'s box (a point: both halves)."""
-    if not (_float_array(box) and _float_array(data) and isinstance(b, types.Integer)
-            and isinstance(d, types.Integer)):
+    if not _box_and_row(box, b, data, d):
         return None
 
     def codegen(context, builder, sig, args):
-        lo = builder.load(_half(context, builder, sig.args[2], args[2], sig.args[3], args[3], 0), align=8)
-        hi = builder.load(_half(context, builder, sig.args[2], args[2], sig.args[3], args[3], HI), align=8)
-        c = _centre(builder, lo, hi)
-        for lane0, unite in ((0, _lower), (HI, _upper)):
-            target = _half(context, builder, sig.args[0], args[0], sig.args[1], args[1], lane0)
-            builder.store(unite(builder, builder.load(target, align=8), c), target, align=8)
-        return context.get_dummy_value()
+        centre = _centre(builder, *_row(context, builder, sig, args))
+        return _unite(context, builder, sig, args, centre, centre)
 
     return types.none(box, b, data, d), codegen
 
@@ -107,8 +113,7 @@ def bin3(typingctx, data, d, cmin, scale, last):
     result = types.UniTuple(types.uint64, 3)
 
     def codegen(context, builder, sig, args):
-        lo = builder.load(_half(context, builder, sig.args[0], args[0], sig.args[1], args[1], 0), align=8)
-        hi = builder.load(_half(context, builder, sig.args[0], args[0], sig.args[1], args[1], HI), align=8)
+        lo, hi = _row(context, builder, sig, args, 0)
         zero = ir.Constant(_I64, 0)
         c0 = builder.load(_half(context, builder, sig.args[2], args[2], types.int64, zero, 0), align=8)
         s = builder.load(_half(context, builder, sig.args[3], args[3], types.int64, zero, 0), align=8)
