@@ -202,18 +202,13 @@ def test_the_parallel_build_is_the_serial_tree_at_any_thread_count(monkeypatch):
 
 
 @pytest.mark.parametrize("stack", [1 << 16, 8])
-@pytest.mark.parametrize("wide", [1 << 40, 300])
-def test_every_stage_of_the_parallel_build_keeps_the_serial_tree(monkeypatch, stack, wide):
+def test_every_stage_of_the_parallel_build_keeps_the_serial_tree(monkeypatch, stack):
     """Small stages, so that the head, the middle (its blocks filled, and its stack too when small)
-    and the small tasks all split nodes; with `wide` small, nodes of 300 items or more are
-    partitioned in chunks, on the threads in the head and on one thread in the other stages and in
-    the serial build."""
+    and the small tasks all split nodes."""
     monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1000)
     monkeypatch.setattr(bvh, "DEFER_ITEMS", 40)
     monkeypatch.setattr(bvh, "HEAD_PARTS", 16)
     monkeypatch.setattr(bvh, "TOP_STACK", stack)
-    monkeypatch.setattr(bvh, "WIDE_ITEMS", wide)
-    monkeypatch.setattr(bvh, "CHUNK_ITEMS", 64)
     assert_parallel_build_is_serial_tree(random_boxes(6000, 4), monkeypatch)
 
 
@@ -231,10 +226,12 @@ def rows_of(items):
 
 @pytest.mark.parametrize("s, e, chunk", [(0, 5000, 64), (123, 4901, 100), (7, 90, 1000)])
 @pytest.mark.parametrize("split_bin", [0, 3, 9, 16])
-def test_the_partition_in_chunks_against_brute_force(s, e, chunk, split_bin):
+def test_the_partition_on_threads_against_brute_force(monkeypatch, s, e, chunk, split_bin):
     """Every item of data[s:e] whose centre falls in a bin left of split_bin ends before the middle,
     the others from it on, each row with its own index (order), nothing outside s:e touched, and the
-    four boxes those of the two sides' items and centres; the same split as the one-thread partition."""
+    four boxes those of the two sides' items and centres; the same order at 1 and 2 threads, and the
+    same middle and boxes as the one-thread partition."""
+    monkeypatch.setattr(bvh, "CHUNK_ITEMS", chunk)
     items = random_boxes(5000, split_bin)
     data = rows_of(items)
     bins, axis = 16, 1
@@ -243,15 +240,16 @@ def test_the_partition_in_chunks_against_brute_force(s, e, chunk, split_bin):
     scale = np.r_[bins / (centre[s:e].max(0) - cmin[:3]), 0.0]
     f = (centre[:, axis] - cmin[axis]) * scale[axis]
     left = np.where(f < bins - 1, np.floor(f), bins - 1) < split_bin
+    split = np.r_[axis, split_bin, bins, cmin[:3], scale[:3]].astype(float)
     out = {}
-    for name in ("chunks", "plain"):
+    for name in (1, 2, "plain"):
         d, order = data.copy(), np.arange(len(items))
-        lcb, rcb, lbox, rbox = (np.empty(bvh.ROW) for _ in range(4))
-        if name == "chunks":
-            mid = bvh._partition_in_chunks(d, order, s, e, chunk, axis, cmin, scale, bins, split_bin, lcb, rcb,
-                                           lbox, rbox)
-        else:
+        if name == "plain":
+            lcb, rcb, lbox, rbox = (np.empty(bvh.ROW) for _ in range(4))
             mid = one_thread_partition(d, order, s, e, axis, cmin, scale, bins, split_bin, lcb, rcb, lbox, rbox)
+        else:
+            mid, boxes = bvh._partition_on_threads(d, order, s, e, split, name)
+            lcb, rcb, lbox, rbox = bvh._united(boxes)
         assert mid - s == left[s:e].sum()
         assert set(order[s:mid]) == set(np.flatnonzero(left[s:e]) + s)
         np.testing.assert_array_equal(d, data[order])
@@ -264,13 +262,14 @@ def test_the_partition_in_chunks_against_brute_force(s, e, chunk, split_bin):
                 np.testing.assert_array_equal(box[4:7], items[side, 3:].max(0))
             else:
                 assert (cb[:3] == np.inf).all() and (box[4:7] == -np.inf).all()
-        out[name] = mid, [lcb, rcb, lbox, rbox]
-    assert out["chunks"][0] == out["plain"][0]
+        out[name] = order
+    np.testing.assert_array_equal(out[1], out[2])
 
 
 def test_the_head_partitions_on_the_threads_as_on_one(monkeypatch):
     """A build whose head partitions in chunks on the threads: the same arrays at 1 and 2 threads,
-    and not those of the build without chunks (so the chunks were taken)."""
+    every item in one leaf, the boxes nested, and not the arrays of the build without chunks (so
+    the chunks were taken)."""
     items = random_boxes(bvh.PARALLEL_ITEMS * 4, 3)
     monkeypatch.setattr(bvh, "WIDE_ITEMS", 1 << 40)
     plain, _ = bvh.build_bvh(items, block=4, threads=2)

@@ -329,17 +329,16 @@ def _item_data(items, weights, data, i0, i1):
 @njit
 def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st_depth, st_cb, top, next_node,
                 leaf_size, bins, traversal_cost, intersection_cost, block, defer, node_cap, tasks, task_cb, n_tasks,
-                work, wide, chunk, pause, split):
+                work, wide, split):
     """Split the work items on the stack (node over data[s:e], depth, centroid box) until every
     node is a leaf, or until the items split add up to `work` (0: no limit; the caller calls
     again, between calls Python answers Ctrl-C); returns (stack top, next free node, deepest
     depth, tasks deferred). With defer > 0, a work item of fewer than `defer` items, or met when
     the nodes up to node_cap or the stack are used up, is not split here but written to tasks[n_tasks]
-    (node, start, end, depth) and task_cb, for _build_tasks. A node of `wide` items or more (0: none)
-    that bins a sample is partitioned in chunks of `chunk` items (_partition_in_chunks); with pause,
-    the loop stops before such a partition instead, the node left on top of the stack and its split
-    in `split` (axis, bin, bins, cmin xyz, scale xyz; split[0] is -1 otherwise), for the caller to
-    partition it on every thread (_partition_on_threads): the same partition."""
+    (node, start, end, depth) and task_cb, for _build_tasks. With wide > 0, the loop stops before
+    the partition of a node of `wide` items or more that bins a sample, the node left on top of the
+    stack and its split in `split` (axis, bin, bins, cmin xyz, scale xyz; split[0] is -1 otherwise),
+    for the caller to partition on every thread (_partition_on_threads)."""
     split[0] = -1.0
     bin_count = np.zeros((3, bins), dtype=np.int64)
     bin_weight = np.zeros((3, bins), dtype=np.float64)
@@ -432,16 +431,13 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
             _range_bounds(data, s, mid, lbox, lcb)
             _range_bounds(data, mid, e, rbox, rcb)
         elif wide > 0 and cnt >= wide and stride > 1:
-            if pause:
-                split[0] = split_axis
-                split[1] = split_bin
-                split[2] = nb
-                for k in range(3):
-                    split[3 + k] = cmin[k]
-                    split[6 + k] = scale[k]
-                return top + 1, next_node, max_depth, n_tasks
-            mid = _partition_in_chunks(data, order, s, e, chunk, split_axis, cmin, scale, nb, split_bin, lcb, rcb,
-                                       lbox, rbox)
+            split[0] = split_axis
+            split[1] = split_bin
+            split[2] = nb
+            for k in range(3):
+                split[3 + k] = cmin[k]
+                split[6 + k] = scale[k]
+            return top + 1, next_node, max_depth, n_tasks
         else:
             mid = _partition(data, order, s, e, split_axis, cmin, scale, nb, split_bin, lcb, rcb, stride > 1,
                              lbox, rbox)
@@ -478,121 +474,88 @@ def _push_root(bounds, n, boxes, st_node, st_start, st_end, st_depth, st_cb):
     """The root's box, from the chunks' boxes and centroid boxes (_chunk_bounds), and the root over
     all n items as the stack's one work item; returns the top."""
     united = _united(boxes)
-    _put_box(bounds, 0, united[:ROW])
+    _put_box(bounds, 0, united[0])
     zero = np.int64(0)      # not the literal 0: numba would compile _push_work again for it
-    return _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, n, zero,
-                      united[ROW:])
+    return _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, n, zero, united[1])
 
 
 def _build_top(data, order, bounds, first, count, args, defer, node_cap, tasks, task_cb, threads=None):
     """The root over all of data, split down to the tasks (_build_loop with defer) in calls of
-    about TOP_WORK items each, its box and the partitions of nodes of WIDE_ITEMS items or more
-    made on `threads` threads; returns (next free node, deepest depth, tasks)."""
+    about TOP_WORK items each; its box and, when deferring, the partitions of its nodes of
+    WIDE_ITEMS items or more made on `threads` threads. Returns (next free node, deepest depth, tasks)."""
     stack = _work_stack(len(data) if defer == 0 else min(len(data), TOP_STACK))
-    starts, ends = _chunks(np.int64(0), np.int64(len(data)), np.int64(CHUNK_ITEMS))
-    boxes = np.empty((len(starts), 2 * ROW))
+    starts, ends = _chunks(0, len(data))
+    boxes = np.empty((len(starts), 2, ROW))
     for_ranges(lambda c0, c1: _chunk_bounds(data, starts, ends, boxes, np.int64(c0), np.int64(c1)), len(starts),
                threads, kernel=_chunk_bounds)
     top = _push_root(bounds, np.int64(len(data)), boxes, *stack)
     next_node, deepest, n_tasks = np.int64(1), 0, np.int64(0)
     split = np.empty(9)
+    wide = np.int64(WIDE_ITEMS if defer else 0)
     while top > 0:
         top, next_node, depth, n_tasks = _build_loop(data, order, bounds, first, count, *stack, top, next_node, *args,
                                                      np.int64(defer), np.int64(node_cap), tasks, task_cb, n_tasks,
-                                                     np.int64(TOP_WORK), *_chunking(), np.int64(1), split)
+                                                     np.int64(TOP_WORK), wide, split)
         deepest = max(deepest, depth)
         if split[0] >= 0:
-            mid, boxes = _partition_on_threads(data, order, *stack, top, split, threads)
-            top, next_node = _split_top(bounds, first, count, *stack, top, next_node, mid, boxes)
+            s, e = stack[1][top - 1], stack[2][top - 1]
+            mid, boxes = _partition_on_threads(data, order, s, e, split, threads)
+            top, next_node = _split_top(bounds, first, count, *stack, top, next_node, np.int64(mid), boxes)
     return next_node, deepest, n_tasks
 
 
-def _chunking():
-    """(WIDE_ITEMS, CHUNK_ITEMS) as _build_loop takes them (read at each build: tests make them small)."""
-    return np.int64(WIDE_ITEMS), np.int64(CHUNK_ITEMS)
+def _chunks(s, e):
+    """The chunks of CHUNK_ITEMS items that data[s:e] is worked on in, on the threads: (starts,
+    ends). They depend on s and e alone, so what is made of them does not depend on the thread count."""
+    starts = np.arange(s, e, CHUNK_ITEMS, dtype=np.int64)
+    return starts, np.append(starts[1:], e).astype(np.int64)
 
 
-@njit
-def _chunks(s, e, chunk):
-    """The chunks of `chunk` items that data[s:e] is worked on in: (starts, ends). They depend on
-    s, e and chunk alone, so what is made of them does not depend on the thread count."""
-    starts = np.arange(s, e, chunk)
-    ends = np.empty_like(starts)
-    ends[:-1] = starts[1:]
-    ends[-1] = e
-    return starts, ends
-
-
+# the chunks' rows are passed on as rows of 2-d arrays (box[k]), not as slices of one: a slice is
+# an array type of its own, for which numba would compile the callees again (seconds, with _partition)
 @njit
 def _chunk_bounds(data, starts, ends, boxes, c0, c1):
-    """_range_bounds of chunks c0..c1-1: boxes[c] = the chunk's box row, then its centroid box row."""
+    """_range_bounds of chunks c0..c1-1: boxes[c] = (the chunk's box row, its centroid box row)."""
     for c in range(c0, c1):
-        _range_bounds(data, starts[c], ends[c], boxes[c, :ROW], boxes[c, ROW:])
+        _range_bounds(data, starts[c], ends[c], boxes[c, 0], boxes[c, 1])
 
 
 @njit
 def _united(boxes):
-    """The union of the chunks' box rows, column group by column group: (C, m ROW) -> (m ROW,)."""
-    united = np.empty(boxes.shape[1])
-    for k in range(boxes.shape[1] // ROW):
+    """The union of the chunks' box rows, row by row: (C, m, ROW) -> (m, ROW)."""
+    united = np.empty(boxes.shape[1:])
+    for k in range(boxes.shape[1]):
         empty(united, k * ROW)
         for c in range(boxes.shape[0]):
             grow(united, k * ROW, boxes[c], k * ROW)
     return united
 
 
-def _partition_on_threads(data, order, st_node, st_start, st_end, st_depth, st_cb, top, split, threads):
-    """_partition_in_chunks of the work item on top of the stack by `split` (as _build_loop leaves
-    it), its chunks and its exchanges on `threads` threads. Returns (the middle, each chunk's rows
-    lcb, rcb, lbox, rbox)."""
-    starts, ends = _chunks(st_start[top - 1], st_end[top - 1], np.int64(CHUNK_ITEMS))
+def _partition_on_threads(data, order, s, e, split, threads):
+    """_partition of data[s:e] (its boxes gathered) by `split` (as _build_loop leaves it) on
+    `threads` threads: each chunk partitioned in place on its own, then the right-side items left
+    of the middle exchanged with the left-side items right of it, the k-th of one with the k-th of
+    the other. The items end in the same order for any thread count. Returns (the middle, each
+    chunk's rows lcb, rcb, lbox, rbox)."""
+    starts, ends = _chunks(s, e)
     lefts = np.empty(len(starts), np.int64)
-    boxes = np.empty((len(starts), 4 * ROW))
+    boxes = np.empty((len(starts), 4, ROW))
     axis, split_bin, bins = (np.int64(x) for x in split[:3])
     cmin, scale = np.append(split[3:6], 0.0), np.append(split[6:9], 0.0)
     for_ranges(lambda c0, c1: _partition_chunks(data, order, starts, ends, axis, cmin, scale, bins, split_bin, lefts,
                                                 boxes, np.int64(c0), np.int64(c1)),
                len(starts), threads, kernel=_partition_chunks)
-    mid, *runs = _misplaced_runs(starts, ends, lefts)
-    for_ranges(lambda k0, k1: _exchange_runs(data, order, *runs, np.int64(k0), np.int64(k1)), int(runs[1][-1]),
-               threads, kernel=_exchange_runs, min_size=CHUNK_ITEMS)
-    return mid, boxes
-
-
-@njit
-def _partition_in_chunks(data, order, s, e, chunk, a, cmin, scale, bins, split_bin, lcb, rcb, lbox, rbox):
-    """_partition of data[s:e] (its boxes gathered) made so that threads can share it: each chunk of
-    `chunk` items partitioned in place on its own, then the right-side items left of the middle
-    exchanged with the left-side items right of it, the k-th of one with the k-th of the other.
-    The items end in the same order whatever the threads (_partition_on_threads). Returns the middle."""
-    starts, ends = _chunks(s, e, chunk)
-    lefts = np.empty(len(starts), np.int64)
-    boxes = np.empty((len(starts), 4 * ROW))
-    _partition_chunks(data, order, starts, ends, a, cmin, scale, bins, split_bin, lefts, boxes, np.int64(0),
-                      np.int64(len(starts)))
-    mid, right_at, right_end, left_at, left_end = _misplaced_runs(starts, ends, lefts)
-    _exchange_runs(data, order, right_at, right_end, left_at, left_end, np.int64(0), right_end[-1])
-    united = _united(boxes)
-    for k in range(ROW):
-        lcb[k] = united[k]
-        rcb[k] = united[ROW + k]
-        lbox[k] = united[2 * ROW + k]
-        rbox[k] = united[3 * ROW + k]
-    return mid
-
-
-@njit
-def _misplaced_runs(starts, ends, lefts):
-    """After each chunk's own partition (lefts[c] items of its left side first), the middle and the
-    runs of misplaced items: each chunk's right side before the middle (right_at, the run's first
-    item; right_end, the number of such items up to the run's end) and its left side from the
-    middle on (left_at, left_end)."""
-    mid = starts[0] + lefts.sum()
+    # the misplaced runs: each chunk's right side before mid, and its left side from mid on; run
+    # r of a kind starts at *_at[r] and ends that kind's k-th item at *_end[r]
+    mid = s + int(lefts.sum())
     right_at = starts + lefts
-    right_end = np.cumsum(np.maximum(np.minimum(ends, mid) - right_at, 0))
+    right_end = np.cumsum(np.clip(np.minimum(ends, mid) - right_at, 0, None))
     left_at = np.maximum(starts, mid)
-    left_end = np.cumsum(np.maximum(right_at - left_at, 0))
-    return mid, right_at, right_end, left_at, left_end
+    left_end = np.cumsum(np.clip(right_at - left_at, 0, None))
+    for_ranges(lambda k0, k1: _exchange_runs(data, order, right_at, right_end, left_at, left_end, np.int64(k0),
+                                             np.int64(k1)),
+               int(right_end[-1]), threads, kernel=_exchange_runs, min_size=CHUNK_ITEMS)
+    return mid, boxes
 
 
 @njit
@@ -600,19 +563,21 @@ def _partition_chunks(data, order, starts, ends, axis, cmin, scale, bins, split_
     """_partition of chunks c0..c1-1 (data[starts[c]:ends[c]]) each on its own: the items of its left
     side into lefts[c], its boxes into boxes[c] (lcb, rcb, lbox, rbox, rows of ROW)."""
     gather = np.bool_(True)
-    row = np.empty(4 * ROW)
+    row = np.empty((4, ROW))
     for c in range(c0, c1):
-        lefts[c] = _partition(data, order, starts[c], ends[c], axis, cmin, scale, bins, split_bin, row[:ROW],
-                              row[ROW:2 * ROW], gather, row[2 * ROW:3 * ROW], row[3 * ROW:]) - starts[c]
-        boxes[c] = row
+        lefts[c] = _partition(data, order, starts[c], ends[c], axis, cmin, scale, bins, split_bin, row[0], row[1],
+                              gather, row[2], row[3]) - starts[c]
+        for k in range(4):
+            for j in range(ROW):
+                boxes[c, k, j] = row[k, j]
 
 
 @njit
 def _exchange_runs(data, order, right_at, right_end, left_at, left_end, k0, k1):
     """Exchange the k-th misplaced right-side item with the k-th misplaced left-side item, k in
-    k0..k1-1: run r of each kind starts at its *_at[r] and ends the kind's k at *_end[r]."""
-    r = np.searchsorted(right_end, k0, side="right")
-    q = np.searchsorted(left_end, k0, side="right")
+    k0..k1-1 (the runs as _partition_on_threads makes them)."""
+    r = 0
+    q = 0
     for k in range(k0, k1):
         while right_end[r] <= k:
             r += 1
@@ -633,17 +598,17 @@ def _split_top(bounds, first, count, st_node, st_start, st_end, st_depth, st_cb,
     united = _united(boxes)
     top -= 1
     return _split_node(bounds, first, count, st_node, st_start, st_end, st_depth, st_cb, top, next_node,
-                       st_node[top], st_start[top], mid, st_end[top], st_depth[top], united[2 * ROW:3 * ROW],
-                       united[3 * ROW:], united[:ROW], united[ROW:2 * ROW])
+                       st_node[top], st_start[top], mid, st_end[top], st_depth[top], united[2], united[3], united[0],
+                       united[1])
 
 
 @njit
-def _build_tasks(data, order, bounds, first, count, tasks, task_cb, base, k0, k1, wide, chunk, leaf_size, bins,
+def _build_tasks(data, order, bounds, first, count, tasks, task_cb, base, k0, k1, leaf_size, bins,
                  traversal_cost, intersection_cost, block):
     """Build the subtrees of tasks k0..k1-1; the task over data[s:e] takes its nodes from
     base + 2 s on (at most 2 (e - s) of them), so tasks never share a node. Returns the deepest depth."""
     deepest = 0
-    split = np.empty(9)
+    split = np.empty(9)     # unused: these stages never stop for a partition on the threads
     for k in range(k0, k1):
         s = tasks[k, 1]
         e = tasks[k, 2]
@@ -652,22 +617,22 @@ def _build_tasks(data, order, bounds, first, count, tasks, task_cb, base, k0, k1
                          task_cb[k])
         _, _, depth, _ = _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st_depth, st_cb,
                                      top, base + 2 * s, leaf_size, bins, traversal_cost, intersection_cost, block,
-                                     np.int64(0), np.int64(0), tasks, task_cb, np.int64(0), np.int64(0), wide, chunk,
-                                     np.int64(0), split)
+                                     np.int64(0), np.int64(0), tasks, task_cb, np.int64(0), np.int64(0), np.int64(0),
+                                     split)
         deepest = max(deepest, depth)
     return deepest
 
 
 @njit
 def _build_middle(data, order, bounds, first, count, tasks, task_cb, block_start, block_cap, small_offset, small,
-                  small_cb, small_count, defer, stack, k0, k1, wide, chunk, leaf_size, bins, traversal_cost,
-                  intersection_cost, block):
+                  small_cb, small_count, defer, stack, k0, k1, leaf_size, bins, traversal_cost, intersection_cost,
+                  block):
     """Split the head's tasks k0..k1-1 down to `defer` items, with a stack of `stack` work items:
     task k's nodes from block_start[k] on (at most block_cap[k]), the tasks it defers into small[o:]
     and small_cb[o:], o = block_start[k] - small_offset, their number into small_count[k].
     Returns the deepest depth."""
     deepest = 0
-    split = np.empty(9)
+    split = np.empty(9)     # unused: these stages never stop for a partition on the threads
     for k in range(k0, k1):
         s = tasks[k, 1]
         e = tasks[k, 2]
@@ -678,7 +643,7 @@ def _build_middle(data, order, bounds, first, count, tasks, task_cb, block_start
         _, _, depth, n_small = _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st_depth,
                                            st_cb, top, block_start[k], leaf_size, bins, traversal_cost,
                                            intersection_cost, block, defer, block_start[k] + block_cap[k], small,
-                                           small_cb, offset, np.int64(0), wide, chunk, np.int64(0), split)
+                                           small_cb, offset, np.int64(0), np.int64(0), split)
         small_count[k] = n_small - offset
         deepest = max(deepest, depth)
     return deepest
@@ -861,8 +826,8 @@ DEFER_ITEMS = 1 << 12
 HEAD_PARTS = 8              # the head, from the calling thread, splits nodes of more than 1/8 of the items
 TOP_STACK = 1 << 16         # work items the top's stack holds (a deeper top defers the rest as tasks)
 TOP_WORK = 1 << 22          # items the top of a build splits in one call (well under the second Ctrl-C may wait)
-WIDE_ITEMS = 1 << 16        # nodes of this many items or more are partitioned in chunks (on every thread in the head)
-CHUNK_ITEMS = 1 << 14       # of this many items
+WIDE_ITEMS = 1 << 16        # the head partitions its nodes of this many items or more on every thread,
+CHUNK_ITEMS = 1 << 14       # in chunks of this many items
 
 
 def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None, compact=True):
@@ -887,8 +852,8 @@ def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None, compact=True)
         return bounds, first, count, order, n_nodes, depth
     # three stages, each node where any thread count puts it, so the tree and its numbering are
     # the same with one thread or many: the head splits the nodes of more than n / HEAD_PARTS items
-    # from this thread (partitioning each on the threads); the middle splits the head's tasks down
-    # to DEFER_ITEMS items on the threads, each in a block of nodes of its own; the small tasks
+    # from this thread (partitioning its largest on the threads); the middle splits the head's tasks
+    # down to DEFER_ITEMS items on the threads, each in a block of nodes of its own; the small tasks
     # below, on the threads too, take their nodes from small_base + 2 s on. At most 8 nodes for every
     # `defer` items in a stage's blocks (beyond, the rest is deferred as it is).
     head_defer = max(DEFER_ITEMS, n // HEAD_PARTS)
@@ -911,14 +876,13 @@ def _build_sah(data, leaf_size, bins, tc, ic, block, threads=None, compact=True)
     for_ranges(lambda k0, k1: depths.append(_build_middle(data, order, bounds, first, count, tasks, task_cb, block_start,
                                                           block_cap, np.int64(head_cap), small, small_cb, small_count,
                                                           np.int64(DEFER_ITEMS), np.int64(TOP_STACK), np.int64(k0),
-                                                          np.int64(k1), *_chunking(), *args)),
+                                                          np.int64(k1), *args)),
                n_tasks, threads, kernel=_build_middle)
     keep = np.concatenate([np.arange(o - head_cap, o - head_cap + c) for o, c in zip(block_start, small_count)]
                           + [np.zeros(0, np.int64)]).astype(np.int64)
     small, small_cb = _largest_first(small[keep], small_cb[keep])
     for_ranges(lambda k0, k1: depths.append(_build_tasks(data, order, bounds, first, count, small, small_cb,
-                                                         np.int64(small_base), np.int64(k0), np.int64(k1),
-                                                         *_chunking(), *args)),
+                                                         np.int64(small_base), np.int64(k0), np.int64(k1), *args)),
                len(small), threads, kernel=_build_tasks)
     n_nodes = _compact(bounds, first, count) if compact else len(count)
     return bounds, first, count, order, n_nodes, max(depths)
