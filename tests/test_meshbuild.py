@@ -281,6 +281,11 @@ def test_the_head_partitions_on_the_threads_as_on_one(monkeypatch):
         np.testing.assert_array_equal(a, b)
     assert sorted(i for leaf in leaves_of(one) for i in leaf) == list(range(len(items)))
     assert leaves_of(one) != leaves_of(plain)
+    np.testing.assert_array_equal(one.bounds[0], np.r_[items[:, :3].min(0), items[:, 3:].max(0)])
+    np.testing.assert_array_equal(one.bounds[0], plain.bounds[0])
+    for i in np.flatnonzero(one.count > 0):
+        mine = items[one.order[one.first[i]:one.first[i] + one.count[i]]]
+        np.testing.assert_array_equal(one.bounds[i], np.r_[mine[:, :3].min(0), mine[:, 3:].max(0)])
 
 
 def test_the_wide_tree_of_the_build_with_gaps_is_the_compacted_ones(monkeypatch):

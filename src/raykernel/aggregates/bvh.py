@@ -470,13 +470,12 @@ def _work_stack(n):
 
 
 @njit
-def _push_root(bounds, n, boxes, st_node, st_start, st_end, st_depth, st_cb):
-    """The root's box, from the chunks' boxes and centroid boxes (_chunk_bounds), and the root over
-    all n items as the stack's one work item; returns the top."""
-    united = _united(boxes)
-    _put_box(bounds, 0, united[0])
+def _push_root(bounds, n, box, cbox, st_node, st_start, st_end, st_depth, st_cb):
+    """The root's box (box), and the root over all n items (centroid box cbox) as the stack's one
+    work item; returns the top."""
+    _put_box(bounds, 0, box)
     zero = np.int64(0)      # not the literal 0: numba would compile _push_work again for it
-    return _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, n, zero, united[1])
+    return _push_work(st_node, st_start, st_end, st_depth, st_cb, zero, zero, zero, n, zero, cbox)
 
 
 def _build_top(data, order, bounds, first, count, args, defer, node_cap, tasks, task_cb, threads=None):
@@ -484,11 +483,16 @@ def _build_top(data, order, bounds, first, count, args, defer, node_cap, tasks, 
     about TOP_WORK items each; its box and, when deferring, the partitions of its nodes of
     WIDE_ITEMS items or more made on `threads` threads. Returns (next free node, deepest depth, tasks)."""
     stack = _work_stack(len(data) if defer == 0 else min(len(data), TOP_STACK))
-    starts, ends = _chunks(0, len(data))
-    boxes = np.empty((len(starts), 2, ROW))
-    for_ranges(lambda c0, c1: _chunk_bounds(data, starts, ends, boxes, np.int64(c0), np.int64(c1)), len(starts),
-               threads, kernel=_chunk_bounds)
-    top = _push_root(bounds, np.int64(len(data)), boxes, *stack)
+    box, cbox = np.empty(ROW), np.empty(ROW)
+    if len(data) > CHUNK_ITEMS:     # the root's box on the threads (its kernels compiled only for such builds)
+        starts, ends = _chunks(0, len(data))
+        boxes = np.empty((len(starts), 2, ROW))
+        for_ranges(lambda c0, c1: _chunk_bounds(data, starts, ends, boxes, np.int64(c0), np.int64(c1)), len(starts),
+                   threads, kernel=_chunk_bounds)
+        box[:], cbox[:] = _united(boxes)
+    else:
+        _range_bounds(data, np.int64(0), np.int64(len(data)), box, cbox)
+    top = _push_root(bounds, np.int64(len(data)), box, cbox, *stack)
     next_node, deepest, n_tasks = np.int64(1), 0, np.int64(0)
     split = np.empty(9)
     wide = np.int64(WIDE_ITEMS if defer else 0)
