@@ -3,7 +3,8 @@
     .venv/bin/python bench/meshbuild.py [--threads 2] [--big]
 
 A user with a scanned mesh builds a structure and casts a ray before anything
-else: each row times that (the build and one ray, best of 3, kernels warm),
+else: each row times that (the build and one ray, best of 3 or of as many as fit in
+a second, up to 30, kernels warm: small builds take milliseconds on noisy machines),
 each library in its own process pinned to `threads` cores (taskset), with
 the mesh's arrays made before the clock starts. held: the process's resident
 memory after the build less before it, a triangle (0 where the build
@@ -62,10 +63,14 @@ def rss() -> int:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
-def timed(build, cast1, repeat=3):
-    """(best seconds of build + one ray, resident bytes the last build added, the last built)."""
+def timed(build, cast1, repeat=3, budget=1.0, most=30):
+    """(best seconds of build + one ray, resident bytes the last build added, the last built):
+    `repeat` runs, or more while they have taken less than `budget` seconds, `most` at most."""
     best, held, built = np.inf, 0, None
-    for _ in range(repeat):
+    start = time.perf_counter()
+    runs = 0
+    while runs < repeat or (runs < most and time.perf_counter() - start < budget):
+        runs += 1
         built = None
         before = rss()
         t0 = time.perf_counter()

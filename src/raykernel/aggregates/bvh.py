@@ -515,7 +515,7 @@ def _chunks(s, e):
     return starts, np.append(starts[1:], e).astype(np.int64)
 
 
-# the chunks' rows are passed on as rows of 2-d arrays (box[k]), not as slices of one: a slice is
+# the chunks' rows are passed on as rows of 3-d arrays (boxes[c, k]), not as slices: a slice is
 # an array type of its own, for which numba would compile the callees again (seconds, with _partition)
 @njit
 def _chunk_bounds(data, starts, ends, boxes, c0, c1):

@@ -1,0 +1,158 @@
+"""Where an incoherent ray's time goes in the mesh kernel: the nodes it visits against the fewest any
+order could, and a node visit's cost as the rays lose their coherence, one thread.
+
+    .venv/bin/python bench/incoherent.py [--rays 300000] [--meshes teapot-sf6,sphere-80k]
+
+For each mesh of bench/raycast.py (the same incoherent rays: origins uniform in the mesh's box,
+uniform random directions):
+
+* visited: the 4-wide nodes the kernel visits a ray (its cells.visited counter);
+* needed: the 4-wide nodes whose box the ray enters before its closest hit (or at all, on a
+  miss), counted by a walk that takes every such node: no order of the children can visit fewer,
+  since any of them may hold a closer hit;
+* ns/ray of the incoherent rays, raykernel's and embreex's (the outputs embreex returns, float32,
+  as bench/raycast.py asks them);
+* ns/node for three ray sets of the same size, closest hits with every field, one thread, best of
+  five: the incoherent rays; their origins with one direction for all (the direction's signs and
+  dominant axis the same for every ray, so the branches on them are predicted); and the first
+  REPEATED of the incoherent rays, each cast n / REPEATED times in a row (each ray's path taken
+  over and over: its nodes in cache and its branches learned, the floor for such paths).
+
+Writes the `incoherent` section of BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _report import machine, replace_section  # noqa: E402
+from raycast import MESHES, PEER_FIELDS, embree_run, meshes, random_rays  # noqa: E402
+
+DIRECTION = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
+REPEATED = 64
+
+
+def needed_nodes(nodes, center, origins, directions, t_hit):
+    """The 4-wide nodes whose box each ray enters within [0, t_hit] (the kernel's own box test)."""
+    from raykernel.aggregates.widebvh import CHILD, COUNT, box4_entries, wide_ray
+    from raykernel.geometry.boxes import inverse
+    from raykernel.geometry.config import njit
+
+    @njit
+    def count(nodes, center, o, d, t_hit, out):
+        t4 = np.empty(4)
+        stack = np.empty(4096, np.int64)
+        for r in range(o.shape[0]):
+            wx, wy, wz, vx, vy, vz, near = wide_ray(center, o[r, 0], o[r, 1], o[r, 2], inverse(d[r, 0]),
+                                                    inverse(d[r, 1]), inverse(d[r, 2]))
+            stack[0] = 0
+            sp, n = 1, 0
+            while sp > 0:
+                sp -= 1
+                v = stack[sp]
+                n += 1
+                mask = box4_entries(nodes, v, wx, wy, wz, vx, vy, vz, near, 0.0, t_hit[r], t4)
+                for s in range(4):
+                    if mask & (1 << s) and nodes[v, COUNT + s] == 0:
+                        stack[sp] = nodes[v, CHILD + s]
+                        sp += 1
+            out[r] = n
+
+    out = np.empty(len(origins), np.int64)
+    count(nodes, center, origins, directions, t_hit, out)
+    return out
+
+
+def best_ns(cast, n):
+    """ns a ray of cast() over n rays, best of 5, after one call to warm it; and its last answer."""
+    cast()
+    best = np.inf
+    for _ in range(5):
+        t0 = time.perf_counter()
+        answer = cast()
+        best = min(best, time.perf_counter() - t0)
+    return best / n * 1e9, answer
+
+
+def timed(rs, o, d):
+    """(ns a ray, 4-wide nodes visited a ray, hits) of closest hits of every ray, one thread."""
+    ns, hits = best_ns(lambda: rs.intersect(o, d, threads=1), len(o))
+    return ns, rs.last_stats.get("cells.visited", 0) / len(o), hits
+
+
+def measure(name, v, f, n):
+    from raykernel import RayScene
+    o, d = random_rays(v, n, np.random.default_rng(1))
+    rs = RayScene.from_mesh(v, f, threads=1)
+    ns, visited, hits = timed(rs, o, d)
+    nodes, center = rs._mesh.wide
+    needed = needed_nodes(nodes, center, o, d, np.where(np.isfinite(hits.t), hits.t, np.inf)).mean()
+    row = dict(mesh=name, tris=len(f), visited=visited, needed=needed, incoherent=ns / visited)
+    row["rk_ns"], _ = best_ns(lambda: rs.intersect(o, d, fields=PEER_FIELDS, dtype="float32", threads=1), n)
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+    scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene, v[f].astype(np.float32))
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    row["em_ns"], _ = best_ns(lambda: embree_run(scene, o32, d32, 1), n)
+    # the repeated rays (below), both libraries
+    ro, rd = np.repeat(o[:REPEATED], n // REPEATED, axis=0), np.repeat(d[:REPEATED], n // REPEATED, axis=0)
+    ro32, rd32 = ro.astype(np.float32), rd.astype(np.float32)
+    row["rk_rep_ns"], _ = best_ns(lambda: rs.intersect(ro, rd, fields=PEER_FIELDS, dtype="float32", threads=1),
+                                  len(ro))
+    row["em_rep_ns"], _ = best_ns(lambda: embree_run(scene, ro32, rd32, 1), len(ro))
+    ns, visited, _ = timed(rs, o, np.tile(DIRECTION, (n, 1)))
+    row["one_d"] = ns / visited
+    ns, visited, _ = timed(rs, ro, rd)
+    row["repeated"] = ns / visited
+    return row
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rays", type=int, default=300_000)
+    ap.add_argument("--meshes", default=None, help="comma-separated subset of bench/raycast.py's meshes")
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    import numba
+    numba.set_num_threads(1)
+    names = args.meshes.split(",") if args.meshes else list(MESHES)
+    rows = []
+    for name, (v, f) in meshes(names).items():
+        rows.append(measure(name, v, f, args.rays))
+        print(rows[-1], flush=True)
+    command = "`.venv/bin/python bench/incoherent.py" + (f" --rays {args.rays}" if args.rays != 300_000 else "") + \
+        (f" --meshes {args.meshes}" if args.meshes else "") + f"` ({date.today().isoformat()})"
+    lines = ["## Incoherent rays: where the time goes", "", f"Machine: {machine()}.", "", f"Command: {command}", "",
+             f"{args.rays:,} rays a set, one thread, closest hits with every field, best of 5. visited: 4-wide nodes "
+             "the mesh kernel visits a ray; needed: those whose box the ray enters before its closest hit, which "
+             "any order of the children must visit. ns/node: a ray's time (its triangle tests and outputs "
+             "included) over the nodes it visits, for the incoherent rays (bench/raycast.py's), for their origins "
+             f"with one direction, and for the first {REPEATED} of them each cast {args.rays // REPEATED:,} times "
+             "in a row (the same paths, in cache and predicted). ns/ray: the incoherent rays and the repeated ones "
+             "with the outputs embreex returns (float32), raykernel's and embreex's; ratio: embreex's time over "
+             "raykernel's.", "",
+             "| mesh | triangles | ns/ray | embreex ns/ray | ratio | repeated ns/ray | embreex | ratio | visited | "
+             "needed | ns/node incoherent | one direction | repeated |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['mesh']} | {r['tris']:,} | {r['rk_ns']:.0f} | {r['em_ns']:.0f} | "
+                     f"{r['em_ns'] / r['rk_ns']:.2f} | {r['rk_rep_ns']:.0f} | {r['em_rep_ns']:.0f} | "
+                     f"{r['em_rep_ns'] / r['rk_rep_ns']:.2f} | {r['visited']:.2f} | "
+                     f"{r['needed']:.2f} | "
+                     f"{r['incoherent']:.1f} | {r['one_d']:.1f} | {r['repeated']:.1f} |")
+    text = "\n".join(lines)
+    print(text)
+    if not args.no_write:
+        replace_section("incoherent", text)
+
+
+if __name__ == "__main__":
+    main()
