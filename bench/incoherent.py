@@ -10,8 +10,8 @@ uniform random directions):
 * needed: the 4-wide nodes whose box the ray enters before its closest hit (or at all, on a
   miss), counted by a walk that takes every such node: no order of the children can visit fewer,
   since any of them may hold a closer hit;
-* ns/ray of the incoherent rays, raykernel's and embreex's (the outputs embreex returns, float32,
-  as bench/raycast.py asks them);
+* ns/ray of the incoherent rays and of the repeated ones (below), raykernel's and embreex's (the
+  outputs embreex returns, float32, as bench/raycast.py asks them);
 * ns/node for three ray sets of the same size, closest hits with every field, one thread, best of
   five: the incoherent rays; their origins with one direction for all (the direction's signs and
   dominant axis the same for every ray, so the branches on them are predicted); and the first
@@ -145,8 +145,7 @@ def main():
     for r in rows:
         lines.append(f"| {r['mesh']} | {r['tris']:,} | {r['rk_ns']:.0f} | {r['em_ns']:.0f} | "
                      f"{r['em_ns'] / r['rk_ns']:.2f} | {r['rk_rep_ns']:.0f} | {r['em_rep_ns']:.0f} | "
-                     f"{r['em_rep_ns'] / r['rk_rep_ns']:.2f} | {r['visited']:.2f} | "
-                     f"{r['needed']:.2f} | "
+                     f"{r['em_rep_ns'] / r['rk_rep_ns']:.2f} | {r['visited']:.2f} | {r['needed']:.2f} | "
                      f"{r['incoherent']:.1f} | {r['one_d']:.1f} | {r['repeated']:.1f} |")
     text = "\n".join(lines)
     print(text)
