@@ -502,8 +502,8 @@ def _build_top(data, order, bounds, first, count, args, defer, node_cap, tasks, 
                                                      np.int64(TOP_WORK), wide, split)
         deepest = max(deepest, depth)
         if split[0] >= 0:
-            s, e = stack[1][top - 1], stack[2][top - 1]
-            mid, boxes = _partition_on_threads(data, order, s, e, split, threads)
+            _, st_start, st_end, _, _ = stack
+            mid, boxes = _partition_on_threads(data, order, st_start[top - 1], st_end[top - 1], split, threads)
             top, next_node = _split_top(bounds, first, count, *stack, top, next_node, np.int64(mid), boxes)
     return next_node, deepest, n_tasks
 
