@@ -24,6 +24,7 @@ Writes the `incoherent` section of BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from datetime import date
@@ -35,39 +36,34 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import machine, replace_section  # noqa: E402
 from raycast import MESHES, PEER_FIELDS, embree_run, meshes, random_rays  # noqa: E402
 
+from raykernel.aggregates.widebvh import CHILD, COUNT, box4_entries, wide_ray  # noqa: E402
+from raykernel.geometry.boxes import inverse  # noqa: E402
+from raykernel.geometry.config import njit  # noqa: E402
+
 DIRECTION = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
 REPEATED = 64
 
 
-def needed_nodes(nodes, center, origins, directions, t_hit):
-    """The 4-wide nodes whose box each ray enters within [0, t_hit] (the kernel's own box test)."""
-    from raykernel.aggregates.widebvh import CHILD, COUNT, box4_entries, wide_ray
-    from raykernel.geometry.boxes import inverse
-    from raykernel.geometry.config import njit
-
-    @njit
-    def count(nodes, center, o, d, t_hit, out):
-        t4 = np.empty(4)
-        stack = np.empty(4096, np.int64)
-        for r in range(o.shape[0]):
-            wx, wy, wz, vx, vy, vz, near = wide_ray(center, o[r, 0], o[r, 1], o[r, 2], inverse(d[r, 0]),
-                                                    inverse(d[r, 1]), inverse(d[r, 2]))
-            stack[0] = 0
-            sp, n = 1, 0
-            while sp > 0:
-                sp -= 1
-                v = stack[sp]
-                n += 1
-                mask = box4_entries(nodes, v, wx, wy, wz, vx, vy, vz, near, 0.0, t_hit[r], t4)
-                for s in range(4):
-                    if mask & (1 << s) and nodes[v, COUNT + s] == 0:
-                        stack[sp] = nodes[v, CHILD + s]
-                        sp += 1
-            out[r] = n
-
-    out = np.empty(len(origins), np.int64)
-    count(nodes, center, origins, directions, t_hit, out)
-    return out
+@njit
+def needed_nodes(nodes, center, o, d, t_hit, out):
+    """out[r]: the 4-wide nodes whose box ray r enters within [0, t_hit[r]] (the kernel's own box test)."""
+    t4 = np.empty(4)
+    stack = np.empty(4096, np.int64)
+    for r in range(o.shape[0]):
+        wx, wy, wz, vx, vy, vz, near = wide_ray(center, o[r, 0], o[r, 1], o[r, 2], inverse(d[r, 0]),
+                                                inverse(d[r, 1]), inverse(d[r, 2]))
+        stack[0] = 0
+        sp, n = 1, 0
+        while sp > 0:
+            sp -= 1
+            v = stack[sp]
+            n += 1
+            mask = box4_entries(nodes, v, wx, wy, wz, vx, vy, vz, near, 0.0, t_hit[r], t4)
+            for s in range(4):
+                if mask & (1 << s) and nodes[v, COUNT + s] == 0:
+                    stack[sp] = nodes[v, CHILD + s]
+                    sp += 1
+        out[r] = n
 
 
 def best_ns(cast, n):
@@ -87,27 +83,38 @@ def timed(rs, o, d):
     return ns, rs.last_stats.get("cells.visited", 0) / len(o), hits
 
 
+def against_embree(rs, scene, o, d):
+    """The same rays and outputs (embreex's, float32) on one thread: raykernel's and embreex's ns a
+    ray, the rays each cast (raykernel's rays.cast counter, embreex's answers), and the share of rays
+    on which both give the same hit or miss and t within 1e-5 t."""
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    rk_ns, hits = best_ns(lambda: rs.intersect(o, d, fields=PEER_FIELDS, dtype="float32", threads=1), len(o))
+    rk_rays = rs.last_stats.get("rays.cast", 0)
+    em_ns, (geom, t_em) = best_ns(lambda: embree_run(scene, o32, d32, 1), len(o))
+    hit_rk, hit_em = np.isfinite(hits.t), geom != -1
+    same = hit_rk == hit_em
+    both = hit_rk & hit_em
+    t_rk = hits.t.astype(float)
+    same[both] = np.abs(t_rk[both] - t_em[both]) <= 1e-5 * np.maximum(np.abs(t_rk[both]), 1e-30)
+    return rk_ns, em_ns, rk_rays, len(geom), float(same.mean())
+
+
 def measure(name, v, f, n):
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
     from raykernel import RayScene
     o, d = random_rays(v, n, np.random.default_rng(1))
     rs = RayScene.from_mesh(v, f, threads=1)
-    ns, visited, hits = timed(rs, o, d)
-    nodes, center = rs._mesh.wide
-    needed = needed_nodes(nodes, center, o, d, np.where(np.isfinite(hits.t), hits.t, np.inf)).mean()
-    row = dict(mesh=name, tris=len(f), visited=visited, needed=needed, incoherent=ns / visited)
-    row["rk_ns"], _ = best_ns(lambda: rs.intersect(o, d, fields=PEER_FIELDS, dtype="float32", threads=1), n)
-    from embreex import rtcore_scene
-    from embreex.mesh_construction import TriangleMesh
     scene = rtcore_scene.EmbreeScene()
     TriangleMesh(scene, v[f].astype(np.float32))
-    o32, d32 = o.astype(np.float32), d.astype(np.float32)
-    row["em_ns"], _ = best_ns(lambda: embree_run(scene, o32, d32, 1), n)
-    # the repeated rays (below), both libraries
+    ns, visited, hits = timed(rs, o, d)
+    needed = np.empty(n, np.int64)
+    needed_nodes(*rs._mesh.wide, o, d, np.where(np.isfinite(hits.t), hits.t, np.inf), needed)
+    row = dict(mesh=name, tris=len(f), visited=visited, needed=needed.mean(), incoherent=ns / visited)
+    row["rk_ns"], row["em_ns"], row["rk_rays"], row["em_rays"], row["agree"] = against_embree(rs, scene, o, d)
     ro, rd = np.repeat(o[:REPEATED], n // REPEATED, axis=0), np.repeat(d[:REPEATED], n // REPEATED, axis=0)
-    ro32, rd32 = ro.astype(np.float32), rd.astype(np.float32)
-    row["rk_rep_ns"], _ = best_ns(lambda: rs.intersect(ro, rd, fields=PEER_FIELDS, dtype="float32", threads=1),
-                                  len(ro))
-    row["em_rep_ns"], _ = best_ns(lambda: embree_run(scene, ro32, rd32, 1), len(ro))
+    row["rk_rep_ns"], row["em_rep_ns"], *_ = against_embree(rs, scene, ro, rd)
     ns, visited, _ = timed(rs, o, np.tile(DIRECTION, (n, 1)))
     row["one_d"] = ns / visited
     ns, visited, _ = timed(rs, ro, rd)
@@ -123,6 +130,7 @@ def main():
     args = ap.parse_args()
     import numba
     numba.set_num_threads(1)
+    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})     # both libraries on the same one core
     names = args.meshes.split(",") if args.meshes else list(MESHES)
     rows = []
     for name, (v, f) in meshes(names).items():
@@ -137,13 +145,15 @@ def main():
              "included) over the nodes it visits, for the incoherent rays (bench/raycast.py's), for their origins "
              f"with one direction, and for the first {REPEATED} of them each cast {args.rays // REPEATED:,} times "
              "in a row (the same paths, in cache and predicted). ns/ray: the incoherent rays and the repeated ones "
-             "with the outputs embreex returns (float32), raykernel's and embreex's; ratio: embreex's time over "
-             "raykernel's.", "",
-             "| mesh | triangles | ns/ray | embreex ns/ray | ratio | repeated ns/ray | embreex | ratio | visited | "
-             "needed | ns/node incoherent | one direction | repeated |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "with the outputs embreex returns (float32), raykernel's and embreex's, the process pinned to one core; "
+             "ratio: embreex's time over raykernel's; rays: the incoherent rays each cast (raykernel's rays.cast "
+             "counter / embreex's answers); agree: same hit or miss and t within 1e-5 t.", "",
+             "| mesh | triangles | rays | agree | ns/ray | embreex ns/ray | ratio | repeated ns/ray | embreex | "
+             "ratio | visited | needed | ns/node incoherent | one direction | repeated |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        lines.append(f"| {r['mesh']} | {r['tris']:,} | {r['rk_ns']:.0f} | {r['em_ns']:.0f} | "
+        lines.append(f"| {r['mesh']} | {r['tris']:,} | {r['rk_rays']:,} / {r['em_rays']:,} | {r['agree']:.4f} | "
+                     f"{r['rk_ns']:.0f} | {r['em_ns']:.0f} | "
                      f"{r['em_ns'] / r['rk_ns']:.2f} | {r['rk_rep_ns']:.0f} | {r['em_rep_ns']:.0f} | "
                      f"{r['em_rep_ns'] / r['rk_rep_ns']:.2f} | {r['visited']:.2f} | {r['needed']:.2f} | "
                      f"{r['incoherent']:.1f} | {r['one_d']:.1f} | {r['repeated']:.1f} |")
