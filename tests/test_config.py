@@ -1,8 +1,10 @@
 """The kernel cache is keyed on the kernels' code (geometry/cachekey.py): no stale kernel runs, and
 no docstring, comment or blank line recompiles one."""
 
-import re
+import json
+import os
 import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -13,79 +15,144 @@ from numba.core.caching import FunctionCache
 
 from raykernel.geometry import cachekey, config
 
-KERNEL_FILES = sorted(p.relative_to(config.PACKAGE).as_posix() for p in config.PACKAGE.rglob("*.py")
-                      if b"@njit" in p.read_bytes())
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from cache_edits import code_edit, retext  # noqa: E402  (the edits bench/cache_edits.py counts)
+
+sys.path.pop(0)
+PROBE = "import json; from raykernel.geometry import cachekey; print(json.dumps(cachekey.all_stamps()))"
 
 
 def _copy_package(tmp_path):
-    dest = tmp_path / "pkg"
+    dest = tmp_path / "src" / "raykernel"
     shutil.copytree(config.PACKAGE, dest, ignore=shutil.ignore_patterns("__pycache__"))
     return dest
 
 
-def _stamps(pkg):
-    return {name: cachekey.code_stamp(pkg / name, pkg) for name in KERNEL_FILES}
+def _stamps(pkg) -> dict:
+    """Every cached kernel's stamp, as a fresh process importing the package at `pkg` makes them."""
+    env = dict(os.environ, PYTHONPATH=str(pkg.parent))
+    out = subprocess.run([sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, cwd=pkg.parent,
+                         check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def _retext(source: str) -> str:
-    """The same code as other text: bench/cache_edits.py's edit (every docstring changed, a
-    comment after every def, blank lines before it, a comment at the end)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+def _changed(before, after):
+    assert set(before) == set(after)
+    return {k for k in before if before[k] != after[k]}
+
+
+@pytest.fixture(scope="module")
+def package(tmp_path_factory):
+    """A copy of the package and its kernels' stamps."""
+    pkg = _copy_package(tmp_path_factory.mktemp("stamps"))
+    return pkg, _stamps(pkg)
+
+
+def test_stamps_are_made_at_first_use_and_the_same_in_every_process(package):
+    pkg, before = package
+    assert len(before) > 200
+    assert before == cachekey.all_stamps()              # this process, the checkout itself
+    assert _stamps(pkg) == before
+
+
+def test_no_text_edit_restamps_a_kernel(package):
+    pkg, before = package
+    edited = {path: path.read_text() for path in pkg.rglob("*.py")}
+    for path, text in edited.items():
+        path.write_text(retext(text))
     try:
-        from cache_edits import retext
+        assert _stamps(pkg) == before
     finally:
-        sys.path.pop(0)
-    return retext(source)
+        for path, text in edited.items():
+            path.write_text(text)
 
 
-def test_every_kernel_file_is_stamped_by_its_code_alone(tmp_path):
-    pkg = _copy_package(tmp_path)
-    before = _stamps(pkg)
-    assert before == {name: cachekey.code_stamp(config.PACKAGE / name) for name in KERNEL_FILES}
-    assert len(KERNEL_FILES) > 20
-    for name in KERNEL_FILES:
-        path = pkg / name
-        text = path.read_text()
-        path.write_text(_retext(text))
-        assert path.read_text() != text
-        assert _stamps(pkg) == before, name
+def _edit(pkg, name, new_text):
+    path = pkg / name
+    text = path.read_text()
+    assert new_text != text
+    path.write_text(new_text)
+    try:
+        return _stamps(pkg)
+    finally:
         path.write_text(text)
 
 
-def test_a_code_change_restamps_its_file_and_every_file_importing_it(tmp_path):
-    pkg = _copy_package(tmp_path)
-    before = _stamps(pkg)
+def test_a_code_change_restamps_its_callers_and_no_other_kernel(package):
+    pkg, before = package
     prims = pkg / "geometry" / "primitives.py"
-    prims.write_text(prims.read_text() + "\nCHANGED = 1\n")
-    after = _stamps(pkg)
-    assert after["geometry/primitives.py"] != before["geometry/primitives.py"]
-    assert after["engine/traverse.py"] != before["engine/traverse.py"]       # inlines the primitive tests
-    assert after["geometry/boxes.py"] == before["geometry/boxes.py"]         # imports nothing of it
+    changed = _changed(before, _edit(pkg, "geometry/primitives.py", code_edit(prims.read_text(), only="sphere_roots")))
+    assert "raykernel.geometry.primitives.sphere_roots" in changed
+    assert "raykernel.engine.traverse.walk" in changed            # inlines the sphere test
+    assert not any(k.startswith("raykernel.geometry.boxes.") for k in changed)      # calls nothing of it
+    assert not any(k.startswith("raykernel.casting.meshbuild.") for k in changed)   # nor the mesh builds
+    # and a builder edit restamps no walk
+    bvh = pkg / "aggregates" / "bvh.py"
+    changed = _changed(before, _edit(pkg, "aggregates/bvh.py", code_edit(bvh.read_text(), only="_best_split")))
+    assert "raykernel.aggregates.bvh._best_split" in changed
+    assert not any(k.endswith(".walk_step") or ".traverse." in k or ".widewalk." in k for k in changed)
 
 
-@pytest.mark.parametrize("feeder", ["geometry/counters.py", "aggregates/walk.py"])
-def test_a_constant_that_kernels_freeze_restamps_them(tmp_path, feeder):
-    # no kernel of their own, but counter columns and stack sizes are frozen into kernels
-    pkg = _copy_package(tmp_path)
-    before = _stamps(pkg)
-    path = pkg / feeder
-    text = path.read_text()
-    number = re.search(r"^([A-Z_]+) = (\d+)", text, re.M)
-    path.write_text(text.replace(number.group(0), f"{number.group(1)} = {int(number.group(2)) + 1}", 1))
-    after = _stamps(pkg)
-    assert after["engine/traverse.py"] != before["engine/traverse.py"]
+@pytest.mark.parametrize("feeder, old, new", [
+    ("geometry/counters.py", "RAYS_EYE, RAYS_EYE_HIT = 0, 1", "RAYS_EYE, RAYS_EYE_HIT = 1, 0"),
+    ("aggregates/walk.py", "MAX_TREE_DEPTH = 96", "MAX_TREE_DEPTH = 97"),
+    ("errors.py", "class SceneError(RayKernelError):", "class SceneError(RayKernelError):\n    EDITED = 1"),
+])
+def test_a_constant_that_kernels_freeze_restamps_them(package, feeder, old, new):
+    # no kernel of their own, but counter columns and stack sizes are frozen into kernels; an error
+    # message is frozen into none
+    pkg, before = package
+    text = (pkg / feeder).read_text()
+    assert old in text
+    changed = _changed(before, _edit(pkg, feeder, text.replace(old, new, 1)))
+    if feeder == "errors.py":
+        assert not changed
+    elif feeder == "geometry/counters.py":
+        assert any(k.startswith("raykernel.rendering.") for k in changed)
+    else:
+        assert "raykernel.engine.traverse.workspace" in changed     # sizes the stack
 
 
-def test_imports_are_found_in_every_form(tmp_path):
-    pkg = tmp_path / "pkg"
-    (pkg / "sub").mkdir(parents=True)
-    for name in ("a.py", "b.py", "c.py", "g.py", "sub/__init__.py", "sub/d.py", "sub/e.py", "sub/f.py"):
-        (pkg / name).write_text("")
-    (pkg / "sub" / "k.py").write_text("from ..a import x  # a comment, d\nfrom . import d, e as g\n"
-                                      "from .f import (\n    y,  # z\n    w,\n)\nfrom .. import b\nimport c\n"
-                                      "def later():\n    from ..g import h\n")
-    found = {p.relative_to(pkg).as_posix() for p in cachekey.dependencies(pkg / "sub" / "k.py", pkg)}
-    assert found == {"sub/k.py", "a.py", "sub/d.py", "sub/e.py", "sub/f.py", "sub/__init__.py", "b.py", "g.py"}
+CACHED_PAIR = """
+from raykernel.geometry.config import njit
+
+
+@njit
+def inner(x):
+    return x + 1
+
+
+@njit
+def outer(x):
+    return 2 * inner(x)
+
+
+@njit
+def other(x):
+    return x - 1
+"""
+RUN_PAIR = ("import json, probe; a, b = probe.outer(20), probe.other(5); "
+            "print(json.dumps([a, b, sum(probe.outer.stats.cache_hits.values()), "
+            "sum(probe.other.stats.cache_hits.values())]))")
+
+
+def _run_pair(folder, cache):
+    env = dict(os.environ, PYTHONPATH=f"{folder}{os.pathsep}{config.PACKAGE.parent}", NUMBA_CACHE_DIR=str(cache))
+    out = subprocess.run([sys.executable, "-c", RUN_PAIR], env=env, capture_output=True, text=True, check=True)
+    return tuple(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def test_an_edit_recompiles_the_kernels_that_use_it_and_only_those(tmp_path):
+    # end to end, through numba's cache: a fresh process loads what an earlier one compiled
+    probe = tmp_path / "probe.py"
+    probe.write_text(CACHED_PAIR)
+    cache = tmp_path / "cache"
+    assert _run_pair(tmp_path, cache) == (42, 4, 0, 0)          # compiled
+    assert _run_pair(tmp_path, cache) == (42, 4, 1, 1)          # loaded
+    probe.write_text(retext(CACHED_PAIR))
+    assert _run_pair(tmp_path, cache) == (42, 4, 1, 1)          # a text edit: loaded
+    probe.write_text(CACHED_PAIR.replace("x + 1", "x + 2"))
+    assert _run_pair(tmp_path, cache) == (44, 4, 0, 1)          # inner changed: outer recompiled, other loaded
 
 
 def test_kernels_cache_in_raykernels_folder_and_other_numba_code_in_numbas():
@@ -121,6 +188,7 @@ def test_the_entry_name_does_not_move_with_the_lines_above(tmp_path):
     changed = load("changed", "def first(x):\n    return x + 2\n")
     assert cachekey.function_key(plain.first) == cachekey.function_key(moved.first)
     assert cachekey.function_key(plain.first) != cachekey.function_key(changed.first)
+    assert cachekey.kernel_stamp(plain.first) == cachekey.kernel_stamp(moved.first)
 
 
 def test_factory_form_takes_options():
@@ -235,3 +303,13 @@ def test_importing_raykernel_deletes_no_folder(tmp_path):
     env.pop("NUMBA_CACHE_DIR", None)
     subprocess.run([sys.executable, "-c", "import raykernel"], env=env, check=True)
     assert old.is_dir()
+
+
+def test_importing_makes_no_stamp_and_the_scene_model_needs_no_numba():
+    code = ("import sys, raykernel; assert 'numba' not in sys.modules; raykernel.Scene, raykernel.Spheres; "
+            "import raykernel.scene.model; assert 'numba' not in sys.modules, 'model'; raykernel.load('spd:tetra:1'); "
+            "raykernel.render; import raykernel.cli, raykernel.casting.rayscene; "
+            "from raykernel.geometry import cachekey; print(len(cachekey._stamps))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["0"]

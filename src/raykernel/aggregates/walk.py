@@ -83,10 +83,8 @@ from numba.extending import overload
 
 from ..geometry import counters as C
 from ..geometry.config import njit
+from ..geometry.limits import MAX_NESTING
 
-# aggregates along any path from the root, the root included: the deepest level a group may sit at (the
-# root is level 1, each group within a group or an instance one more); the driver keeps one frame for each
-MAX_NESTING = 16
 MAX_TREE_DEPTH = 96       # nodes along any path within one hierarchy (the stack)
 STACK_SIZE = MAX_NESTING * (MAX_TREE_DEPTH + 2)
 STEP_BITS = 4

@@ -1,152 +1,216 @@
-"""When a cached kernel is stale: keyed on the code it is made of, not on the text of its files.
+"""When a cached kernel is stale: keyed on the code it is made of, function by function.
 
-    stamp = code_stamp(path)          # changes when the code of path, or of a module it imports, changes
+    stamp = kernel_stamp(py_func)     # changes when py_func's code, or code or a constant it uses, changes
     cache = KernelCache(py_func)      # numba's FunctionCache for raykernel's kernels (config.njit sets it)
 
 numba keeps each compiled function in an index file stamped with its source
 file: by default the hash of the file's bytes, so a docstring or a comment
 edit drops every kernel of the file, and a kernel that inlines a helper from
 another file never sees that file change. raykernel's kernels are looked up
-with a locator of their own instead:
+with a locator of their own instead. The stamp of a kernel is made from the
+live objects it is compiled from, when it is first compiled or loaded (never
+at import):
 
-* the stamp of a kernel is a hash of the *code* of its file and of every
-  package file it imports from, directly or not (relative imports anywhere in
-  the file, in-function ones included): each file's syntax tree with its
-  docstrings taken out and without line numbers, so comments, docstrings,
-  blank lines and line wrapping change nothing, while any change to a
-  statement, a name or a constant (a counter column, a stack size that a
-  kernel freezes when it compiles) gives a new stamp for that file and for
-  every file that imports it;
-* the file name of its cache entry is its qualified name and a hash of its
-  own code (numba's default, the first line number, moves with every line
-  added above it).
+* its own code: the bytecode, names and constants of the function and of the
+  functions nested in it, without the docstring and without line numbers, so
+  comments, docstrings, blank lines and moved code change nothing;
+* for every global name that code reads, what the name holds: another
+  kernel or helper of raykernel's (its stamp, recursively), the overloads and
+  intrinsics numba compiles in its place, a constant (a counter column, a
+  stack size that a kernel freezes when it compiles: its value), or a module
+  or class of raykernel's (the members the code names); code of other
+  packages (numpy, numba, math) by name, as numba's version is in the key.
 
-numba checks the rest as it always does: each entry is keyed on the
-signature, the CPU and the function's bytecode, and the index on numba's
-version. The entries live in one folder per checkout (see config.CACHE_DIR);
-an entry whose stamp no longer matches is overwritten by the next compile.
+So an edit recompiles the kernels that use what it changed and no others: an
+error message or a builder that no walk calls leaves the walks cached. The
+file name of a cache entry is the kernel's qualified name and a hash of its
+own code (numba's default, the first line number, moves with every line
+added above it). numba checks the rest as it always does: each entry is keyed
+on the signature, the CPU and the function's bytecode, and the index on
+numba's version. The entries live in one folder per checkout (see
+config.CACHE_DIR); an entry whose stamp no longer matches is overwritten by
+the next compile.
 """
 
 from __future__ import annotations
 
-import ast
-import functools
 import hashlib
 import inspect
 import os
+import threading
+import types
 from pathlib import Path
 
-from numba.core.caching import CompileResultCacheImpl, FunctionCache, _CacheLocator
+import numpy as np
+from numba.core.caching import CompileResultCacheImpl, FunctionCache, IndexDataCacheFile, _CacheLocator
 
 PACKAGE = Path(__file__).resolve().parents[1]   # raykernel/
+OURS = PACKAGE.name
+_FUNCTION_FLAGS = inspect.CO_OPTIMIZED | inspect.CO_NEWLOCALS
+_PLAIN = (int, float, complex, bool, str, bytes, type(None), np.number, np.bool_, np.dtype)
+
+_lock = threading.RLock()
+_stamps: dict = {}          # id(function) -> (function, stamp): each function stamped once a process
+_overloads: tuple[int, dict] = (-1, {})     # (how many globals numba had registered, the table made from them)
 
 
-def _strip_docstrings(tree: ast.AST) -> ast.AST:
-    for node in ast.walk(tree):
-        body = getattr(node, "body", None)
-        if (isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and body
-                and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant)
-                and isinstance(body[0].value.value, str)):
-            node.body = body[1:] or [ast.Pass()]
-    return tree
+def _ours(obj, home: str) -> bool:
+    """Is obj (a function, class or module) raykernel's, or of the module the kernel is in (a test's)?"""
+    module = obj.__name__ if isinstance(obj, types.ModuleType) else getattr(obj, "__module__", None) or ""
+    return module == home or module == OURS or module.startswith(OURS + ".")
 
 
-def code_of(source: str) -> str:
-    """The code of a module's source: its syntax tree without docstrings, comments or positions."""
-    return ast.dump(_strip_docstrings(ast.parse(source)))
+def _code_text(code: types.CodeType, out: list) -> None:
+    """The code object's bytecode, names and constants, nested code objects included; a
+    function's docstring (its first constant, None when it has none) left out."""
+    out += [code.co_code.hex(), repr(code.co_names), repr(code.co_varnames), repr(code.co_freevars)]
+    consts = code.co_consts
+    if code.co_flags & _FUNCTION_FLAGS == _FUNCTION_FLAGS and not code.co_name.startswith("<") and consts:
+        consts = consts[1:]
+    for const in consts:
+        if isinstance(const, types.CodeType):
+            _code_text(const, out)
+        else:
+            out.append(repr(const))
 
 
-def _imports(path: Path, tree: ast.AST, package: Path) -> set[Path]:
-    """The package files `path` imports from by relative imports (`from .a import b`, `from . import c`)."""
-    found = set()
-    for node in ast.walk(tree):
-        if not isinstance(node, ast.ImportFrom) or not node.level:
-            continue
-        base = path.parent
-        for _ in range(node.level - 1):
-            base = base.parent
-        target = base.joinpath(*node.module.split(".")) if node.module else base
-        candidates = [target.with_suffix(".py"), target / "__init__.py"]
-        candidates += [target / f"{alias.name}.py" for alias in node.names]
-        candidates += [target / alias.name / "__init__.py" for alias in node.names]
-        found.update(c for c in candidates if c.is_file() and package in c.parents)
+def _names(code: types.CodeType, found: set) -> set:
+    found.update(code.co_names)
+    for const in code.co_consts:
+        if isinstance(const, types.CodeType):
+            _names(const, found)
     return found
 
 
-@functools.lru_cache(maxsize=None)
-def _file(path: Path, package: Path, mtime_ns: int, size: int) -> tuple[str, frozenset]:
-    """(hash of the file's code, the package files it imports), memoised on the file's state."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    imports = frozenset(_imports(path, tree, package))
-    return hashlib.sha256(ast.dump(_strip_docstrings(tree)).encode()).hexdigest(), imports
+def own_code(func) -> str:
+    """A hash of a function's own code (see _code_text): the same for the same code wherever it is."""
+    out = []
+    _code_text(func.__code__, out)
+    return hashlib.sha256("\0".join(out).encode()).hexdigest()
 
 
-def _read(path: Path, package: Path) -> tuple[str, frozenset]:
-    st = path.stat()
-    return _file(path, package, st.st_mtime_ns, st.st_size)
+def _overload_table() -> dict:
+    """id(stub) -> the functions numba's @overload compiles in its place (read again when modules
+    imported since have registered more)."""
+    global _overloads
+    from numba.core.typing.templates import builtin_registry
+    registered = builtin_registry.globals
+    if _overloads[0] != len(registered):
+        table: dict = {}
+        for func, typ in registered:
+            for template in getattr(typ, "templates", ()):
+                impl = getattr(template, "_overload_func", None)
+                if impl is not None:
+                    table.setdefault(id(func), []).append(impl)
+        _overloads = (len(registered), table)
+    return _overloads[1]
 
 
-def dependencies(path, package: Path = PACKAGE) -> list[Path]:
-    """`path` and every file of `package` it imports from, directly or not, sorted."""
-    path = Path(path).resolve()
-    seen, todo = {path}, [path]
-    while todo:
-        for dep in _read(todo.pop(), package)[1]:
-            if dep not in seen:
-                seen.add(dep)
-                todo.append(dep)
-    return sorted(seen)
+def _value(obj, names: frozenset, home: str, busy: dict) -> str:
+    """What a global the kernel reads contributes to its stamp."""
+    if isinstance(obj, _PLAIN):
+        return f"{type(obj).__name__}:{obj!r}"
+    if isinstance(obj, (tuple, list, frozenset)):
+        items = sorted(obj, key=repr) if isinstance(obj, frozenset) else obj
+        return f"{type(obj).__name__}(" + ",".join(_value(x, names, home, busy) for x in items) + ")"
+    if isinstance(obj, np.ndarray):
+        return f"array:{obj.dtype}:{obj.shape}:{hashlib.sha256(np.ascontiguousarray(obj).tobytes()).hexdigest()}"
+    py_func = getattr(obj, "py_func", None) or getattr(obj, "_defn", None)     # a dispatcher, an intrinsic
+    if isinstance(py_func, types.FunctionType):
+        return _value(py_func, names, home, busy)
+    if isinstance(obj, types.FunctionType):
+        if not _ours(obj, home):
+            return f"func:{obj.__module__}.{obj.__qualname__}"
+        return "func:" + _stamp(obj, home, busy)
+    if isinstance(obj, (types.ModuleType, type)):
+        label = f"{type(obj).__name__}:{getattr(obj, '__module__', '')}.{getattr(obj, '__qualname__', obj.__name__)}"
+        if not _ours(obj, home):
+            return label
+        members = sorted(n for n in names if n in vars(obj))
+        label += repr(getattr(obj, "_fields", ""))          # a named tuple's fields
+        return label + "{" + ",".join(f"{n}={_value(vars(obj)[n], names, home, busy)}" for n in members) + "}"
+    text = repr(obj)
+    return type(obj).__qualname__ + (":" + text if " at 0x" not in text else "")
 
 
-def code_stamp(path, package: Path = PACKAGE) -> str:
-    """The stamp of the kernels defined in `path`: a hash of its code and of its dependencies'
-    (files of `package`, raykernel's by default)."""
-    package, path = Path(package).resolve(), Path(path).resolve()
-    if package not in path.parents:         # a kernel of another folder (a test's): its own folder
-        package = path.parent
-    digest = hashlib.sha256()
-    for dep in dependencies(path, package):
-        digest.update(str(dep.relative_to(package)).encode() + b"\0" + _read(dep, package)[0].encode() + b"\0")
-    return digest.hexdigest()
+def _stamp(func, home: str, busy: dict) -> str:
+    """busy: id -> function of the stamps being made, and "cycles": how many cycles were met."""
+    key = id(func)
+    done = _stamps.get(key)
+    if done is not None and done[0] is func:
+        return done[1]
+    if key in busy:                 # a call cycle: the function's own code stands for it
+        busy["cycles"] += 1
+        return own_code(func)
+    busy[key] = func
+    cycles = busy["cycles"]
+    try:
+        names = frozenset(_names(func.__code__, set()))
+        parts = [func.__qualname__, own_code(func)]
+        scope = func.__globals__
+        for name in sorted(names):
+            if name in scope:
+                parts.append(f"{name}={_value(scope[name], names, home, busy)}")
+        for name, cell in zip(func.__code__.co_freevars, func.__closure__ or ()):
+            try:
+                parts.append(f"{name}~{_value(cell.cell_contents, names, home, busy)}")
+            except ValueError:      # an empty cell
+                parts.append(f"{name}~")
+        for impl in _overload_table().get(key, ()):
+            parts.append("overload:" + _value(impl, names, home, busy))
+        stamp = hashlib.sha256("\0".join(parts).encode()).hexdigest()
+    finally:
+        del busy[key]
+    if busy["cycles"] == cycles:    # a stamp that met a cycle depends on where it was entered: not kept
+        _stamps[key] = (func, stamp)
+    return stamp
+
+
+def kernel_stamp(py_func) -> str:
+    """The stamp of a kernel's cache entries: its code and everything it compiles in (see above)."""
+    with _lock:
+        return _stamp(py_func, py_func.__module__, {"cycles": 0})
 
 
 def function_key(py_func) -> str:
-    """A short hash of a function's own code (its source's syntax tree less docstrings), else of
-    its bytecode: the cache entry's name, which does not move with the lines above it."""
-    try:
-        source = inspect.getsource(py_func)
-        text = code_of(_dedent(source))
-    except (OSError, TypeError, SyntaxError):
-        text = py_func.__code__.co_code.hex()
-    return hashlib.sha256(text.encode()).hexdigest()[:12]
+    """A short hash of a function's own code: the cache entry's name, which does not move with the
+    lines above it."""
+    return own_code(py_func)[:12]
 
 
-def _dedent(source: str) -> str:
-    """A nested function's source, made parseable on its own."""
-    lines = source.splitlines()
-    indent = len(lines[0]) - len(lines[0].lstrip())
-    return "\n".join(line[indent:] for line in lines)
+def all_stamps() -> dict[str, str]:
+    """module.qualname -> stamp of every cached kernel of the package (every module imported)."""
+    import importlib
+    import pkgutil
+    stamps = {}
+    for info in pkgutil.walk_packages([str(PACKAGE)], OURS + "."):
+        if info.name.endswith("__main__"):
+            continue
+        module = importlib.import_module(info.name)
+        for obj in list(vars(module).values()):
+            if isinstance(getattr(obj, "_cache", None), KernelCache) and obj.py_func.__module__ == info.name:
+                stamps[f"{info.name}.{obj.py_func.__qualname__}"] = kernel_stamp(obj.py_func)
+    return stamps
 
 
 class _CodeLocator(_CacheLocator):
     """numba's cache locator for raykernel's kernels: the folder of `cache_dir()`, the stamp of
-    code_stamp, the entry name of function_key."""
+    kernel_stamp, the entry name of function_key."""
 
     cache_dir = None        # set by config: a callable giving the folder of this checkout's kernels
 
     def __init__(self, py_func, py_file):
-        self._py_file = py_file
-        self._key = function_key(py_func)
+        self._py_func = py_func
         self._cache_path = os.path.join(self.cache_dir(), self.get_suitable_cache_subpath(py_file))
 
     def get_cache_path(self):
         return self._cache_path
 
     def get_source_stamp(self):
-        return code_stamp(self._py_file)
+        return kernel_stamp(self._py_func)
 
     def get_disambiguator(self):
-        return self._key
+        return function_key(self._py_func)
 
     @classmethod
     def from_function(cls, py_func, py_file):
@@ -165,5 +229,49 @@ class _CodeCacheImpl(CompileResultCacheImpl):
 
 
 class KernelCache(FunctionCache):
-    """numba's function cache with the locator above; other numba code keeps numba's own."""
+    """numba's function cache with the locator above; other numba code keeps numba's own. Made
+    when a kernel is decorated, it finds its folder and stamp only when the kernel is first
+    compiled or loaded; without a writable folder it caches nothing."""
     _impl_class = _CodeCacheImpl
+
+    def __init__(self, py_func):        # numba's stamps the kernel here: deferred to _open
+        self._name = repr(py_func)
+        self._py_func = py_func
+        self._opened = False
+        self._usable = False
+        self.enable()
+
+    def _open(self) -> bool:
+        with _lock:
+            if not self._opened:
+                try:
+                    self._impl = self._impl_class(self._py_func)
+                except RuntimeError:        # no writable cache folder: compiled in every process
+                    self._impl = None
+                else:
+                    self._cache_path = self._impl.locator.get_cache_path()
+                    self._cache_file = IndexDataCacheFile(cache_path=self._cache_path,
+                                                          filename_base=self._impl.filename_base,
+                                                          source_stamp=self._impl.locator.get_source_stamp())
+                self._usable = self._impl is not None
+                self._opened = True
+        return self._usable
+
+    @property
+    def cache_path(self):
+        return self._cache_path if self._open() else None
+
+    def has_entries(self) -> bool:
+        """True when the cache holds an entry of this kernel for its current code."""
+        return self._open() and bool(self._cache_file._load_index())
+
+    def flush(self):
+        if self._open():
+            self._cache_file.flush()
+
+    def load_overload(self, sig, target_context):
+        return super().load_overload(sig, target_context) if self._open() else None
+
+    def save_overload(self, sig, data):
+        if self._open():
+            super().save_overload(sig, data)

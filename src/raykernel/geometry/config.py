@@ -6,9 +6,10 @@ the same everywhere. fastmath stays off: the tests compare structures to
 
 How the cache is keyed: every kernel is cached on disk, in CACHE_DIR, by
 numba, with a locator of raykernel's own (cachekey.py): a cached kernel is
-stale when the *code* of its file, or of any package file that file imports
-from, has changed (constants a kernel freezes when it compiles included),
-and never for a docstring, a comment or a blank line. CACHE_DIR is
+stale when its *code*, or the code of what it calls, has changed (constants
+a kernel freezes when it compiles included), and never for a docstring, a
+comment or a blank line. The key is made when a kernel is first compiled or
+loaded, so importing costs nothing of it. CACHE_DIR is
 `$NUMBA_CACHE_DIR/raykernel` when that variable is set, else
 `<user cache>/raykernel/numba`, so an installed, read-only package caches
 too; numba keeps each checkout's kernels in a folder of their own below it.
@@ -73,10 +74,7 @@ def njit(func=None, *, private=False, borrows=False, **kwargs):
     def decorate(f):
         kernel = numba.njit(**options)(f)
         if caching:
-            try:
-                kernel._cache = cachekey.KernelCache(kernel.py_func)
-            except RuntimeError:        # no writable cache folder: compiled in every process
-                pass
+            kernel._cache = cachekey.KernelCache(kernel.py_func)
         return kernel
 
     return decorate(func) if func is not None else decorate
@@ -92,7 +90,7 @@ def cached(kernel) -> bool:
     """True when the kernel cache holds an entry of `kernel` (a dispatcher made by njit) for its
     current code."""
     cache = getattr(kernel, "_cache", None)
-    return isinstance(cache, cachekey.KernelCache) and bool(cache._cache_file._load_index())
+    return isinstance(cache, cachekey.KernelCache) and cache.has_entries()
 
 
 _told = set()

@@ -17,18 +17,11 @@ import numpy as np
 
 from .config import njit
 from .counters import POLYGON_CORNERS
+from .limits import MAX_COORDINATE, MIN_SIZE  # noqa: F401  (the range answered exactly: limits.py)
 from .polybands import crosses, plane_coordinates, point_in_bands
 
 SPHERE, POLYGON, PATCH, CONE, TRIANGLE, AGGREGATE, INSTANCE = 0, 1, 2, 3, 4, 5, 6
 PRIMITIVE_KINDS = ("sphere", "polygon", "patch", "cone", "triangle")
-# The range raykernel answers exactly: every coordinate (of a primitive in its group's space, an
-# instance's box in its parent's, a camera, a light, a ray's origin) within +-MAX_COORDINATE, and
-# every size (a sphere's radius, a polygon's or triangle's extent, a ray direction's length) at
-# least MIN_SIZE where it is not zero. Within it the float64 tests' products of three
-# coordinates neither overflow nor lose the hit to underflow (they do near 1e100 and 1e-110),
-# and the float32 node boxes (widebvh.py) hold every bound; outside it scenes and rays are refused.
-MAX_COORDINATE = 1e30
-MIN_SIZE = 1e-30
 KIND_SHIFT = 40
 INDEX_MASK = (1 << KIND_SHIFT) - 1
 INF = np.inf

@@ -19,9 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..aggregates.walk import MAX_NESTING  # noqa: F401  (the deepest level a group may sit at: the kernels' frames)
 from ..errors import SceneError
-from ..geometry.primitives import MAX_COORDINATE
+from ..geometry.limits import MAX_COORDINATE, MAX_NESTING  # noqa: F401  (MAX_NESTING: the deepest level a group may sit at)
 
 
 def _vec3(value, what: str) -> np.ndarray:
