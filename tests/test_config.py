@@ -307,7 +307,7 @@ def test_importing_raykernel_deletes_no_folder(tmp_path):
 
 def test_importing_makes_no_stamp_and_the_scene_model_needs_no_numba():
     code = ("import sys, raykernel; assert 'numba' not in sys.modules; raykernel.Scene, raykernel.Spheres; "
-            "import raykernel.scene.model; assert 'numba' not in sys.modules, 'model'; raykernel.load('spd:tetra:1'); "
+            "import raykernel.scene.model; assert 'numba' not in sys.modules, 'model'; "
             "raykernel.render; import raykernel.cli, raykernel.casting.rayscene; "
             "from raykernel.geometry import cachekey; print(len(cachekey._stamps))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
