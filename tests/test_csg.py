@@ -240,9 +240,9 @@ def test_csg_casts_shadows_through_its_cut():
 
 
 def test_the_example_scene_renders():
-    r = raykernel.render(raykernel.load("examples/csg.json"), resolution=48)
+    r = raykernel.render(raykernel.load("example:csg"), resolution=48)
     assert r.stats["csg.resolves"] > 0 and r.stats["rays.refract"] > 0
     img = r.to_uint8()
     assert img.std() > 10
-    n = raykernel.render(raykernel.load("examples/csg.json"), resolution=48, threads=1)
+    n = raykernel.render(raykernel.load("example:csg"), resolution=48, threads=1)
     assert n.image.tobytes() == r.image.tobytes() and COUNTER_NAMES[csg.SURFACES] == "csg.surfaces" and "csg.surfaces" in n.stats

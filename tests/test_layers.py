@@ -55,3 +55,14 @@ def test_the_design_page_lists_the_layers_of_the_code():
     section = re.search(r"^## Layout\n(.*?)(?=^## |\Z)", DESIGN.read_text(), re.S | re.M)
     assert section, "docs/design.md has no Layout section"
     assert layers.describe() in section.group(1), "docs/design.md's Layout is not layers.describe()'s text"
+
+
+def test_no_function_is_over_150_lines():
+    import ast
+    long = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 150:
+                long.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}: "
+                            f"{node.end_lineno - node.lineno + 1} lines")
+    assert not long, "\n".join(long)

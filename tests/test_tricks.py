@@ -48,13 +48,13 @@ def test_each_trick_alone_renders_the_same(name, trick, kind):
     same_work_counts(base, alone)
 
 
-@pytest.mark.parametrize("path", ["nested.json", "csg.json"])
+@pytest.mark.parametrize("path", [str(EXAMPLES / "nested.json"), "example:csg"])
 # Hall's shading with filtered shadows over nested structures compiles a variant of its own (minutes)
 @pytest.mark.parametrize("options", [dict(),
                                      pytest.param(dict(shading="hall", shadows="filtered"), marks=pytest.mark.slow),
                                      dict(aa="adaptive")])
 def test_nesting_instances_and_csg_render_the_same_with_every_trick(path, options):
-    scene = load(str(EXAMPLES / path))
+    scene = load(path)
     base = render(scene, resolution=40, tricks="none", **options)
     for tricks in ("all", "raytree", "shadowcache", "closest,raytree,shadowcache"):
         same_work_counts(base, render(scene, resolution=40, tricks=tricks, **options))

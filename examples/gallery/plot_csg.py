@@ -4,18 +4,15 @@ Constructive solid geometry
 
 A die (a rounded cube: the intersection of a cube and a sphere) drilled with 21 pips by
 difference, behind a glass lens made by intersecting two spheres. Every CSG operator is an
-aggregate like any other and nests in any structure (examples/csg.json).
+aggregate like any other and nests in any structure (`example:csg`, the scene file
+src/raykernel/scene/csg.json).
 """
-
-from pathlib import Path
 
 import matplotlib.pyplot as plt
 
 import raykernel
 
-# examples/ (sphinx-gallery runs each script in its own folder, without __file__)
-EXAMPLES = Path(__file__).resolve().parents[1] if "__file__" in globals() else Path.cwd().parent
-scene = raykernel.load(str(EXAMPLES / "csg.json"))
+scene = raykernel.load("example:csg")
 result = raykernel.render(scene, resolution=400)
 print(f"CSG crossings {result.stats['csg.crossings']:,}, resolves {result.stats['csg.resolves']:,}")
 fig, ax = plt.subplots(figsize=(6, 6))

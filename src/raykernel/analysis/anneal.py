@@ -47,6 +47,7 @@ short=True) re-anneals from there with T0 a tenth.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import math
 import time
 from dataclasses import dataclass, field
@@ -505,7 +506,8 @@ class Energy:
 
     def __post_init__(self):
         from ..rendering.render import render_options
-        o = render_options(self.scene, **{k: v for k, v in self.options.items() if k != "accel"})
+        checked = inspect.signature(render_options).parameters         # not progress, builder: render's own
+        o = render_options(self.scene, **{k: v for k, v in self.options.items() if k in checked and k != "accel"})
         w = o["resolution"] or self.scene.camera.width
         h = o["resolution"] or self.scene.camera.height
         # the sample keeps the render's aspect (and so its view), its longer side `sample` pixels

@@ -197,6 +197,19 @@ def _driver_for_type(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     return driver
 
 
+@njit(inline="always")
+def _root_frame(root, ox, oy, oz, dx, dy, dz, frame_f, frame_i, buf_n):
+    """Frame 0: the root aggregate in world space, identity map, no mailbox, no crossings yet."""
+    frame_f[0, F_ORIGIN], frame_f[0, F_ORIGIN + 1], frame_f[0, F_ORIGIN + 2] = ox, oy, oz
+    frame_f[0, F_DIR], frame_f[0, F_DIR + 1], frame_f[0, F_DIR + 2] = dx, dy, dz
+    for k in range(12):
+        frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
+    frame_i[0, FI_AGG], frame_i[0, FI_BASE], frame_i[0, FI_INST] = root, 0, -1
+    frame_i[0, FI_SINK], frame_i[0, FI_OPERAND] = -1, 0
+    frame_f[0, F_MBOX_ON] = 0.0
+    buf_n[0] = 0
+
+
 @njit(private=True)
 def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     """intersect through the general driver: any nesting of any kinds, instances, operators.
@@ -209,16 +222,8 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     best_ref = np.int64(-1)
     best_inst = np.int64(-1)
     ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
-    # frame 0: the root aggregate in world space, identity map
     f = np.int64(0)     # not the literal 0: that too would be compiled apart
-    frame_f[0, F_ORIGIN], frame_f[0, F_ORIGIN + 1], frame_f[0, F_ORIGIN + 2] = ox, oy, oz
-    frame_f[0, F_DIR], frame_f[0, F_DIR + 1], frame_f[0, F_DIR + 2] = dx, dy, dz
-    for k in range(12):
-        frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
-    frame_i[0, FI_AGG], frame_i[0, FI_BASE], frame_i[0, FI_INST] = geo.root, 0, -1
-    frame_i[0, FI_SINK], frame_i[0, FI_OPERAND] = -1, 0
-    frame_f[0, F_MBOX_ON] = 0.0
-    ws.buf_n[0] = 0
+    _root_frame(geo.root, ox, oy, oz, dx, dy, dz, frame_f, frame_i, ws.buf_n)
     sink = np.int64(-1)
     lo = tmin
     base = 0

@@ -1,4 +1,4 @@
-"""Built-in example scenes: `raykernel render example:heckbert`.
+"""Built-in example scenes: `raykernel render example:heckbert`, `raykernel render example:csg`.
 
     scene = examples.load("heckbert")
 
@@ -10,9 +10,16 @@ along +y, z up, 25 degrees field of view, ray depth 3, ambient (0.02, 0.02,
 0.02). It renders with the program's own model by default
 (`--shading heckbert`, rendering/heckbert.py); under Whitted shading the
 luminous spheres glow and light the others from their centres.
+
+csg: constructive solid geometry as aggregates (Arvo, in the same issue): a
+die drilled with 21 pips, the rounded cube the intersection of a cube mesh
+and a sphere, and a glass lens cut from two spheres in front of it (the
+scene file csg.json beside this module).
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from ..errors import OptionError
 from .model import Camera, Material, Scene
@@ -38,7 +45,14 @@ def heckbert(resolution: int = 256) -> Scene:
     return scene
 
 
-EXAMPLES = {"heckbert": (heckbert, {"max_depth": 3, "shading": "heckbert"})}
+def csg() -> Scene:
+    from .jsonscene import read_json
+    scene = read_json(Path(__file__).with_name("csg.json"))
+    scene.source = "example:csg"
+    return scene
+
+
+EXAMPLES = {"heckbert": (heckbert, {"max_depth": 3, "shading": "heckbert"}), "csg": (csg, {})}
 
 
 def load(name: str) -> Scene:
