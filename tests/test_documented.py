@@ -42,6 +42,7 @@ SMALL = [
     (r" \.\.\. ", " "),
     (r"--pixel \d+ \d+", "--pixel 5 5"),
     (r"--time 0 5400", "--time 0 60"),
+    (r"(raykernel calibrate)", r"\1 --resolutions 8 16 --repeats 1"),
 ]
 RENDERING = {"render", "compare", "explain", "animate", "anneal", "sweep", "structure"}
 
