@@ -34,7 +34,7 @@ SMALL = [
     (r"\bspd:(\w+)\b(?::\d+)?(?!:)", r"spd:\1:1"),
     (r"(raykernel spd \w+ --size )\d+", r"\g<1>1"),
     (r"(--resolution |resolution=)\d+", r"\g<1>12"),
-    (r"(--frames |frames=)\d+", r"\g<1>2"),
+    (r"(--frames |frames=)\d+", r"\g<1>6"),
     (r"--fps \d+", "--fps 2"),
     (r"seconds=\d+", "seconds=1"),
     (r"(--param \w+)=([^ ,]+),([^ ,]+)\S*", r"\1=\2,\3"),
