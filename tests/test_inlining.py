@@ -53,7 +53,8 @@ def test_inlined_callees_at_many_sites_give_python_results():
 
 
 def test_the_same_kernel_compiles_alike_with_numba_as_shipped():
-    code = ("import json, numpy as np, sys, raykernel; sys.path.insert(0, sys.argv[1]); import test_inlining as t; "
+    code = ("import json, numpy as np, sys, raykernel.geometry.config; sys.path.insert(0, sys.argv[1]); "
+            "import test_inlining as t; "
             "from numba.core import inline_closurecall as m; "
             "print(json.dumps([t._uses_inlined(np.linspace(-3, 3, 13)), m.InlineWorker.inline_function.__module__]))")
     results = []

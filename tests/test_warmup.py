@@ -34,3 +34,19 @@ def test_cast_warm_up_reports_and_leaves_nothing_to_compile():
                          timeout=600)
     assert out.returncode == 0, out.stderr
     assert f"warm-up of cast: {len(plan('cast'))} steps" in out.stdout and "compiling 0.0 s" in out.stdout, out.stdout
+
+
+def test_warm_up_shares_the_steps_among_processes():
+    from raykernel.analysis.warmup import _shares
+    assert _shares(5, 2) == [[0, 2, 4], [1, 3]]
+    assert _shares(2, 4) == [[0], [1]]
+    assert sorted(i for share in _shares(17, 3) for i in share) == list(range(17))
+    seen = []
+    report = warm_up("cast", processes=2, progress=lambda done, total, label: seen.append((done, total, label)))
+    assert report["processes"] == 2 and report["steps"] == len(plan("cast"))
+    assert [d for d, _, _ in seen] == list(range(report["steps"] + 1))       # every step reported once, in order
+    assert {label for _, _, label in seen[1:-1]} <= {label for label, _ in plan("cast")}
+    # the processes compiled into the shared cache: a later process loads everything
+    out = subprocess.run([sys.executable, "-m", "raykernel.cli", "warmup", "cast", "--processes", "1"],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0 and "in 1 process(es) (compiling 0.0 s" in out.stdout, out.stdout + out.stderr

@@ -348,9 +348,10 @@ def cmd_warmup(args, console) -> int:
 
         def progress(done, total, label):
             bar.update(task, completed=done, total=total, step=label)
-        report = warm_up(args.what, progress=progress)
-    print(f"warm-up of {args.what}: {report['steps']} steps in {report['seconds']:.1f} s (compiling "
-          f"{report['compile']:.1f} s, loading cached kernels {report['load']:.1f} s); cached in {cache_root()}")
+        report = warm_up(args.what, progress=progress, processes=args.processes)
+    print(f"warm-up of {args.what}: {report['steps']} steps in {report['seconds']:.1f} s in {report['processes']} "
+          f"process(es) (compiling {report['compile']:.1f} s, loading cached kernels {report['load']:.1f} s, summed "
+          f"over the processes); cached in {cache_root()}")
     return 0
 
 
@@ -669,6 +670,7 @@ def _add_others(sub) -> None:
     w.add_argument("what", nargs="?", default="all", choices=["render", "cast", "all"],
                    help="render: every structure, shading model, antialiasing, filtered shadows, work layers; "
                    "cast: every RayScene query; all: both (the default)")
+    w.add_argument("--processes", type=_positive_int, help="processes compiling side by side (default: one a core)")
     w.set_defaults(func=cmd_warmup)
 
     s = sub.add_parser("spd", help="write one of Haines's Standard Procedural Databases as NFF")

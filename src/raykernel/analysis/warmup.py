@@ -1,17 +1,26 @@
 """Compile the kernels a user will need before the first real call (or load them from the cache).
 
     report = warm_up("render")      # "render", "cast" or "all"; progress(done, total, label) if given
-    report["seconds"], report["compile"], report["load"], report["steps"]
+    report["seconds"], report["compile"], report["load"], report["steps"], report["processes"]
+    warm_up("all", processes=2)     # the steps shared out among 2 processes, one a core (the default)
 
 Rendering's steps render a tiny scene once with every structure kind, each shading model,
 antialiasing, filtered shadows and work layers: each of those compiles its own kernels. Casting's
 steps make every RayScene query on a small mesh, on spheres and on a scene walked by the general
 driver. Kernels are cached on disk (geometry/config.py), so later processes, and other users of
-the same cache folder (NUMBA_CACHE_DIR), load them instead of compiling.
+the same cache folder (NUMBA_CACHE_DIR), load them instead of compiling. numba compiles on one
+thread, so the steps are shared out among processes, one a core, each compiling its own share
+into the cache (`python -m raykernel.analysis.warmup TARGET STEP ...` runs a share and says, a
+line of JSON a step, what it took); compile and load seconds are summed over the processes.
 """
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+import threading
 import time
 
 import numpy as np
@@ -79,10 +88,8 @@ def plan(target: str) -> list:
     return steps
 
 
-def warm_up(target: str = "all", progress=None) -> dict:
-    """Run the steps of `target`; the seconds taken, of them compiling and loading, and the step count."""
-    steps = plan(target)
-    t0 = time.perf_counter()
+def _run(steps, progress) -> tuple[float, float]:
+    """Run (label, call) steps here; their compile and load seconds."""
     compile_s = load_s = 0.0
     for done, (label, call) in enumerate(steps):
         if progress is not None:
@@ -91,7 +98,80 @@ def warm_up(target: str = "all", progress=None) -> dict:
             call()
         compile_s += clock.seconds
         load_s += clock.loading
+    return compile_s, load_s
+
+
+def _shares(count: int, processes: int) -> list[list[int]]:
+    """Step indices dealt out round-robin: neighbouring steps (one kind's render, then the next) apart."""
+    return [list(range(k, count, processes)) for k in range(processes) if k < count]
+
+
+def _in_processes(target: str, steps, processes: int, progress) -> tuple[float, float]:
+    """Each share of the steps in a process of its own; progress as their steps finish."""
+    children = [subprocess.Popen([sys.executable, "-m", __name__, target, *map(str, share)], stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True)
+                for share in _shares(len(steps), processes)]
+    done, totals, errors, lock = [0], [0.0, 0.0], [], threading.Lock()
+
+    def follow(child):
+        for line in child.stdout:
+            step = json.loads(line)
+            with lock:
+                done[0] += 1
+                totals[0] += step["compile"]
+                totals[1] += step["load"]
+                if progress is not None and done[0] < len(steps):      # the last: warm_up's "done"
+                    progress(done[0], len(steps), step["label"])
+        if child.wait():
+            errors.append(child.stderr.read().strip().splitlines()[-1:] or [f"exit status {child.returncode}"])
+
+    readers = [threading.Thread(target=follow, args=(c,), daemon=True) for c in children]
+    try:
+        for r in readers:
+            r.start()
+        for r in readers:
+            while r.is_alive():
+                r.join(0.2)         # a short wait, so Ctrl-C is answered at once
+    finally:
+        for c in children:
+            if c.poll() is None:
+                c.kill()
+    if errors:
+        raise RuntimeError(f"warm-up: a process failed: {errors[0][0]}")
+    return totals[0], totals[1]
+
+
+def warm_up(target: str = "all", progress=None, processes: int | None = None) -> dict:
+    """Run the steps of `target`, shared out among `processes` processes (default: one a core;
+    1: all in this process); the seconds taken, of them compiling and loading (summed over the
+    processes), the step count and the processes used."""
+    steps = plan(target)
+    if processes is None:
+        processes = os.cpu_count() or 1
+    processes = max(1, min(int(processes), len(steps)))
+    t0 = time.perf_counter()
+    if processes == 1:
+        compile_s, load_s = _run(steps, progress)
+    else:
+        if progress is not None:
+            progress(0, len(steps), f"in {processes} processes")
+        compile_s, load_s = _in_processes(target, steps, processes, progress)
     if progress is not None:
         progress(len(steps), len(steps), "done")
     return {"target": target, "steps": len(steps), "seconds": time.perf_counter() - t0, "compile": compile_s,
-            "load": load_s}
+            "load": load_s, "processes": processes}
+
+
+def _main(argv) -> None:
+    """python -m raykernel.analysis.warmup TARGET STEP ...: run those steps of the target's plan,
+    a line of JSON for each when it is done."""
+    steps = plan(argv[0])
+    for index in map(int, argv[1:]):
+        label, call = steps[index]
+        with CompileClock() as clock:
+            call()
+        print(json.dumps({"label": label, "compile": clock.seconds, "load": clock.loading}), flush=True)
+
+
+if __name__ == "__main__":
+    _main(sys.argv[1:])
