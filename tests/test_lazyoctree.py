@@ -26,7 +26,7 @@ from raykernel import RayScene
 from raykernel.aggregates import lazyoctree
 from raykernel.aggregates.lazyoctree import build_lazy
 from raykernel.aggregates.lazyset import PASS_CHUNKS, pass_ranges
-from raykernel.aggregates.octree import ADDRESS_BITS, BUDGET_SLACK
+from raykernel.aggregates.octbuild import ADDRESS_BITS, BUDGET_SLACK
 from raykernel.casting.rayscene import CHUNK, coarse_to_fine
 from raykernel.aggregates.octree import CODE as OCTREE
 from raykernel.engine.flatten import flatten

@@ -19,7 +19,7 @@ from support import (
 )
 
 import raykernel
-from raykernel.aggregates.octree import ADDRESS_BITS, BUDGET_SLACK, build_octree, wall_quadtrees
+from raykernel.aggregates.octbuild import ADDRESS_BITS, BUDGET_SLACK, build_octree, wall_quadtrees
 from raykernel.aggregates.octree import CODE as OCTREE
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
@@ -267,7 +267,7 @@ def test_the_wall_walk_meets_the_neighbour_walks_leaves_without_descending_in_th
     for column in (C.CELLS_LEAVES, C.CELLS_EMPTY, C.MAILBOX_SAVED, C.BOUNDS_TESTS):
         assert a[column] == b[column]
     assert np.array_equal(a[C.TESTS:C.TESTS + 5], b[C.TESTS:C.TESTS + 5])
-    from raykernel.aggregates.octree import WALL_STEPS
+    from raykernel.aggregates.octwalk import WALL_STEPS
     # the neighbour walk descends from a subdivided neighbour through inner octree nodes; the wall
     # walk goes down the wall's quadtree instead, and visits no inner node after the first leaf
     assert a[WALL_STEPS] > 0 and b[WALL_STEPS] == 0

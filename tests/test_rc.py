@@ -25,7 +25,8 @@ from support import (
 import raykernel
 from raykernel import RayScene
 from raykernel.aggregates.lazyset import PASS_CHUNKS
-from raykernel.aggregates.rc import NODE_BYTES, LazyRC, VIRTUAL_LEVELS, RcBudgetWarning, build_rc, face_of, meets_beam, start_rc
+from raykernel.aggregates.rcbuild import NODE_BYTES, RcBudgetWarning, build_rc, face_of, meets_beam, start_rc
+from raykernel.aggregates.rclazy import VIRTUAL_LEVELS, LazyRC
 from raykernel.casting.rayscene import CHUNK
 from raykernel.aggregates.rc import CODE as RC
 from raykernel.engine.flatten import flatten

@@ -14,7 +14,7 @@ stops the subdivision with thousands of facets in one voxel, and every ray
 through that voxel tests them all. Haines's proposal: subdivide as an octree
 to some level, and give every such *problem voxel* a Goldsmith-Salmon BVH
 over its objects. Here a problem voxel is a leaf of the octree (built by
-octree.build_octree with the same criteria as the ``octree`` kind: depth,
+octbuild.build_octree with the same criteria as the ``octree`` kind: depth,
 leaf, rule60, density, vertexcount, collapse, budget) holding more than
 ``threshold`` items; only the depth limit, the 60% rule, the density
 criterion or the reference budget leave a leaf that full when ``threshold``
@@ -67,7 +67,8 @@ import numpy as np
 
 from ..geometry.primitives import AGGREGATE, make_ref
 from . import bvh
-from .octree import ADDRESS_BITS, WALK, OctreeArrays, append_octree, build_octree
+from .octbuild import ADDRESS_BITS, OctreeArrays, build_octree
+from .octree import WALK, append_octree
 from .spec import Kind, Param, Search
 from .walk import MAX_NESTING
 
@@ -82,7 +83,7 @@ def problem_voxels(tree: OctreeArrays, threshold: int) -> np.ndarray:
 
 
 def clip_margin(tree: OctreeArrays, node: int, depth: int) -> np.ndarray:
-    """Per axis, twice the octree's insertion margin (octree.build_octree:
+    """Per axis, twice the octree's insertion margin (octbuild.build_octree:
     1e-9 of the scene's scale plus 1e-7 of the finest cell) with the node's
     side in place of the finest cell's, which is never smaller."""
     extent = tree.unit * float(1 << ADDRESS_BITS)

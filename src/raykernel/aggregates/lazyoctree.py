@@ -107,7 +107,7 @@ views the used part. A split leaf's old references stay behind unused
 and lazy octrees shown by many instances refine like top-level ones: an
 aggregate is built once and every frame that walks it counts into the same
 columns. A scene's lazy octrees together stop subdividing at MAX_NODES nodes
-(octree.MAX_NODES); hits stay exact, the aggregate reports budget_reached.
+(octbuild.MAX_NODES); hits stay exact, the aggregate reports budget_reached.
 
 Statistics per aggregate: nodes (N_IN + N_V), inner, leaves, empty_leaves
 (N_EV), refs (N_OIV), bytes, max_depth of the final tree; passes
@@ -127,8 +127,8 @@ from ..geometry.config import njit
 from ..options import number
 from .lazyset import scene_totals, tree_counts
 from .memory import check, grown
-from .octree import (ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, WALK, OctreeArrays, append_octree,
-                     octree_frame, overlaps)
+from .octbuild import ADDRESS_BITS, BUDGET_SLACK, MAX_DEPTH, MAX_NODES, OctreeArrays, octree_frame, overlaps
+from .octree import WALK, append_octree
 from .spec import Kind, Param
 
 __all__ = ["LazyOctrees", "build_lazy"]
@@ -193,7 +193,7 @@ def _split(nodes, owner, origin, unit, rule60, live_refs, max_refs, boxes, item_
                 lo = loc[node, a] + ((c >> a) & 1) * half
                 clo[c, a] = origin[r, a] + unit[r, a] * lo
                 chi[c, a] = origin[r, a] + unit[r, a] * (lo + half)
-        # the children each item's box overlaps (closed intervals, as in octree._subdivide)
+        # the children each item's box overlaps (closed intervals, as in octbuild._subdivide)
         mask = np.zeros(m, np.int64)
         for c in range(8):
             child_n[c] = 0
