@@ -26,7 +26,7 @@ import raykernel
 from raykernel import RayScene
 from raykernel.aggregates.lazyset import PASS_CHUNKS
 from raykernel.aggregates.rc import NODE_BYTES, LazyRC, VIRTUAL_LEVELS, RcBudgetWarning, build_rc, face_of, meets_beam, start_rc
-from raykernel.casting.rayscene import CHUNK
+from raykernel.casting.rayqueries import CHUNK
 from raykernel.aggregates.rc import CODE as RC
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
