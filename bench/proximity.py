@@ -67,6 +67,7 @@ def main() -> None:
     import trimesh
 
     from raykernel import RayScene
+    from raykernel.casting.proximity import is_closed
     numba.set_num_threads(args.threads)
     try:
         import open3d as o3d
@@ -90,7 +91,7 @@ def main() -> None:
         t_w, wound = best(lambda: rs.contains(p, threads=args.threads, method="winding"))
         parity = rs.contains(p, threads=args.threads, method="parity")
         row = dict(mesh=name, faces=len(mesh.faces), points=len(p), rk_in=t_in, rk_cp=t_cp, rk_w=t_w,
-                   w_agree=float(np.mean(wound == parity)), method="parity" if rs._closed() else "winding",
+                   w_agree=float(np.mean(wound == parity)), method="parity" if is_closed(rs) else "winding",
                    rk_first=rk_first)
         if o3d is not None:
             def o3d_scene():

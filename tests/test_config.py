@@ -243,7 +243,7 @@ def test_the_kernels_inner_loops_count_no_references():
     # what kernels call per ray, per candidate or per pixel with arrays borrows them (or is inlined):
     # reference counts there are atomics the threads fight over (they took half the time of a query)
     from raykernel.aggregates import bvh, collect, csg, grid, octpoint, octwalk, rcbuild, rcwalk
-    from raykernel.casting import meshcast, proximity, rayscene
+    from raykernel.casting import meshcast, proximity, rayqueries
     from raykernel.engine import transforms, traverse, widewalk
     from raykernel.geometry import primitives
     from raykernel.rendering import hall, heckbert, render, sampling, startlists, tricks, whitted
@@ -253,7 +253,7 @@ def test_the_kernels_inner_loops_count_no_references():
                 traverse.walk, widewalk._walk_wide, whitted.trace, heckbert.trace, hall.trace, tricks.test_ref, tricks.list_hint,
                 startlists.start_list,
                 sampling._render_tile, render._render_tile, render._missed_tile,
-                rayscene._cast, meshcast._chunk, meshcast._chunk4, bvh.descend, grid.dda, rcwalk.classify,
+                rayqueries._cast, meshcast._chunk, meshcast._chunk4, bvh.descend, grid.dda, rcwalk.classify,
                 csg.start, collect.record, csg.resolve, octwalk.parametric, octpoint.point_walk, transforms.map_ray]
     for kernel in per_item:
         assert kernel.targetoptions.get("_nrt") is False, kernel.py_func.__qualname__

@@ -27,7 +27,7 @@ from raykernel.aggregates import lazyoctree
 from raykernel.aggregates.lazyoctree import build_lazy
 from raykernel.aggregates.lazyset import PASS_CHUNKS, pass_ranges
 from raykernel.aggregates.octbuild import ADDRESS_BITS, BUDGET_SLACK
-from raykernel.casting.rayscene import CHUNK, coarse_to_fine
+from raykernel.casting.rayqueries import CHUNK, coarse_to_fine
 from raykernel.aggregates.octree import CODE as OCTREE
 from raykernel.engine.flatten import flatten
 from raykernel.errors import OptionError
@@ -594,7 +594,7 @@ def test_rayscene_casts_lazy_queries_coarse_to_fine():
 def test_rayscene_lazy_passes_take_the_rays_coarse_to_fine(monkeypatch):
     """The rays each pass casts are those of coarse_to_fine, in pass_ranges' cuts; the hits come
     back in the rays' own order (checked against list)."""
-    module = importlib.import_module("raykernel.casting.rayscene")
+    module = importlib.import_module("raykernel.casting.rayqueries")
     kernel = module._query
     passes = []
 

@@ -13,6 +13,7 @@ from raykernel.aggregates import bvh
 from raykernel.aggregates.memory import MemoryBudgetError
 from raykernel.aggregates.widebvh import collapse
 from raykernel.casting.meshbuild import QUALITY
+from raykernel.casting.proximity import is_closed, winding_tree
 
 QUALITIES = tuple(QUALITY)
 
@@ -369,7 +370,7 @@ def test_winding_numbers_against_the_brute_force_sum():
         lo, hi = v.min(0), v.max(0)
         p = rng.uniform(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo), (400, 3))
         rs = RayScene.from_mesh(v, f)
-        mesh, far = rs._winding_tree()
+        mesh, far = winding_tree(rs)
         w = winding_numbers(mesh, p, far)
         exact = brute_winding(v, f, p)
         assert np.abs(w - exact).max() < 0.05, np.abs(w - exact).max()     # the dipoles: a few hundredths
@@ -382,7 +383,7 @@ def test_contains_picks_parity_for_closed_meshes_and_winding_for_open_ones():
     v, f = sphere(3)
     p = rng.uniform(-1.2, 1.2, (3000, 3))
     rs = RayScene.from_mesh(v, f)
-    assert rs._closed()
+    assert is_closed(rs)
     r = np.linalg.norm(p, axis=1)
     inside = rs.contains(p)
     clear = np.abs(r - 1) > 0.01
@@ -391,7 +392,7 @@ def test_contains_picks_parity_for_closed_meshes_and_winding_for_open_ones():
         np.testing.assert_array_equal(rs.contains(p, method=method)[clear], inside[clear])
     tv, tf = open_teapot()
     teapot = RayScene.from_mesh(tv, tf)
-    assert not teapot._closed()
+    assert not is_closed(teapot)
     q = rng.uniform(tv.min(0), tv.max(0), (500, 3))
     np.testing.assert_array_equal(teapot.contains(q), teapot.contains(q, method="winding"))
     with pytest.raises(ValueError, match="method must be"):
@@ -405,7 +406,7 @@ def test_parity_on_a_box_with_points_on_its_vertex_grid():
     parity rays (no two components in a simple ratio) still count each crossing once."""
     box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
     rs = RayScene.from_trimesh(box)
-    assert rs._closed()
+    assert is_closed(rs)
     g = np.linspace(-1.5, 1.5, 13)
     p = np.stack(np.meshgrid(g, g, g), axis=-1).reshape(-1, 3)
     inside = rs.contains(p, method="parity")

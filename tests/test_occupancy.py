@@ -10,7 +10,7 @@ trimesh = pytest.importorskip("trimesh")
 
 from raykernel import RayScene  # noqa: E402
 from raykernel.casting.occupancy import occupancy_grid  # noqa: E402
-from raykernel.casting.proximity import parity_directions  # noqa: E402
+from raykernel.casting.proximity import is_closed, occupancy, parity_directions  # noqa: E402
 
 DIRECTION = np.array([0.5123987, 0.3321741, 0.7917531])
 
@@ -65,7 +65,7 @@ def test_contains_matches_a_brute_force_crossing_count(name, scale):
     mesh.vertices *= scale
     p = points_around(mesh, 1500, 7)
     rs = RayScene.from_trimesh(mesh)
-    assert rs._closed()
+    assert is_closed(rs)
     got = rs.contains(p)
     assert rs._grid.lookup(p)[1].any(), "the grid answered no point"
     np.testing.assert_array_equal(got, brute_inside(np.asarray(mesh.vertices), np.asarray(mesh.faces), p))
@@ -85,7 +85,7 @@ def test_the_grid_gives_the_ray_cast_s_answer_on_every_point(name):
 
 def test_an_enclosed_cavity_is_outside_and_the_torus_hole_too():
     rs = RayScene.from_trimesh(shell())
-    inside, known = rs._occupancy(lambda q: rs.count_hits(q, parity_directions(q, np.array([-1, -1, -1, 1, 1, 1.0]))) % 2 == 1).lookup(
+    inside, known = occupancy(rs, lambda q: rs.count_hits(q, parity_directions(q, np.array([-1, -1, -1, 1, 1, 1.0]))) % 2 == 1).lookup(
         np.array([[0.0, 0, 0], [0.75, 0, 0], [0, 0, 0.1]]))
     assert known.all()
     assert list(inside) == [False, True, False]

@@ -8,7 +8,7 @@ from reference import all_hits, world_primitives
 from support import rays_into_box
 
 from raykernel import Group, Instance, RayInputError, RayScene, Scene, TriangleMesh
-from raykernel.casting.rayscene import check_rays
+from raykernel.casting.rayinput import check_rays
 from raykernel.geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 
 
@@ -287,7 +287,7 @@ def test_a_bad_ray_deep_in_a_batch_is_named_by_every_kernel(bad, match, scene, q
 ])
 def test_valid_ray_agrees_with_the_numpy_checks(o, d, valid):
     from raykernel.casting.rayinput import valid_ray
-    from raykernel.casting.rayscene import check_ray_values
+    from raykernel.casting.rayinput import check_ray_values
     assert valid_ray(*o, *d) == valid
     if valid:
         check_ray_values(np.array([o], float), np.array([d], float))

@@ -27,7 +27,7 @@ from raykernel import RayScene
 from raykernel.aggregates.lazyset import PASS_CHUNKS
 from raykernel.aggregates.rcbuild import NODE_BYTES, RcBudgetWarning, build_rc, face_of, meets_beam, start_rc
 from raykernel.aggregates.rclazy import VIRTUAL_LEVELS, LazyRC
-from raykernel.casting.rayscene import CHUNK
+from raykernel.casting.rayqueries import CHUNK
 from raykernel.aggregates.rc import CODE as RC
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays

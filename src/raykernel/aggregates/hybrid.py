@@ -49,7 +49,7 @@ tested once per voxel the ray passes through. That costs tests, never
 results: the closest hit is the smallest t over all tests, ties at equal t go
 to the smaller reference (traverse.py), and the order of the walk is fixed by
 the ray alone, so hits and counters are the same at any thread count.
-In all-hits mode such an item is reported once per voxel and rayscene
+In all-hits mode such an item is reported once per voxel and RayScene
 merges the repeats, as it does for grids.
 
 Each BVH adds one aggregate to the nesting on paths through a problem

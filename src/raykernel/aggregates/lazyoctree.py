@@ -85,7 +85,7 @@ ray then meets a tree that the rays of its neighbours have already
 refined; traced tile by tile instead, each new tile's rays met the coarse
 leaves of a region seen for the first time (on SPD balls and the stadium,
 tile by tile tested many times more items per ray). RayScene takes its rays coarse to fine
-too (rayscene.coarse_to_fine: ray 0, then every odd multiple of 2^k for k
+too (rayqueries.coarse_to_fine: ray 0, then every odd multiple of 2^k for k
 from high to low) in passes (pass_ranges) of FIRST_PASS = 16 rays, 16, 32,
 ... up to PASS_CHUNKS chunks of CHUNK rays (8192). Boundaries depend only
 on tile and ray indices. During a pass, every tile or chunk counts passes into its

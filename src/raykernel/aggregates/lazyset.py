@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 FIRST_PASS = 16            # RayScene: rays in the first pass
-PASS_CHUNKS = 8            # RayScene: at most this many chunks of rays (of rayscene.CHUNK) per pass
+PASS_CHUNKS = 8            # RayScene: at most this many chunks of rays (of rayqueries.CHUNK) per pass
 
 
 class LazySet:

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from .rayscene import RayInputError
+from .rayinput import RayInputError
 
 
 def camera_rays(eye, look_at, up=(0.0, 0.0, 1.0), fov: float = 60.0, width: int = 640, height: int = 480):

@@ -1,7 +1,7 @@
 """The fast path of RayScene: one triangle mesh (or several) under one BVH.
 
     mesh = MeshKernel.of(geo, geometries)   # None unless geo is triangles under a single BVH, no instances
-    mesh.kernel(*mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayscene's generic kernel
+    mesh.kernel(*mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayqueries' generic kernel
 
 The generic intersection routine (traverse.py) carries every aggregate kind,
 nesting frames, instances and mailboxes through one loop; for the common
@@ -162,7 +162,7 @@ def query(geo, corners, prims, geoms, root, wide, blocks, origins, directions, t
           chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
           all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
-    outputs of rayscene._query, identities as the user sees them: geometry and
+    outputs of rayqueries._query, identities as the user sees them: geometry and
     index within it (-1 on a miss). All hits: with len(offsets) == 0 counts them
     into idx_out, else writes ray r's hits to rows offsets[r] .. offsets[r + 1]
     of all_t / all_i as (kind, global index, instance), like the generic kernel.

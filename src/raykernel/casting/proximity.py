@@ -4,6 +4,7 @@
     d = scene.distance(points)
     s = scene.signed_distance(points)        # negative inside
     inside = scene.contains(points)
+    near, inside = closest_points(scene, points), contains(scene, points, method="auto")   # what those call
 
 Closest points: a BVH over every triangle, polygon, patch and sphere of the
 scene in world space (built on the first query and kept), searched per
@@ -21,7 +22,14 @@ Inside tests: a point is inside when a ray from it crosses the scene's
 triangles and polygons an odd number of times, by the majority of three
 rays in fixed, unrelated directions (robust where one ray grazes an edge or
 runs along a face), or when it lies inside a sphere. The mesh should be
-closed; signed_distance is the distance, negated inside.
+closed; signed_distance is the distance, negated inside. That is contains'
+"vote"; its "parity" casts one ray a point (closed meshes: an occupancy grid
+answers the points in cells no triangle touches, occupancy.py) and its
+"winding" takes the generalized winding number (winding.py).
+
+RayScene's point-query methods are thin: `closest_points` and `contains`
+below hold their bodies; `is_closed`, `occupancy` and `winding_tree` keep on
+the RayScene what contains builds once.
 """
 
 from __future__ import annotations
@@ -35,6 +43,11 @@ from ..aggregates.bvh import build_bvh
 from ..geometry.parallel import for_ranges
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE, point_in_polygon
+from .meshbuild import build_mesh
+from .occupancy import occupancy_grid
+from .raybuild import EDGE_RULES
+from .rayinput import RayInputError, vectors
+from .winding import dipoles, winding_numbers
 
 CHUNK = 1024
 # three directions with no two in a plane with a coordinate axis, and no simple ratios
@@ -317,3 +330,116 @@ def inside_spheres(geo, points: np.ndarray, block: int = 1 << 22) -> np.ndarray:
         d2 = ((p[:, None, :] - c[None, :, :]) ** 2).sum(axis=2)
         inside[a:a + step] = np.any(d2 < r2[None, :], axis=1)
     return inside
+
+
+# ----------------------------------------------------------------- RayScene's point queries
+
+def _points(points) -> tuple[np.ndarray, tuple]:
+    """(N, 3) float64 points, checked (RayInputError names a bad one), and their shape."""
+    p = vectors(points, "points")
+    return np.ascontiguousarray(p.reshape(-1, 3)), p.shape[:-1]
+
+
+def closest_points(rs, points, threads: int | None = None) -> ClosestPoints:
+    """RayScene.closest_points: the closest point of the scene's surface to each point."""
+    p, shape = _points(points)
+    try:
+        index = point_index(rs)
+    except ValueError as e:
+        raise RayInputError(str(e)) from None
+    q, dist, refs = index.query(p, threads)
+    kind, idx = kinds_of(rs.geo, refs)
+    geom, prim = rs._identify(kind, idx)
+    normal = surface_normals(rs.geo, kind, idx, q)
+    return ClosestPoints(points=q.reshape(shape + (3,)), distance=dist.reshape(shape), prim_id=prim.reshape(shape),
+                         geom_id=geom.reshape(shape), kind=kind.reshape(shape), normal=normal.reshape(shape + (3,)))
+
+
+def contains(rs, points, threads: int | None = None, method: str = "auto") -> np.ndarray:
+    """RayScene.contains: True where a point lies inside the scene."""
+    p, shape = _points(points)
+    if method not in ("auto", "parity", "winding", "vote"):
+        raise RayInputError(f"method must be auto, parity, winding or vote, got {method!r}")
+    if rs._geo is not None and (len(rs._geo.inst_agg) or len(rs._geo.cone_length)):
+        raise RayInputError("contains does not handle instances or cones yet")
+    meshes_only = [g["kind"] for g in rs.geometries] == ["triangle"] * len(rs.geometries)
+    if method == "auto":
+        method = "vote" if not meshes_only else "parity" if is_closed(rs) else "winding"
+    if method != "vote" and not meshes_only:
+        raise RayInputError(f"contains(method={method!r}) takes triangle meshes only; this scene has "
+                            f"{', '.join(sorted({g['kind'] for g in rs.geometries} - {'triangle'}))}")
+    if method == "winding":
+        mesh, far = winding_tree(rs)
+        return (winding_numbers(mesh, p, far, threads) > 0.5).reshape(shape)
+    if method == "parity":
+        box = rs._mesh.geo.agg_bounds[0] if rs._mesh is not None else rs.geo.agg_bounds[rs.geo.root]
+
+        def odd_crossings(q):
+            return rs.count_hits(q, parity_directions(q, box, threads), threads=threads) % 2 == 1
+
+        if not is_closed(rs):
+            return odd_crossings(p).reshape(shape)
+        # a closed mesh: points in cells no triangle touches take their region's answer (occupancy.py)
+        inside, known = occupancy(rs, odd_crossings).lookup(p, threads)
+        rest = np.flatnonzero(~known)
+        if len(rest):
+            inside[rest] = odd_crossings(p[rest])
+        return inside.reshape(shape)
+    spheres = [g for g, info in enumerate(rs.geometries) if info["kind"] == "sphere"]
+
+    def odd(q, direction):
+        if spheres:
+            # a sphere counts once per ray in hit lists, but is crossed twice: its own test below
+            ray, _, _, geom, _ = rs.intersect_all(q, direction, ids=True, threads=threads)
+            return np.bincount(ray[~np.isin(geom, spheres)], minlength=len(q)) % 2 == 1
+        return rs.count_hits(q, direction, threads=threads) % 2 == 1
+
+    first, second = odd(p, INSIDE_DIRECTIONS[0]), odd(p, INSIDE_DIRECTIONS[1])
+    inside = first & second
+    split = np.flatnonzero(first != second)         # the third ray decides only where two disagree
+    if len(split):
+        inside[split] = odd(p[split], INSIDE_DIRECTIONS[2])
+    inside |= inside_spheres(rs.geo, p)
+    return inside.reshape(shape)
+
+
+def is_closed(rs) -> bool:
+    """Whether the scene is closed triangle meshes, not nested: every edge two triangles', once each way."""
+    if not hasattr(rs, "_is_closed"):
+        root = rs.scene.root
+        rs._is_closed = bool(root.meshes) and not root.children and all(map(_closed_mesh, root.meshes))
+    return rs._is_closed
+
+
+def occupancy(rs, odd_crossings):
+    """The closed meshes' occupancy grid (built once; its regions decided by odd_crossings)."""
+    if not hasattr(rs, "_grid"):
+        meshes = rs.scene.root.meshes
+        offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+        vertices = np.concatenate([np.asarray(m.vertices, np.float64) for m in meshes])
+        faces = np.concatenate([np.asarray(m.faces, np.int64) + o for m, o in zip(meshes, offsets)])
+        rs._grid = occupancy_grid(vertices, faces, odd_crossings)
+    return rs._grid
+
+
+def winding_tree(rs):
+    """The 4-wide mesh kernel and its dipoles for winding numbers (built once: for a scene
+    walked another way, from its triangles at medium quality)."""
+    if not hasattr(rs, "_far"):
+        mesh = rs._mesh
+        if mesh is None or not len(mesh.wide.nodes):
+            g = rs.geo
+            mesh, _ = build_mesh(np.ascontiguousarray(g.tri_verts), np.ascontiguousarray(g.tri_faces), None,
+                                 "medium", EDGE_RULES[rs.edges])
+        rs._far = (mesh, dipoles(mesh))
+    return rs._far
+
+
+def _closed_mesh(mesh) -> bool:
+    """Every directed edge of the mesh appears once, and so does its reverse."""
+    f = mesh.faces
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key = np.sort(edges[:, 0] * (len(mesh.vertices) + 1) + edges[:, 1])
+    twin = edges[:, 1] * (len(mesh.vertices) + 1) + edges[:, 0]
+    found = key[np.minimum(np.searchsorted(key, twin), len(key) - 1)]
+    return bool(np.all(np.diff(key) > 0)) and bool(np.all(found == twin))
