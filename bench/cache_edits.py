@@ -42,7 +42,7 @@ WALK_MODULES = ("raykernel.engine.traverse.", "raykernel.engine.widewalk.")
 NAMED_EDITS = [
     ("an error message", "errors.py", "class SceneError(RayKernelError):",
      "class SceneError(RayKernelError):\n    EDITED = 'a message'"),
-    ("the BVH's builder (its SAH sweep)", "aggregates/bvh.py", None, "_best_split"),
+    ("the BVH's builder (its SAH sweep)", "aggregates/bvhbuild.py", None, "_best_split"),
     ("the NFF reader", "scene/nff.py", None, "parse_nff"),
     ("a counter column every counting kernel freezes", "geometry/counters.py",
      "RAYS_EYE, RAYS_EYE_HIT = 0, 1", "RAYS_EYE, RAYS_EYE_HIT = 1, 0"),

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import raykernel
-from raykernel.aggregates import bvh, bvhopt
+from raykernel.aggregates import bvhbuild, bvhopt, bvhtree
 from raykernel.analysis import anneal, costmodel
 from raykernel.cli import main
 from raykernel.engine.flatten import flatten
@@ -333,17 +333,17 @@ def test_optimised_bvhs_keep_the_leaves_and_lower_the_cost(method, build):
     tri = mesh.vertices[mesh.faces]
     bounds = np.hstack([tri.min(axis=1), tri.max(axis=1)])
     if build == "sah":
-        tree, _ = bvh.build_bvh(bounds)
+        tree, _ = bvhbuild.build_bvh(bounds)
     else:
         from raykernel.aggregates.gsbvh import build_gs
         tree, _ = build_gs(bounds, order="file", seed=1)
     out, info = bvhopt.optimize(tree, method)
     assert info["sah_after"] <= info["sah_before"] + 1e-9
     assert info["sah_after"] == pytest.approx(bvhopt.sah(out))
-    leaves_in = {(int(f), int(c)) for f, c in zip(tree.first[bvh.is_leaf(tree)], tree.count[bvh.is_leaf(tree)])}
-    leaves_out = {(int(f), int(c)) for f, c in zip(out.first[bvh.is_leaf(out)], out.count[bvh.is_leaf(out)])}
+    leaves_in = {(int(f), int(c)) for f, c in zip(tree.first[bvhtree.is_leaf(tree)], tree.count[bvhtree.is_leaf(tree)])}
+    leaves_out = {(int(f), int(c)) for f, c in zip(out.first[bvhtree.is_leaf(out)], out.count[bvhtree.is_leaf(out)])}
     assert leaves_in == leaves_out and len(out.count) == len(tree.count)
-    inner = np.nonzero(~bvh.is_leaf(out))[0]
+    inner = np.nonzero(~bvhtree.is_leaf(out))[0]
     assert np.all(out.first[inner] > inner)                 # children after their parents
     for i in inner:                                         # tight boxes
         kids = out.bounds[out.first[i]:out.first[i] + 2]
@@ -379,7 +379,7 @@ def test_optimize_is_a_checked_parameter():
     with pytest.raises(OptionError, match="optimize must be one of"):
         raykernel.render(raykernel.load("spd:balls:1"), accel="bvh(optimize=magic)", resolution=4)
     with pytest.raises(ValueError, match="unknown BVH optimisation"):
-        bvhopt.optimize(bvh.build_bvh(np.zeros((4, 6)))[0], "magic")
+        bvhopt.optimize(bvhbuild.build_bvh(np.zeros((4, 6)))[0], "magic")
 
 
 # ---- the park -------------------------------------------------------------------------------------------

@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from support import box_area, same_arrays
 
-from raykernel.aggregates.bvh import (FEW_BINS, FEW_BINS_ITEMS, FEWEST_BINS, FEWEST_BINS_ITEMS, BVHArrays, build_bvh,
-                                      is_leaf, refit)
+from raykernel.aggregates.bvhbuild import FEW_BINS, FEW_BINS_ITEMS, FEWEST_BINS, FEWEST_BINS_ITEMS, build_bvh, refit
+from raykernel.aggregates.bvhtree import BVHArrays, is_leaf
 from raykernel.errors import OptionError
 
 EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])

@@ -87,9 +87,9 @@ def test_a_code_change_restamps_its_callers_and_no_other_kernel(package):
     assert not any(k.startswith("raykernel.geometry.boxes.") for k in changed)      # calls nothing of it
     assert not any(k.startswith("raykernel.casting.meshbuild.") for k in changed)   # nor the mesh builds
     # and a builder edit restamps no walk
-    bvh = pkg / "aggregates" / "bvh.py"
-    changed = _changed(before, _edit(pkg, "aggregates/bvh.py", code_edit(bvh.read_text(), only="_best_split")))
-    assert "raykernel.aggregates.bvh._best_split" in changed
+    builder = pkg / "aggregates" / "bvhbuild.py"
+    changed = _changed(before, _edit(pkg, "aggregates/bvhbuild.py", code_edit(builder.read_text(), only="_best_split")))
+    assert "raykernel.aggregates.bvhbuild._best_split" in changed
     assert not any(k.endswith(".walk_step") or ".traverse." in k or ".widewalk." in k for k in changed)
 
 
@@ -242,7 +242,7 @@ def test_a_private_kernel_may_not_allocate():
 def test_the_kernels_inner_loops_count_no_references():
     # what kernels call per ray, per candidate or per pixel with arrays borrows them (or is inlined):
     # reference counts there are atomics the threads fight over (they took half the time of a query)
-    from raykernel.aggregates import bvh, collect, csg, grid, octpoint, octwalk, rcbuild, rcwalk
+    from raykernel.aggregates import bvhwalk, collect, csg, grid, octpoint, octwalk, rcbuild, rcwalk
     from raykernel.casting import meshcast, proximity, rayqueries
     from raykernel.engine import transforms, traverse, widewalk
     from raykernel.geometry import primitives
@@ -253,7 +253,7 @@ def test_the_kernels_inner_loops_count_no_references():
                 traverse.walk, widewalk._walk_wide, whitted.trace, heckbert.trace, hall.trace, tricks.test_ref, tricks.list_hint,
                 startlists.start_list,
                 sampling._render_tile, render._render_tile, render._missed_tile,
-                rayqueries._cast, meshcast._chunk, meshcast._chunk4, bvh.descend, grid.dda, rcwalk.classify,
+                rayqueries._cast, meshcast._chunk, meshcast._chunk4, bvhwalk.descend, grid.dda, rcwalk.classify,
                 csg.start, collect.record, csg.resolve, octwalk.parametric, octpoint.point_walk, transforms.map_ray]
     for kernel in per_item:
         assert kernel.targetoptions.get("_nrt") is False, kernel.py_func.__qualname__

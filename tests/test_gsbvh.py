@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from support import box_area, fill_group_large, new_scene, rays_outside_and_inside, same_arrays
 
-from raykernel.aggregates.bvh import BVHArrays, build_bvh, is_leaf
+from raykernel.aggregates.bvhbuild import build_bvh
+from raykernel.aggregates.bvhtree import BVHArrays, is_leaf
+from raykernel.aggregates.bvhwalk import CODE as BVH
 from raykernel.aggregates.gsbvh import MAX_DEPTH, ORDERS, build_gs, insertion_order, morton_codes
-from raykernel.aggregates.bvh import CODE as BVH
 from raykernel.engine.flatten import flatten
 from raykernel.engine.traverse import cast_rays
 from raykernel.errors import OptionError

@@ -22,7 +22,7 @@ import raykernel
 from raykernel.aggregates.hybrid import clip_margin, clipped_bounds, problem_voxels, replace_leaves
 from raykernel.aggregates.octbuild import build_octree
 from raykernel.casting.rayscene import RayScene
-from raykernel.aggregates.bvh import CODE as BVH
+from raykernel.aggregates.bvhwalk import CODE as BVH
 from raykernel.aggregates.walk import MAX_NESTING
 from raykernel.aggregates.octree import CODE as OCTREE
 from raykernel.engine.flatten import flatten

@@ -1,5 +1,5 @@
 """Meshes built straight into the mesh kernel's arrays (casting/meshbuild.py), at every quality, against
-the brute-force list; the parallel and Morton builds of bvh.py; winding numbers and contains."""
+the brute-force list; the parallel and Morton builds of bvhbuild.py; winding numbers and contains."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import trimesh
 from numba import njit
 
 from raykernel import RayScene
-from raykernel.aggregates import bvh
+from raykernel.aggregates import bvhbuild
 from raykernel.aggregates.memory import MemoryBudgetError
 from raykernel.aggregates.widebvh import collapse
 from raykernel.casting.meshbuild import QUALITY
@@ -187,41 +187,41 @@ def random_boxes(n, seed):
 def assert_parallel_build_is_serial_tree(items, monkeypatch):
     """The same arrays at 1 and 2 threads, and the same splits as the serial build (every item once,
     no node lost or left over by the compaction)."""
-    one, _ = bvh.build_bvh(items, block=4, threads=1)
-    two, _ = bvh.build_bvh(items, block=4, threads=2)
+    one, _ = bvhbuild.build_bvh(items, block=4, threads=1)
+    two, _ = bvhbuild.build_bvh(items, block=4, threads=2)
     for a, b in zip(one, two):
         np.testing.assert_array_equal(a, b)
-    monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1 << 40)
-    serial, _ = bvh.build_bvh(items, block=4)
+    monkeypatch.setattr(bvhbuild, "PARALLEL_ITEMS", 1 << 40)
+    serial, _ = bvhbuild.build_bvh(items, block=4)
     assert leaves_of(serial) == leaves_of(one)
     assert sorted(i for leaf in leaves_of(one) for i in leaf) == list(range(len(items)))
     assert len(one.count) == len(serial.count)
 
 
 def test_the_parallel_build_is_the_serial_tree_at_any_thread_count(monkeypatch):
-    assert_parallel_build_is_serial_tree(random_boxes(bvh.PARALLEL_ITEMS + 5000, 9), monkeypatch)
+    assert_parallel_build_is_serial_tree(random_boxes(bvhbuild.PARALLEL_ITEMS + 5000, 9), monkeypatch)
 
 
 @pytest.mark.parametrize("stack", [1 << 16, 8])
 def test_every_stage_of_the_parallel_build_keeps_the_serial_tree(monkeypatch, stack):
     """Small stages, so that the head, the middle (its blocks filled, and its stack too when small)
     and the small tasks all split nodes."""
-    monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1000)
-    monkeypatch.setattr(bvh, "DEFER_ITEMS", 40)
-    monkeypatch.setattr(bvh, "HEAD_PARTS", 16)
-    monkeypatch.setattr(bvh, "TOP_STACK", stack)
+    monkeypatch.setattr(bvhbuild, "PARALLEL_ITEMS", 1000)
+    monkeypatch.setattr(bvhbuild, "DEFER_ITEMS", 40)
+    monkeypatch.setattr(bvhbuild, "HEAD_PARTS", 16)
+    monkeypatch.setattr(bvhbuild, "TOP_STACK", stack)
     assert_parallel_build_is_serial_tree(random_boxes(6000, 4), monkeypatch)
 
 
 @njit
 def one_thread_partition(data, order, s, e, axis, cmin, scale, bins, split_bin, lcb, rcb, lbox, rbox):
-    """bvh._partition (compiled without a Python wrapper: kernels call it) with its boxes gathered."""
-    return bvh._partition(data, order, s, e, axis, cmin, scale, bins, split_bin, lcb, rcb, True, lbox, rbox)
+    """bvhbuild._partition (compiled without a Python wrapper: kernels call it) with its boxes gathered."""
+    return bvhbuild._partition(data, order, s, e, axis, cmin, scale, bins, split_bin, lcb, rcb, True, lbox, rbox)
 
 
 def rows_of(items):
-    data = np.empty((len(items), bvh.ROW_COLUMNS))
-    bvh._item_data(items, np.arange(len(items), dtype=float), data, 0, len(items))
+    data = np.empty((len(items), bvhbuild.ROW_COLUMNS))
+    bvhbuild._item_data(items, np.arange(len(items), dtype=float), data, 0, len(items))
     return data
 
 
@@ -232,7 +232,7 @@ def test_the_partition_on_threads_against_brute_force(monkeypatch, s, e, chunk, 
     the others from it on, each row with its own index (order), nothing outside s:e touched, and the
     four boxes those of the two sides' items and centres; the same order at 1 and 2 threads, and the
     same middle and boxes as the one-thread partition."""
-    monkeypatch.setattr(bvh, "CHUNK_ITEMS", chunk)
+    monkeypatch.setattr(bvhbuild, "CHUNK_ITEMS", chunk)
     items = random_boxes(5000, split_bin)
     data = rows_of(items)
     bins, axis = 16, 1
@@ -246,11 +246,11 @@ def test_the_partition_on_threads_against_brute_force(monkeypatch, s, e, chunk, 
     for name in (1, 2, "plain"):
         d, order = data.copy(), np.arange(len(items))
         if name == "plain":
-            lcb, rcb, lbox, rbox = (np.empty(bvh.ROW) for _ in range(4))
+            lcb, rcb, lbox, rbox = (np.empty(bvhbuild.ROW) for _ in range(4))
             mid = one_thread_partition(d, order, s, e, axis, cmin, scale, bins, split_bin, lcb, rcb, lbox, rbox)
         else:
-            mid, boxes = bvh._partition_on_threads(d, order, s, e, split, name)
-            lcb, rcb, lbox, rbox = bvh._united(boxes)
+            mid, boxes = bvhbuild._partition_on_threads(d, order, s, e, split, name)
+            lcb, rcb, lbox, rbox = bvhbuild._united(boxes)
         assert mid - s == left[s:e].sum()
         assert set(order[s:mid]) == set(np.flatnonzero(left[s:e]) + s)
         np.testing.assert_array_equal(d, data[order])
@@ -271,13 +271,13 @@ def test_the_head_partitions_on_the_threads_as_on_one(monkeypatch):
     """A build whose head partitions in chunks on the threads: the same arrays at 1 and 2 threads,
     every item in one leaf, the boxes nested, and not the arrays of the build without chunks (so
     the chunks were taken)."""
-    items = random_boxes(bvh.PARALLEL_ITEMS * 4, 3)
-    monkeypatch.setattr(bvh, "WIDE_ITEMS", 1 << 40)
-    plain, _ = bvh.build_bvh(items, block=4, threads=2)
-    monkeypatch.setattr(bvh, "WIDE_ITEMS", bvh.PARALLEL_ITEMS)
-    monkeypatch.setattr(bvh, "CHUNK_ITEMS", 1000)
-    one, _ = bvh.build_bvh(items, block=4, threads=1)
-    two, _ = bvh.build_bvh(items, block=4, threads=2)
+    items = random_boxes(bvhbuild.PARALLEL_ITEMS * 4, 3)
+    monkeypatch.setattr(bvhbuild, "WIDE_ITEMS", 1 << 40)
+    plain, _ = bvhbuild.build_bvh(items, block=4, threads=2)
+    monkeypatch.setattr(bvhbuild, "WIDE_ITEMS", bvhbuild.PARALLEL_ITEMS)
+    monkeypatch.setattr(bvhbuild, "CHUNK_ITEMS", 1000)
+    one, _ = bvhbuild.build_bvh(items, block=4, threads=1)
+    two, _ = bvhbuild.build_bvh(items, block=4, threads=2)
     for a, b in zip(one, two):
         np.testing.assert_array_equal(a, b)
     assert sorted(i for leaf in leaves_of(one) for i in leaf) == list(range(len(items)))
@@ -293,13 +293,13 @@ def test_the_wide_tree_of_the_build_with_gaps_is_the_compacted_ones(monkeypatch)
     """The mesh build leaves the parallel build's unused node rows in place: collapsed from the root,
     its 4-wide tree and SAH cost are those of the compacted tree, and the cost is the brute-force
     sum over the compacted tree's boxes widened by the margin."""
-    monkeypatch.setattr(bvh, "PARALLEL_ITEMS", 1000)
-    monkeypatch.setattr(bvh, "DEFER_ITEMS", 40)
+    monkeypatch.setattr(bvhbuild, "PARALLEL_ITEMS", 1000)
+    monkeypatch.setattr(bvhbuild, "DEFER_ITEMS", 40)
     items = random_boxes(6000, 5)
-    data = np.empty((len(items), bvh.ROW_COLUMNS))
-    bvh._item_data(items, np.ones(len(items)), data, 0, len(items))
-    dense = bvh.build_rows(data.copy(), "sah", 4, 16, 1.0, 1.0, 4, 2)
-    gaps = bvh.build_rows(data.copy(), "sah", 4, 16, 1.0, 1.0, 4, 2, compact=False)
+    data = np.empty((len(items), bvhbuild.ROW_COLUMNS))
+    bvhbuild._item_data(items, np.ones(len(items)), data, 0, len(items))
+    dense = bvhbuild.build_rows(data.copy(), "sah", 4, 16, 1.0, 1.0, 4, 2)
+    gaps = bvhbuild.build_rows(data.copy(), "sah", 4, 16, 1.0, 1.0, 4, 2, compact=False)
     n = dense[4]
     assert gaps[4] > n
     margin = 0.01
@@ -317,7 +317,7 @@ def test_the_wide_tree_of_the_build_with_gaps_is_the_compacted_ones(monkeypatch)
 @pytest.mark.parametrize("n", [1, 2, 5, 1000, 40000])
 def test_the_morton_build_holds_every_item_once_in_small_leaves(n):
     items = random_boxes(n, n)
-    tree, stats = bvh.build_bvh(items, leaf_size=4, method="morton")
+    tree, stats = bvhbuild.build_bvh(items, leaf_size=4, method="morton")
     leaves = leaves_of(tree)
     assert sorted(i for leaf in leaves for i in leaf) == list(range(n))
     assert max(len(leaf) for leaf in leaves) <= 4 and stats["nodes"] == 2 * len(leaves) - 1
@@ -327,7 +327,7 @@ def test_the_morton_build_holds_every_item_once_in_small_leaves(n):
 
 
 def test_the_morton_build_of_coincident_items():
-    tree, _ = bvh.build_bvh(np.tile([0.0, 0, 0, 1, 1, 1], (37, 1)), leaf_size=4, method="morton")
+    tree, _ = bvhbuild.build_bvh(np.tile([0.0, 0, 0, 1, 1, 1], (37, 1)), leaf_size=4, method="morton")
     assert sorted(i for leaf in leaves_of(tree) for i in leaf) == list(range(37))
 
 

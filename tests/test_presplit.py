@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import raykernel
-from raykernel.aggregates.bvh import BVHArrays, build_bvh
+from raykernel.aggregates.bvhbuild import build_bvh
+from raykernel.aggregates.bvhtree import BVHArrays
 from raykernel.aggregates.presplit import leaves_of_items, split_boxes
 from raykernel.scene.specs import without_specs
 from raykernel.errors import OptionError

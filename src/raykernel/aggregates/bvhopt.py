@@ -1,11 +1,11 @@
 """Optimisers of a built binary BVH: the same leaves, a tree of lower SAH cost.
 
-    tree, stats = bvh.build_bvh(bounds)
+    tree, stats = bvhbuild.build_bvh(bounds)
     tree, info = optimize(tree, "rotations")      # or "reinsertion"
     info["sah_before"], info["sah_after"], info["seconds"]
 
 Both keep every leaf (its items and its place in `order`) and rebuild only the inner nodes
-above them, then lay the tree out again as bvh.py's arrays (siblings adjacent, children
+above them, then lay the tree out again as bvhtree.py's arrays (siblings adjacent, children
 after their parents, tight boxes). The SAH cost is bvh.py's with traversal and
 intersection cost 1: inner areas plus leaf areas times their items, over the root's area.
 
@@ -305,7 +305,7 @@ def _reinsert(b, left, right, parent, items, root, batch, max_batches, patience)
 
 @njit
 def _layout(b, left, right, first_leaf, count_leaf, root):
-    """bvh.py's arrays from the pointer tree: breadth first, siblings adjacent."""
+    """bvhtree.py's arrays from the pointer tree: breadth first, siblings adjacent."""
     n = left.shape[0]
     nb = np.empty((n, 6))
     first = np.empty(n, np.int64)

@@ -1,7 +1,7 @@
 """Goldsmith-Salmon BVH (1987): items inserted one at a time, each where it adds least surface area.
 
     bvh, stats = build_gs(item_bounds, order="shuffle", seed=1)
-    # the same BVHArrays layout as bvh.build_bvh: node 0 the root, children
+    # the same BVHArrays layout as bvhbuild.build_bvh: node 0 the root, children
     # adjacent (first, first + 1) and after their parent, leaves order[first:first + count]
 
 Insertion
@@ -279,7 +279,7 @@ def _area_scale(items: np.ndarray) -> float:
 def build_gs(bounds, order="file", *, seed=1, max_depth=MAX_DEPTH):
     """Build a Goldsmith-Salmon BVH over item boxes (see the module docstring).
 
-    bounds: (n, 6) item boxes as for bvh.build_bvh (finite, min <= max, n = 0
+    bounds: (n, 6) item boxes as for bvhbuild.build_bvh (finite, min <= max, n = 0
     allowed). order: one of ORDERS. seed: for order="shuffle". max_depth:
     the depth guard (>= 1; with n items it must allow log2(n) levels).
 

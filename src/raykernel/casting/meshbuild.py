@@ -10,7 +10,7 @@ takes its own blocks from it: several times the memory the kernel needs,
 and most of a build's time. Here the kernel's arrays are made from the user's vertex and
 face arrays alone, which it reads but does not copy:
 
-* the tree over the triangles' boxes, built on every core (bvh.py's binned
+* the tree over the triangles' boxes, built on every core (bvhbuild.py's binned
   SAH, or its Morton-order build);
 * the tree collapsed 4-wide, its boxes widened by the culling margin a
   scene's BVH gets (boxes.cull_margin) and rounded outwards to float32
@@ -34,7 +34,7 @@ import time
 
 import numpy as np
 
-from ..aggregates.bvh import ROW_COLUMNS, WEIGHT, build_rows
+from ..aggregates.bvhbuild import ROW_COLUMNS, WEIGHT, build_rows
 from ..aggregates.bvhopt import optimize
 from ..aggregates.bvhtree import BVHArrays
 from ..aggregates.walk import MAX_TREE_DEPTH
@@ -60,7 +60,7 @@ _COMPILING = "raykernel: compiling the mesh builder (first use after install, a 
 
 @njit
 def _triangle_data(verts, faces, data, i0, i1):
-    """bvh.build_rows' rows for triangles i0..i1-1: box and weight 1, as boxrows.py lays them out.
+    """bvhbuild.build_rows' rows for triangles i0..i1-1: box and weight 1, as boxrows.py lays them out.
     Returns the first of these rows whose box leaves +-MAX_COORDINATE or is smaller than MIN_SIZE
     but not zero (flatten.check_range's rule), or -1: checked as the rows are made, on the threads."""
     bad = -1

@@ -16,7 +16,7 @@ that make it fast:
   are tested in one vector slab test and the children the ray enters are
   visited nearest first. The leaves are the binary tree's, so a ray meets the
   same triangles; `query_binary` (bvh(width=2)) walks the binary tree with the
-  generic kernel's own binary walk (bvh.descend), counters included;
+  generic kernel's own binary walk (bvhwalk.descend), counters included;
 * the ray's permutation and shear for the watertight test are computed once
   per ray instead of once per triangle (the same arithmetic, bit for bit),
   and the test is inlined into the leaf loop;
@@ -46,8 +46,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates.bvh import CODE as BVH
-from ..aggregates.bvh import descend
+from ..aggregates.bvhwalk import CODE as BVH
+from ..aggregates.bvhwalk import descend
 from ..aggregates.widebvh import CHILD, COUNT, NO_CHILD, WideBVH, leaf_range, next_leaf, wide_ray
 from ..engine.flatten import Geometry
 from ..engine.traverse import ALL_HITS
@@ -200,7 +200,7 @@ def _chunk(geo, corners, prims, geoms, root, origins, directions, tmin, tmax, mo
            idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c, r0, r1,
            stack_a, stack_b, stack_t, o, cnt):
     """Rays r0..r1-1 of query, counting into counters[c], with the chunk's stack, origin scratch
-    and counter row for the binary walk's visits (bvh.descend counts them)."""
+    and counter row for the binary walk's visits (bvhwalk.descend counts them)."""
     store = offsets.shape[0] > 0
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray

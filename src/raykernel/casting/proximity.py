@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..aggregates.bvh import build_bvh
+from ..aggregates.bvhbuild import build_bvh
 from ..geometry.parallel import for_ranges
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE, point_in_polygon

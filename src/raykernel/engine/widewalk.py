@@ -33,7 +33,7 @@ root's box; `cells.leaves` per leaf; all of it the BVH walk's (`walk.bvh.*`).
 
 import numpy as np
 
-from ..aggregates.bvh import CODE as BVH
+from ..aggregates.bvhwalk import CODE as BVH
 from ..aggregates.walk import F_MAP
 from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, next_leaf, wide_ray
 from ..geometry import counters as C

@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..aggregates import bvh
+from ..aggregates import bvhwalk
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import AGGREGATE, INDEX_MASK, KIND_SHIFT
@@ -50,7 +50,7 @@ def prepare(geo, used: bool = True) -> Starts:
     parent = np.full(max(1, len(geo.node_count)), -1, np.int64)
     if not used:
         return Starts(offset, leaf, parent)
-    for a in np.flatnonzero(geo.agg_kind == bvh.CODE):
+    for a in np.flatnonzero(geo.agg_kind == bvhwalk.CODE):
         root, size = int(geo.agg_start[a]), int(geo.agg_count[a])
         nodes = np.arange(root, root + size)
         first, count = geo.node_first[nodes], geo.node_count[nodes]
