@@ -145,7 +145,7 @@ def main() -> int:
              "largest compiles (s) |",
              "|---|---|---|---|---|---|---|"]
     for r in old["rows"]:
-        table.append(f"| {r['label']} | {r['entry']} | {r['cold']:.1f} | {r['cold_compile']:.1f} | {r['warm']:.2f} | "
+        table.append(f"| {r['label']} | {r['entry']} | {r['cold']:.2f} | {r['cold_compile']:.1f} | {r['warm']:.2f} | "
                      f"{r['warm_compile']:.2f} | {r['top']} |")
     lines = ["## Start-up: compile time, cold and warm",
              "",
@@ -159,9 +159,10 @@ def main() -> int:
              "",
              f"Machine: {here}.",
              "",
-             "The latest run, this tree's rows (every run kept in bench/startup.json is in the full table):",
+             "The latest run, both sides entry point by entry point (every run kept in bench/startup.json is in "
+             "the full table):",
              "",
-             *subtable(table, COLUMNS, {"label": latest["labels"][-1:]}),
+             *subtable(table, COLUMNS, {"label": latest["labels"]}),
              "",
              DETAILS,
              "",
