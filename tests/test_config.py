@@ -313,3 +313,20 @@ def test_importing_makes_no_stamp_and_the_scene_model_needs_no_numba():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["0"]
+
+
+def test_a_default_argument_is_part_of_the_stamp(tmp_path):
+    import importlib.util
+
+    def load(name, source):
+        (tmp_path / f"{name}.py").write_text(source)
+        spec = importlib.util.spec_from_file_location(name, tmp_path / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    one = load("one", "K = 3\ndef f(x, k=2):\n    return x * k + K\n")
+    two = load("two", "K = 3\ndef f(x, k=5):\n    return x * k + K\n")
+    three = load("three", "K = 4\ndef f(x, k=2):\n    return x * k + K\n")
+    stamps = {cachekey.kernel_stamp(m.f) for m in (one, two, three)}
+    assert len(stamps) == 3

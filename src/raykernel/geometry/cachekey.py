@@ -146,7 +146,8 @@ def _stamp(func, home: str, busy: dict) -> str:
     cycles = busy["cycles"]
     try:
         names = frozenset(_names(func.__code__, set()))
-        parts = [func.__qualname__, own_code(func)]
+        parts = [func.__qualname__, own_code(func),       # default arguments are frozen in too
+                 _value((func.__defaults__ or ()) + tuple((func.__kwdefaults__ or {}).items()), names, home, busy)]
         scope = func.__globals__
         for name in sorted(names):
             if name in scope:
