@@ -134,7 +134,8 @@ def _value(obj, names: frozenset, home: str, busy: dict) -> str:
 
 
 def _stamp(func, home: str, busy: dict) -> str:
-    """busy: id -> function of the stamps being made, and "cycles": how many cycles were met."""
+    """busy: id -> function of the stamps being made, "cycles": how many cycles were met, and
+    "overloads": _overload_table()."""
     key = id(func)
     done = _stamps.get(key)
     if done is not None and done[0] is func:
@@ -157,7 +158,7 @@ def _stamp(func, home: str, busy: dict) -> str:
                 parts.append(f"{name}~{_value(cell.cell_contents, names, home, busy)}")
             except ValueError:      # an empty cell
                 parts.append(f"{name}~")
-        for impl in _overload_table().get(key, ()):
+        for impl in busy["overloads"].get(key, ()):
             parts.append("overload:" + _value(impl, names, home, busy))
         stamp = hashlib.sha256("\0".join(parts).encode()).hexdigest()
     finally:
@@ -170,7 +171,7 @@ def _stamp(func, home: str, busy: dict) -> str:
 def kernel_stamp(py_func) -> str:
     """The stamp of a kernel's cache entries: its code and everything it compiles in (see above)."""
     with _lock:
-        return _stamp(py_func, py_func.__module__, {"cycles": 0})
+        return _stamp(py_func, py_func.__module__, {"cycles": 0, "overloads": _overload_table()})
 
 
 def function_key(py_func) -> str:
