@@ -173,15 +173,19 @@ def test_kernels_cache_in_raykernels_folder_and_other_numba_code_in_numbas():
     assert type(thrice._cache) is FunctionCache and not thrice._cache.cache_path.startswith(config.CACHE_DIR)
 
 
-def test_the_entry_name_does_not_move_with_the_lines_above(tmp_path):
+def _module(folder, name, source):
+    """A module of `source`, imported from folder/name.py."""
     import importlib.util
+    (folder / f"{name}.py").write_text(source)
+    spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
+
+def test_the_entry_name_does_not_move_with_the_lines_above(tmp_path):
     def load(name, source):
-        (tmp_path / f"{name}.py").write_text(source)
-        spec = importlib.util.spec_from_file_location(name, tmp_path / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module
+        return _module(tmp_path, name, source)
 
     plain = load("plain", "def first(x):\n    return x + 1\n")
     moved = load("moved", "\n\n# moved down\n\ndef first(x):\n    \"\"\"Now documented.\"\"\"\n    return x + 1  # same\n")
@@ -316,14 +320,8 @@ def test_importing_makes_no_stamp_and_the_scene_model_needs_no_numba():
 
 
 def test_a_default_argument_is_part_of_the_stamp(tmp_path):
-    import importlib.util
-
     def load(name, source):
-        (tmp_path / f"{name}.py").write_text(source)
-        spec = importlib.util.spec_from_file_location(name, tmp_path / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module
+        return _module(tmp_path, name, source)
 
     one = load("one", "K = 3\ndef f(x, k=2):\n    return x * k + K\n")
     two = load("two", "K = 3\ndef f(x, k=5):\n    return x * k + K\n")
