@@ -16,10 +16,12 @@ line of JSON a step, what it took); compile and load seconds are summed over the
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
@@ -107,13 +109,11 @@ def _shares(count: int, processes: int) -> list[list[int]]:
 
 
 def _in_processes(target: str, steps, processes: int, progress) -> tuple[float, float]:
-    """Each share of the steps in a process of its own; progress as their steps finish."""
-    children = [subprocess.Popen([sys.executable, "-m", __name__, target, *map(str, share)], stdout=subprocess.PIPE,
-                                 stderr=subprocess.PIPE, text=True)
-                for share in _shares(len(steps), processes)]
+    """Each share of the steps in a process of its own; progress as their steps finish. A child's
+    stderr goes to a file of its own, so that nothing it says can fill a pipe and stop it."""
     done, totals, errors, lock = [0], [0.0, 0.0], [], threading.Lock()
 
-    def follow(child):
+    def follow(child, said):
         for line in child.stdout:
             step = json.loads(line)
             with lock:
@@ -123,19 +123,24 @@ def _in_processes(target: str, steps, processes: int, progress) -> tuple[float, 
                 if progress is not None and done[0] < len(steps):      # the last: warm_up's "done"
                     progress(done[0], len(steps), step["label"])
         if child.wait():
-            errors.append(child.stderr.read().strip().splitlines()[-1:] or [f"exit status {child.returncode}"])
+            said.seek(0)
+            errors.append(said.read().decode(errors="replace").strip().splitlines()[-1:]
+                          or [f"exit status {child.returncode}"])
 
-    readers = [threading.Thread(target=follow, args=(c,), daemon=True) for c in children]
-    try:
+    with contextlib.ExitStack() as stack:
+        children = []
+        for share in _shares(len(steps), processes):
+            said = stack.enter_context(tempfile.TemporaryFile())
+            child = stack.enter_context(subprocess.Popen([sys.executable, "-m", __name__, target, *map(str, share)],
+                                                         stdout=subprocess.PIPE, stderr=said, text=True))
+            stack.callback(lambda c=child: c.poll() is None and c.kill())      # runs before the Popen's exit
+            children.append((child, said))
+        readers = [threading.Thread(target=follow, args=pair, daemon=True) for pair in children]
         for r in readers:
             r.start()
         for r in readers:
             while r.is_alive():
                 r.join(0.2)         # a short wait, so Ctrl-C is answered at once
-    finally:
-        for c in children:
-            if c.poll() is None:
-                c.kill()
     if errors:
         raise RuntimeError(f"warm-up: a process failed: {errors[0][0]}")
     return totals[0], totals[1]
