@@ -33,8 +33,8 @@ from _report import BENCHMARKS, DETAILS, ROOT, machine, replace_section, subtabl
 ENTRY_POINTS = {
     "import": "import raykernel",
     "cli-render-tetra": "import tempfile, os; from raykernel.cli import main\n"
-                        "out = os.path.join(tempfile.mkdtemp(), 't.png')\n"
-                        "assert main(['render', 'spd:tetra', '--resolution', '64', '-o', out]) == 0",
+                        "with tempfile.TemporaryDirectory() as d:\n"
+                        "    assert main(['render', 'spd:tetra', '--resolution', '64', '-o', os.path.join(d, 't.png')]) == 0",
     "render-balls": "from raykernel.scene.loading import load; from raykernel.rendering.render import render\n"
                     "render(load('spd:balls'), resolution=32)",
     "render-heckbert": "from raykernel.scene.loading import load; from raykernel.rendering.render import render\n"

@@ -184,12 +184,9 @@ def _module(folder, name, source):
 
 
 def test_the_entry_name_does_not_move_with_the_lines_above(tmp_path):
-    def load(name, source):
-        return _module(tmp_path, name, source)
-
-    plain = load("plain", "def first(x):\n    return x + 1\n")
-    moved = load("moved", "\n\n# moved down\n\ndef first(x):\n    \"\"\"Now documented.\"\"\"\n    return x + 1  # same\n")
-    changed = load("changed", "def first(x):\n    return x + 2\n")
+    plain = _module(tmp_path, "plain", "def first(x):\n    return x + 1\n")
+    moved = _module(tmp_path, "moved", "\n\n# moved down\n\ndef first(x):\n    \"\"\"Now documented.\"\"\"\n    return x + 1  # same\n")
+    changed = _module(tmp_path, "changed", "def first(x):\n    return x + 2\n")
     assert cachekey.function_key(plain.first) == cachekey.function_key(moved.first)
     assert cachekey.function_key(plain.first) != cachekey.function_key(changed.first)
     assert cachekey.kernel_stamp(plain.first) == cachekey.kernel_stamp(moved.first)
@@ -320,11 +317,8 @@ def test_importing_makes_no_stamp_and_the_scene_model_needs_no_numba():
 
 
 def test_a_default_argument_is_part_of_the_stamp(tmp_path):
-    def load(name, source):
-        return _module(tmp_path, name, source)
-
-    one = load("one", "K = 3\ndef f(x, k=2):\n    return x * k + K\n")
-    two = load("two", "K = 3\ndef f(x, k=5):\n    return x * k + K\n")
-    three = load("three", "K = 4\ndef f(x, k=2):\n    return x * k + K\n")
+    one = _module(tmp_path, "one", "K = 3\ndef f(x, k=2):\n    return x * k + K\n")
+    two = _module(tmp_path, "two", "K = 3\ndef f(x, k=5):\n    return x * k + K\n")
+    three = _module(tmp_path, "three", "K = 4\ndef f(x, k=2):\n    return x * k + K\n")
     stamps = {cachekey.kernel_stamp(m.f) for m in (one, two, three)}
     assert len(stamps) == 3
