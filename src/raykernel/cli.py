@@ -474,10 +474,9 @@ def cmd_sweep(args, console) -> int:
 def cmd_calibrate(args, console) -> int:
     from .analysis import costmodel
     out = args.output or costmodel.default_path()
-    sizes = dict(resolutions=tuple(args.resolutions)) if args.resolutions else {}
-    if args.repeats:
-        sizes["repeats"] = args.repeats
-    model = costmodel.calibrate(threads=args.threads, **sizes,
+    model = costmodel.calibrate(threads=args.threads,
+                                resolutions=tuple(args.resolutions or costmodel.CALIBRATION_RESOLUTIONS),
+                                repeats=args.repeats or costmodel.REPEATS,
                                 log=lambda line: console.print(line, markup=False, highlight=False))
     model.save(out)
     for name, cost in sorted(model.costs.items()):
@@ -753,9 +752,9 @@ def _add_others(sub) -> None:
     cal.add_argument("-o", "--output", help="calibration JSON (default: ~/.cache/raykernel/calibration-HOST.json)")
     cal.add_argument("--threads", type=_positive_int, help="worker threads (default: all cores)")
     cal.add_argument("--resolutions", type=_positive_int, nargs="+", metavar="N",
-                     help="image sizes each calibration scene is rendered at (default: 128 256)")
-    cal.add_argument("--repeats", type=_positive_int, default=None,
-                     help="renders of each scene, kind and size, the fastest kept (default: 3)")
+                     help="image sizes each calibration scene is rendered at (default: the calibration set's)")
+    cal.add_argument("--repeats", type=_positive_int,
+                     help="renders of each scene, kind and size, the fastest kept (default: the calibration set's)")
     cal.set_defaults(func=cmd_calibrate)
 
 
