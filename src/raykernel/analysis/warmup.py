@@ -17,6 +17,7 @@ line of JSON a step, what it took); compile and load seconds are summed over the
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import subprocess
@@ -24,6 +25,7 @@ import sys
 import tempfile
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -34,13 +36,18 @@ from ..geometry.compiletime import CompileClock
 TARGETS = ("render", "cast", "all")
 
 
+@functools.cache
+def _balls():
+    from ..scene.loading import load
+    return load("spd:balls:1")
+
+
 def _render_steps() -> list:
     from ..rendering.render import render
     from ..scene.loading import load
-    scene = load("spd:balls:1")
 
     def step(**options):
-        return lambda: render(scene, resolution=4, threads=None, **options)
+        return lambda: render(_balls(), resolution=4, threads=None, **options)
     steps = [(f"render with {name}", step(accel=name)) for name, kind in KINDS.items() if not kind.operands]
     steps.append(("render a CSG scene", lambda: render(load("example:csg"), resolution=4)))
     steps += [("render with Hall's shading", step(shading="hall")),
@@ -51,31 +58,37 @@ def _render_steps() -> list:
     return steps
 
 
-def _cast_steps() -> list:
+@functools.cache
+def _cast_scenes() -> SimpleNamespace:
+    """A closed octahedron, spheres and a scene walked by the general driver, with rays from around
+    them inwards and points: built by the first cast step that runs (in the process that runs it)."""
     from ..casting.rayscene import RayScene
     from ..scene.model import Scene, Spheres
-    # a closed octahedron, and rays from around it inwards
     vertices = np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
     faces = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
     origins = np.array([[3.0, 0.2, 0.1], [0.1, -3.0, 0.3], [0.2, 0.1, 3.0]])
-    directions = -origins
     points = origins / 4.0
-    mesh = RayScene.from_mesh(vertices, faces)
-    spheres = RayScene.from_spheres(points, np.full(len(points), 0.5))
     general = Scene()
     general.root.spheres = Spheres()
     general.root.spheres.add([0.0, 0.0, 0.0], 1.0, 0)
-    driven = RayScene.from_scene(general, accel="bvh")
-    return [("cast: intersect", lambda: mesh.intersect(origins, directions)),
-            ("cast: intersect in float32", lambda: mesh.intersect(origins, directions, fields=("t", "prim_id"),
-                                                                  dtype="float32")),
-            ("cast: occluded", lambda: mesh.occluded(origins, directions)),
-            ("cast: intersect_all", lambda: mesh.intersect_all(origins, directions)),
-            ("cast: count_hits", lambda: mesh.count_hits(origins, directions)),
-            ("cast: closest_points", lambda: mesh.closest_points(points)),
-            ("cast: contains", lambda: mesh.contains(points)),
-            ("cast: spheres", lambda: spheres.intersect(origins, directions)),
-            ("cast: a scene's driver", lambda: driven.intersect(origins, directions))]
+    return SimpleNamespace(mesh=RayScene.from_mesh(vertices, faces), o=origins, d=-origins, points=points,
+                           spheres=RayScene.from_spheres(points, np.full(len(points), 0.5)),
+                           driven=RayScene.from_scene(general, accel="bvh"))
+
+
+def _cast_steps() -> list:
+    def step(query):
+        return lambda: query(_cast_scenes())
+    return [("cast: intersect", step(lambda c: c.mesh.intersect(c.o, c.d))),
+            ("cast: intersect in float32", step(lambda c: c.mesh.intersect(c.o, c.d, fields=("t", "prim_id"),
+                                                                           dtype="float32"))),
+            ("cast: occluded", step(lambda c: c.mesh.occluded(c.o, c.d))),
+            ("cast: intersect_all", step(lambda c: c.mesh.intersect_all(c.o, c.d))),
+            ("cast: count_hits", step(lambda c: c.mesh.count_hits(c.o, c.d))),
+            ("cast: closest_points", step(lambda c: c.mesh.closest_points(c.points))),
+            ("cast: contains", step(lambda c: c.mesh.contains(c.points))),
+            ("cast: spheres", step(lambda c: c.spheres.intersect(c.o, c.d))),
+            ("cast: a scene's driver", step(lambda c: c.driven.intersect(c.o, c.d)))]
 
 
 def plan(target: str) -> list:
@@ -90,16 +103,21 @@ def plan(target: str) -> list:
     return steps
 
 
+def _timed(call) -> tuple[float, float]:
+    """Run call(); its compile and load seconds."""
+    with CompileClock() as clock:
+        call()
+    return clock.seconds, clock.loading
+
+
 def _run(steps, progress) -> tuple[float, float]:
     """Run (label, call) steps here; their compile and load seconds."""
     compile_s = load_s = 0.0
     for done, (label, call) in enumerate(steps):
         if progress is not None:
             progress(done, len(steps), label)
-        with CompileClock() as clock:
-            call()
-        compile_s += clock.seconds
-        load_s += clock.loading
+        c, s = _timed(call)
+        compile_s, load_s = compile_s + c, load_s + s
     return compile_s, load_s
 
 
@@ -173,9 +191,8 @@ def _main(argv) -> None:
     steps = plan(argv[0])
     for index in map(int, argv[1:]):
         label, call = steps[index]
-        with CompileClock() as clock:
-            call()
-        print(json.dumps({"label": label, "compile": clock.seconds, "load": clock.loading}), flush=True)
+        compile_s, load_s = _timed(call)
+        print(json.dumps({"label": label, "compile": compile_s, "load": load_s}), flush=True)
 
 
 if __name__ == "__main__":
