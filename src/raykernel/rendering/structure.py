@@ -164,28 +164,39 @@ def structure_use(scene, accel: str = "bvh", **options):
     job = RenderJob(scene, accel=accel, **dict(options, work=True, threads=1))
     job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])     # walked node by node
     built = len(job.geo.oct_count)
-    job.probe = _use_of(job.geo)
+    job.probe = use_of(job.geo)
     t0 = time.perf_counter()
     for p in range(len(job.passes)):
         job.trace_pass(p, 1)
         job.end_pass(p)
         if job.geo.wide_nodes.shape[0]:
             job.geo = job.geo._replace(wide_nodes=job.geo.wide_nodes[:0])
-        job.probe = _use_of(job.geo, job.probe)     # a lazy structure refined: room for its new cells
+        job.probe = use_of(job.geo, job.probe)     # a lazy structure refined: room for its new cells
     result = job.result(time.perf_counter() - t0, 0.0)
     boxes = boxes_of(job.geo)
-    use = job.probe
+    return boxes, use_values(boxes, job.probe, built), result
+
+
+def use_values(boxes: Boxes, use: Use, built: int | None = None) -> dict:
+    """USE's values of each box from the counts of `use`; built: the octree cells there were
+    before the render refined any (None: all of them)."""
     keyed = use.keyed[boxes.walk] != 0
-    rows = np.where(keyed, use.offset[boxes.walk] + boxes.key, use.offset[AGGREGATES] + boxes.aggregate)
-    counts = use.counts[rows]
+    counts = use.counts[box_rows(boxes, use)]
     inner = boxes.leaf == 0
     futile = np.where(keyed, counts[:, VISITS], counts[:, ENTRIES]) - counts[:, HITS]
-    return boxes, {"visits": counts[:, VISITS], "tests": counts[:, TESTS],
-                   "futile": np.where(inner, -1, futile),
-                   "refined": ((boxes.walk == OCTREE) & (boxes.key >= built)).astype(np.int64)}, result
+    refined = (boxes.walk == OCTREE) & (boxes.key >= built) if built is not None else np.zeros(len(boxes), bool)
+    return {"visits": counts[:, VISITS], "tests": counts[:, TESTS], "futile": np.where(inner, -1, futile),
+            "refined": refined.astype(np.int64)}
 
 
-def _use_of(geo, old: Use | None = None) -> Use:
+def box_rows(boxes: Boxes, use: Use) -> np.ndarray:
+    """The row of `use.counts` each box's use is counted in (an aggregate drawn once for each
+    instance: the same row for each)."""
+    keyed = use.keyed[boxes.walk] != 0
+    return np.where(keyed, use.offset[boxes.walk] + boxes.key, use.offset[AGGREGATES] + boxes.aggregate)
+
+
+def use_of(geo, old: Use | None = None) -> Use:
     """A Use with a row for every cell and node of geo's walks, and for every aggregate; the
     counts of `old` (for geo before a lazy structure refined) kept."""
     sizes = np.zeros(AGGREGATES + 1, np.int64)
