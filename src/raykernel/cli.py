@@ -528,6 +528,26 @@ def cmd_anneal(args, console) -> int:
     return 0
 
 
+def cmd_explore(args, console) -> int:
+    from .explore.server import initial_settings, start
+    from .scene.loading import load
+    import logging
+    s = initial_settings(args.accel, args.resolution, args.settings)    # bad settings fail before the load
+    logging.getLogger("werkzeug").setLevel(logging.WARNING)     # no line per request
+    scene = load(args.scene)
+    server = start(scene, args.scene, s, port=args.port, host=args.host, max_memory=args.max_memory)
+    print(f"raykernel explore: {args.scene} with {', '.join(s.accels)}; open this address (Ctrl-C stops):",
+          flush=True)
+    print(server.url, flush=True)
+    try:
+        server.thread.join()
+    except KeyboardInterrupt:
+        print("raykernel explore: stopped", flush=True)
+    finally:
+        server.stop()
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="raykernel", description="Ray tracing with nestable acceleration "
                                      "structures and exact statistics.")
@@ -535,7 +555,22 @@ def build_parser() -> argparse.ArgumentParser:
     _add_render(sub)
     _add_explain(sub)
     _add_others(sub)
+    _add_explore(sub)
     return parser
+
+
+def _add_explore(sub) -> None:
+    ex = sub.add_parser("explore", help="a local web app: every view of where each structure's work goes, linked "
+                        "(work layers, ratios, histograms, hottest samples, rays, the structure in 3D, tile times)")
+    ex.add_argument("scene", help=SCENE_HELP)
+    ex.add_argument("--accel", action="append", default=[], metavar="SPEC",
+                    help="a structure to explore (repeatable; default bvh)")
+    ex.add_argument("--resolution", type=_positive_int, help="square image size (default: the explorer's)")
+    ex.add_argument("--port", type=int, default=8050, help="the port to serve on (default 8050; 0: any free one)")
+    ex.add_argument("--host", default="127.0.0.1", help="the address to bind (default 127.0.0.1: this machine only)")
+    ex.add_argument("--settings", metavar="FILE", help="open with the settings the page's export wrote")
+    ex.add_argument("--max-memory", help="memory budget of every build and render, e.g. 8G")
+    ex.set_defaults(func=cmd_explore)
 
 
 def _add_trace_options(r) -> None:

@@ -348,7 +348,8 @@ def _number(text):
         return None
 
 
-def _spans_decades(values, decades=2.0) -> bool:
+def spans_decades(values, decades=2.0) -> bool:
+    """Whether the values above zero span more than `decades` decades: drawn on a log scale."""
     v = [x for x in values if x is not None and x > 0]
     return len(v) >= 2 and max(v) / min(v) > 10 ** decades
 
@@ -398,11 +399,11 @@ def sweep_figure(cmp: Comparison):
             ys = [float(r.value(key) or 0.0) for r in runs]
             all_y += ys
             ax.plot(xs, ys, marker="o", label=label)
-        if numeric and _spans_decades([_number(x) for x in xs_text]):
+        if numeric and spans_decades([_number(x) for x in xs_text]):
             ax.set_xscale("log")
         if not numeric:
             ax.set_xticks(range(len(xs_text)), xs_text)
-        if _spans_decades(all_y):
+        if spans_decades(all_y):
             ax.set_yscale("log")
         ax.set_title(title)
         ax.set_xlabel(xname)
@@ -419,10 +420,12 @@ def compare_figure_png(cmp: Comparison) -> bytes:
 
 
 def compare_figure(cmp: Comparison):
-    """Grouped bars per scene: N_IT, N_TS, trace seconds, and predicted against measured time."""
+    """Grouped bars per scene: N_IT, N_TS, trace seconds, and predicted against measured time
+    (that panel only where a calibration predicted times: no empty frame without one)."""
     import matplotlib.pyplot as plt
     scenes, accels = cmp.scenes(), cmp.accels()
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8))
+    pts = [(r.stats["time.trace"], r.predicted, r.accel) for r in cmp.runs if r.predicted]
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8)) if pts else plt.subplots(1, 3, figsize=(15, 4.6))
     width = 0.8 / max(1, len(accels))
     x = np.arange(len(scenes))
     for ax, (title, key) in zip(axes.flat[:3], (("tests per ray (N_IT)", "tests.per_ray"),
@@ -436,14 +439,13 @@ def compare_figure(cmp: Comparison):
                 ys.append(float(run.value(key) or 0.0) if run else 0.0)
             all_y += ys
             ax.bar(x + i * width - 0.4 + width / 2, ys, width, label=accel)
-        if _spans_decades(all_y):
+        if spans_decades(all_y):
             ax.set_yscale("log")
         ax.set_xticks(x, [s.split(":", 1)[-1] for s in scenes], rotation=60, ha="right", fontsize=7)
         ax.set_title(title)
         ax.legend(fontsize=8)
-    ax = axes.flat[3]
-    pts = [(r.stats["time.trace"], r.predicted, r.accel) for r in cmp.runs if r.predicted]
     if pts:
+        ax = axes.flat[3]
         for accel in accels:
             p = [(m, q) for m, q, a in pts if a == accel]
             if p:
@@ -456,11 +458,9 @@ def compare_figure(cmp: Comparison):
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.legend(fontsize=8)
-    else:
-        ax.text(0.5, 0.5, "no cost model calibration\n(run `raykernel calibrate`)", ha="center", va="center")
-    ax.set_xlabel("measured trace s")
-    ax.set_ylabel("predicted trace s")
-    ax.set_title("cost model: predicted against measured (dashed: ±25%)")
+        ax.set_xlabel("measured trace s")
+        ax.set_ylabel("predicted trace s")
+        ax.set_title("cost model: predicted against measured (dashed: ±25%)")
     fig.tight_layout()
     return fig
 

@@ -7,7 +7,9 @@ Nothing is fetched from anywhere. A comparison made with compare(..., work=COUNT
 gets a work section per scene: the counter's layers as raw counts in the page, drawn
 in a canvas by its script on one scale; buttons or a slider flip between the
 structures, the mouse reads out every structure's count at the sample under it, and
-two range sliders over a histogram of the values set the colour scale. The page
+two range sliders over a histogram of the values set the colour scale, which opens on a
+log scale where the values above zero span more than two decades (linear ones would show one
+flat colour). The page
 records what it did in attributes (decoded images, the structure drawn, the last
 read-out), and `#probe=X,Y` in its address moves the mouse there once it has loaded,
 so a headless browser can check it.
@@ -22,7 +24,7 @@ import json
 import numpy as np
 
 from ..rendering.imageio import png_data_uri
-from .compare import COLUMNS, Comparison, prediction_summary, table_rows
+from .compare import COLUMNS, Comparison, prediction_summary, spans_decades, table_rows
 
 STYLE = """
 body { font-family: sans-serif; margin: 1.5em; color: #222; }
@@ -162,6 +164,8 @@ def _work_section(cmp: Comparison, scene: str) -> str:
     if dtype == "float64":
         texts = [_layer_text(np.asarray(v, np.float64)) for v in w.layers.values()]
     low, high = w.scale()
+    positive = [float(v[v > 0].min()) for v in map(np.asarray, w.layers.values()) if (v > 0).any()]
+    log = " checked" if spans_decades([min(positive, default=0.0), high]) else ""     # open on what shows something
     lut = (matplotlib.colormaps["viridis"](np.linspace(0.0, 1.0, 256))[:, :3] * 255).round().astype(int)
     data = {"counter": w.counter, "accels": w.accels, "width": wd, "height": h, "dtype": dtype,
             "min": low, "max": high, "lut": lut.ravel().tolist(), "layers": [t for t, _ in texts]}
@@ -177,7 +181,7 @@ def _work_section(cmp: Comparison, scene: str) -> str:
             f"<canvas class='hist'></canvas><div class='controls'>colour scale from "
             f"<input type='range' class='lo' min='{low}' max='{high}' step='{step}' value='{low}'> to "
             f"<input type='range' class='hi' min='{low}' max='{high}' step='{step}' value='{high}'> "
-            f"<label><input type='checkbox' class='log'>log</label> <span class='range'></span></div>"
+            f"<label><input type='checkbox' class='log'{log}>log</label> <span class='range'></span></div>"
             f"<p>Samples won (least {_e(w.counter)}): {_e(shares)}.</p>"
             f"<img class='plot' alt='{_e(scene)} work ratios' src='{_png_uri(figure_png(w))}'>"
             f"<script type='application/json' class='work-data'>{payload}</script></section>")

@@ -39,6 +39,8 @@ class Renderer:
 
     def submit(self, s: Settings) -> int:
         with self._cond:
+            if self._wanted is not None:        # replaced before it started
+                self._done[self._wanted[0]] = "cancelled"
             self.generation += 1
             self._wanted = (self.generation, s)
             self.status = f"request {self.generation} waiting"

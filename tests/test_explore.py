@@ -1,0 +1,343 @@
+"""The work explorer (raykernel/explore): its data model against brute-force recomputation from
+the per-sample data and fresh renders, and the app through an HTTP client against a server in a
+thread (page and callbacks behind the token, nothing from another host, the renderer's
+cancellation), and `raykernel explore` as a process."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+
+import numpy as np
+import pytest
+
+pytest.importorskip("dash")
+
+from raykernel.errors import OptionError  # noqa: E402
+from raykernel.explore import quality as q  # noqa: E402
+from raykernel.explore.model import Exploration, Run, explore_scene, read_settings, settings  # noqa: E402
+from raykernel.rendering.explain import explain, text  # noqa: E402
+from raykernel.rendering.render import TILE, RenderJob, render  # noqa: E402
+from raykernel.rendering.structure import box_rows, structure_use, use_of  # noqa: E402
+from raykernel.scene.loading import load  # noqa: E402
+
+SCENE = "spd:tetra:2"
+RES = 24
+ACCELS = ["octree", "bvh(leaf=1,width=2)"]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return load(SCENE)
+
+
+@pytest.fixture(scope="module")
+def ex(scene):
+    return explore_scene(scene, settings(ACCELS, RES), SCENE)
+
+
+# --- the data model --------------------------------------------------------------------------
+
+def test_settings_name_the_bad_value():
+    for kw, word in ((dict(accels=["nosuch("]), "nosuch"), (dict(resolution=1), "resolution"),
+                     (dict(eye=(1, 2)), "eye"), (dict(angle=200), "angle"), (dict(counter="tests.nope"), "tests.nope"),
+                     (dict(accels=[]), "accels"), (dict(accels=["auto"]), "auto")):
+        with pytest.raises(OptionError, match=re.escape(word)):
+            settings(**kw)
+    s = settings(["grid", "bvh"], 16, eye=(1, 2, 3))
+    assert read_settings(s.to_json()) == s
+    with pytest.raises(OptionError, match="settings"):
+        read_settings('{"path": "/etc/passwd"}')
+
+
+def test_layers_and_image_equal_a_fresh_render(scene, ex):
+    for accel in ACCELS:
+        ref = render(scene, accel=accel, resolution=RES, work=True)
+        run = ex.runs[accel]
+        assert set(run.layers) == set(ref.work)
+        assert all(np.array_equal(run.layers[k], ref.work[k]) for k in ref.work)
+        assert np.array_equal(run.image, ref.image)
+
+
+def test_each_sample_use_adds_up_to_the_render_use(scene, ex):
+    """Summed over the samples, each box's visits and tests are those of structure --use's whole
+    render (another code path); summed over the boxes, each sample's visits are its cells.visited."""
+    for accel in ACCELS:
+        run = ex.runs[accel]
+        boxes, use, _ = structure_use(scene, accel, resolution=RES)
+        assert len(boxes) == len(run.boxes) > 1
+        for what in ("visits", "tests"):
+            assert np.array_equal(run.use[what], use[what])
+        s = run.samples
+        per_row = np.zeros(int(run.rows.max()) + 1, np.int64)
+        np.add.at(per_row, s.rows, s.visits)
+        assert np.array_equal(per_row[run.rows], use["visits"])
+        owner = np.repeat(np.arange(len(s.indptr) - 1), np.diff(s.indptr))
+        per_sample = np.bincount(owner, weights=s.visits, minlength=len(s.indptr) - 1).astype(np.int64)
+        assert np.array_equal(per_sample.reshape(run.shape), run.layers["cells.visited"])
+
+
+def _brute_force_masks(scene, accel, boxes_wanted):
+    """Which samples' walks entered each box: every sample traced alone into a zeroed Use,
+    and a whole TILE x TILE tile traced as a render traces it, for the tile sums."""
+    from raykernel.engine.widewalk import with_driver
+    job = RenderJob(scene, accel=accel, resolution=RES, work=True, threads=1)
+    job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])
+    tiles_x, tiles_y = job.tile_x.copy(), job.tile_y.copy()
+    ys, xs = np.mgrid[0:job.sh, 0:job.sw]
+    job.tile_x, job.tile_y = xs.ravel().astype(np.int64), ys.ravel().astype(np.int64)
+    n = len(job.tile_x)
+    job.counts = np.zeros((n, job.counts.shape[1]), np.int64)
+    job.passes, job.work, job.pass_counts = [(TILE, 0, 0, n)], [n], [None]
+    job.probe = use_of(job.geo)
+    from raykernel.rendering.structure import boxes_of
+    rows = box_rows(boxes_of(job.geo), job.probe)[boxes_wanted]
+    masks = np.zeros((len(boxes_wanted), n), bool)
+    for k in range(n):
+        job.probe.counts[:] = 0
+        job.trace(0, k, k + 1, 1)
+        masks[:, k] = job.probe.counts[rows, 0] > 0
+    # the first tile as a render traces it: its visits are the samples' sums
+    job.tile_x, job.tile_y = tiles_x, tiles_y
+    job.passes, job.work, job.pass_counts = [(1, 0, 0, len(tiles_x))], [len(tiles_x)], [None]
+    job.counts = np.zeros((len(tiles_x), job.counts.shape[1]), np.int64)
+    job.probe.counts[:] = 0
+    job.trace(0, 0, 1, 1)
+    return masks.reshape(len(boxes_wanted), job.sh, job.sw), job.probe.counts[rows, 0]
+
+
+def test_node_masks_equal_a_brute_force_check(scene, ex):
+    for accel in ACCELS:
+        run = ex.runs[accel]
+        order = np.argsort(-run.use["visits"], kind="stable")
+        wanted = np.unique(np.concatenate([order[:4], order[len(order) // 2:len(order) // 2 + 2], order[-1:]]))
+        masks, tile_visits = _brute_force_masks(scene, accel, wanted)
+        for k, box in enumerate(wanted):
+            got = run.node_mask(int(box))
+            assert np.array_equal(got > 0, masks[k]), (accel, box)
+            assert got[:TILE, :TILE].sum() == tile_visits[k]
+        assert masks.any()
+
+
+def test_a_pixel_boxes_are_those_its_masks_hold(ex):
+    run = ex.runs["octree"]
+    y, x = np.unravel_index(np.argmax(run.layers["cells.visited"]), run.shape)
+    visited, tested = run.pixel_boxes(int(x), int(y))
+    assert len(visited) and set(tested) <= set(visited)
+    for box in range(len(run.boxes)):
+        assert (run.node_mask(box)[y, x] > 0) == (box in set(visited))
+    assert all(run.node_mask(int(b), "tests")[y, x] > 0 for b in tested)
+
+
+def test_hottest_counts_and_ranges_against_brute_force(ex):
+    h, w = ex.shape
+    name = "tests.total"
+    stack = {a: ex.layer(a, name) for a in ACCELS}
+    hot = ex.hottest(name, 7)
+    top = max(stack[a].max() for a in ACCELS)
+    assert max(hot[0][2].values()) == top
+    for x, y, values in hot:
+        assert values == {a: int(stack[a][y, x]) for a in ACCELS}
+    worst = sorted((max(int(stack[a][j, i]) for a in ACCELS) for j in range(h) for i in range(w)), reverse=True)
+    assert [max(v.values()) for _, _, v in hot] == worst[:7]
+    for x, y in ((0, 0), (w - 1, h - 1), (w // 2, h // 3)):
+        counts = ex.counts_at(x, y)
+        assert all(counts[a][k] == int(ex.runs[a].layers[k][y, x]) for a in ACCELS for k in ex.runs[a].layers)
+    lo, hi = 2, 6
+    mask = ex.in_range("octree", name, lo, hi)
+    assert np.array_equal(mask, np.vectorize(lambda v: lo <= v <= hi)(stack["octree"]))
+    with pytest.raises(OptionError, match="outside"):
+        ex.counts_at(w, 0)
+
+
+def _fake(layers: dict) -> Exploration:
+    runs = {a: Run(a, np.zeros(v.shape + (3,)), {"tests.total": v}, {}, None, {}, np.zeros(0), None, None)
+            for a, v in layers.items()}
+    return Exploration("fake", settings(list(layers)), runs)
+
+
+def test_the_scale_is_log_where_values_span_decades():
+    wide = _fake({"grid": np.array([[5, 75840]]), "bvh": np.array([[0, 40]])})
+    assert wide.scale("tests.total") == (0.0, 75840.0, "log")
+    narrow = _fake({"grid": np.array([[5, 80]]), "bvh": np.array([[0, 40]])})
+    assert narrow.scale("tests.total")[2] == "linear"
+
+
+def test_node_quality_against_hand_counts(ex):
+    boxes = ex.runs["octree"].boxes
+    got = q.quality(boxes)
+    assert (got["overlap"] == 0).all()          # an octree's boxes tile space
+    lo, hi = boxes.corners.min(axis=1), boxes.corners.max(axis=1)
+    root = np.prod(hi[0] - lo[0])
+    for k in range(len(boxes)):
+        s = hi[k] - lo[k]
+        area = 2 * (s[0] * s[1] + s[1] * s[2] + s[2] * s[0])
+        assert np.isclose(got["area"][k], area)
+    assert root > 0
+    bvh = ex.runs["bvh(leaf=1,width=2)"].boxes
+    b = q.quality(bvh)
+    leaf = bvh.leaf == 1
+    s = bvh.corners.max(axis=(0, 1)) - bvh.corners.min(axis=(0, 1))
+    whole = 2 * (s[0] * s[1] + s[1] * s[2] + s[2] * s[0])
+    assert np.isclose(b["sah"].sum(), (b["area"][~leaf].sum() + (b["area"][leaf] * bvh.items[leaf]).sum()) / whole)
+    depths, counts = q.depth_histogram(bvh)
+    assert counts.sum() == leaf.sum() and set(depths) == set(bvh.depth[leaf])
+    sizes, counts = q.leaf_size_histogram(bvh)
+    assert (sizes * counts).sum() == bvh.items[leaf].sum()
+
+
+# --- the app, over HTTP -----------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def server(scene):
+    from raykernel.explore.server import start
+    srv = start(scene, SCENE, settings(ACCELS, RES), port=0, timed=False)
+    assert srv.renderer.wait(srv.renderer.generation) == "full"
+    yield srv
+    srv.stop()
+
+
+def _get(url):
+    with urllib.request.urlopen(url) as r:
+        return r.status, r.read().decode("utf-8", "replace")
+
+
+def call(server, output, inputs, state=(), changed=None):
+    """A callback through Dash's own endpoint, as the page calls it; `output` names its key."""
+    app = server.app
+    key = next(k for k in app.callback_map if k.split("@")[0] == output or f".{output}." in k)
+    spec = app.callback_map[key]
+    outs = key.strip(".").split("...") if key.startswith("..") else [key.split("@")[0]]
+    outputs = [dict(zip(("id", "property"), o.rsplit(".", 1))) for o in outs]
+    body = {"output": key, "outputs": outputs if key.startswith("..") else outputs[0],
+            "inputs": [{**d, "value": v} for d, v in zip(spec["inputs"], inputs)],
+            "state": [{**d, "value": v} for d, v in zip(spec["state"], state)],
+            "changedPropIds": changed or [f"{spec['inputs'][0]['id']}.{spec['inputs'][0]['property']}"]}
+    body["inputs"] = [{k: v for k, v in d.items() if k in ("id", "property", "value")} for d in body["inputs"]]
+    body["state"] = [{k: v for k, v in d.items() if k in ("id", "property", "value")} for d in body["state"]]
+    req = urllib.request.Request(server.url + "_dash-update-component", json.dumps(body).encode(),
+                                 {"Content-Type": "application/json"})
+    with urllib.request.urlopen(req) as r:
+        text = r.read().decode()
+    return json.loads(text)["response"] if text else {}
+
+
+def _version(server):
+    return call(server, "version.data", [1], [-1])["version"]["data"]
+
+
+def test_the_page_needs_its_token_and_fetches_nothing_from_elsewhere(server):
+    status, page = _get(server.url)
+    assert status == 200 and "raykernel explore" in page
+    root = server.url.split("/", 3)[:3]
+    for path in ("", "_dash-layout", "_dash-dependencies", server.url.split("/")[3] + "x/"):
+        with pytest.raises(urllib.error.HTTPError) as e:
+            _get("/".join(root) + "/" + path)
+        assert e.value.code == 404
+    assert not re.findall(r"https?://", page)
+    sources = re.findall(r'(?:src|href)="([^"]+)"', page)
+    assert sources and all(s.startswith("/" + server.url.split("/")[3] + "/") for s in sources)
+    for s in sources:
+        assert _get("/".join(root) + s)[0] == 200         # every script the page loads, served here
+    layout = _get(server.url + "_dash-layout")[1]
+    assert "http://" not in layout and "https://" not in layout
+
+
+def test_hover_reads_every_structure_count(server, ex):
+    v = _version(server)
+    for x, y in ((1, 2), (12, 12), (23, 7)):
+        out = call(server, "hover.children", [{"points": [{"x": x, "y": y}]}, None])
+        table = out["hover"]["children"]["props"]
+        counts = json.loads(table["data-counts"])
+        assert (table["data-x"], table["data-y"]) == (x, y)
+        assert counts == {a: {k: int(val[y, x]) for k, val in ex.runs[a].layers.items()} for a in ACCELS}
+    assert v >= 1
+
+
+def test_the_views_draw_on_one_scale_and_light_a_selection(server, ex):
+    v = _version(server)
+    out = call(server, "layers.figure", [v, "tests.total", "auto", None])
+    layers = out["layers"]["figure"]
+    heat = [t for t in layers["data"] if t["type"] == "heatmap"]
+    assert [t["name"] for t in heat] == ACCELS
+    assert all(t.get("coloraxis") == "coloraxis" for t in heat)
+    assert out["counter"]["options"] == ex.layer_names()
+    rows = out["hottest"]["children"]["props"]["children"][1:]
+    first = [c["props"]["children"] for c in rows[0]["props"]["children"]]
+    x, y, values = ex.hottest("tests.total", 1)[0]
+    assert first == [x, y] + [f"{values[a]:,}" for a in ACCELS]
+    sel = call(server, "selection.data", [{"range": {"x2": [3, 5]}}, None, 0], ["tests.total", "octree"],
+               ["histograms.selectedData"])["selection"]["data"]
+    assert sel == {"kind": "range", "accel": ACCELS[1], "counter": "tests.total", "low": 3.0, "high": 5.0}
+    lit = call(server, "layers.figure", [v, "tests.total", "auto", sel])["layers"]["figure"]
+    assert "tests.total in 3 to 5" in lit["layout"]["annotations"][0]["text"]
+    box = call(server, "selection.data", [None, {"points": [{"customdata": 2}]}, 0], ["tests.total", "octree"],
+               ["structure.clickData"])["selection"]["data"]
+    assert box == {"kind": "box", "accel": "octree", "box": 2}
+    mask = ex.runs["octree"].node_mask(2) > 0
+    lit = call(server, "layers.figure", [v, "tests.total", "auto", box])["layers"]["figure"]
+    assert f"{int(mask.sum())} samples' rays entered box 2" in lit["layout"]["annotations"][0]["text"]
+
+
+def test_a_click_explains_the_sample(server, scene):
+    v = _version(server)
+    out = call(server, "rays.children", [{"x": 12, "y": 11}, "octree", v])
+    assert out["rays"]["children"] == text(explain(scene, 12, 11, accel="octree", resolution=RES))
+    fig = call(server, "structure.figure", [v, "octree", "visits", "", "", {"x": 12, "y": 11}, None])
+    names = [t.get("name", "") for t in fig["structure"]["figure"]["data"]]
+    assert any(n.startswith("entered (level 0)") for n in names) and any(n.startswith("ray 1: eye") for n in names)
+    assert "entered" in fig["node"]["children"]
+
+
+def test_a_bad_spec_is_an_error_in_the_page_and_the_next_good_one_renders(server, scene):
+    form = [RES, "", "", "", None, "tests.total"]
+    out = call(server, "error.children", [1], ["octree\nnosuch(", *form])
+    assert "nosuch" in out["error"]["children"]
+    out = call(server, "error.children", [2], ["bvh(leaf=1,width=2)", 20, "", "", "", None, "tests.total"])
+    assert out["error"]["children"] == ""
+    assert server.renderer.wait(server.renderer.generation) == "full"
+    _, shown, error, _ = server.renderer.snapshot()
+    assert error is None and shown.accels == ["bvh(leaf=1,width=2)"] and shown.shape == (20, 20)
+    ref = render(scene, accel="bvh(leaf=1,width=2)", resolution=20, work=True)
+    assert all(np.array_equal(shown.runs["bvh(leaf=1,width=2)"].layers[k], ref.work[k]) for k in ref.work)
+    # a structure the build refuses is the renderer's error, shown by the poll
+    call(server, "error.children", [3], ["bvh", 20, "0,0,0", "0,0,0", "", None, "tests.total"])
+    server.renderer.wait(server.renderer.generation)
+    assert "eye and look_at" in call(server, "version.data", [2], [-1])["error"]["children"]
+
+
+def test_a_newer_request_cancels_the_older(scene):
+    from raykernel.explore.jobs import Renderer
+    r = Renderer(scene, SCENE, timed=False)
+    first = r.submit(settings(["octree"], 160))
+    while f"request {first}: rendering" not in r.snapshot()[3] and r.outcome(first) is None:
+        pass
+    second = r.submit(settings(["octree"], 12))
+    assert r.wait(second) == "full"
+    assert r.wait(first) == "cancelled"
+    assert r.snapshot()[1].settings.resolution == 12
+    third, fourth = r.submit(settings(["octree"], 10)), r.submit(settings(["octree"], 11))
+    assert r.wait(fourth) == "full" and r.wait(third) == "cancelled"
+
+
+def test_explore_command_prints_its_address_and_serves(tmp_path):
+    proc = subprocess.Popen([sys.executable, "-m", "raykernel", "explore", SCENE, "--accel", "octree",
+                             "--resolution", "12", "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        lines = [proc.stdout.readline() for _ in range(2)]
+        url = lines[1].strip()
+        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/[\w-]{16,}/", url), lines
+        assert _get(url)[0] == 200
+        with pytest.raises(urllib.error.HTTPError):
+            _get(url.rsplit("/", 2)[0] + "/")
+    finally:
+        proc.terminate()
+        proc.communicate()
+    bad = subprocess.run([sys.executable, "-m", "raykernel", "explore", SCENE, "--accel", "nosuch("],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "nosuch" in bad.stderr
