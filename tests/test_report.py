@@ -142,3 +142,25 @@ def test_work_data_cannot_end_its_script_element():
     import json
     assert json.loads(data)["accels"] == ["list", odd]
     assert "</script><b>" not in text
+
+
+def _work_comparison(top: int):
+    runs = [cm.Run(scene="s", accel=a, stats={"time.trace": 0.1, "tests.per_ray": 1.0}, image=np.zeros((2, 2, 3), np.uint8),
+                   primitives=1, work=np.array([[5, 9], [40, top * (k + 1) // 2]]))
+            for k, a in enumerate(["octree", "bvh"])]
+    return cm.Comparison(runs=runs, options={}, machine={}, command="x", work="tests.total")
+
+
+def test_the_work_section_opens_on_a_log_scale_where_values_span_decades():
+    # the stadium's tests per sample ran from 5 to 75,840: linear showed one flat colour
+    assert "class='log' checked>" in render_html(_work_comparison(75840))
+    assert "class='log'>" in render_html(_work_comparison(80))
+
+
+def test_no_cost_model_panel_without_a_calibration():
+    cmp = _work_comparison(80)
+    assert len(cm.compare_figure(cmp).axes) == 3          # no empty frame
+    for run in cmp.runs:
+        run.predicted = 0.12
+    axes = cm.compare_figure(cmp).axes
+    assert len(axes) == 4 and axes[3].get_title().startswith("cost model")
