@@ -78,7 +78,7 @@ def test_the_site_has_every_part(site):
     for page in ("index.html", "getting-started.html", "newsletter.html", "api.html", "benchmarks.html",
                  "design.html", "adding-a-kind.html", "auto_examples/index.html", "guide/scenes.html",
                  "guide/rendering.html", "guide/structures.html", "guide/statistics.html", "guide/comparing.html",
-                 "guide/animation.html", "guide/ray-casting.html", "guide/performance.html"):
+                 "guide/animation.html", "guide/explorer.html", "guide/ray-casting.html", "guide/performance.html"):
         assert page in pages, f"{page} is missing from the site"
     examples = sorted(ROOT.glob("examples/gallery/plot_*.py"))
     assert examples

@@ -8,7 +8,9 @@ name (model.obj, scene.nff, bunny.ply, examples/orbit.json), made smaller by the
 (size factors, resolutions, frame counts, annealing seconds); a Python block runs with the names
 it leaves to the reader (vertices, faces, origins, directions, points, batches, placements)
 bound to a small mesh and rays. Each fails on an exception, a non-zero status, or a warning that
-is not raykernel's own.
+is not raykernel's own. A command that serves until stopped (SERVERS: `raykernel explore`) runs as
+a process on a free port: it passes when it prints its address on a line of its own and that
+page answers.
 """
 
 from __future__ import annotations
@@ -44,7 +46,8 @@ SMALL = [
     (r"--time 0 5400", "--time 0 60"),
     (r"(raykernel calibrate)", r"\1 --resolutions 8 16 --repeats 1"),
 ]
-RENDERING = {"render", "compare", "explain", "animate", "anneal", "sweep", "structure"}
+RENDERING = {"render", "compare", "explain", "animate", "anneal", "sweep", "structure", "explore"}
+SERVERS = {"explore"}       # serve until stopped: started as a process, its address read and fetched, then stopped
 
 
 def _pages():
@@ -126,9 +129,37 @@ def test_the_docs_show_commands_and_blocks_to_run():
     assert small("raykernel render spd:teapot:12 --resolution 512") == "raykernel render spd:teapot:1 --resolution 12"
 
 
+def _serves(argv: list[str], folder) -> None:
+    """Run a server command as a process on a free port, fetch the address it prints, stop it."""
+    import subprocess
+    import sys
+    import urllib.request
+    if "--port" in argv:
+        argv[argv.index("--port") + 1] = "0"
+    else:
+        argv += ["--port", "0"]
+    proc = subprocess.Popen([sys.executable, "-m", "raykernel", *argv], cwd=folder, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        address = None
+        for line in proc.stdout:
+            if re.fullmatch(r"https?://\S+", line.strip()):
+                address = line.strip()
+                break
+        assert address, f"{argv}: no address printed; {proc.stderr.read()[-2000:] if proc.poll() is not None else ''}"
+        with urllib.request.urlopen(address) as page:
+            assert page.status == 200
+    finally:
+        proc.terminate()
+        proc.communicate()
+
+
 @pytest.mark.parametrize("page, command", documented_commands())
 def test_documented_command_runs(folder, monkeypatch, capsys, page, command):
     monkeypatch.chdir(folder)
+    if command.split()[1] in SERVERS:
+        _serves(_argv(command), folder)
+        return
     status = _strict(lambda: main(_argv(command)))
     out = capsys.readouterr()
     assert status == 0, f"{page}: {command}\n{out.err[-2000:]}"

@@ -33,6 +33,7 @@ class Renderer:
         self.status = "idle"
         self._wanted = None
         self._done = {}             # generation -> "full", "failed" or "cancelled"
+        self._closed = False
         self._cond = threading.Condition()
         self._thread = threading.Thread(target=self._loop, name="raykernel-explore-render", daemon=True)
         self._thread.start()
@@ -46,6 +47,13 @@ class Renderer:
             self.status = f"request {self.generation} waiting"
             self._cond.notify_all()
             return self.generation
+
+    def close(self) -> None:
+        """Stop the render in progress and the worker."""
+        with self._cond:
+            self.generation += 1
+            self._closed = True
+            self._cond.notify_all()
 
     def snapshot(self):
         with self._cond:
@@ -67,7 +75,9 @@ class Renderer:
     def _loop(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(lambda: self._wanted is not None)
+                self._cond.wait_for(lambda: self._wanted is not None or self._closed)
+                if self._closed:
+                    return
                 generation, s = self._wanted
                 self._wanted = None
             self._settle(generation, self._render(generation, s))

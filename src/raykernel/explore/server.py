@@ -3,10 +3,10 @@
     server = start(load("scene:stadium"), "scene:stadium", settings(["octree", "bvh"]), port=0)
     server.url          # http://127.0.0.1:PORT/TOKEN/ : the page; any path without the token is 404
     server.stop()
-    explore(scene, accels=["octree", "bvh"])     # in Jupyter: the same app inline, below the cell
+    server = explore(scene, accels=["octree", "bvh"])   # the same; in Jupyter shown inline below the cell
 
 The token is the first part of every path (Dash's url_base_pathname), so the page's own requests
-carry it and an iframe in Jupyter works as the browser does. Dash serves its scripts from the
+carry it and the iframe Jupyter shows works as the browser does. Dash serves its scripts from the
 installed package: the page fetches nothing from any other host. The server reads no file but
 the scene it was given (the page takes structure specs and camera numbers, never a path).
 """
@@ -42,6 +42,7 @@ class Server:
     thread: threading.Thread
 
     def stop(self) -> None:
+        self.renderer.close()
         self.http.shutdown()
         self.thread.join()
 
@@ -78,9 +79,10 @@ def initial_settings(accels, resolution=None, settings_file=None) -> Settings:
     return settings(accels or ["bvh"], resolution or DEFAULT_RESOLUTION)
 
 
-def explore(scene, accels=("bvh",), resolution: int = DEFAULT_RESOLUTION, port: int = 8050, max_memory=None,
-            mode: str = "inline"):
-    """The explorer inline in Jupyter (mode: Dash's jupyter_mode: "inline", "tab", "external").
+def explore(scene, accels=("bvh",), resolution: int = DEFAULT_RESOLUTION, port: int = 0, max_memory=None,
+            height: int = 900) -> Server:
+    """The explorer for `scene`, served from a thread of this process; in Jupyter, shown inline
+    below the cell (an iframe of its address), elsewhere its address printed.
 
     Parameters
     ----------
@@ -91,12 +93,38 @@ def explore(scene, accels=("bvh",), resolution: int = DEFAULT_RESOLUTION, port: 
     resolution : int
         The square image the views show.
     port : int
-        The port of the server Dash starts for the notebook.
+        The port to serve on (0: any free one).
+    height : int
+        The inline view's height in pixels.
+
+    Returns
+    -------
+    Server
+        ``url`` (token included) and ``stop()``.
+
+    Raises
+    ------
+    OptionError
+        A bad spec or resolution (the message names it), or Dash and plotly are not installed.
     """
     from ..scene.loading import load
     label = scene if isinstance(scene, str) else getattr(scene, "source", "scene")
+    s = settings(list(accels) if not isinstance(accels, str) else [accels], resolution)
     if isinstance(scene, str):
         scene = load(scene)
-    app, renderer, token = build(scene, label, settings(list(accels), resolution), max_memory)
-    app.run(jupyter_mode=mode, host=HOST, port=port)
-    return app
+    server = start(scene, label, s, port=port, max_memory=max_memory)
+    shell = _notebook()
+    if shell is not None:
+        from IPython.display import IFrame, display
+        display(IFrame(server.url, width="100%", height=height))
+    else:
+        print(f"raykernel explore: {server.url}")
+    return server
+
+
+def _notebook():
+    """The IPython kernel's shell where this runs in Jupyter, else None."""
+    import sys
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None and hasattr(ipython, "get_ipython") else None
+    return shell if shell is not None and getattr(shell, "kernel", None) is not None else None

@@ -1,0 +1,142 @@
+"""The work explorer in headless Chromium: hover three samples and read every structure's counts
+equal to the work layers, click one and read its rays equal to explain's, no request to another
+host and no console error. The slow test makes the documentation's screenshots of the stadium
+(docs/_static/explore-*.png)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("dash")
+
+from raykernel.explore.model import settings  # noqa: E402
+from raykernel.rendering.explain import explain, text  # noqa: E402
+from raykernel.rendering.render import render  # noqa: E402
+from raykernel.scene.loading import load  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+DRIVER = shutil.which("chromedriver")
+ACCELS = ["octree", "grid"]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not (CHROMIUM and DRIVER):
+        pytest.skip("headless Chromium needs the chromium and chromium-driver packages")
+    webdriver = pytest.importorskip("selenium.webdriver")
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,1000"):
+        options.add_argument(arg)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
+    driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=DRIVER))
+    yield driver
+    driver.quit()
+
+
+GIVE_UP = 600       # seconds: a page that never answers fails rather than hangs (not a speed check)
+
+
+def _until(driver, script, *args):
+    """What `script` returns once it is truthy (the page answers through its own requests)."""
+    end = time.monotonic() + GIVE_UP
+    while time.monotonic() < end:
+        value = driver.execute_script(script, *args)
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"the page never answered: {script}")
+
+
+def _emit(driver, graph: str, event: str, x: int, y: int, curve: int) -> None:
+    driver.execute_script(
+        "var gd = document.getElementById(arguments[0]).querySelector('.js-plotly-plot');"
+        "gd.emit(arguments[1], {points: [{x: arguments[2], y: arguments[3], curveNumber: arguments[4],"
+        " pointNumber: [arguments[3], arguments[2]]}]});", graph, event, x, y, curve)
+
+
+@pytest.fixture(scope="module")
+def page(browser):
+    from raykernel.explore.server import start
+    scene = load("spd:tetra:2")
+    server = start(scene, "spd:tetra:2", settings(ACCELS, 24), port=0, timed=False)
+    assert server.renderer.wait(server.renderer.generation) == "full"
+    browser.get(server.url)
+    _until(browser, "return document.querySelectorAll('#layers .heatmaplayer, #layers .hm').length > 0 || "
+                    "document.querySelectorAll('#layers .js-plotly-plot .main-svg').length > 0")
+    _until(browser, "return document.getElementById('status').textContent.indexOf('shown') >= 0")
+    yield browser, server, scene
+    server.stop()
+
+
+def test_hover_three_samples_reads_the_work_layers(page):
+    browser, server, scene = page
+    refs = {a: render(scene, accel=a, resolution=24, work=True).work for a in ACCELS}
+    for x, y in ((3, 4), (12, 12), (20, 9)):
+        _emit(browser, "layers", "plotly_hover", x, y, 1)
+        counts = _until(browser, "var t = document.getElementById('hover-table');"
+                                 "return t && t.getAttribute('data-x') == arguments[0] && "
+                                 "t.getAttribute('data-y') == arguments[1] && t.getAttribute('data-counts');", x, y)
+        assert json.loads(counts) == {a: {k: int(v[y, x]) for k, v in refs[a].items()} for a in ACCELS}
+
+
+def test_click_a_sample_lists_its_rays_as_explain_does(page):
+    browser, server, scene = page
+    _emit(browser, "layers", "plotly_click", 12, 11, 1)
+    want = text(explain(scene, 12, 11, accel=ACCELS[0], resolution=24))
+    got = _until(browser, "var t = document.getElementById('rays').textContent;"
+                          "return t.indexOf('pixel (12, 11)') == 0 && t;")
+    assert got == want
+    _until(browser, "return document.getElementById('node').textContent.indexOf('sample (12, 11)') >= 0")
+
+
+def test_no_console_error_and_nothing_from_another_host(page):
+    browser, server, _ = page
+    errors = [e for e in browser.get_log("browser") if e["level"] == "SEVERE"]
+    assert not errors, errors
+    host = server.url.split("/")[2]
+    urls = []
+    for entry in browser.get_log("performance"):
+        message = json.loads(entry["message"])["message"]
+        if message["method"] == "Network.requestWillBeSent":
+            urls.append(message["params"]["request"]["url"])
+    assert urls and all(u.split("/")[2] == host or u.startswith(("data:", "blob:")) for u in urls), urls
+
+
+@pytest.mark.slow
+def test_screenshots_of_the_stadium_for_the_docs(browser):
+    """docs/guide/explorer.md's pictures: the stadium with the octree, the BVH and the grid."""
+    from raykernel.explore.server import start
+    scene = load("scene:stadium")
+    server = start(scene, "scene:stadium", settings(["octree", "bvh", "grid"], 64), port=0)
+    try:
+        assert server.renderer.wait(server.renderer.generation) == "full"
+        browser.set_window_size(1400, 1000)
+        browser.get(server.url)
+        _until(browser, "return document.getElementById('status').textContent.indexOf('(full') >= 0")
+        _until(browser, "return document.getElementById('hottest-table')")
+        ex = server.renderer.snapshot()[1]
+        y, x = np.unravel_index(np.argmax(ex.layer("octree", "tests.total")), ex.shape)
+        _emit(browser, "layers", "plotly_hover", int(x), int(y), 1)
+        _until(browser, "return document.getElementById('hover-table')")
+        out = ROOT / "docs" / "_static"
+        _shot(browser, "layers", out / "explore-layers.png", 0)
+        _emit(browser, "layers", "plotly_click", int(x), int(y), 1)
+        _until(browser, "return document.getElementById('node').textContent.indexOf('entered') >= 0")
+        _shot(browser, "structure", out / "explore-structure.png", 0)
+        _shot(browser, "time", out / "explore-time.png", 0)
+    finally:
+        server.stop()
+
+
+def _shot(browser, element: str, path: Path, _) -> None:
+    browser.execute_script("document.getElementById(arguments[0]).scrollIntoView();", element)
+    time.sleep(1.0)         # plotly finishes drawing after its data arrived
+    browser.find_element("id", element).screenshot(str(path))
