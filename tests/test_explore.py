@@ -338,6 +338,46 @@ def test_explore_command_prints_its_address_and_serves(tmp_path):
     finally:
         proc.terminate()
         proc.communicate()
+    saved = tmp_path / "settings.json"
+    saved.write_text(settings(["grid", "octree"], 12).to_json())
+    proc = subprocess.Popen([sys.executable, "-m", "raykernel", "explore", SCENE, "--settings", str(saved),
+                             "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert "with grid, octree;" in proc.stdout.readline()
+        assert _get(proc.stdout.readline().strip())[0] == 200
+    finally:
+        proc.terminate()
+        proc.communicate()
     bad = subprocess.run([sys.executable, "-m", "raykernel", "explore", SCENE, "--accel", "nosuch("],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "nosuch" in bad.stderr
+
+
+def test_export_writes_the_report_and_settings_that_reopen(server, tmp_path):
+    from raykernel.explore.server import initial_settings
+    _, shown, _, _ = server.renderer.snapshot()
+    out = call(server, "download-report.data", [1], ["tests.total"])["download-report"]["data"]
+    assert out["filename"] == "explore-report.html"
+    page = out["content"]
+    assert "http://" not in page and "https://" not in page and "<section class='work'" in page
+    data = json.loads(re.search(r"class='work-data'>(.*?)</script>", page, re.S).group(1))
+    assert data["accels"] == shown.accels and data["counter"] == "tests.total"
+    out = call(server, "download.data", [1])["download"]["data"]
+    path = tmp_path / "settings.json"
+    path.write_text(out["content"])
+    assert initial_settings([], None, path) == shown.settings
+    assert initial_settings(["grid"], 16, path).accels == ("grid",)
+
+
+def test_the_time_panel_is_time_on_its_own_scale(scene):
+    from raykernel.explore import figures
+    ex = explore_scene(scene, settings(["octree", "grid"], 20), SCENE)
+    for run in ex.runs.values():
+        assert run.tile_seconds.shape == (2, 2) and (run.tile_seconds > 0).all()
+    fig = figures.time_figure(ex)
+    assert "TIME" in fig.layout.coloraxis.colorbar.title.text
+    assert all(t.coloraxis == "coloraxis" for t in fig.data)
+    layers = figures.layers_figure(ex, "tests.total")
+    assert "TIME" not in layers.layout.coloraxis.colorbar.title.text
+    ex.runs["grid"].tile_seconds = ex.runs["octree"].tile_seconds * 1000      # decades apart: log
+    assert "(log)" in figures.time_figure(ex).layout.coloraxis.colorbar.title.text

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
-
 from ..errors import RayKernelError
 from ..rendering.explain import explain, text
 from . import figures
@@ -68,7 +66,8 @@ def layout(s: Settings, scene_label: str):
             html.Label(["angle", dcc.Input(id="angle", type="number", value=s.angle, style={"width": "60px"})], **field),
             html.Button("render", id="render", n_clicks=0),
             html.Button("export settings", id="export", n_clicks=0, style={"marginLeft": "8px"}),
-            dcc.Download(id="download"),
+            html.Button("export report", id="export-report", n_clicks=0, style={"marginLeft": "8px"}),
+            dcc.Download(id="download"), dcc.Download(id="download-report"),
         ]),
         html.Div(id="error", role="alert", style={"color": "#b00", "fontWeight": "bold", "minHeight": "1.2em"}),
         html.Div(id="status", style={"color": "#555", "fontSize": "0.85em"}),
@@ -146,6 +145,21 @@ def _controls(app, renderer) -> None:
         if ex is None:
             return no_update
         return dcc.send_string(ex.settings.to_json(), "explore-settings.json")
+
+    @app.callback(Output("download-report", "data"), Input("export-report", "n_clicks"), State("counter", "value"),
+                  prevent_initial_call=True)
+    def report(_, counter):
+        _, ex, _, _ = renderer.snapshot()
+        if ex is None:
+            return no_update
+        return dcc.send_string(report_html(ex, counter), "explore-report.html")
+
+
+def report_html(ex, counter: str) -> str:
+    """The shown exploration as the self-contained HTML report (analysis/report.py) of `counter`."""
+    from ..analysis.report import render_html
+    name = counter if counter in ex.layer_names() else ex.settings.counter
+    return render_html(ex.comparison(name), title=f"raykernel explore {ex.scene}")
 
 
 def _mask(ex, selection):
@@ -317,10 +331,3 @@ def _structure(app, renderer) -> None:
             notes.append(_mask(ex, selection)[1])
         fig = figures.structure_figure(run, what, lv, dp, visited, tested, rays, selected)
         return fig, figures.quality_figure(run), " | ".join(n for n in notes if n)
-
-
-def box_summary(run, box: int) -> dict:
-    """A box's values and use, for the page and its tests."""
-    b = run.boxes
-    return {"box": box, "level": int(b.level[box]), "depth": int(b.depth[box]), "leaf": int(b.leaf[box]),
-            "items": int(b.items[box]), **{k: int(np.asarray(v)[box]) for k, v in run.use.items()}}

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import Exploration, Run
+from .model import DECADES, Exploration, Run
 from .quality import depth_histogram, leaf_size_histogram, quality
 
 MAX_DRAWN = 1500        # boxes drawn in 3D at most: those that score highest on the colour
@@ -163,15 +163,22 @@ def time_figure(ex: Exploration):
     timed = {a: r.tile_seconds for a, r in ex.runs.items() if r.tile_seconds is not None}
     if not timed:
         return None
-    top = max(float(t.max()) for t in timed.values())
+    micro = {a: t * 1e6 for a, t in timed.items()}
+    top = max(float(t.max()) for t in micro.values())
+    low = min(float(t[t > 0].min(initial=top)) for t in micro.values())
+    scale = "log" if low > 0 and top / low > 10 ** DECADES else "linear"
     fig = _subplots(1, len(timed), [f"{a}: {t.sum() * 1e3:.2f} ms in all" for a, t in timed.items()],
                     horizontal_spacing=0.03)
-    for k, (a, t) in enumerate(timed.items()):
-        fig.add_trace(go.Heatmap(z=t * 1e6, coloraxis="coloraxis",
-                                 hovertemplate=f"tile column %{{x}}, row %{{y}}: %{{z:,.1f}} µs<extra>{a}</extra>"),
+    for k, (a, t) in enumerate(micro.items()):
+        fig.add_trace(go.Heatmap(z=scaled(t, scale), customdata=t, coloraxis="coloraxis",
+                                 hovertemplate=f"tile column %{{x}}, row %{{y}}: %{{customdata:,.1f}} µs<extra>{a}</extra>"),
                       1, k + 1)
-    fig.update_layout(coloraxis={"colorscale": "Inferno", "cmin": 0.0, "cmax": top * 1e6,
-                                 "colorbar": {"title": {"text": "TIME: µs per tile (one thread)", "side": "right"}}},
+    zmin, zmax = (np.log10(low), np.log10(top)) if scale == "log" else (0.0, top)
+    bar = _colorbar(low, top, scale, f"TIME: µs per tile, one thread ({scale})")
+    if scale == "log":
+        bar.update(tickvals=list(range(int(np.floor(zmin)), int(np.ceil(zmax)) + 1)),
+                   ticktext=[f"{10 ** t:,}" for t in range(int(np.floor(zmin)), int(np.ceil(zmax)) + 1)])
+    fig.update_layout(coloraxis={"colorscale": "Inferno", "cmin": zmin, "cmax": zmax, "colorbar": bar},
                       margin={"l": 10, "r": 10, "t": 40, "b": 10}, height=260)
     _image_axes(fig, len(timed))
     return fig

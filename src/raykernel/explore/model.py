@@ -148,7 +148,7 @@ class Run:
     accel: str
     image: np.ndarray           # (h, w, 3) float RGB
     layers: dict                # name -> (h, w) work layer (rendering/worklayers.py)
-    stats: dict
+    stats: dict                 # the render's statistics (rendering/stats.Stats)
     boxes: Boxes
     use: dict                   # USE's values, one a box (structure_use)
     rows: np.ndarray            # each box's Use row
@@ -248,6 +248,20 @@ class Exploration:
         v = self.layer(accel, name)
         return (v >= low) & (v <= high)
 
+    def comparison(self, name: str):
+        """The exploration as a comparison of work layer `name` (analysis/compare.py), for the
+        self-contained HTML report (analysis/report.py)."""
+        from ..analysis.compare import Comparison
+        from ..analysis.compare import Run as Compared
+        runs = [Compared(self.scene, a, r.stats, r.image, int(r.stats.info.get("primitives", 0))
+                         if hasattr(r.stats, "info") else 0, work=self.layer(a, name)) for a, r in self.runs.items()]
+        h, w = self.shape
+        s = self.settings
+        command = " ".join(["raykernel explore", self.scene, *(f"--accel '{a}'" for a in s.accels),
+                            f"--resolution {s.resolution}"])
+        return Comparison(runs, {"resolution": f"{w}x{h}", **{k: v for k, v in (("eye", s.eye), ("look_at", s.look_at),
+                                 ("up", s.up), ("angle", s.angle)) if v is not None}}, {}, command, work=name)
+
     def winner_names(self, name: str) -> dict:
         """The winner map's codes: index -> structure, TIE -> "tie"."""
         return {**dict(enumerate(self.accels)), TIE: "tie"}
@@ -272,11 +286,11 @@ def run_structure(scene, accel: str, resolution: int, cancelled=None, max_memory
     if lazy:
         boxes, use, _ = structure_use(scene, accel, resolution=resolution, max_memory=max_memory)
         note = "a lazy structure refines between its render's passes: no per-sample use, no tile times"
-        return Run(accel, result.image, result.work, dict(result.stats), boxes, use,
+        return Run(accel, result.image, result.work, result.stats, boxes, use,
                    np.zeros(len(boxes), np.int64), None, None, note)
     boxes, use, rows, samples = _sample_use(scene, accel, resolution, cancelled, max_memory)
     seconds = _tile_seconds(scene, accel, resolution, cancelled, max_memory) if timed else None
-    return Run(accel, result.image, result.work, dict(result.stats), boxes, use, rows, samples, seconds,
+    return Run(accel, result.image, result.work, result.stats, boxes, use, rows, samples, seconds,
                "" if timed else "tile times not measured")
 
 
