@@ -531,9 +531,7 @@ def cmd_anneal(args, console) -> int:
 def cmd_explore(args, console) -> int:
     from .explore.server import initial_settings, start
     from .scene.loading import load
-    import logging
     s = initial_settings(args.accel, args.resolution, args.settings)    # bad settings fail before the load
-    logging.getLogger("werkzeug").setLevel(logging.WARNING)     # no line per request
     scene = load(args.scene)
     server = start(scene, args.scene, s, port=args.port, host=args.host, max_memory=args.max_memory)
     print(f"raykernel explore: {args.scene} with {', '.join(s.accels)}; open this address (Ctrl-C stops):",

@@ -23,7 +23,7 @@ POLL_MS = 600
 
 
 def _vector_text(v) -> str:
-    return "" if v is None else ",".join(f"{x:g}" for x in v)
+    return "" if v is None else ",".join(repr(float(x)) for x in v)      # exact: the same camera renders again
 
 
 def _parse_vector(text, name):
@@ -47,8 +47,12 @@ def settings_from_page(accels_text, resolution, eye, look_at, up, angle, counter
                     _parse_vector(up, "up"), angle if angle not in ("", None) else None, counter or "tests.total")
 
 
-def layout(s: Settings, scene_label: str):
+def layout(s: Settings, scene_label: str, camera=None):
+    """The page; the camera fields hold the settings' camera, else the scene's (`camera`)."""
     from dash import dcc, html
+    if camera is not None:
+        s = Settings(s.accels, s.resolution, s.eye or tuple(camera.eye), s.look_at or tuple(camera.look_at),
+                     s.up or tuple(camera.up), s.angle if s.angle is not None else camera.angle, s.counter)
     field = {"style": {"marginRight": "12px", "display": "inline-block", "verticalAlign": "top"}}
     cam = [html.Label([name, dcc.Input(id=name.replace(" ", "-"), type="text", value=value, debounce=True,
                                        style={"width": "110px"})], **field)
@@ -107,7 +111,7 @@ def make_app(renderer, s: Settings, token: str, title: str = ""):
     from dash import Dash
     app = Dash(__name__, url_base_pathname=f"/{token}/", serve_locally=True, title="raykernel explore",
                update_title=None)
-    app.layout = layout(s, title or renderer.label)
+    app.layout = layout(s, title or renderer.label, renderer.scene.camera)
     renderer.submit(s)
     _controls(app, renderer)
     _views(app, renderer)
@@ -295,7 +299,17 @@ def _range(text_value, name):
 
 
 def _structure(app, renderer) -> None:
-    from dash import Input, Output, no_update
+    from dash import Input, Output, State, no_update
+
+    @app.callback(Output("eye", "value"), Output("look-at", "value"), Output("up", "value"),
+                  Input("structure", "relayoutData"), State("accel", "value"), prevent_initial_call=True)
+    def orbit(view, accel):
+        # an orbit or a pan of the 3D view: its camera into the camera fields (render applies it)
+        _, ex, _, _ = renderer.snapshot()
+        if not view or "scene.camera" not in view or ex is None or accel not in ex.runs:
+            return no_update, no_update, no_update
+        eye, look_at, up = figures.camera_from_view(view["scene.camera"], figures.view_frame(ex.runs[accel]))
+        return _vector_text(eye), _vector_text(look_at), _vector_text(up)
 
     @app.callback(Output("accel", "options"), Input("version", "data"))
     def structures(_):
@@ -329,5 +343,6 @@ def _structure(app, renderer) -> None:
         if selection and selection.get("kind") == "box" and selection.get("accel") == accel:
             selected = int(selection["box"])
             notes.append(_mask(ex, selection)[1])
-        fig = figures.structure_figure(run, what, lv, dp, visited, tested, rays, selected)
+        fig = figures.structure_figure(run, what, lv, dp, visited, tested, rays, selected,
+                                       viewed(renderer.scene, ex.settings).camera)
         return fig, figures.quality_figure(run), " | ".join(n for n in notes if n)

@@ -40,8 +40,10 @@ def _subplots(rows, cols, titles, **kw):
 def _image_axes(fig, n: int) -> None:
     for k in range(1, n + 1):
         suffix = "" if k == 1 else str(k)
-        fig.layout[f"yaxis{suffix}"].update(autorange="reversed", scaleanchor=f"x{suffix}", showticklabels=False)
-        fig.layout[f"xaxis{suffix}"].update(showticklabels=False)
+        # constrain="domain": the axes shrink to the image, no plot background beside it
+        fig.layout[f"yaxis{suffix}"].update(autorange="reversed", scaleanchor=f"x{suffix}", showticklabels=False,
+                                            constrain="domain", showgrid=False)
+        fig.layout[f"xaxis{suffix}"].update(showticklabels=False, constrain="domain", showgrid=False)
 
 
 def _rgb(image: np.ndarray) -> np.ndarray:
@@ -216,11 +218,36 @@ def _wire(corners: np.ndarray):
     return pts[:, 0], pts[:, 1], pts[:, 2]
 
 
+def view_frame(run: Run) -> tuple:
+    """(low corner, high corner, middle, longest side) of the structure's boxes: the 3D view's
+    axes span them, and plotly's camera is in units of the longest side from the middle."""
+    pts = run.boxes.corners.reshape(-1, 3)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    return lo, hi, 0.5 * (lo + hi), float(max(np.max(hi - lo), np.finfo(float).tiny))
+
+
+def view_of(camera, frame) -> dict:
+    """The 3D view's camera (plotly's scene.camera) looking as the render's `camera` does."""
+    _, _, mid, side = frame
+    as_dict = lambda v: dict(zip("xyz", (float(c) for c in v)))       # noqa: E731
+    return {"eye": as_dict((camera.eye - mid) / side), "center": as_dict((camera.look_at - mid) / side),
+            "up": as_dict(camera.up)}
+
+
+def camera_from_view(view: dict, frame) -> tuple:
+    """(eye, look_at, up) in the scene's space of the 3D view's camera after an orbit or a pan."""
+    _, _, mid, side = frame
+    vec = lambda d: np.array([float(d[k]) for k in "xyz"])        # noqa: E731
+    eye, centre = mid + vec(view["eye"]) * side, mid + vec(view.get("center", {"x": 0, "y": 0, "z": 0})) * side
+    return tuple(eye.tolist()), tuple(centre.tolist()), tuple(vec(view.get("up", {"x": 0, "y": 0, "z": 1})).tolist())
+
+
 def structure_figure(run: Run, what: str = "visits", levels=None, depths=None, visited=None, tested=None,
-                     rays=None, selected: int | None = None):
+                     rays=None, selected: int | None = None, camera=None):
     """The boxes in 3D coloured by `what`; a marker at each box's centre names it (click: its
     pixel mask). visited/tested: boxes a pixel's rays entered and tested items in, drawn thick
-    in the colour of their nesting level; rays: explain's rays of that pixel."""
+    in the colour of their nesting level; rays: explain's rays of that pixel; camera: the
+    render's, which the view opens looking through (view_of)."""
     go = _go()
     idx = chosen_boxes(run, what, levels, depths)
     values = box_values(run, what)
@@ -253,7 +280,13 @@ def structure_figure(run: Run, what: str = "visits", levels=None, depths=None, v
                                    line={"color": "#ff00ff", "width": 10}, hoverinfo="skip"))
     for k, ray in enumerate(rays or []):
         _add_ray(fig, go, k, ray, run)
-    fig.update_layout(scene={"aspectmode": "data"}, margin={"l": 0, "r": 0, "t": 30, "b": 0}, height=520,
+    frame = view_frame(run)
+    lo, hi, _, side = frame
+    scene = {"aspectmode": "manual", "aspectratio": dict(zip("xyz", ((hi - lo) / side).tolist())),
+             **{f"{axis}axis": {"range": [float(lo[k]), float(hi[k])], "autorange": False} for k, axis in enumerate("xyz")}}
+    if camera is not None:
+        scene["camera"] = view_of(camera, frame)
+    fig.update_layout(scene=scene, uirevision=run.accel, margin={"l": 0, "r": 0, "t": 30, "b": 0}, height=520,
                       title={"text": f"{run.accel}: {len(idx):,} of {len(b):,} boxes, coloured by {what}"},
                       legend={"x": 0, "y": 1})
     return fig

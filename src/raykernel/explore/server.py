@@ -13,6 +13,7 @@ the scene it was given (the page takes structure specs and camera numbers, never
 
 from __future__ import annotations
 
+import logging
 import secrets
 import threading
 from dataclasses import dataclass
@@ -63,6 +64,7 @@ def start(scene, label: str, s: Settings, port: int = 0, host: str = HOST, max_m
     if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
         raise OptionError(f"port must be a whole number in 0..65535, got {port!r}")
     app, renderer, token = build(scene, label, s, max_memory, timed=timed)
+    logging.getLogger("werkzeug").setLevel(logging.WARNING)       # no line per request (Dash's Jupyter mode does the same)
     http = make_server(host, port, app.server, threaded=True)
     thread = threading.Thread(target=http.serve_forever, name="raykernel-explore-http", daemon=True)
     thread.start()
