@@ -6,6 +6,7 @@
     from support import Node, random_solid, random_tree     # closed solids with their own crossing tests
     from support import MESHES, targets, rays_through        # closed meshes with dyadic vertices
     from support import make_scene, add_sphere, ray_counts, work_counts
+    from support import entered_masks          # which samples' walks entered a box, traced one by one
 
 Where two test modules used different random scenes or rays under one name,
 each variant is kept here under a name of its own (fill_group and
@@ -797,3 +798,34 @@ def work_counts(stats) -> dict:
     """Every integer counter: rays, tests, traversal and build figures; no times or rates."""
     return {k: v for k, v in stats.items()
             if isinstance(v, (int, np.integer)) and not k.startswith("time.") and k != "build.seconds"}
+
+
+def entered_masks(scene, accel, resolution, boxes_wanted):
+    """The explorer's brute-force check: which samples' walks entered each box, every sample
+    traced alone into zeroed box counters; and the visits of a whole TILE x TILE tile traced as
+    a render traces it, for the tile sums. (bool masks (boxes, h, w), first tile's visits)"""
+    from raykernel.engine.widewalk import with_driver
+    from raykernel.rendering.render import TILE, RenderJob
+    from raykernel.rendering.structure import box_rows, boxes_of, use_of
+    job = RenderJob(scene, accel=accel, resolution=resolution, work=True, threads=1)
+    job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])
+    tiles_x, tiles_y = job.tile_x.copy(), job.tile_y.copy()
+    ys, xs = np.mgrid[0:job.sh, 0:job.sw]
+    job.tile_x, job.tile_y = xs.ravel().astype(np.int64), ys.ravel().astype(np.int64)
+    n = len(job.tile_x)
+    job.counts = np.zeros((n, job.counts.shape[1]), np.int64)
+    job.passes, job.work, job.pass_counts = [(TILE, 0, 0, n)], [n], [None]
+    job.probe = use_of(job.geo)
+    rows = box_rows(boxes_of(job.geo), job.probe)[boxes_wanted]
+    masks = np.zeros((len(boxes_wanted), n), bool)
+    for k in range(n):
+        job.probe.counts[:] = 0
+        job.trace(0, k, k + 1, 1)
+        masks[:, k] = job.probe.counts[rows, 0] > 0
+    # the first tile as a render traces it: its visits are the samples' sums
+    job.tile_x, job.tile_y = tiles_x, tiles_y
+    job.passes, job.work, job.pass_counts = [(1, 0, 0, len(tiles_x))], [len(tiles_x)], [None]
+    job.counts = np.zeros((len(tiles_x), job.counts.shape[1]), np.int64)
+    job.probe.counts[:] = 0
+    job.trace(0, 0, 1, 1)
+    return masks.reshape(len(boxes_wanted), job.sh, job.sw), job.probe.counts[rows, 0]

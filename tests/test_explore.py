@@ -21,9 +21,10 @@ from raykernel.errors import OptionError  # noqa: E402
 from raykernel.explore import quality as q  # noqa: E402
 from raykernel.explore.model import Exploration, Run, explore_scene, read_settings, settings  # noqa: E402
 from raykernel.rendering.explain import explain, text  # noqa: E402
-from raykernel.rendering.render import TILE, RenderJob, render  # noqa: E402
-from raykernel.rendering.structure import box_rows, structure_use, use_of  # noqa: E402
+from raykernel.rendering.render import TILE, render  # noqa: E402
+from raykernel.rendering.structure import structure_use  # noqa: E402
 from raykernel.scene.loading import load  # noqa: E402
+from support import entered_masks  # noqa: E402
 
 SCENE = "spd:tetra:2"
 RES = 24
@@ -81,41 +82,12 @@ def test_each_sample_use_adds_up_to_the_render_use(scene, ex):
         assert np.array_equal(per_sample.reshape(run.shape), run.layers["cells.visited"])
 
 
-def _brute_force_masks(scene, accel, boxes_wanted):
-    """Which samples' walks entered each box: every sample traced alone into a zeroed Use,
-    and a whole TILE x TILE tile traced as a render traces it, for the tile sums."""
-    from raykernel.engine.widewalk import with_driver
-    job = RenderJob(scene, accel=accel, resolution=RES, work=True, threads=1)
-    job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])
-    tiles_x, tiles_y = job.tile_x.copy(), job.tile_y.copy()
-    ys, xs = np.mgrid[0:job.sh, 0:job.sw]
-    job.tile_x, job.tile_y = xs.ravel().astype(np.int64), ys.ravel().astype(np.int64)
-    n = len(job.tile_x)
-    job.counts = np.zeros((n, job.counts.shape[1]), np.int64)
-    job.passes, job.work, job.pass_counts = [(TILE, 0, 0, n)], [n], [None]
-    job.probe = use_of(job.geo)
-    from raykernel.rendering.structure import boxes_of
-    rows = box_rows(boxes_of(job.geo), job.probe)[boxes_wanted]
-    masks = np.zeros((len(boxes_wanted), n), bool)
-    for k in range(n):
-        job.probe.counts[:] = 0
-        job.trace(0, k, k + 1, 1)
-        masks[:, k] = job.probe.counts[rows, 0] > 0
-    # the first tile as a render traces it: its visits are the samples' sums
-    job.tile_x, job.tile_y = tiles_x, tiles_y
-    job.passes, job.work, job.pass_counts = [(1, 0, 0, len(tiles_x))], [len(tiles_x)], [None]
-    job.counts = np.zeros((len(tiles_x), job.counts.shape[1]), np.int64)
-    job.probe.counts[:] = 0
-    job.trace(0, 0, 1, 1)
-    return masks.reshape(len(boxes_wanted), job.sh, job.sw), job.probe.counts[rows, 0]
-
-
 def test_node_masks_equal_a_brute_force_check(scene, ex):
     for accel in ACCELS:
         run = ex.runs[accel]
         order = np.argsort(-run.use["visits"], kind="stable")
         wanted = np.unique(np.concatenate([order[:4], order[len(order) // 2:len(order) // 2 + 2], order[-1:]]))
-        masks, tile_visits = _brute_force_masks(scene, accel, wanted)
+        masks, tile_visits = entered_masks(scene, accel, RES, wanted)
         for k, box in enumerate(wanted):
             got = run.node_mask(int(box))
             assert np.array_equal(got > 0, masks[k]), (accel, box)

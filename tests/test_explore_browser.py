@@ -41,7 +41,7 @@ def browser():
     driver.quit()
 
 
-GIVE_UP = 600       # seconds: a page that never answers fails rather than hangs (not a speed check)
+GIVE_UP = 120       # seconds: a page that never answers fails rather than hangs (not a speed check)
 
 
 def _until(driver, script, *args):
@@ -95,6 +95,53 @@ def test_click_a_sample_lists_its_rays_as_explain_does(page):
                           "return t.indexOf('pixel (12, 11)') == 0 && t;")
     assert got == want
     _until(browser, "return document.getElementById('node').textContent.indexOf('sample (12, 11)') >= 0")
+
+
+def test_click_a_box_lights_the_samples_whose_walks_entered_it(page):
+    from support import entered_masks
+    browser, server, scene = page
+    run = server.renderer.snapshot()[1].runs[ACCELS[0]]
+    box = int(np.argsort(-run.use["visits"], kind="stable")[len(run.boxes) // 50])
+    _emit_box(browser, box)
+    lit = _until(browser, "var e = document.querySelector('#lit span');"
+                          "return e && e.textContent.indexOf('box ' + arguments[0] + ' ') >= 0 && e.getAttribute('data-lit');",
+                 box)
+    masks, _ = entered_masks(scene, ACCELS[0], 24, np.array([box]))
+    assert json.loads(lit) == np.flatnonzero(masks[0]).tolist() != []
+
+
+def _emit_box(browser, box: int) -> None:
+    # a click on the marker at the box's centre (the second trace), as plotly reports it
+    browser.execute_script(
+        "var gd = document.getElementById('structure').querySelector('.js-plotly-plot');"
+        "var trace = gd.data[1], k = trace.customdata.indexOf(arguments[0]);"
+        "gd.emit('plotly_click', {points: [{curveNumber: 1, pointNumber: k, data: trace,"
+        " customdata: arguments[0]}]});", box)
+
+
+def test_a_bad_spec_shows_an_error_then_a_changed_parameter_renders_as_a_fresh_render(page):
+    from selenium.webdriver.common.keys import Keys
+    browser, server, scene = page
+    accels = browser.find_element("id", "accels")
+    button = browser.find_element("id", "render")
+    accels.send_keys(Keys.CONTROL, "a")         # typed over, as a user would: React sees each key
+    accels.send_keys("octree(depth=nine)")
+    button.click()
+    error = _until(browser, "var t = document.getElementById('error').textContent; return t.length > 0 && t;")
+    assert "depth" in error
+    accels.send_keys(Keys.CONTROL, "a")
+    accels.send_keys("octree(depth=2)\ngrid")
+    button.click()
+    _until(browser, "var t = document.getElementById('status').textContent;"
+                    "return t.indexOf('shown: octree(depth=2), grid') >= 0 && t.indexOf('(full') >= 0;")
+    assert browser.find_element("id", "error").text == ""
+    ref = render(scene, accel="octree(depth=2)", resolution=24, work=True).work
+    for x, y in ((12, 12), (5, 17)):
+        _emit(browser, "layers", "plotly_hover", x, y, 1)
+        counts = _until(browser, "var t = document.getElementById('hover-table');"
+                                 "return t && t.getAttribute('data-x') == arguments[0] && "
+                                 "t.getAttribute('data-y') == arguments[1] && t.getAttribute('data-counts');", x, y)
+        assert json.loads(counts)["octree(depth=2)"] == {k: int(v[y, x]) for k, v in ref.items()}
 
 
 def test_no_console_error_and_nothing_from_another_host(page):

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+
 from ..errors import RayKernelError
 from ..rendering.explain import explain, text
 from . import figures
@@ -80,6 +82,7 @@ def layout(s: Settings, scene_label: str, camera=None):
                   html.Label(["scale ", dcc.RadioItems(id="scale", value="auto", inline=True,
                                                        options=["auto", "linear", "log"])], **field)]),
         dcc.Graph(id="layers", clear_on_unhover=False),
+        html.Div(id="lit", style={"fontSize": "0.85em"}),
         html.Div(id="hover", style={"fontFamily": "monospace", "fontSize": "0.8em", "maxHeight": "180px",
                                     "overflowY": "auto"}),
         dcc.Graph(id="compare"),
@@ -131,6 +134,7 @@ def _controls(app, renderer) -> None:
         try:
             renderer.submit(settings_from_page(accels, resolution, eye, look_at, up, angle, counter))
         except RayKernelError as e:
+            renderer.reject(f"{type(e).__name__}: {e}")     # the poll shows it too, until the next request
             return f"{type(e).__name__}: {e}"
         return ""
 
@@ -186,13 +190,13 @@ def _views(app, renderer) -> None:
 
     @app.callback(Output("layers", "figure"), Output("compare", "figure"), Output("histograms", "figure"),
                   Output("hottest", "children"), Output("time", "figure"), Output("time-note", "children"),
-                  Output("counter", "options"),
+                  Output("counter", "options"), Output("lit", "children"),
                   Input("version", "data"), Input("counter", "value"), Input("scale", "value"),
                   Input("selection", "data"))
     def draw(_, counter, scale, selection):
         _, ex, _, _ = renderer.snapshot()
         if ex is None:
-            return (no_update,) * 7
+            return (no_update,) * 8
         names = ex.layer_names()
         counter = counter if counter in names else ex.settings.counter
         scale = None if scale == "auto" else scale
@@ -207,8 +211,11 @@ def _views(app, renderer) -> None:
         notes = [f"{a}: {r.note}" for a, r in ex.runs.items() if r.tile_seconds is None]
         note = ("Seconds each tile took on one thread, fastest of several traces; not counts. "
                 + " ".join(notes))
+        count = "" if "samples" in what else f" ({int(mask.sum()) if mask is not None else 0} samples)"
+        lit = "" if mask is None else html.Span(f"lit on the image: {what}{count}",
+                                                **{"data-lit": json.dumps(np.flatnonzero(mask).tolist())})
         return (layers, compare, figures.histograms_figure(ex, counter, scale), table,
-                timing if timing is not None else {}, note, names)
+                timing if timing is not None else {}, note, names, lit)
 
     @app.callback(Output("hover", "children"), Input("layers", "hoverData"), Input("compare", "hoverData"))
     def hover(*events):

@@ -263,7 +263,7 @@ def structure_figure(run: Run, what: str = "visits", levels=None, depths=None, v
     text = [f"box {i}: level {b.level[i]}, depth {b.depth[i]}, {'leaf of ' + str(b.items[i]) + ' items' if b.leaf[i] else 'inner'}"
             f"<br>{what} {values[i]:,.4g}" for i in idx]
     fig.add_trace(go.Scatter3d(x=centre[:, 0], y=centre[:, 1], z=centre[:, 2], mode="markers", name="box centres",
-                               customdata=idx, text=text, hovertemplate="%{text}<extra></extra>",
+                               customdata=idx.tolist(), text=text, hovertemplate="%{text}<extra></extra>",
                                marker={"size": 3, "color": values[idx], "colorscale": "Viridis", "opacity": 0.6}))
     for label, boxes, width in (("entered", visited, 4), ("tested in", tested, 8)):
         if boxes is None or not len(boxes):

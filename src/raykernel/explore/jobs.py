@@ -44,9 +44,17 @@ class Renderer:
                 self._done[self._wanted[0]] = "cancelled"
             self.generation += 1
             self._wanted = (self.generation, s)
+            self.error = None
             self.status = f"request {self.generation} waiting"
             self._cond.notify_all()
             return self.generation
+
+    def reject(self, message: str) -> None:
+        """A request the page could not make (a bad spec or number): shown as the error; the
+        render in progress goes on."""
+        with self._cond:
+            self.error = (None, message)
+            self.version += 1
 
     def close(self) -> None:
         """Stop the render in progress and the worker."""
