@@ -13,6 +13,7 @@ on a histogram, or a click on a box in 3D, lights the samples it names on the im
 from __future__ import annotations
 
 import json
+import threading
 
 import numpy as np
 
@@ -118,8 +119,9 @@ def make_app(renderer, s: Settings, token: str, title: str = ""):
     renderer.submit(s)
     _controls(app, renderer)
     _views(app, renderer)
-    _pixel(app, renderer)
-    _structure(app, renderer)
+    explained = Explained(renderer)
+    _pixel(app, renderer, explained)
+    _structure(app, renderer, explained)
     return app
 
 
@@ -263,13 +265,28 @@ def _range_selection(ex, event, counter):
     return None
 
 
-def explain_sample(renderer, ex, accel: str, x: int, y: int) -> dict:
-    """explain's answer for sample (x, y) of `accel` in the render shown."""
-    scene = viewed(renderer.scene, ex.settings)
-    return explain(scene, int(x), int(y), accel=accel, resolution=ex.shape[0], max_memory=renderer.max_memory)
+class Explained:
+    """explain's answers for samples of the render shown, the last few kept: the rays list and
+    the 3D view ask for the same one at once."""
+
+    KEEP = 16
+
+    def __init__(self, renderer):
+        self.renderer, self.answers, self.lock = renderer, {}, threading.Lock()
+
+    def __call__(self, ex, accel: str, x: int, y: int) -> dict:
+        key = (ex.settings, ex.shape, accel, int(x), int(y))     # the same render: the same answer
+        with self.lock:         # one explanation at a time: the second asker finds the first's
+            if key not in self.answers:
+                scene = viewed(self.renderer.scene, ex.settings)
+                self.answers[key] = explain(scene, int(x), int(y), accel=accel, resolution=ex.shape[0],
+                                            max_memory=self.renderer.max_memory)
+                while len(self.answers) > self.KEEP:
+                    self.answers.pop(next(iter(self.answers)))
+            return self.answers[key]
 
 
-def _pixel(app, renderer) -> None:
+def _pixel(app, renderer, explained) -> None:
     from dash import Input, Output, no_update
 
     @app.callback(Output("pixel", "data"), Input("layers", "clickData"), Input("compare", "clickData"),
@@ -289,7 +306,7 @@ def _pixel(app, renderer) -> None:
         if not pixel or ex is None or accel not in ex.runs:
             return "click a sample on an image: its rays, as `raykernel explain` gives them"
         try:
-            return text(explain_sample(renderer, ex, accel, pixel["x"], pixel["y"]))
+            return text(explained(ex, accel, pixel["x"], pixel["y"]))
         except RayKernelError as e:
             return f"{type(e).__name__}: {e}"
 
@@ -305,7 +322,7 @@ def _range(text_value, name):
     return min(lo, hi), max(lo, hi)
 
 
-def _structure(app, renderer) -> None:
+def _structure(app, renderer, explained) -> None:
     from dash import Input, Output, State, no_update
 
     @app.callback(Output("eye", "value"), Output("look-at", "value"), Output("up", "value"),
@@ -341,7 +358,7 @@ def _structure(app, renderer) -> None:
         if pixel and run.samples is not None:
             visited, tested = run.pixel_boxes(pixel["x"], pixel["y"])
             try:
-                rays = explain_sample(renderer, ex, accel, pixel["x"], pixel["y"])["rays"]
+                rays = explained(ex, accel, pixel["x"], pixel["y"])["rays"]
             except RayKernelError as e:
                 notes.append(str(e))
             notes.append(f"sample ({pixel['x']}, {pixel['y']}): its rays entered {len(visited)} boxes and "
