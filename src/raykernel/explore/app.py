@@ -17,7 +17,7 @@ import threading
 
 import numpy as np
 
-from ..errors import RayKernelError
+from ..errors import OptionError, RayKernelError
 from ..rendering.explain import explain, text
 from . import figures
 from .model import Settings, settings, viewed
@@ -36,7 +36,7 @@ def _parse_vector(text, name):
     try:
         return tuple(float(p) for p in parts)
     except ValueError:
-        raise RayKernelError(f"{name} must be three numbers X,Y,Z, got {text!r}") from None
+        raise OptionError(f"{name} must be three numbers X,Y,Z, got {text!r}") from None
 
 
 def settings_from_page(accels_text, resolution, eye, look_at, up, angle, counter) -> Settings:
