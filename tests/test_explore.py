@@ -355,18 +355,18 @@ def test_the_time_panel_is_time_on_its_own_scale(scene):
     assert "(log)" in figures.time_figure(ex).layout.coloraxis.colorbar.title.text
 
 
-def test_an_orbit_of_the_3d_view_becomes_the_camera(server, scene):
+def test_an_orbit_of_the_3d_view_becomes_the_camera(server):
     from raykernel.explore import figures
     _, shown, _, _ = server.renderer.snapshot()
     run = next(iter(shown.runs.values()))
     frame = figures.view_frame(run)
-    cam = scene.camera
-    eye, look_at, up = figures.camera_from_view(figures.view_of(cam, frame), frame)
-    assert np.allclose(eye, cam.eye) and np.allclose(look_at, cam.look_at) and np.allclose(up, cam.up)
+    lo, hi, mid, side = frame
+    corners = run.boxes.corners.reshape(-1, 3)
+    assert np.allclose(lo, corners.min(axis=0)) and np.isclose(side, (corners.max(axis=0) - lo).max())
     view = {"eye": {"x": 0.0, "y": -2.0, "z": 0.5}, "center": {"x": 0.1, "y": 0.0, "z": 0.0},
             "up": {"x": 0, "y": 0, "z": 1}}
     out = call(server, "eye.value", [{"scene.camera": view}], [run.accel])
-    lo, hi, mid, side = frame
     assert np.allclose([float(v) for v in out["eye"]["value"].split(",")], mid + np.array([0.0, -2.0, 0.5]) * side)
     assert np.allclose([float(v) for v in out["look-at"]["value"].split(",")], mid + np.array([0.1, 0, 0]) * side)
     assert out["up"]["value"] == "0.0,0.0,1.0"
+    assert call(server, "eye.value", [{"xaxis.range": [0, 1]}], [run.accel]) == {}     # not an orbit: nothing

@@ -44,9 +44,9 @@ def browser():
 GIVE_UP = 120       # seconds: a page that never answers fails rather than hangs (not a speed check)
 
 
-def _until(driver, script, *args):
+def _until(driver, script, *args, give_up=GIVE_UP):
     """What `script` returns once it is truthy (the page answers through its own requests)."""
-    end = time.monotonic() + GIVE_UP
+    end = time.monotonic() + give_up
     while time.monotonic() < end:
         value = driver.execute_script(script, *args)
         if value:
@@ -176,7 +176,9 @@ def test_screenshots_of_the_stadium_for_the_docs(browser):
         out = ROOT / "docs" / "_static"
         _shot(browser, "layers", out / "explore-layers.png", 0)
         _emit(browser, "layers", "plotly_click", int(x), int(y), 1)
-        _until(browser, "return document.getElementById('node').textContent.indexOf('entered') >= 0")
+        # explaining a sample of the stadium builds its structure again (and compiles the probed
+        # kernel for its geometry once): minutes on a small machine
+        _until(browser, "return document.getElementById('node').textContent.indexOf('entered') >= 0", give_up=1500)
         _shot(browser, "structure", out / "explore-structure.png", 0)
         _shot(browser, "time", out / "explore-time.png", 0)
     finally:

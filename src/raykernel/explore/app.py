@@ -367,6 +367,5 @@ def _structure(app, renderer, explained) -> None:
         if selection and selection.get("kind") == "box" and selection.get("accel") == accel:
             selected = int(selection["box"])
             notes.append(_mask(ex, selection)[1])
-        fig = figures.structure_figure(run, what, lv, dp, visited, tested, rays, selected,
-                                       viewed(renderer.scene, ex.settings).camera)
+        fig = figures.structure_figure(run, what, lv, dp, visited, tested, rays, selected)
         return fig, figures.quality_figure(run), " | ".join(n for n in notes if n)

@@ -226,14 +226,6 @@ def view_frame(run: Run) -> tuple:
     return lo, hi, 0.5 * (lo + hi), float(max(np.max(hi - lo), np.finfo(float).tiny))
 
 
-def view_of(camera, frame) -> dict:
-    """The 3D view's camera (plotly's scene.camera) looking as the render's `camera` does."""
-    _, _, mid, side = frame
-    as_dict = lambda v: dict(zip("xyz", (float(c) for c in v)))       # noqa: E731
-    return {"eye": as_dict((camera.eye - mid) / side), "center": as_dict((camera.look_at - mid) / side),
-            "up": as_dict(camera.up)}
-
-
 def camera_from_view(view: dict, frame) -> tuple:
     """(eye, look_at, up) in the scene's space of the 3D view's camera after an orbit or a pan."""
     _, _, mid, side = frame
@@ -243,11 +235,11 @@ def camera_from_view(view: dict, frame) -> tuple:
 
 
 def structure_figure(run: Run, what: str = "visits", levels=None, depths=None, visited=None, tested=None,
-                     rays=None, selected: int | None = None, camera=None):
+                     rays=None, selected: int | None = None):
     """The boxes in 3D coloured by `what`; a marker at each box's centre names it (click: its
     pixel mask). visited/tested: boxes a pixel's rays entered and tested items in, drawn thick
-    in the colour of their nesting level; rays: explain's rays of that pixel; camera: the
-    render's, which the view opens looking through (view_of)."""
+    in the colour of their nesting level; rays: explain's rays of that pixel (one legend entry
+    a ray type). The view opens on the whole structure; camera_from_view reads an orbit."""
     go = _go()
     idx = chosen_boxes(run, what, levels, depths)
     values = box_values(run, what)
@@ -278,21 +270,21 @@ def structure_figure(run: Run, what: str = "visits", levels=None, depths=None, v
         x, y, z = _wire(b.corners[[selected]])
         fig.add_trace(go.Scatter3d(x=x, y=y, z=z, mode="lines", name=f"box {selected}",
                                    line={"color": "#ff00ff", "width": 10}, hoverinfo="skip"))
+    shown = set()
     for k, ray in enumerate(rays or []):
-        _add_ray(fig, go, k, ray, run)
+        _add_ray(fig, go, k, ray, run, ray.get("type") not in shown)
+        shown.add(ray.get("type"))
     frame = view_frame(run)
     lo, hi, _, side = frame
     scene = {"aspectmode": "manual", "aspectratio": dict(zip("xyz", ((hi - lo) / side).tolist())),
              **{f"{axis}axis": {"range": [float(lo[k]), float(hi[k])], "autorange": False} for k, axis in enumerate("xyz")}}
-    if camera is not None:
-        scene["camera"] = view_of(camera, frame)
     fig.update_layout(scene=scene, uirevision=run.accel, margin={"l": 0, "r": 0, "t": 30, "b": 0}, height=520,
                       title={"text": f"{run.accel}: {len(idx):,} of {len(b):,} boxes, coloured by {what}"},
                       legend={"x": 0, "y": 1})
     return fig
 
 
-def _add_ray(fig, go, k: int, ray: dict, run: Run) -> None:
+def _add_ray(fig, go, k: int, ray: dict, run: Run, legend: bool) -> None:
     if ray.get("culled"):
         return
     o = np.asarray(ray["origin"])
@@ -305,7 +297,8 @@ def _add_ray(fig, go, k: int, ray: dict, run: Run) -> None:
     end = o + d * t
     tests = [s for step in ray["steps"] for s in step["tests"] if s["t"] is not None]
     fig.add_trace(go.Scatter3d(x=[o[0], end[0]], y=[o[1], end[1]], z=[o[2], end[2]], mode="lines",
-                               name=f"ray {k + 1}: {ray['type']}", hoverinfo="name",
+                               name=f"ray {k + 1}: {ray['type']}", hoverinfo="name", legendgroup=str(ray["type"]),
+                               showlegend=legend,
                                line={"color": RAY_COLOURS.get(ray["type"], "#7f7f7f"), "width": 5}))
     if tests:
         p = np.array([o + d * s["t"] for s in tests])
