@@ -24,6 +24,7 @@ EDGES = ((0, 1), (2, 3), (4, 5), (6, 7), (0, 2), (1, 3), (4, 6), (5, 7), (0, 4),
 LEVEL_COLOURS = ("#e41a1c", "#377eb8", "#4daf4a", "#984ea3", "#ff7f00", "#a65628", "#f781bf", "#999999")
 RAY_COLOURS = {"eye": "#000000", "reflect": "#1f77b4", "refract": "#17becf", "shadow": "#ff7f0e", None: "#7f7f7f"}
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
+OPENING_EYE = (0.8, -0.8, 0.6)      # the 3D view's first camera, in units of the structure's longest side
 COLOUR_BY = ("visits", "tests", "futile", "refined", "sah", "overlap", "depth", "items")
 
 
@@ -276,7 +277,9 @@ def structure_figure(run: Run, what: str = "visits", levels=None, depths=None, v
         shown.add(ray.get("type"))
     frame = view_frame(run)
     lo, hi, _, side = frame
+    # the longest side spans one of plotly's units, the view's camera a little over one away
     scene = {"aspectmode": "manual", "aspectratio": dict(zip("xyz", ((hi - lo) / side).tolist())),
+             "camera": {"eye": dict(zip("xyz", OPENING_EYE))},
              **{f"{axis}axis": {"range": [float(lo[k]), float(hi[k])], "autorange": False} for k, axis in enumerate("xyz")}}
     fig.update_layout(scene=scene, uirevision=run.accel, margin={"l": 0, "r": 0, "t": 30, "b": 0}, height=520,
                       title={"text": f"{run.accel}: {len(idx):,} of {len(b):,} boxes, coloured by {what}"},

@@ -28,14 +28,14 @@ import copy
 import dataclasses
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..aggregates.memory import check, memory_limit
 from ..aggregates.registry import parse_spec
 from ..aggregates.spec import is_auto
-from ..analysis.workimages import TIE, WorkImages
+from ..analysis.workimages import WorkImages
 from ..engine.widewalk import with_driver
 from ..engine.work import TESTS, VISITS
 from ..errors import OptionError
@@ -189,7 +189,6 @@ class Exploration:
     runs: dict                  # accel -> Run, in the settings' order
     stage: str = "full"         # "coarse" while the full resolution renders
     seconds: float = 0.0
-    errors: dict = field(default_factory=dict)
 
     @property
     def accels(self) -> list:
@@ -261,10 +260,6 @@ class Exploration:
                             f"--resolution {s.resolution}"])
         return Comparison(runs, {"resolution": f"{w}x{h}", **{k: v for k, v in (("eye", s.eye), ("look_at", s.look_at),
                                  ("up", s.up), ("angle", s.angle)) if v is not None}}, {}, command, work=name)
-
-    def winner_names(self, name: str) -> dict:
-        """The winner map's codes: index -> structure, TIE -> "tie"."""
-        return {**dict(enumerate(self.accels)), TIE: "tie"}
 
 
 def explore_scene(scene, s: Settings, label: str = "", resolution: int | None = None, cancelled=None,
