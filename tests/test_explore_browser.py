@@ -46,9 +46,13 @@ GIVE_UP = 120       # seconds: a page that never answers fails rather than hangs
 
 def _until(driver, script, *args, give_up=GIVE_UP):
     """What `script` returns once it is truthy (the page answers through its own requests)."""
+    from selenium.common.exceptions import JavascriptException
     end = time.monotonic() + give_up
     while time.monotonic() < end:
-        value = driver.execute_script(script, *args)
+        try:
+            value = driver.execute_script(script, *args)
+        except JavascriptException:     # the element is not there yet: Dash draws the layout after the load
+            value = None
         if value:
             return value
         time.sleep(0.05)
