@@ -9,6 +9,7 @@ import json
 import re
 import subprocess
 import sys
+import time
 import urllib.error
 import urllib.request
 
@@ -287,7 +288,8 @@ def test_a_newer_request_cancels_the_older(scene):
     r = Renderer(scene, SCENE, timed=False)
     first = r.submit(settings(["octree"], 160))
     while f"request {first}: rendering" not in r.snapshot()[3] and r.outcome(first) is None:
-        pass
+        time.sleep(0.001)       # until the worker has begun it
+    assert r.outcome(first) is None, "the first request ended before a second could cancel it"
     second = r.submit(settings(["octree"], 12))
     assert r.wait(second) == "full"
     assert r.wait(first) == "cancelled"
