@@ -372,3 +372,17 @@ def test_an_orbit_of_the_3d_view_becomes_the_camera(server):
     assert np.allclose([float(v) for v in out["look-at"]["value"].split(",")], mid + np.array([0.1, 0, 0]) * side)
     assert out["up"]["value"] == "0.0,0.0,1.0"
     assert call(server, "eye.value", [{"xaxis.range": [0, 1]}], [run.accel]) == {}     # not an orbit: nothing
+
+
+def test_a_request_renders_coarse_then_full_and_the_memory_budget_holds(scene):
+    from raykernel.explore.jobs import Renderer
+    r = Renderer(scene, SCENE, timed=False)
+    assert r.wait(r.submit(settings(["octree"], 32))) == "full"
+    version, shown, error, _ = r.snapshot()
+    assert version == 2 and shown.stage == "full" and shown.shape == (32, 32) and error is None  # coarse, then full
+    r.close()
+    tight = Renderer(scene, SCENE, max_memory=4096, timed=False)
+    assert tight.wait(tight.submit(settings(["octree"], 32))) == "failed"
+    _, shown, error, _ = tight.snapshot()
+    assert shown is None and "memory budget" in error[1]
+    tight.close()
