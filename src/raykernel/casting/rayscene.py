@@ -49,7 +49,7 @@ import numpy as np
 from ..engine.flatten import flatten
 from ..geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 from ..scene.model import Scene
-from . import proximity, raybuild, rayqueries
+from . import daskcast, proximity, raybuild, rayqueries
 from .proximity import ClosestPoints
 from .raybuild import EDGE_RULES
 from .rayinput import RayInputError
@@ -395,6 +395,8 @@ class RayScene:
         A ray that is not finite or has a zero direction raises RayInputError naming it, after
         the other rays were cast: `out`'s arrays then hold their hits.
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.intersect(self, origins, directions, tmin, tmax, threads, fields, dtype, out)
         return rayqueries.closest_hits(self, origins, directions, tmin, tmax, threads, fields, dtype, out)
 
     @_ray_query_doc
@@ -414,6 +416,8 @@ class RayScene:
 
         {raises}
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.ray_query(self, "occluded", origins, directions, tmin, tmax, bool, threads=threads)
         return rayqueries.occluded(self, origins, directions, tmin, tmax, threads)
 
     @_ray_query_doc
@@ -468,6 +472,8 @@ class RayScene:
 
         {raises}
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.ray_query(self, "count_hits", origins, directions, tmin, tmax, np.int64, threads=threads)
         return rayqueries.count_hits(self, origins, directions, tmin, tmax, threads)
 
     # ------------------------------------------------------------- point queries (proximity.py)
@@ -498,6 +504,8 @@ class RayScene:
         RayInputError
             The points are not valid, or the scene has instances or cones.
         """
+        if daskcast.is_dask(points):
+            return daskcast.closest_points(self, points, threads)
         return proximity.closest_points(self, points, threads)
 
     def distance(self, points, threads: int | None = None) -> np.ndarray:
@@ -515,6 +523,8 @@ class RayScene:
         (N,) float64 array
             Shaped as the points.
         """
+        if daskcast.is_dask(points):
+            return daskcast.point_query(self, "distance", points, np.float64, threads=threads)
         return self.closest_points(points, threads).distance
 
     def contains(self, points, threads: int | None = None, method: str = "auto") -> np.ndarray:
@@ -546,6 +556,8 @@ class RayScene:
             The points or `method` are not valid, parity or winding is asked of a scene that
             is not triangle meshes, or the scene has instances or cones.
         """
+        if daskcast.is_dask(points):
+            return daskcast.point_query(self, "contains", points, bool, threads=threads, method=method)
         return proximity.contains(self, points, threads, method)
 
     def signed_distance(self, points, threads: int | None = None) -> np.ndarray:
