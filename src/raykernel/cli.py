@@ -584,8 +584,34 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_render(sub)
     _add_explain(sub)
+    _add_cast(sub)
     _add_others(sub)
     return parser
+
+
+def _add_cast(sub) -> None:
+    c = sub.add_parser("cast", help="cast the rays of a file at a scene and write their hits to a file, a chunk at "
+                       "a time (any number of rays in bounded memory; the same command resumes a stopped cast)")
+    c.add_argument("scene", help=SCENE_HELP)
+    c.add_argument("--rays", required=True, help="the rays: .npz (origins, directions, optionally tmin, tmax; "
+                   "np.savez), .npy (N, 6), a .zarr group with the .npz's arrays, or .parquet (columns ox, oy, oz, "
+                   "dx, dy, dz, optionally tmin, tmax)")
+    c.add_argument("--out", required=True, help="the hits: a .zarr group (one array a field) or a .parquet folder "
+                   "(one file a chunk)")
+    c.add_argument("--fields", default="t,prim_id", help="the Hits fields to write, comma-separated (default "
+                   "t,prim_id; also geom_id, inst_id, kind, uv, normal, shading_normal)")
+    c.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="float32: float32 t, uv and "
+                   "normals and int32 ids (default float64)")
+    c.add_argument("--accel", help="accelerator spec (default: a model file's own mesh build, bvh for a scene)")
+    c.add_argument("--chunk", type=_positive_int, help="rays a chunk (default: about a million, fewer if the memory "
+                   "budget needs it; a resumed cast keeps its own)")
+    c.add_argument("--threads", type=_positive_int, help="threads a chunk (default: all cores; on local:N a "
+                   "worker's share)")
+    c.add_argument("--max-memory", help="memory budget of the build and of the chunks at work, e.g. 2G")
+    c.add_argument("--dask", metavar="ADDRESS", help="cast the chunks on Dask: local[:N] starts N worker processes "
+                   "on this machine, tcp://HOST:PORT joins a running scheduler whose workers reach the files at the "
+                   "same paths (pip install 'raykernel[distributed]')")
+    c.set_defaults(func=cmd_cast)
 
 
 def _add_trace_options(r) -> None:
@@ -693,29 +719,6 @@ def _add_others(sub) -> None:
     an.add_argument("--dask", metavar="ADDRESS", help="run on Dask: local[:N] starts N worker processes on this machine, "
                    "tcp://HOST:PORT joins a running scheduler (pip install 'raykernel[distributed]')")
     an.set_defaults(func=cmd_animate)
-
-    c = sub.add_parser("cast", help="cast the rays of a file at a scene and write their hits to a file, a chunk at "
-                       "a time (any number of rays in bounded memory; the same command resumes a stopped cast)")
-    c.add_argument("scene", help=SCENE_HELP)
-    c.add_argument("--rays", required=True, help="the rays: .npz (origins, directions, optionally tmin, tmax; "
-                   "np.savez), .npy (N, 6), a .zarr group with the .npz's arrays, or .parquet (columns ox, oy, oz, "
-                   "dx, dy, dz, optionally tmin, tmax)")
-    c.add_argument("--out", required=True, help="the hits: a .zarr group (one array a field) or a .parquet folder "
-                   "(one file a chunk)")
-    c.add_argument("--fields", default="t,prim_id", help="the Hits fields to write, comma-separated (default "
-                   "t,prim_id; also geom_id, inst_id, kind, uv, normal, shading_normal)")
-    c.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="float32: float32 t, uv and "
-                   "normals and int32 ids (default float64)")
-    c.add_argument("--accel", help="accelerator spec (default: a model file's own mesh build, bvh for a scene)")
-    c.add_argument("--chunk", type=_positive_int, help="rays a chunk (default: about a million, fewer if the memory "
-                   "budget needs it; a resumed cast keeps its own)")
-    c.add_argument("--threads", type=_positive_int, help="threads a chunk (default: all cores; on local:N a "
-                   "worker's share)")
-    c.add_argument("--max-memory", help="memory budget of the build and of the chunks at work, e.g. 2G")
-    c.add_argument("--dask", metavar="ADDRESS", help="cast the chunks on Dask: local[:N] starts N worker processes "
-                   "on this machine, tcp://HOST:PORT joins a running scheduler whose workers reach the files at the "
-                   "same paths (pip install 'raykernel[distributed]')")
-    c.set_defaults(func=cmd_cast)
 
     a = sub.add_parser("accels", help="list the accelerator kinds with their parameters and defaults")
     a.set_defaults(func=cmd_accels)
