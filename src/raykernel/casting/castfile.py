@@ -281,7 +281,8 @@ def _on_cluster(rs, source, out, todo, names, dtype, threads, finished, report, 
     except BaseException as e:
         bad = e.chunk if isinstance(e, RayFileError) else None
         out.stop(after=bad)         # before the cancel: tasks at work stop between kernel calls, unwritten
-        client.cancel(futures)
+        if client.status == "running":      # (a lost scheduler has nothing to cancel, nor answers)
+            client.cancel(futures)
         raise
     finally:
         report.seconds = time.perf_counter() - start
