@@ -27,6 +27,7 @@ import os
 import socket
 import threading
 import time
+import warnings
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from concurrent.futures import wait as wait_all
@@ -266,7 +267,9 @@ def _on_cluster(rs, source, out, todo, names, dtype, threads, finished, report, 
     every missing chunk submitted, the results taken as they come."""
     client = cluster.client
     threads = threads or cluster.threads_per_worker
-    scene, key = cluster.share(rs)
+    with warnings.catch_warnings():     # Dask's advice against large graphs: the scene is in it once, on purpose
+        warnings.filterwarnings("ignore", message="Sending large graph")
+        scene, key = cluster.share(rs)
     warm = [client.submit(_warm_task, scene, key, names, dtype, threads, workers=[w], allow_other_workers=False,
                           pure=False) for w in client.scheduler_info()["workers"]]
     for _, figures in cluster.completed(warm, doing="loading the kernels on the workers"):
