@@ -141,6 +141,8 @@ def test_a_bad_ray_is_named_by_its_chunk_and_index(scene, two_workers):
         scene.intersect(da.from_array(o[:, :2], chunks=(100, 2)), d)
     with pytest.raises(RayInputError, match=r"tmax must be a number or have shape \(301,\)"):
         scene.occluded(da.from_array(o, chunks=(100, 3)), d, tmax=np.ones(5))
+    with pytest.raises(RayInputError, match="intersect_all takes numpy arrays"):
+        scene.intersect_all(da.from_array(o, chunks=(100, 3)), d)
 
 
 def test_numpy_calls_import_no_dask():
