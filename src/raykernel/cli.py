@@ -252,13 +252,14 @@ def _cluster(args, console, warm: bool = True):
 def cmd_cast(args, console) -> int:
     from .casting.castfile import cast_file
     from .casting.rayfiles import open_rays, result_format
+    from .casting.rayqueries import field_names
     from .casting.rayscene import RayScene
     from .scene.loading import load
     from .scene.meshfile import SUFFIXES
     # refuse what would fail after the build before it
     open_rays(args.rays)
     result_format(args.out)
-    fields = [f.strip() for f in args.fields.split(",") if f.strip()]
+    fields = field_names([f.strip() for f in args.fields.split(",") if f.strip()])
     if Path(args.scene).suffix.lower() in SUFFIXES:
         scene = RayScene.from_file(args.scene, accel=args.accel, max_memory=args.max_memory)
     else:

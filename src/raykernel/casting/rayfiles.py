@@ -138,8 +138,10 @@ class RaySource:
     def read(self, a: int, b: int):
         """Rays a..b-1: origins and directions float64 (n, 3), tmin and tmax float64 (n,) or None."""
         if self.kind == "npy":
-            block = self.parts["rays"].rows(a, b).astype(np.float64, copy=False)
-            return np.ascontiguousarray(block[:, :3]), np.ascontiguousarray(block[:, 3:]), None, None
+            block = self.parts["rays"].rows(a, b)
+            o, d = np.empty((b - a, 3)), np.empty((b - a, 3))
+            o[:], d[:] = block[:, :3], block[:, 3:]     # converted as copied: one pass over the rays
+            return o, d, None, None
         if self.kind == "parquet":
             return self._parquet(a, b)
         if self.kind == "zarr":
