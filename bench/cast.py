@@ -260,7 +260,8 @@ def section(args, command, alone, one, two, task, per_chunk, send, triangles, th
         f"| {cast_rate / alone_rate:.2f}x | {command['peak'] / 2 ** 30:.2f} GiB |",
         f"| one in-process `RayScene.intersect`, rays in memory | {alone['rays']:,} | {alone['seconds']:.2f} "
         f"| {alone_rate:.2f} | 1.00x | |",
-        f"| `cast_file` on local:1, one thread, chunks of {one.chunk:,} | {one.cast:,} | {one.seconds:.2f} | {one_rate:.2f} | 1.00x | |",
+        f"| `cast_file` on local:1, one thread, chunks of {one.chunk:,} | {one.cast:,} | {one.seconds:.2f} "
+        f"| {one_rate:.2f} | 1.00x | |",
         f"| `cast_file` on local:2, one thread each | {two.cast:,} | {two.seconds:.2f} | {two_rate:.2f} "
         f"| {two_rate / one_rate:.2f}x | |",
         "",
@@ -268,11 +269,12 @@ def section(args, command, alone, one, two, task, per_chunk, send, triangles, th
         f"scheduler costs {1e3 * task:.2f} ms a task (tasks that do nothing, two workers); the cast's own fixed cost "
         f"is {1e3 * per_chunk:.2f} ms a chunk (opening, reading and writing, chunks of ten rays). For {TOTAL:.0e} "
         f"rays on {WORKERS} one-thread workers of local:1's speed: chunks of {chunk:,} rays keep the cast's fixed cost "
-        f"under 1% of a chunk's time and the scheduler busy under {SCHEDULER_SHARE:.0%} of the time, and ask {asked:,.0f} tasks a second of the scheduler, a single process whose limit is "
-        f"about {1 / task:,.0f} tasks a second here; expected time {seconds / 60:.1f} min, given a shared file "
-        f"system that reads {TOTAL * RAY_BYTES / 2 ** 30:,.0f} GiB of rays and writes {TOTAL * HIT_BYTES / 2 ** 30:,.0f} "
-        f"GiB of hits in that time ({TOTAL * (RAY_BYTES + HIT_BYTES) / seconds / 2 ** 30:.1f} GiB/s), the limit "
-        f"past the scheduler's.",
+        f"under 1% of a chunk's time and the scheduler busy under {SCHEDULER_SHARE:.0%} of the time, and ask "
+        f"{asked:,.0f} tasks a second of the scheduler, a single process whose limit is about {1 / task:,.0f} "
+        f"tasks a second here; expected time {seconds / 60:.1f} min, given a shared file system that reads "
+        f"{TOTAL * RAY_BYTES / 2 ** 30:,.0f} GiB of rays and writes {TOTAL * HIT_BYTES / 2 ** 30:,.0f} GiB of hits in "
+        f"that time ({TOTAL * (RAY_BYTES + HIT_BYTES) / seconds / 2 ** 30:.1f} GiB/s), the limit past the "
+        f"scheduler's.",
         "",
         DETAILS,
         "",
