@@ -132,6 +132,14 @@ def test_the_scene_is_kept_on_each_worker_between_calls(scene, two_workers):
     assert ids() == first          # the same objects: what their first calls built stays built
 
 
+def test_threads_in_this_process_use_the_scene_itself(scene):
+    o, d, _ = _rays(50)
+    with dask.config.set(scheduler="threads"):
+        t = scene.intersect(da.from_array(o, chunks=(20, 3)), d).t.compute()
+    _same(t, scene.intersect(o, d).t)
+    assert not any(kept is scene for kept in daskcast._kept.values())     # nothing of the user's held here
+
+
 def test_a_bad_ray_is_named_by_its_chunk_and_index(scene, two_workers):
     o, d, _ = _rays(301)
     o[170] = np.nan

@@ -68,6 +68,8 @@ def scene_task(rs):
 
 def worker_scene(rs, key: str):
     """The copy of scene `key` this process met first (kept, with what its queries built), else `rs`."""
+    if _names.get(rs) == key:
+        return rs       # the user's own object (a scheduler of threads here): theirs to keep, not ours
     with _kept_lock:
         kept = _kept.get(key)
         if kept is None:
