@@ -101,6 +101,7 @@ def test_dask_queries_equal_numpy_bit_for_bit(scene, two_workers, n, chunk):
     assert some.prim_id is None
     _same(some.t.compute(), scene.intersect(o, d[0], fields=("t", "kind")).t)
     _same(scene.occluded(do, dd, tmax=dtmax).compute(), scene.occluded(o, d, tmax=tmax))
+    _same(scene.occluded(o, dd, tmax=tmax).compute(), scene.occluded(o, d, tmax=tmax))     # numpy beside dask
     _same(scene.count_hits(do, dd).compute(), scene.count_hits(o, d))
     _same(scene.contains(dp).compute(), scene.contains(p))
     _same(scene.distance(dp).compute(), scene.distance(p))

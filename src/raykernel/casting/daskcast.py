@@ -121,8 +121,12 @@ def _interval(value, name: str, lead):
 def _rays(origins, directions):
     """(o, d, lead): the checked rays, one of them possibly a numpy (3,) vector, and a dask array of
     the rays' leading shape and chunks (the first vector's last column) that the others align to."""
-    o = _vectors(origins, "origins")
-    d = _vectors(directions, "directions", like=o if is_dask(o) else None)
+    if is_dask(origins) or not is_dask(directions):
+        o = _vectors(origins, "origins")
+        d = _vectors(directions, "directions", like=o if is_dask(o) else None)
+    else:       # numpy origins take the chunks of dask directions
+        d = _vectors(directions, "directions")
+        o = _vectors(origins, "origins", like=d)
     if isinstance(o, np.ndarray) and isinstance(d, np.ndarray):
         raise RayInputError("origins or directions must be a dask array here")
     if not isinstance(o, np.ndarray) and not isinstance(d, np.ndarray):
