@@ -110,7 +110,7 @@ def cast_chunk(rs, source, out, k: int, names, dtype: str, threads=None, stop=No
     except (OSError, ValueError) as e:
         if isinstance(e, RayFileError):
             raise
-        raise RayFileError(f"cannot be read ({type(e).__name__}: {e})", source.path, k, (a, b)) from None
+        raise RayFileError(f"cannot be read ({type(e).__name__}: {e})", source.name, k, (a, b)) from None
     arrays = {name: np.empty((b - a,) + cols, dt) for name, (dt, cols) in result_fields(names, dtype).items()}
     figures = {"worker": _here(), "rays": b - a, "cast": 0.0, "compile": 0.0, "load": 0.0}
     for p in range(0, b - a, PIECE):
@@ -126,8 +126,8 @@ def cast_chunk(rs, source, out, k: int, names, dtype: str, threads=None, stop=No
             try:
                 check_ray_values(o[p:q], d[p:q], offset=a + p)
             except RayInputError as named:
-                raise RayFileError(str(named), source.path, k, (a, b)) from None
-            raise RayFileError(str(e), source.path, k, (a, b)) from None
+                raise RayFileError(str(named), source.name, k, (a, b)) from None
+            raise RayFileError(str(e), source.name, k, (a, b)) from None
         stats = rs.last_stats
         for name in ("compile", "load"):
             figures[name] += stats.get(f"time.{name}", 0.0)

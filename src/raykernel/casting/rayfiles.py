@@ -106,15 +106,16 @@ def _npy_header(f, path, name: str):
     return shape, dtype
 
 
-def _npz_member(path, zf: zipfile.ZipFile, name: str) -> _Npy | None:
+def _npz_member(path, zf: zipfile.ZipFile, name: str, shown) -> _Npy | None:
+    """The member `name` of the .npz at `path` (named `shown` in errors), None if it has none."""
     info = next((i for i in zf.infolist() if i.filename in (name, name + ".npy")), None)
     if info is None:
         return None
     if info.compress_type != zipfile.ZIP_STORED:
         raise RayFileError(f"{name} is compressed (np.savez_compressed), which cannot be read a chunk at a time; "
-                           f"write the file with np.savez", path)
+                           f"write the file with np.savez", shown)
     with zf.open(info) as member:
-        shape, dtype = _npy_header(member, path, name)
+        shape, dtype = _npy_header(member, shown, name)
         header = member.tell()
     with open(path, "rb") as f:         # the member's data follows its local header and name
         f.seek(info.header_offset + 26)
@@ -126,7 +127,9 @@ class RaySource:
     """The rays of a file: `count` of them, read by `read(a, b)` (module docstring: the formats)."""
 
     def __init__(self, path, kind: str, count: int, parts: dict):
-        self.path, self.kind, self.count, self.parts = str(path), kind, count, parts
+        # read at its absolute path (a worker's working folder may differ), named as given
+        self.name, self.path = str(path), str(Path(path).absolute())
+        self.kind, self.count, self.parts = kind, count, parts
 
     def describe(self) -> dict:
         """What identifies these rays for a resumed cast: the file, its size and the ray count."""
@@ -183,7 +186,7 @@ def _check_arrays(path, shapes: dict) -> int:
 
 def open_rays(path) -> RaySource:
     """The rays of `path`, its arrays' shapes and dtypes checked (RayFileError names what is wrong)."""
-    p = Path(path)
+    p = Path(path).absolute()
     suffix = p.suffix.lower()
     if not p.exists():
         raise RayFileError("no such file or folder", path)
@@ -195,15 +198,15 @@ def open_rays(path) -> RaySource:
         if len(shape) != 2 or shape[1] != 6:
             raise RayFileError(f"must have shape (N, 6) (origin, direction), got {shape}", path)
         _real(dtype, "the array", path)
-        return RaySource(p, "npy", shape[0], {"rays": _Npy(p, offset, shape, dtype)})
+        return RaySource(path, "npy", shape[0], {"rays": _Npy(p, offset, shape, dtype)})
     if suffix == ".npz":
         try:
             with zipfile.ZipFile(p) as zf:
-                parts = {n: m for n in names if (m := _npz_member(p, zf, n)) is not None}
+                parts = {n: m for n in names if (m := _npz_member(p, zf, n, path)) is not None}
         except zipfile.BadZipFile:
             raise RayFileError("is not a .npz file", path) from None
         n = _check_arrays(path, {k: (m.shape, m.dtype) for k, m in parts.items()})
-        return RaySource(p, "npz", n, parts)
+        return RaySource(path, "npz", n, parts)
     if suffix == ".zarr":
         zarr = _needs("zarr")
         try:
@@ -212,7 +215,7 @@ def open_rays(path) -> RaySource:
             raise RayFileError(f"is not a zarr group ({type(e).__name__}: {e})", path) from None
         shapes = {n: (group[n].shape, group[n].dtype) for n in names if n in group}
         n = _check_arrays(path, shapes)
-        return RaySource(p, "zarr", n, dict.fromkeys(shapes))
+        return RaySource(path, "zarr", n, dict.fromkeys(shapes))
     if suffix in (".parquet", ".pq"):
         pq = _needs("pyarrow.parquet")
         try:
@@ -226,7 +229,7 @@ def open_rays(path) -> RaySource:
         columns = [c for c in (*PARQUET_COLUMNS, "tmin", "tmax") if c in schema.names]
         for c in columns:
             _real(np.dtype(schema.field(c).type.to_pandas_dtype()), f"column {c}", path)
-        return RaySource(p, "parquet", pq.ParquetFile(p).metadata.num_rows, dict.fromkeys(columns))
+        return RaySource(path, "parquet", pq.ParquetFile(p).metadata.num_rows, dict.fromkeys(columns))
     raise RayFileError(f"unknown ray file type {suffix or '(no suffix)'!r}: use .npz (origins, directions), .npy "
                        f"(N, 6), .zarr or .parquet (ox, oy, oz, dx, dy, dz)", path)
 
@@ -338,7 +341,7 @@ def open_results(path, count: int, chunk: int, fields: dict, about: dict) -> Res
     """A ResultFile at `path` for `count` rays in chunks of `chunk`, with `fields` (name -> (dtype,
     columns)): made new, or an existing one made by the same cast (`about`) to resume; OptionError
     if it holds another's."""
-    out = ResultFile(path, count, chunk, fields)
+    out = ResultFile(Path(path).absolute(), count, chunk, fields)     # written at that path by every worker
     p = Path(path)
     if not p.is_dir():
         check_output_directory(p)       # its folder exists, and it is no file
