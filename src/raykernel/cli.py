@@ -604,8 +604,8 @@ def _add_cast(sub) -> None:
     c.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="float32: float32 t, uv and "
                    "normals and int32 ids (default float64)")
     c.add_argument("--accel", help="accelerator spec (default: a model file's own mesh build, bvh for a scene)")
-    c.add_argument("--chunk", type=_positive_int, help="rays a chunk (default: about a million, fewer if the memory "
-                   "budget needs it; a resumed cast keeps its own)")
+    c.add_argument("--chunk", type=_positive_int, help="rays a chunk (default: castfile.DEFAULT_CHUNK, fewer if the "
+                   "memory budget needs it; a resumed cast keeps its own)")
     c.add_argument("--threads", type=_positive_int, help="threads a chunk (default: all cores; on local:N a "
                    "worker's share)")
     c.add_argument("--max-memory", help="memory budget of the build and of the chunks at work, e.g. 2G")
