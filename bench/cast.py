@@ -5,7 +5,8 @@
 
 One run, four questions, on one mesh (a height field of --triangles triangles, written as PLY) and
 incoherent rays (origins above it, directions at random downward; float32 .npy, written once,
-a block at a time, into --folder, which needs about 24 bytes a ray of disk, and 8 more for the hits):
+a block at a time, into --folder, which needs the disk for them, RAY_BYTES a ray, and HIT_BYTES a ray
+for the hits):
 
 1. Memory: `raykernel cast MESH --rays RAYS.npy --out HITS.zarr --fields t,prim_id --dtype float32`
    in a process of its own, the resident memory of its process tree sampled every 50 ms; its peak.
