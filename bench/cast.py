@@ -17,7 +17,7 @@ for the hits):
 3. Workers: the first --worker-rays rays cast on `local:1` and `local:2`, one thread a worker;
    both outputs are the same bytes (checked); each worker's kernel compiling and loading apart.
 4. Dask's cost per chunk: tasks that do nothing on two workers (the scheduler's time a task), and
-   the cast's own fixed cost a chunk (chunks of a few rays, in this process); from them and the
+   a chunk's whole fixed cost on a one-thread worker (chunks of a few rays on local:1); from them and the
    single-threaded worker's speed, the chunk size that keeps both under 1% of a chunk's time, and
    the expected time of ten billion rays on 64 such workers, with the limits named.
 
@@ -160,12 +160,15 @@ def dask_cost(tasks: int) -> float:
 
 
 def chunk_cost(scene, rays: Path, folder: Path, n: int, chunk: int) -> float:
-    """The cast's own seconds a chunk beyond its rays': n rays in chunks of `chunk` (a few rays), here."""
+    """A chunk's fixed cost on a one-thread worker of local:1 (Dask's hand-over, opening, reading,
+    writing): n rays in chunks of `chunk` (a few rays), its seconds a chunk."""
     from raykernel.casting.castfile import cast_file
+    from raykernel.cluster import Cluster
     out = folder / "tiny.zarr"
     shutil.rmtree(out, ignore_errors=True)
-    report = cast_file(scene, first_rays(rays, n, folder / "tiny.npy"), out, fields=FIELDS, dtype=DTYPE,
-                       threads=1, chunk=chunk)
+    with Cluster("local:1") as cluster:
+        report = cast_file(scene, first_rays(rays, n, folder / "tiny.npy"), out, fields=FIELDS, dtype=DTYPE,
+                           threads=1, chunk=chunk, cluster=cluster)
     shutil.rmtree(out, ignore_errors=True)
     return report.seconds / report.chunks
 
@@ -267,9 +270,10 @@ def section(args, command, alone, one, two, task, per_chunk, send, triangles, th
         f"| {two_rate / one_rate:.2f}x | |",
         "",
         f"The command's wall time, start-up, mesh loading and build included: {command['wall']:.1f} s. Dask's "
-        f"scheduler costs {1e3 * task:.2f} ms a task (tasks that do nothing, two workers); the cast's own fixed cost "
-        f"is {1e3 * per_chunk:.2f} ms a chunk (opening, reading and writing, chunks of ten rays). For {TOTAL:.0e} "
-        f"rays on {WORKERS} one-thread workers of local:1's speed: chunks of {chunk:,} rays keep the cast's fixed cost "
+        f"scheduler costs {1e3 * task:.2f} ms a task (tasks that do nothing, two workers); a chunk costs a "
+        f"one-thread worker {1e3 * per_chunk:.2f} ms beyond its casting (Dask's hand-over, opening, reading and "
+        f"writing; chunks of ten rays on local:1). For {TOTAL:.0e} rays on {WORKERS} one-thread workers of "
+        f"local:1's speed: chunks of {chunk:,} rays keep that fixed cost "
         f"under 1% of a chunk's time and the scheduler busy under {SCHEDULER_SHARE:.0%} of the time, and ask "
         f"{asked:,.0f} tasks a second of the scheduler, a single process whose limit is about {1 / task:,.0f} "
         f"tasks a second here; expected time {seconds / 60:.1f} min, given a shared file system that reads "

@@ -42,7 +42,8 @@ from .rayinput import RayInputError, check_ray_values
 from .rayqueries import DTYPES, FIELD_COLUMNS, FLOAT_FIELDS, Hits, field_names
 
 DEFAULT_CHUNK = 1 << 20     # rays a chunk: a few tenths of a second of casting, and tens of MB
-PIECE = 1 << 16             # rays a kernel call within a chunk: how soon Ctrl-C is answered
+PIECE = 1 << 18             # rays a kernel call within a chunk: how soon Ctrl-C is answered (fewer calls, fewer
+                            # ends of a call where one thread waits for the other)
 IN_FLIGHT = 2               # chunks at work at once in this process
 READ_BYTES = 2 * 64         # a ray's bytes as read and as converted (origin, direction, tmin, tmax)
 DEFAULT_FIELDS = ("t", "prim_id")
