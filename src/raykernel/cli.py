@@ -263,7 +263,7 @@ def cmd_cast(args, console) -> int:
     if Path(args.scene).suffix.lower() in SUFFIXES:
         scene = RayScene.from_file(args.scene, accel=args.accel, max_memory=args.max_memory)
     else:
-        scene = RayScene.from_scene(load(args.scene), accel=args.accel or "bvh")
+        scene = RayScene(load(args.scene), accel=args.accel or "bvh", max_memory=args.max_memory)
     progress = _Progress(console, f"casting {args.rays}", unit="rays")
     try:
         with _cluster(args, console, warm=False) as cluster:
@@ -611,7 +611,7 @@ def _add_cast(sub) -> None:
     c.add_argument("--max-memory", help="memory budget of the build and of the chunks at work, e.g. 2G")
     c.add_argument("--dask", metavar="ADDRESS", help="cast the chunks on Dask: local[:N] starts N worker processes "
                    "on this machine, tcp://HOST:PORT joins a running scheduler whose workers reach the files at the "
-                   "same paths (pip install 'raykernel[distributed]')")
+                   "same paths (pip install 'raykernel[cast]')")
     c.set_defaults(func=cmd_cast)
 
 
