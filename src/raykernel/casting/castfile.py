@@ -188,7 +188,8 @@ def cast_file(rs, rays, out_path, fields=None, dtype: str = "float64", threads=N
     source = open_rays(rays)
     before = recorded(out_path)
     if chunk is None:
-        chunk = before["chunk"] if before else chunk_size(rs, names, dtype, IN_FLIGHT, max_memory)
+        chunk = before["chunk"] if before else min(max(1, source.count), chunk_size(rs, names, dtype, IN_FLIGHT,
+                                                                                   max_memory))
     about = {**source.describe(), "scene": repr(rs), "fields": list(names), "dtype": dtype, "chunk": chunk}
     out = open_results(out_path, source.count, chunk, result_fields(names, dtype), about)
     out.tidy()
