@@ -6,6 +6,7 @@
     ray, t, prim = scene.intersect_all(origins, directions)
     hits = scene.intersect(origins, directions, fields=("t", "prim_id"), dtype="float32")   # only what you need
     scene.intersect(origins, directions, fields=("t", "prim_id"), dtype="float32", out=hits)   # into those arrays
+    hits = scene.intersect(da_origins, da_directions)    # dask arrays in: a Hits of dask arrays, cast chunk by chunk
 
 Rays are rows of (N, 3) arrays (a single (3,) row is broadcast against the
 other argument); directions need not be unit length, t is measured in units
@@ -36,8 +37,9 @@ already round a vertex by more than the smallest feature.
 The class holds the API and the state every query reads; the code it runs
 lives by concern: building (raybuild.py, meshes straight into meshbuild.py's
 arrays), ray queries and their kernel (rayqueries.py, the mesh kernel in
-meshcast.py), point queries (proximity.py, winding.py, occupancy.py), and the
-checks of what users pass in (rayinput.py: RayInputError).
+meshcast.py), point queries (proximity.py, winding.py, occupancy.py), the
+checks of what users pass in (rayinput.py: RayInputError), and the same
+queries on dask arrays (daskcast.py, reached only when an argument is one).
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ import numpy as np
 from ..engine.flatten import flatten
 from ..geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 from ..scene.model import Scene
-from . import proximity, raybuild, rayqueries
+from . import daskcast, proximity, raybuild, rayqueries
 from .proximity import ClosestPoints
 from .raybuild import EDGE_RULES
 from .rayinput import RayInputError
@@ -62,7 +64,9 @@ __all__ = ["Hits", "RayInputError", "RayScene"]
 _RAYS_DOC = """origins, directions : (N, 3) array_like
             The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
             broadcast against the other argument; any real dtype, read as float64. Directions
-            need not be unit length: t is measured in units of the direction given.
+            need not be unit length: t is measured in units of the direction given. Dask arrays
+            (with tmin and tmax numbers, or arrays of the rays' shape) give dask arrays of the
+            same answers, cast a chunk a task when computed (daskcast.py).
         tmin : float or (N,) array_like, default 0
             The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
             number for every ray, or one per ray.
@@ -92,6 +96,9 @@ class RayScene:
     naming the argument. After each query, `last_stats` holds the counters of that query
     (``rays.cast``, ``tests.triangle``, ``bounds.tests``, ``cells.visited``, ...) and its
     ``time.trace`` in seconds.
+
+    The queries but intersect_all also take dask arrays and answer with dask arrays, lazily
+    (daskcast.py).
 
     Any number of Python threads may query one RayScene at once; `last_stats` is the calling
     thread's own last query. Lazy structures (lazyoctree, rc) refine between passes of one
@@ -406,6 +413,8 @@ class RayScene:
         A ray that is not finite or has a zero direction raises RayInputError naming it, after
         the other rays were cast: `out`'s arrays then hold their hits.
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.intersect(self, origins, directions, tmin, tmax, threads, fields, dtype, out)
         return rayqueries.closest_hits(self, origins, directions, tmin, tmax, threads, fields, dtype, out)
 
     @_ray_query_doc
@@ -425,6 +434,8 @@ class RayScene:
 
         {raises}
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.ray_query(self, "occluded", origins, directions, tmin, tmax, bool, threads=threads)
         return rayqueries.occluded(self, origins, directions, tmin, tmax, threads)
 
     @_ray_query_doc
@@ -460,6 +471,9 @@ class RayScene:
 
         {raises}
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            raise RayInputError("intersect_all takes numpy arrays: its hits are not shaped as the rays (count_hits "
+                                "takes dask arrays)")
         return rayqueries.intersect_all(self, origins, directions, tmin, tmax, ids, threads)
 
     @_ray_query_doc
@@ -479,6 +493,8 @@ class RayScene:
 
         {raises}
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.ray_query(self, "count_hits", origins, directions, tmin, tmax, np.int64, threads=threads)
         return rayqueries.count_hits(self, origins, directions, tmin, tmax, threads)
 
     # ------------------------------------------------------------- point queries (proximity.py)
@@ -509,6 +525,8 @@ class RayScene:
         RayInputError
             The points are not valid, or the scene has instances or cones.
         """
+        if daskcast.is_dask(points):
+            return daskcast.closest_points(self, points, threads)
         return proximity.closest_points(self, points, threads)
 
     def distance(self, points, threads: int | None = None) -> np.ndarray:
@@ -526,6 +544,8 @@ class RayScene:
         (N,) float64 array
             Shaped as the points.
         """
+        if daskcast.is_dask(points):
+            return daskcast.point_query(self, "distance", points, np.float64, threads=threads)
         return self.closest_points(points, threads).distance
 
     def contains(self, points, threads: int | None = None, method: str = "auto") -> np.ndarray:
@@ -557,6 +577,8 @@ class RayScene:
             The points or `method` are not valid, parity or winding is asked of a scene that
             is not triangle meshes, or the scene has instances or cones.
         """
+        if daskcast.is_dask(points):
+            return daskcast.point_query(self, "contains", points, bool, threads=threads, method=method)
         return proximity.contains(self, points, threads, method)
 
     def signed_distance(self, points, threads: int | None = None) -> np.ndarray:
