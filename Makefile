@@ -16,7 +16,7 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,distributed,video,docs,explore]'
+	$(PY) -m pip install --quiet -e '.[test,distributed,cast,video,docs,explore]'
 	$(PY) -m compileall -q src/raykernel    # bytecode, as pip writes for an installed package (not for -e)
 	touch $(STAMP)
 

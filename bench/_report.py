@@ -132,10 +132,16 @@ def _span(values: list[float]) -> str:
 HEADLINES = [
     ("SPD renders, 13 scenes, wall / work", "renders", "POV-Ray 3.7", lambda b: (
         _span(_ratios(b, {"scene": "all"}, "POV-Ray s")) + " / " + _span(_ratios(b, {"scene": "all"}, "POV-Ray work s")))),
-    ("ray casting, coherent", "raycast", "embreex, Mitsuba 3, Open3D", lambda b: ", ".join(
-        _span(_ratios(b, {"rays": "coherent"}, f"{peer} Mrays/s")) for peer in ("embreex", "mitsuba", "open3d"))),
-    ("ray casting, incoherent", "raycast", "embreex, Mitsuba 3, Open3D", lambda b: ", ".join(
-        _span(_ratios(b, {"rays": "incoherent"}, f"{peer} Mrays/s")) for peer in ("embreex", "mitsuba", "open3d"))),
+    ("ray casting, coherent, double precision (the peers: single)", "raycast", "embreex, Mitsuba 3, Open3D",
+     lambda b: ", ".join(_span(_ratios(b, {"rays": "coherent"}, f"{peer} Mrays/s"))
+                         for peer in ("embreex", "mitsuba", "open3d"))),
+    ("ray casting, incoherent, double precision (the peers: single)", "raycast", "embreex, Mitsuba 3, Open3D",
+     lambda b: ", ".join(_span(_ratios(b, {"rays": "incoherent"}, f"{peer} Mrays/s"))
+                         for peer in ("embreex", "mitsuba", "open3d"))),
+    ("ray casting, coherent, single precision", "raycast", "embreex", lambda b: _span(
+        _ratios(b, {"rays": "coherent"}, "single Mrays/s"))),
+    ("ray casting, incoherent, single precision", "raycast", "embreex", lambda b: _span(
+        _ratios(b, {"rays": "incoherent"}, "single Mrays/s"))),
     ("mesh build and first ray, default quality", "meshbuild", "Open3D", lambda b: _span(
         _ratios(b, {"library": "raykernel medium"}, "build + 1 ray s"))),
     ("contains, closed meshes", "proximity", "Open3D", lambda b: _span(

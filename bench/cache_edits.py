@@ -36,7 +36,7 @@ from _report import DETAILS, ROOT, machine, replace_section  # noqa: E402
 
 PROBE = "import json; from raykernel.geometry import cachekey; print(json.dumps(cachekey.all_stamps()))"
 # the walks: each kind's step and the drivers that run them (what every ray and query compiles in)
-WALK_MODULES = ("raykernel.engine.traverse.", "raykernel.engine.widewalk.")
+WALK_MODULES = ("raykernel.engine.traverse.", "raykernel.aggregates.widewalk.")
 
 # (what a developer changes, module, text before, text after)
 NAMED_EDITS = [

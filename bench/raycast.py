@@ -35,8 +35,11 @@ SPD_MESHES = ["gears-sf4", "mount-sf6", "teapot-sf6", "tetra-sf6"]
 PEER_FIELDS = ("t", "prim_id", "geom_id", "uv", "normal")
 # the summary in BENCHMARKS.md: the table's rows at 2 threads, these columns
 SUMMARY = ("At 2 threads, Mrays/s of the same outputs on both sides (t, ids, uv and normal in float32); "
-           "ratio = raykernel / peer (above 1: raykernel is faster).")
-COLUMNS = ["mesh", "rays", "raykernel Mrays/s", "embreex Mrays/s", "ratio", "mitsuba Mrays/s", "open3d Mrays/s"]
+           "ratio = raykernel / peer (above 1: raykernel is faster). raykernel: precision \"double\" (the "
+           "default: the vertices as given); single: precision \"single\" (vertices rounded to float32 and "
+           "float32 triangle blocks, as Embree stores a mesh). The peers are all single precision.")
+COLUMNS = ["mesh", "rays", "raykernel Mrays/s", "embreex Mrays/s", "ratio", "single Mrays/s", "single ratio",
+           "mitsuba Mrays/s", "open3d Mrays/s"]
 
 
 def scene_triangles(scene) -> tuple[np.ndarray, np.ndarray]:
@@ -204,6 +207,7 @@ def worker(data_path, threads):
         t0 = time.perf_counter()
         rs = RayScene.from_mesh(v, f)
         build_rk = time.perf_counter() - t0
+        single = RayScene.from_mesh(v, f, precision="single")
         t0 = time.perf_counter()
         es = rtcore_scene.EmbreeScene()
         EmbreeMesh(es, v[f].astype(np.float32))
@@ -214,6 +218,8 @@ def worker(data_path, threads):
             rs.intersect(o[:1000], d[:1000], fields=PEER_FIELDS, dtype="float32")
             sec_rk, _ = best_of(lambda: rs.intersect(o, d, fields=PEER_FIELDS, dtype="float32"))
             stats = rs.last_stats
+            single.intersect(o[:1000], d[:1000], fields=PEER_FIELDS, dtype="float32")
+            sec_single, h_single = best_of(lambda: single.intersect(o, d, fields=PEER_FIELDS, dtype="float32"))
             rs.intersect(o[:1000], d[:1000])
             sec_every, h = best_of(lambda: rs.intersect(o, d))      # the default: every field in float64
             # what the mesh kernel brings: the same rays through the generic traversal
@@ -234,6 +240,10 @@ def worker(data_path, threads):
             same = hit_rk == hit_em
             both = hit_rk & hit_em
             same[both] = np.abs(h.t[both] - t_em[both]) <= 1e-5 * np.maximum(np.abs(h.t[both]), 1e-30)
+            hit_single = np.isfinite(h_single.t)
+            same_single = hit_single == hit_em
+            both = hit_single & hit_em
+            same_single[both] = np.abs(h_single.t[both] - t_em[both]) <= 1e-5 * np.maximum(np.abs(t_em[both]), 1e-30)
             peer_rates = {}
             for peer, (_, cast) in others.items():
                 cast(built[peer], o32[:1000], d32[:1000])
@@ -247,7 +257,10 @@ def worker(data_path, threads):
             rows.append(dict(mesh=str(name), tris=len(f), kind=kind, rays=len(o), threads=threads, peers=peer_rates,
                              missing=missing,
                              rk=len(o) / sec_rk / 1e6, em=len(o) / sec_em / 1e6, agree=float(same.mean()),
-                             every=len(o) / sec_every / 1e6,
+                             every=len(o) / sec_every / 1e6, single=len(o) / sec_single / 1e6,
+                             agree_single=float(same_single.mean()),
+                             bytes=rs.build_stats["bytes_per_triangle"],
+                             bytes_single=single.build_stats["bytes_per_triangle"],
                              generic=len(o) / sec_generic / 1e6, binary=len(o) / sec_binary / 1e6,
                              nodes_binary=nodes_binary, bounds=stats.get("bounds.tests", 0) / len(o),
                              hit=float(hit_rk.mean()), build_rk=build_rk, build_em=build_em,
@@ -332,11 +345,19 @@ def main():
              "ids, uv and normals; ratio = raykernel / peer (above 1: raykernel is "
              "faster); agree against raykernel's t as for embreex.",
              "",
+             "single: the same call on `RayScene.from_mesh(v, f, precision=\"single\")` (vertices rounded to "
+             "float32, float32 triangle blocks; the same watertight test in float64 on the rounded corners), its "
+             "ratio against embreex and its agreement with embreex; bytes/tri: the kernel's arrays a triangle "
+             "(double, single). per core: incoherent Mrays/s of one thread (threads = 1 rows), beside tinybvh's "
+             "published 4.7 (BVH8, float32) and 4.0 (double) Mrays/s a core for incoherent rays, measured on "
+             "its author's machine (not this one).",
+             "",
              "| mesh | triangles | rays | threads | raykernel Mrays/s | every field Mrays/s | embreex Mrays/s | "
-             "ratio | agree | "
+             "ratio | agree | single Mrays/s | single ratio | single agree | bytes/tri | "
              "mitsuba Mrays/s | ratio | agree | open3d Mrays/s | ratio | agree | "
              "width 2 Mrays/s | generic Mrays/s | tests/ray | boxes/ray | nodes/ray | nodes/ray width 2 | ns/node |",
-             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+             "---:|---:|---:|---:|"]
     for r in rows:
         cells = []
         for peer in ("mitsuba", "open3d"):
@@ -344,11 +365,19 @@ def main():
             cells += ["-", "-", "-"] if rate is None else [f"{rate:.2f}", f"{r['rk'] / rate:.2f}", f"{agree:.4f}"]
         lines.append(f"| {r['mesh']} | {r['tris']} | {r['kind']} | {r['threads']} | {r['rk']:.2f} | {r['every']:.2f} | "
                      f"{r['em']:.2f} | "
-                     f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {' | '.join(cells)} | {r['binary']:.2f} | "
+                     f"{r['rk'] / r['em']:.2f} | {r['agree']:.4f} | {r['single']:.2f} | {r['single'] / r['em']:.2f} | "
+                     f"{r['agree_single']:.4f} | {r['bytes']:.0f}, {r['bytes_single']:.0f} | "
+                     f"{' | '.join(cells)} | {r['binary']:.2f} | "
                      f"{r['generic']:.2f} | {r['tests']:.1f} | {r['bounds']:.1f} | {r['nodes']:.1f} | "
                      f"{r['nodes_binary']:.1f} | {r['threads'] * 1e3 / r['rk'] / max(r['nodes'], 1e-9):.0f} |")
     for peer, why in (rows[0]["missing"] if rows else {}).items():
         lines += ["", f"{peer} is not in this table: it does not run here ({why})."]
+    per_core = [r for r in rows if r["threads"] == 1 and r["kind"] == "incoherent"]
+    if per_core:
+        lines += ["", "Per core, incoherent rays (1 thread), Mrays/s: " + "; ".join(
+            f"{r['mesh']} {r['rk']:.2f} double, {r['single']:.2f} single" for r in per_core)
+            + ". tinybvh publishes 4.7 (BVH8, float32) and 4.0 (double) Mrays/s a core for incoherent rays, "
+              "on its author's machine, not this one."]
     lines += ["", f"JIT compile in a fresh process (import, build a 1-triangle scene, intersect and count_hits): "
               f"cold {cold:.1f} s (empty NUMBA_CACHE_DIR), warm {warm:.1f} s (from the cache)."]
     text = "\n".join(head + [SUMMARY, "", *subtable(tables(lines)[0], COLUMNS, {"threads": ["2"]}), "", DETAILS, ""]

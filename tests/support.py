@@ -804,7 +804,7 @@ def entered_masks(scene, accel, resolution, boxes_wanted):
     """The explorer's brute-force check: which samples' walks entered each box, every sample
     traced alone into zeroed box counters; and the visits of a whole TILE x TILE tile traced as
     a render traces it, for the tile sums. (bool masks (boxes, h, w), first tile's visits)"""
-    from raykernel.engine.widewalk import with_driver
+    from raykernel.aggregates.widewalk import with_driver
     from raykernel.rendering.render import TILE, RenderJob
     from raykernel.rendering.structure import box_rows, boxes_of, use_of
     job = RenderJob(scene, accel=accel, resolution=resolution, work=True, threads=1)

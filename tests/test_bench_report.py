@@ -19,11 +19,11 @@ Machine: Test CPU 9000, 2 cores, 2 threads; Python 3.11.
 
 Command: `python bench/raycast.py` (2031-02-03)
 
-| mesh | rays | raykernel Mrays/s | embreex Mrays/s | ratio | mitsuba Mrays/s | ratio | open3d Mrays/s | ratio |
-|---|---|---:|---:|---:|---:|---:|---:|---:|
-| a | coherent | 2 | 1 | 2.00 | 1 | 2.00 | 4 | 0.50 |
-| a | incoherent | 1 | 2 | 0.50 | 4 | 0.25 | 1 | 1.00 |
-| b | coherent | 3 | 2 | 1.50 | 3 | 1.00 | 3 | 1.00 |
+| mesh | rays | raykernel Mrays/s | embreex Mrays/s | ratio | single Mrays/s | single ratio | mitsuba Mrays/s | ratio | open3d Mrays/s | ratio |
+|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|
+| a | coherent | 2 | 1 | 2.00 | 3 | 3.00 | 1 | 2.00 | 4 | 0.50 |
+| a | incoherent | 1 | 2 | 0.50 | 1.5 | 0.75 | 4 | 0.25 | 1 | 1.00 |
+| b | coherent | 3 | 2 | 1.50 | 2.5 | 1.25 | 3 | 1.00 | 3 | 1.00 |
 <!-- details -->
 
 ### Every thread count
@@ -41,7 +41,7 @@ def test_a_section_is_split_into_its_summary_and_its_page():
     assert summary.rstrip().endswith("[docs/benchmarks/raycast.md](docs/benchmarks/raycast.md).")
     assert page.startswith("# Ray casting (raykernel vs peers)\n")
     assert "\n## Every thread count\n" in page          # one level up, as the page's own heading
-    assert "| a | coherent | 2 | 1 | 2.00 |" in summary and "| a | coherent | 2 | 1 | 2.00 |" in page
+    assert "| a | coherent | 2 | 1 | 2.00 | 3 |" in summary and "| a | coherent | 2 | 1 | 2.00 | 3 |" in page
 
 
 def test_a_section_without_details_stays_whole():
@@ -52,12 +52,15 @@ def test_the_readme_table_reads_each_peer_s_ratios_their_date_and_machine():
     text = "<!-- bench:raycast -->\n" + report.split_section("raycast", SECTION)[0] + "\n<!-- /bench:raycast -->\n"
     table = report.readme_table(text).split("\n")
     assert table[0].startswith("| question |")
-    coherent = next(line for line in table if "ray casting, coherent" in line)
-    incoherent = next(line for line in table if "ray casting, incoherent" in line)
+    coherent = next(line for line in table if "ray casting, coherent, double" in line)
+    incoherent = next(line for line in table if "ray casting, incoherent, double" in line)
     # embreex 1.50-2.00, mitsuba 1.00-2.00, open3d 0.50-1.00 over the coherent rows; one row incoherent
     assert "| 1.50-2.00x, 1.00-2.00x, 0.50-1.00x |" in coherent
     assert "| 0.50x, 0.25x, 1.00x |" in incoherent
     assert "| 2031-02-03 | Test CPU 9000 |" in coherent
+    # single precision against embreex: its own ratio column
+    assert "| 1.25-3.00x | embreex |" in next(line for line in table if "ray casting, coherent, single" in line)
+    assert "| 0.75x | embreex |" in next(line for line in table if "ray casting, incoherent, single" in line)
     assert not any("renders" in line for line in table)     # no section, no row
 
 

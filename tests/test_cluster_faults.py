@@ -137,3 +137,29 @@ def test_a_worker_out_of_memory_is_survived(monkeypatch):
         c.client.wait_for_workers(2, timeout=60)
         assert set(c.worker_pids().values()) != set(before.values())      # the nanny started a new one
         c.client.close()
+
+
+def test_a_cast_keeps_its_chunks_and_goes_on_after_the_scheduler_is_lost(scheduler_and_worker, tmp_path):
+    from raykernel.casting.castfile import cast_file
+    from raykernel.casting.rayscene import RayScene
+    from test_cast import _files, _mesh, _write_rays      # (here: that module skips itself without zarr)
+    address, scheduler = scheduler_and_worker
+    c = _joined(address)
+    scene = RayScene.from_mesh(*_mesh())
+    rays = _write_rays(tmp_path, 4000)
+    lost = []
+
+    def kill_scheduler(done, total):
+        if not lost:
+            scheduler.send_signal(signal.SIGKILL)
+            lost.append(time.monotonic())
+    with pytest.raises(ClusterError, match=f"lost the Dask scheduler at {address} while casting rays: the chunks "
+                                           "written so far are kept") as err:
+        cast_file(scene, rays, tmp_path / "hits.zarr", cluster=c, chunk=20, progress=kill_scheduler)
+    assert "\n" not in str(err.value)
+    c.client.close(timeout=5)
+    # the same call again (here without the cluster) casts only what is missing
+    again = cast_file(scene, rays, tmp_path / "hits.zarr")
+    assert again.skipped >= 1 and again.cast < 4000
+    cast_file(scene, rays, tmp_path / "whole.zarr", chunk=20)
+    assert _files(tmp_path / "hits.zarr") == _files(tmp_path / "whole.zarr")

@@ -3,6 +3,7 @@ no docstring, comment or blank line recompiles one."""
 
 import json
 import os
+import pickle
 import shutil
 import subprocess
 import sys
@@ -155,6 +156,33 @@ def test_an_edit_recompiles_the_kernels_that_use_it_and_only_those(tmp_path):
     assert _run_pair(tmp_path, cache) == (44, 4, 0, 1)          # inner changed: outer recompiled, other loaded
 
 
+def test_a_cache_entry_naming_a_module_that_moved_is_a_miss(tmp_path):
+    # a kernel whose code is unchanged keeps its stamp, but its cached signature may name a type
+    # whose module has since moved (engine/work.py became geometry/work.py): that entry is
+    # compiled again and written over, where numba's own index raises
+    from numba.core.caching import IndexDataCacheFile
+
+    def index(kind):
+        return kind(cache_path=str(tmp_path), filename_base="kernel-1.py311", source_stamp=("stamp", 1))
+
+    def write_entry_naming(module):
+        with open(index(IndexDataCacheFile)._index_path, "wb") as f:
+            pickle.dump(index(IndexDataCacheFile)._version, f, protocol=-1)
+            f.write(f"c{module}\nThing\n.".encode())        # a pickle of a class in that module
+
+    write_entry_naming("raykernel_moved_away")
+    with pytest.raises(ModuleNotFoundError):
+        index(IndexDataCacheFile).load("key")
+    tolerant = index(cachekey._TolerantIndex)
+    assert tolerant.load("key") is None
+    tolerant.save("key", {"compiled": 1})
+    assert index(cachekey._TolerantIndex).load("key") == {"compiled": 1}
+    assert index(IndexDataCacheFile).load("key") == {"compiled": 1}       # written over: numba reads it again
+    data = tmp_path / next(p.name for p in tmp_path.iterdir() if p.suffix == ".nbc")
+    data.write_bytes(b"craykernel_moved_away\nThing\n.")
+    assert index(cachekey._TolerantIndex).load("key") is None               # a data file naming it: a miss too
+
+
 def test_kernels_cache_in_raykernels_folder_and_other_numba_code_in_numbas():
     saved = numba.config.CACHE_DIR
 
@@ -243,9 +271,9 @@ def test_a_private_kernel_may_not_allocate():
 def test_the_kernels_inner_loops_count_no_references():
     # what kernels call per ray, per candidate or per pixel with arrays borrows them (or is inlined):
     # reference counts there are atomics the threads fight over (they took half the time of a query)
-    from raykernel.aggregates import bvhwalk, collect, csg, grid, octpoint, octwalk, rcbuild, rcwalk
+    from raykernel.aggregates import bvhwalk, collect, csg, grid, octpoint, octwalk, rcbuild, rcwalk, widewalk
     from raykernel.casting import meshcast, proximity, rayqueries
-    from raykernel.engine import transforms, traverse, widewalk
+    from raykernel.engine import transforms, traverse
     from raykernel.geometry import primitives
     from raykernel.rendering import hall, heckbert, render, sampling, startlists, tricks, whitted
 

@@ -4,13 +4,13 @@ Collected from README.md and docs/ (getting started, the guide, the newsletter p
 but the generated benchmark pages and the code fragments of adding-a-kind.md): each line of a
 code block that starts with `raykernel ` (continued over `\\` line ends), and each ```python
 block. A command runs through the command line's main() in a folder holding the files the docs
-name (model.obj, scene.nff, bunny.ply, examples/orbit.json), made smaller by the rules of SMALL
+name (model.obj, scene.nff, bunny.ply, rays.npz, examples/orbit.json), made smaller by the rules of SMALL
 (size factors, resolutions, frame counts, annealing seconds); a Python block runs with the names
 it leaves to the reader (vertices, faces, origins, directions, points, batches, placements)
-bound to a small mesh and rays. Each fails on an exception, a non-zero status, or a warning that
-is not raykernel's own. A command that serves until stopped (SERVERS: `raykernel explore`) runs as
-a process on a free port: it passes when it prints its address on a line of its own and that
-page answers.
+bound to a small mesh and rays; rays.npz holds rays for the cast commands. Each fails on an exception, a
+non-zero status, or a warning that is not raykernel's own. A command that serves until stopped
+(SERVERS: `raykernel explore`) runs as a process on a free port: it passes when it prints its
+address on a line of its own and that page answers.
 """
 
 from __future__ import annotations
@@ -107,6 +107,9 @@ def folder(tmp_path_factory):
     for name in ("bunny.ply", "bunny.obj", "model.obj"):
         mesh.export(here / name)
     assert main(["spd", "tetra", "--size", "1", "-o", str(here / "scene.nff")]) == 0
+    rng = np.random.default_rng(5)      # the rays the cast commands read (a Python block shows writing them)
+    origins = rng.uniform(-3, 3, (300, 3))
+    np.savez(here / "rays.npz", origins=origins, directions=-origins)
     return here
 
 

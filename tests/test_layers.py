@@ -66,3 +66,13 @@ def test_no_function_is_over_150_lines():
                 long.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}: "
                             f"{node.end_lineno - node.lineno + 1} lines")
     assert not long, "\n".join(long)
+
+
+def test_the_engine_names_no_kind():
+    # the engine reaches the aggregates through the registry and the modules every kind shares (the
+    # walk contract, operators' crossings, lazy sets, memory, specs), never through a kind's own
+    shared = {"registry", "walk", "collect", "lazyset", "memory", "spec"}
+    engine = {(a, b.split(".")[2], line) for a, b, _, line in EDGES
+              if a.startswith("raykernel.engine.") and b.startswith("raykernel.aggregates.")}
+    assert "registry" in {b for _, b, _ in engine}
+    assert not [f"{a}:{line} imports aggregates.{b}" for a, b, line in engine if b not in shared]

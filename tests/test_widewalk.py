@@ -1,4 +1,4 @@
-"""The fast walk of a scene that is one BVH over primitives (engine/widewalk.py).
+"""The fast walk of a scene that is one BVH over primitives (aggregates/widewalk.py).
 
 It must answer every query exactly as the general driver does on the same tree (bvh(width=2)
 keeps the general driver), and as the brute-force reference: the same primitive and the same
@@ -80,7 +80,7 @@ def test_kernels_given_a_wide_geometry_compile_no_general_driver():
 
     from raykernel.engine.flatten import Geometry
     from raykernel.engine.traverse import CLOSEST, CLOSEST_EAGER
-    from raykernel.engine.widewalk import wide_only, with_driver
+    from raykernel.aggregates.widewalk import wide_only, with_driver
 
     wide, _ = flatten(random_scene(1), "bvh")
     general, _ = flatten(random_scene(1), "bvh(width=2)")

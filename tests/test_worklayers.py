@@ -12,7 +12,7 @@ import pytest
 
 from raykernel.aggregates import registry
 from raykernel.aggregates.memory import MemoryBudgetError
-from raykernel.engine.work import FIGURES, RAY_TYPES
+from raykernel.geometry.work import FIGURES, RAY_TYPES
 from raykernel.errors import OptionError
 from raykernel.rendering import worklayers
 from raykernel.rendering.render import render

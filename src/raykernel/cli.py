@@ -4,6 +4,7 @@
     raykernel render scene.nff --stats-json stats.json --threads 2
     raykernel accels
     raykernel spd teapot --size 12 -o teapot.nff
+    raykernel cast model.obj --rays rays.npz --out hits.zarr --fields t,prim_id
 
 Errors a user can fix are printed as one line (no traceback) with exit status 2.
 """
@@ -40,15 +41,19 @@ def _default_output(scene_arg: str) -> str:
 
 
 class _Progress:
-    """A rich progress bar that appears only once a render has run for a second."""
+    """A rich progress bar that appears only once a render has run for a second; with `unit` (say
+    "rays"), it shows the rate of what was done since its first report (a resumed cast's earlier
+    chunks are not counted in the rate)."""
 
-    def __init__(self, console, label: str, compiling: bool = False):
+    def __init__(self, console, label: str, compiling: bool = False, unit: str | None = None):
         self.console = console
         self.label = label
         self.start = time.perf_counter()
         self.bar = None
         self.task = None
         self.status = None
+        self.unit = unit
+        self.first = None       # (time, done) of the first report
         if compiling:
             # the first call compiles before any pass ends: a spinner until the bar can take over
             self.status = console.status(f"{label}: compiling kernels", spinner="dots")
@@ -58,16 +63,22 @@ class _Progress:
         if self.status is not None:
             self.status.stop()
             self.status = None
+        now = time.perf_counter()
+        if self.first is None:
+            self.first = (now, done)
         if self.bar is None:
-            if time.perf_counter() - self.start < 1.0 or done >= total:
+            if now - self.start < 1.0 or done >= total:
                 return
             from rich.progress import BarColumn, Progress, TimeElapsedColumn, TimeRemainingColumn
+            rate = ("{task.fields[rate]}",) if self.unit else ()
             self.bar = Progress("[progress.description]{task.description}", BarColumn(),
-                                "{task.percentage:>3.0f}%", TimeElapsedColumn(), TimeRemainingColumn(),
+                                "{task.percentage:>3.0f}%", *rate, TimeElapsedColumn(), TimeRemainingColumn(),
                                 console=self.console, transient=True)
             self.bar.start()
-            self.task = self.bar.add_task(self.label, total=total)
-        self.bar.update(self.task, completed=done)
+            self.task = self.bar.add_task(self.label, total=total, rate="")
+        seconds = now - self.first[0]
+        rate = f"{(done - self.first[1]) / seconds / 1e6:.2f} M{self.unit}/s" if self.unit and seconds > 0 else ""
+        self.bar.update(self.task, completed=done, rate=rate)
 
     def close(self):
         if self.status is not None:
@@ -217,8 +228,8 @@ def _trace_options(args) -> dict:
 
 
 @contextlib.contextmanager
-def _cluster(args, console):
-    """The Dask cluster of --dask (its workers' kernels compiled or loaded first), else None."""
+def _cluster(args, console, warm: bool = True):
+    """The Dask cluster of --dask (its workers' render kernels compiled or loaded first, if `warm`), else None."""
     if getattr(args, "dask", None) is None:
         yield None
         return
@@ -227,12 +238,52 @@ def _cluster(args, console):
     with Cluster(args.dask) as cluster:
         console.print(f"Dask: {cluster.workers} worker(s) at {cluster.client.scheduler.address}", markup=False,
                       highlight=False)
+        if not warm:
+            yield cluster
+            return
         if first_run():
             console.print("Compiling raykernel's kernels on the workers: first run after install only, tens "
                           "of seconds or more; later runs start from the cache.", markup=False,
                           highlight=False)
         cluster.warm_up({"threads": args.threads} if getattr(args, "threads", None) else {})
         yield cluster
+
+
+def cmd_cast(args, console) -> int:
+    from .casting.castfile import cast_file
+    from .casting.rayfiles import open_rays, result_format
+    from .casting.rayqueries import field_names
+    from .casting.rayscene import RayScene
+    from .scene.loading import load
+    from .scene.meshfile import SUFFIXES
+    # refuse what would fail after the build before it
+    open_rays(args.rays)
+    result_format(args.out)
+    fields = field_names([f.strip() for f in args.fields.split(",") if f.strip()])
+    if Path(args.scene).suffix.lower() in SUFFIXES:
+        scene = RayScene.from_file(args.scene, accel=args.accel, max_memory=args.max_memory)
+    else:
+        scene = RayScene(load(args.scene), accel=args.accel or "bvh", max_memory=args.max_memory)
+    progress = _Progress(console, f"casting {args.rays}", unit="rays")
+    try:
+        with _cluster(args, console, warm=False) as cluster:
+            report = cast_file(scene, args.rays, args.out, fields=fields, dtype=args.dtype, threads=args.threads,
+                               max_memory=args.max_memory, cluster=cluster, progress=progress, chunk=args.chunk)
+    except KeyboardInterrupt:
+        progress.close()
+        sys.stderr.write(f"raykernel: interrupted; the chunks written to {args.out} are whole and kept, and the "
+                         f"same command goes on from them\n")
+        return 130
+    finally:
+        progress.close()
+    log = lambda line: console.print(line, markup=False, highlight=False, soft_wrap=True)     # noqa: E731
+    log(f"{args.rays}: {report.rays:,} rays in {report.chunks:,} chunk(s) of {report.chunk:,}; cast {report.cast:,} "
+        f"now ({report.skipped:,} chunk(s) written before) in {report.seconds:.2f} s, "
+        f"{report.rays_per_second / 1e6:.2f} Mrays/s -> {args.out}")
+    for name, w in sorted(report.workers.items()):
+        log(f"  {name}: kernels compiled {w['compile']:.2f} s, loaded {w['load']:.2f} s; cast {w['rays']:,} rays "
+            f"({w['chunks']} chunk(s)) in {w['cast']:.2f} s")
+    return 0
 
 
 def cmd_animate(args, console) -> int:
@@ -552,6 +603,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     _add_render(sub)
     _add_explain(sub)
+    _add_cast(sub)
     _add_others(sub)
     _add_explore(sub)
     return parser
@@ -569,6 +621,31 @@ def _add_explore(sub) -> None:
     ex.add_argument("--settings", metavar="FILE", help="open with the settings the page's export wrote")
     ex.add_argument("--max-memory", help="memory budget of every build and render, e.g. 8G")
     ex.set_defaults(func=cmd_explore)
+
+
+def _add_cast(sub) -> None:
+    c = sub.add_parser("cast", help="cast the rays of a file at a scene and write their hits to a file, a chunk at "
+                       "a time (any number of rays in bounded memory; the same command resumes a stopped cast)")
+    c.add_argument("scene", help=SCENE_HELP)
+    c.add_argument("--rays", required=True, help="the rays: .npz (origins, directions, optionally tmin, tmax; "
+                   "np.savez), .npy (N, 6), a .zarr group with the .npz's arrays, or .parquet (columns ox, oy, oz, "
+                   "dx, dy, dz, optionally tmin, tmax)")
+    c.add_argument("--out", required=True, help="the hits: a .zarr group (one array a field) or a .parquet folder "
+                   "(one file a chunk)")
+    c.add_argument("--fields", default="t,prim_id", help="the Hits fields to write, comma-separated (default "
+                   "t,prim_id; also geom_id, inst_id, kind, uv, normal, shading_normal)")
+    c.add_argument("--dtype", choices=["float64", "float32"], default="float64", help="float32: float32 t, uv and "
+                   "normals and int32 ids (default float64)")
+    c.add_argument("--accel", help="accelerator spec (default: a model file's own mesh build, bvh for a scene)")
+    c.add_argument("--chunk", type=_positive_int, help="rays a chunk (default: castfile.DEFAULT_CHUNK, fewer if the "
+                   "memory budget needs it; a resumed cast keeps its own)")
+    c.add_argument("--threads", type=_positive_int, help="threads a chunk (default: all cores; on local:N a "
+                   "worker's share)")
+    c.add_argument("--max-memory", help="memory budget of the build and of the chunks at work, e.g. 2G")
+    c.add_argument("--dask", metavar="ADDRESS", help="cast the chunks on Dask: local[:N] starts N worker processes "
+                   "on this machine, tcp://HOST:PORT joins a running scheduler whose workers reach the files at the "
+                   "same paths (pip install 'raykernel[cast]')")
+    c.set_defaults(func=cmd_cast)
 
 
 def _add_trace_options(r) -> None:

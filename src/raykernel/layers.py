@@ -17,9 +17,10 @@ from pathlib import Path
 # scene names its structures by spec, which its readers check against the aggregates' registry.
 LAYERS = (
     ("geometry", ("geometry", "errors", "options", "atomicfile", "layers"),
-     "primitives and their tests, boxes, counters, the kernel decorator and its cache, kernels on threads; "
-     "errors, option checks"),
-    ("aggregates", ("aggregates",), "one module per kind of structure: its builder, layout and walk; the registry"),
+     "primitives and their tests, the hit rule, boxes, counters and work records, the kernel decorator and its "
+     "cache, kernels on threads; errors, option checks"),
+    ("aggregates", ("aggregates",), "one module per kind of structure: its builder, layout and walk (the BVH's walk of a whole scene "
+     "too); the registry"),
     ("scene", ("scene",), "the scene model, NFF and JSON readers and writers, SPD and pathological generators"),
     ("engine", ("engine",), "flat arrays from a scene, the intersection driver, instances"),
     ("rendering, casting", ("rendering", "casting", "trimesh"),

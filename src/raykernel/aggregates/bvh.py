@@ -28,6 +28,7 @@ from ..geometry.boxes import cull_margin
 from ..geometry.primitives import PRIMITIVE_KINDS
 from .bvhbuild import build_bvh, refit_moved
 from .bvhtree import BVHArrays
+from . import widewalk
 from .bvhwalk import CODE, walk_step
 from .spec import Kind, Param, Search
 from .walk import MAX_TREE_DEPTH, Cells, Field, Walk
@@ -59,7 +60,7 @@ def append_bvh(flat, tree: BVHArrays, refs, box, margin: float) -> int:
 
 
 def walked_wide(stats) -> bool:
-    """Whether a render's rays took the 4-wide walk (engine/widewalk.py): its scene was one BVH of
+    """Whether a render's rays took the 4-wide walk (aggregates/widewalk.py): its scene was one BVH of
     width 4 over primitives, and its closest-hit searches were lazy about normals (with eager
     normals they take the general walk)."""
     aggregates = getattr(stats, "aggregates", [])
@@ -229,6 +230,6 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
           int, 1, 64),
     Param("width", 4, "children per node where the ray is cast: 4 collapses the binary tree into 4-wide "
           "nodes tested with one vector slab test (widebvh.py), 2 walks the binary tree; RayScene's mesh "
-          "kernel and the fast walk of a scene that is one BVH over primitives (engine/widewalk.py) use it, "
+          "kernel and the fast walk of a scene that is one BVH over primitives (aggregates/widewalk.py) use it, "
           "a BVH nested with other aggregates is walked binary", int, choices=(2, 4)),
-), flatten=flatten, walk=WALK, refit=refit_aggregate, search=SEARCH)
+), flatten=flatten, walk=WALK, refit=refit_aggregate, search=SEARCH, scene_walk=widewalk)

@@ -8,7 +8,7 @@ CODE is the walk's code: an aggregate's agg_kind in the flat arrays (bvh.append_
 and the walk every stack entry of a BVH is tagged with (entry_tag(CODE, START): a node to
 descend from, entered at stack_t). bvh.py declares the walk (WALK) with it; the mesh kernel
 (casting/meshcast.py) calls descend itself, and the 4-wide walk (widebvh.py) takes this one's place
-in a scene that is one BVH of width 4 over primitives (engine/widewalk.py, bvh.walked_wide).
+in a scene that is one BVH of width 4 over primitives (aggregates/widewalk.py, bvh.walked_wide).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ or polygon) in the workspace's crossing buffer instead of offering a hit.
 When the frame ends, the driver calls the kind's resolve, which rewrites the
 frame's rows (from SLOT_REGION on) as the operator's own surfaces, and
 offers them to the enclosing sink or, from the outermost, to the hit rule
-(a hit flagged OPERATOR_SURFACE, engine/hitrule.py).
+(a hit flagged OPERATOR_SURFACE, geometry/hitrule.py).
 
 The crossing buffer (workspace rows): buf_t (t), buf_i (COLUMNS: operand,
 kind, index, instance, flip, root), buf_m (the world-to-local map of the

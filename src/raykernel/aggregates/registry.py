@@ -54,6 +54,10 @@ WALK_COUNTERS = tuple(c for w in WALKS for c in w.counters)
 LAZY_KINDS = tuple(k for k in KINDS.values() if k.lazy is not None)
 EMPTY = bruteforce.KIND         # what an aggregate with no items is stored as, whatever its kind
 DEFAULT = bvh.KIND.name         # the structure of groups that name none (render's accel="bvh")
+SCENE_WALKS = tuple(k.scene_walk for k in KINDS.values() if k.scene_walk is not None)
+if len(SCENE_WALKS) != 1:
+    raise ImportError("registry: one kind declares the walk of a whole scene (spec.Kind.scene_walk)")
+SCENE_WALK = SCENE_WALKS[0]     # the engine hands it every scene that is one such aggregate (engine/traverse.py)
 OPERATORS = tuple(w for w in WALKS if w.resolve is not None)
 if len(OPERATORS) > 1:
     raise ImportError("registry: the driver counts one operator walk's crossings (collect.py)")

@@ -94,7 +94,9 @@ class Kind:
     group's children, one reference each, never merged; in a JSON scene an item {name: {list:
     [items], ...}} for each of operand_lists, its operands their items in order, its group's spec
     operand_spec(the lists' lengths) (None: the kind's name), at most max_operands of them (0: no
-    limit)."""
+    limit). scene_walk: a module that walks a whole scene that is one aggregate of this kind over
+    primitives faster than the driver can (aggregates/widewalk.py: NO_WALK, prepare, walks, intersect,
+    alone, with_driver, count_misses); one kind declares one (the registry holds it to that), and the engine hands it such scenes."""
     name: str
     help: str
     params: tuple = ()
@@ -107,6 +109,7 @@ class Kind:
     operand_lists: tuple = ("items",)
     operand_spec: object = field(default=None, compare=False)
     max_operands: int = 0
+    scene_walk: object = field(default=None, compare=False)
 
     def defaults(self) -> dict:
         return {p.name: p.default for p in self.params}

@@ -170,7 +170,7 @@ def one_cell(box, first: int, count: int) -> Cells:
 
 def note_visit(work, code, key):
     """A walk of code `code` enters its cell or node `key` (as its Cells give the key): counted
-    when a render measures how rays use the structure (engine/work.py, Use); nothing otherwise,
+    when a render measures how rays use the structure (geometry/work.py, Use); nothing otherwise,
     and without work layers nothing is compiled."""
 
 
@@ -186,7 +186,7 @@ def _note_visit(work, code, key):
 
     def visit(work, code, key):
         use = work.use
-        if use.state[1] == 0:       # not paused (engine/work.py: Use.state, NOTED and PAUSED)
+        if use.state[1] == 0:       # not paused (geometry/work.py: Use.state, NOTED and PAUSED)
             row = use.offset[code] + key
             use.counts[row, 0] += 1
             use.state[0] = row
@@ -229,14 +229,14 @@ class Workspace(NamedTuple):
                             # an interval: a k-d tree's far child); the driver neither writes nor reads it
     frame_f: np.ndarray     # the frames
     frame_i: np.ndarray
-    hit_f: np.ndarray       # the hit record (engine/hitrule.py)
+    hit_f: np.ndarray       # the hit record (geometry/hitrule.py)
     hit_i: np.ndarray
     buf_t: np.ndarray       # the operators' crossing buffer (collect.py)
     buf_i: np.ndarray
     buf_m: np.ndarray
     buf_n: np.ndarray
     t4: np.ndarray          # the 4-wide walk's entry distances (widebvh.py)
-    work: object            # None, or what a render asked for work layers keeps per sample (engine/work.py)
+    work: object            # None, or what a render asked for work layers keeps per sample (geometry/work.py)
 
 
 @njit(inline="always")

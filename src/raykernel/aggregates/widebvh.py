@@ -366,7 +366,7 @@ def leaf_range(nodes, entry):
 @njit(inline="always")
 def next_leaf(nodes, ox, oy, oz, ix, iy, iz, near, tmin, best_t, t4, stack, stack_t, sp, n_nodes, n_bounds):
     """The 4-wide walk, one stack entry at a time (every caller's: the fast render walk,
-    engine/widewalk.py, and the mesh kernel, casting/meshcast.py): pop the top entry and, unless
+    aggregates/widewalk.py, and the mesh kernel, casting/meshcast.py): pop the top entry and, unless
     it was entered beyond the closest hit best_t (beyond rounding: ties need the node), go down
     the nearest children to a leaf the ray enters. Returns (that leaf as visit names it, or
     NO_CHILD; sp; n_nodes and n_bounds with the nodes visited and child boxes tested added).

@@ -1,6 +1,6 @@
 """A triangle mesh's 4-wide BVH built straight from its arrays, for RayScene.from_mesh.
 
-    mesh, stats = build_mesh(vertices, faces, normals=None, quality="medium", edges=WATERTIGHT)
+    mesh, stats = build_mesh(vertices, faces, normals=None, quality="medium", edges=WATERTIGHT, single=False)
     # mesh: a meshcast.MeshKernel; stats: seconds, bytes, bytes_per_triangle, sah_cost, nodes, ...
 
 Why: a scene's general build (engine/flatten.py) copies the triangles into
@@ -15,7 +15,9 @@ face arrays alone, which it reads but does not copy:
 * the tree collapsed 4-wide, its boxes widened by the culling margin a
   scene's BVH gets (boxes.cull_margin) and rounded outwards to float32
   (widebvh.py, 128 bytes a node), its leaves' triangles in float64 blocks of four
-  (triangles4.py, 288 bytes a block, and 4 bytes a lane naming the triangle);
+  (triangles4.py, 288 bytes a block, and 4 bytes a lane naming the triangle), or
+  float32 blocks (144 bytes) for a mesh of precision "single", whose corners are
+  float32 numbers (raybuild.py rounds them);
 * a bool a triangle (smooth shading where vertex normals are given).
 
 The binary tree and the build's temporaries are dropped once the wide tree
@@ -84,9 +86,10 @@ def _triangle_data(verts, faces, data, i0, i1):
 
 
 def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, quality: str, edges: int,
-               threads: int | None = None) -> tuple[MeshKernel, dict]:
+               threads: int | None = None, single: bool = False) -> tuple[MeshKernel, dict]:
     """The mesh kernel's arrays for one mesh: verts (V, 3) float64 and faces (F, 3) int64, both
-    C-contiguous and checked, normals (V, 3) float64 or None; quality one of QUALITY."""
+    C-contiguous and checked, normals (V, 3) float64 or None; quality one of QUALITY; single:
+    every vertex coordinate is a float32 number, and the blocks are stored in float32."""
     t0 = time.perf_counter()
     n = len(faces)
     # a line for big builds that take more than a second, and their time at the end (not for a
@@ -97,7 +100,7 @@ def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
     if n >= PROGRESS_TRIANGLES:
         slow.start()
     try:
-        mesh, stats = _build_mesh(verts, faces, normals, quality, edges, threads, n, t0)
+        mesh, stats = _build_mesh(verts, faces, normals, quality, edges, threads, n, t0, single)
     except SystemError as e:        # Ctrl-C met while numba was loading a kernel: wrapped, said as it is
         if interrupted(e):
             raise KeyboardInterrupt from None
@@ -110,7 +113,7 @@ def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
     return mesh, stats
 
 
-def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
+def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0, single):
     with CompileClock(notice=compile_notice("meshbuild", _COMPILING), after=0.0):
         data = np.empty((n, ROW_COLUMNS))
         found = []
@@ -139,7 +142,7 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
         wide, cost = collapse(bounds, first, count, 0, margin)
         cost = cost if n else 0.0
         del bounds, first, count
-        wide, blocks, lanes = wide_leaves(wide, verts, faces, order, threads)
+        wide, blocks, lanes = wide_leaves(wide, verts, faces, order, threads, np.float32 if single else np.float64)
     del order
     smooth = normals is not None
     arrays = MeshArrays(agg_bounds=np.r_[box[:3] - margin, box[3:] + margin].reshape(1, 6), root=0,
@@ -150,7 +153,7 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0):
                         node_count=np.zeros(0, np.int64))
     mesh = MeshKernel(arrays, NO_CORNERS, lanes, np.array([0, n], np.int64), 0, wide, blocks)
     seconds = time.perf_counter() - t0
-    stats = {"quality": quality, "triangles": n, "seconds": seconds, "wide_nodes": len(wide.nodes),
+    stats = {"quality": quality, "precision": "single" if single else "double", "triangles": n, "seconds": seconds, "wide_nodes": len(wide.nodes),
              "lanes": len(lanes), "max_depth": int(depth), "sah_cost": float(cost), "bytes": mesh.nbytes,
              "bytes_per_triangle": mesh.nbytes / max(n, 1)}
     return mesh, stats

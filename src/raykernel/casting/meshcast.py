@@ -129,13 +129,14 @@ NO_CORNERS = np.zeros((0, 9))
 NO_BLOCKS = np.zeros((0, COLUMNS))
 
 
-def wide_leaves(wide: WideBVH, verts, faces, prims, threads=None) -> tuple[WideBVH, np.ndarray, np.ndarray]:
+def wide_leaves(wide: WideBVH, verts, faces, prims, threads=None, dtype=np.float64) -> tuple[WideBVH, np.ndarray, np.ndarray]:
     """The 4-wide tree's leaves in blocks (triangles4.leaf_blocks), the tree's leaf children
-    changed in place from first reference to first lane: (wide, blocks, lane triangles)."""
+    changed in place from first reference to first lane: (wide, blocks, lane triangles).
+    dtype: the blocks' (triangles4.leaf_blocks)."""
     count = wide.nodes[:, COUNT:COUNT + 4]
     leaves = count > 0
     child = wide.nodes[:, CHILD:CHILD + 4]
-    blocks, lanes, start = leaf_blocks(verts, faces, prims, child[leaves], count[leaves], threads)
+    blocks, lanes, start = leaf_blocks(verts, faces, prims, child[leaves], count[leaves], threads, dtype)
     if len(start) and start[-1] >= 2 ** 31:
         raise SceneError(f"the 4-wide mesh kernel holds at most 2**31 - 1 triangle lanes; this mesh needs "
                          f"{int(start[-1]):,}: use bvh(width=2)")

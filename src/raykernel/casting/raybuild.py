@@ -29,6 +29,7 @@ from .meshcast import MESH_ACCEL, MeshKernel
 from .rayinput import RayInputError, real_array
 
 EDGE_RULES = {"watertight": WATERTIGHT, "inclusive": INCLUSIVE}
+PRECISIONS = ("double", "single")
 KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone", TRIANGLE: "triangle"}
 
 
@@ -67,27 +68,30 @@ def start(rs, scene: Scene, accel: str, max_memory, edges: str) -> None:
 
 
 def from_trimesh(cls, mesh, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
-                 max_memory=None):
+                 max_memory=None, precision: str = "double"):
     """RayScene.from_trimesh: a RayScene of a trimesh.Trimesh, or of any object with ``.vertices`` and ``.faces``."""
     if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
         raise RayInputError(f"expected a mesh with .vertices and .faces, got {type(mesh).__name__}")
     return cls.from_mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), accel=accel, edges=edges,
-                         quality=quality, max_memory=max_memory)
+                         quality=quality, max_memory=max_memory, precision=precision)
 
 
 def from_file(cls, path, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
-              max_memory=None):
+              max_memory=None, precision: str = "double"):
     """RayScene.from_file: a RayScene of the triangles of a model file, every mesh of it in one."""
     from ..scene.meshfile import mesh_arrays
     vertices, faces = mesh_arrays(path)
-    return cls.from_mesh(vertices, faces, accel=accel, edges=edges, quality=quality, max_memory=max_memory)
+    return cls.from_mesh(vertices, faces, accel=accel, edges=edges, quality=quality, max_memory=max_memory,
+                         precision=precision)
 
 
 def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None, edges: str = "watertight",
-              quality: str = "medium", max_memory=None, threads: int | None = None):
+              quality: str = "medium", max_memory=None, threads: int | None = None, precision: str = "double"):
     """RayScene.from_mesh: a RayScene of a triangle mesh."""
+    if precision not in PRECISIONS:
+        raise RayInputError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if faces is None and hasattr(vertices, "vertices") and hasattr(vertices, "faces"):
-        return cls.from_trimesh(vertices, accel, edges, quality, max_memory)
+        return cls.from_trimesh(vertices, accel, edges, quality, max_memory, precision)
     if faces is None:
         raise RayInputError(f"from_mesh needs faces, or a mesh object with .vertices and .faces "
                             f"(got a {type(vertices).__name__})")
@@ -115,6 +119,9 @@ def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None,
         raise RayInputError(f"quality must be one of {', '.join(QUALITY)}, got {quality!r}")
     v = np.ascontiguousarray(v, np.float64)
     f = np.ascontiguousarray(f, np.int64)
+    single = precision == "single"
+    if single:
+        v = single_vertices(v, f)
     n = None if n is None else np.ascontiguousarray(n, np.float64)
     scene = Scene()
     scene.root.add(TriangleMesh(v, f, normals=n))
@@ -124,13 +131,32 @@ def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None,
     start(rs, scene, MESH_ACCEL, max_memory, edges)      # the Geometry, if ever built: the medium tree
     check(len(f) * BUILD_BYTES, rs._limit, f"building a BVH over {len(f):,} triangles", "build a smaller mesh")
     rs._geo = None
-    rs._mesh, rs.build_stats = build_mesh(v, f, n, quality, EDGE_RULES[edges], threads)
+    rs._mesh, rs.build_stats = build_mesh(v, f, n, quality, EDGE_RULES[edges], threads, single)
     rs.build_stats["aggregates"] = [dict(rs.build_stats, kind="bvh", spec=QUALITY[quality])]
     rs.geometries = [{"kind": "triangle", "count": len(f)}]
     rs._geom_of = {TRIANGLE: (np.array([0]), np.array([0]))}
     rs._may_repeat = edges == "inclusive"
     rs._lazy = None
     return rs
+
+
+def single_vertices(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """The vertices of a mesh of precision "single": each coordinate rounded to the nearest float32
+    number (held in float64, so every query reads the same numbers the float32 blocks hold). A
+    RayInputError where the rounding makes two different corners of a triangle one point: the
+    triangle is smaller than float32 resolves where it lies."""
+    r = v.astype(np.float32).astype(np.float64)
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        a, b = f[:, i], f[:, j]
+        collapsed = np.all(r[a] == r[b], axis=1) & np.any(v[a] != v[b], axis=1)
+        if collapsed.any():
+            t = int(np.flatnonzero(collapsed)[0])
+            size = float(np.max(np.abs(v[a[t]] - v[b[t]])))
+            where = float(np.max(np.abs(v[a[t]])))
+            raise RayInputError(f"precision='single': triangle {t} is smaller than float32 resolves where it lies "
+                                f"(corners {size:.3g} apart at {where:.3g} from the origin round to one point); "
+                                f"use precision='double'")
+    return r
 
 
 def from_spheres(cls, centers, radii, accel: str = "bvh"):

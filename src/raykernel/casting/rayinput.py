@@ -68,11 +68,11 @@ def vectors(value, name: str, finite: bool = True) -> np.ndarray:
     return arr
 
 
-def _finite(arr: np.ndarray, name: str) -> None:
+def _finite(arr: np.ndarray, name: str, offset: int = 0) -> None:
     if not np.isfinite(arr).all():        # (whole-array test first: reductions along rows are slow)
         flat = arr.reshape(-1, 3)
         i = int(np.flatnonzero(~np.all(np.isfinite(flat), axis=1))[0])
-        raise RayInputError(f"{name}[{i}] is not finite: {flat[i].tolist()}")
+        raise RayInputError(f"{name}[{offset + i}] is not finite: {flat[i].tolist()}")
 
 
 def _interval(value, name: str, shape: tuple) -> np.ndarray:
@@ -135,23 +135,24 @@ def _plain(origins, directions) -> bool:
             and origins.shape[1] == 3 and origins.flags.c_contiguous and directions.flags.c_contiguous)
 
 
-def check_ray_values(o: np.ndarray, d: np.ndarray) -> None:
+def check_ray_values(o: np.ndarray, d: np.ndarray, offset: int = 0) -> None:
     """Raise RayInputError naming the first ray (of check_rays' flat arrays) that is not finite, has
-    a zero direction or lies outside the range raykernel answers: what valid_ray refuses in the kernels."""
-    _finite(o, "origins")
-    _finite(d, "directions")
+    a zero direction or lies outside the range raykernel answers: what valid_ray refuses in the kernels.
+    offset: the number of the first row, where these rays are a part of a larger batch."""
+    _finite(o, "origins", offset)
+    _finite(d, "directions", offset)
     zero = (d[:, 0] == 0.0) & (d[:, 1] == 0.0) & (d[:, 2] == 0.0)
     if zero.any():
-        raise RayInputError(f"directions[{int(np.flatnonzero(zero)[0])}] has zero length")
+        raise RayInputError(f"directions[{offset + int(np.flatnonzero(zero)[0])}] has zero length")
     far = np.any(np.abs(o) > MAX_COORDINATE, axis=1)
     if far.any():
         i = int(np.flatnonzero(far)[0])
-        raise RayInputError(f"origins[{i}] {o[i].tolist()} lies beyond +-{MAX_COORDINATE:g}, the range raykernel "
+        raise RayInputError(f"origins[{offset + i}] {o[i].tolist()} lies beyond +-{MAX_COORDINATE:g}, the range raykernel "
                             f"answers exactly")
     longest = np.max(np.abs(d), axis=1)
     odd = (longest < MIN_SIZE) | (longest > MAX_COORDINATE)
     if odd.any():
         i = int(np.flatnonzero(odd)[0])
-        raise RayInputError(f"directions[{i}] {d[i].tolist()}: its largest component must lie between {MIN_SIZE:g} "
+        raise RayInputError(f"directions[{offset + i}] {d[i].tolist()}: its largest component must lie between {MIN_SIZE:g} "
                             f"and {MAX_COORDINATE:g} (scale the direction; only its way matters)")
 

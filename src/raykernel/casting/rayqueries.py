@@ -185,7 +185,7 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
                           uv_out, gn_out, sn_out, hit_i[3])
 
 
-def _field_names(fields) -> tuple:
+def field_names(fields) -> tuple:
     """intersect's fields= as names of HIT_FIELDS in their order, t among them."""
     names = (fields,) if isinstance(fields, str) else tuple(fields)
     for name in names:
@@ -314,7 +314,7 @@ def _output_bytes(rs, fields=None, dtype="float64") -> int:
     """The bytes a ray's outputs take: the fields asked for, and the general kernel's identities."""
     fdt, idt = DTYPES.get(dtype, DTYPES["float64"])
     per = sum(np.dtype(fdt if name in FLOAT_FIELDS else idt).itemsize * math.prod(FIELD_COLUMNS.get(name, ()))
-              for name in (HIT_FIELDS if fields is None else _field_names(fields)))
+              for name in (HIT_FIELDS if fields is None else field_names(fields)))
     return per + (0 if rs._mesh is not None else 16)
 
 
@@ -322,7 +322,7 @@ def _outputs(rs, shape: tuple, fields=None, dtype="float64", out=None) -> tuple[
     """(the kernel's output arrays by OUTPUTS name, the Hits fields asked for by name): the
     fields' arrays come from `out` (a Hits) or are new; what nobody asked for has no rows.
     The general kernel writes kind and global index (int64) for _identify, apart."""
-    fields = HIT_FIELDS if fields is None else _field_names(fields)
+    fields = HIT_FIELDS if fields is None else field_names(fields)
     if dtype not in DTYPES:
         raise RayInputError(f"dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
     fdt, idt = DTYPES[dtype]

@@ -6,6 +6,7 @@
     ray, t, prim = scene.intersect_all(origins, directions)
     hits = scene.intersect(origins, directions, fields=("t", "prim_id"), dtype="float32")   # only what you need
     scene.intersect(origins, directions, fields=("t", "prim_id"), dtype="float32", out=hits)   # into those arrays
+    hits = scene.intersect(da_origins, da_directions)    # dask arrays in: a Hits of dask arrays, cast chunk by chunk
 
 Rays are rows of (N, 3) arrays (a single (3,) row is broadcast against the
 other argument); directions need not be unit length, t is measured in units
@@ -36,8 +37,9 @@ already round a vertex by more than the smallest feature.
 The class holds the API and the state every query reads; the code it runs
 lives by concern: building (raybuild.py, meshes straight into meshbuild.py's
 arrays), ray queries and their kernel (rayqueries.py, the mesh kernel in
-meshcast.py), point queries (proximity.py, winding.py, occupancy.py), and the
-checks of what users pass in (rayinput.py: RayInputError).
+meshcast.py), point queries (proximity.py, winding.py, occupancy.py), the
+checks of what users pass in (rayinput.py: RayInputError), and the same
+queries on dask arrays (daskcast.py, reached only when an argument is one).
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ import numpy as np
 from ..engine.flatten import flatten
 from ..geometry.primitives import CONE, PATCH, POLYGON, SPHERE, TRIANGLE
 from ..scene.model import Scene
-from . import proximity, raybuild, rayqueries
+from . import daskcast, proximity, raybuild, rayqueries
 from .proximity import ClosestPoints
 from .raybuild import EDGE_RULES
 from .rayinput import RayInputError
@@ -62,7 +64,9 @@ __all__ = ["Hits", "RayInputError", "RayScene"]
 _RAYS_DOC = """origins, directions : (N, 3) array_like
             The rays: (N, 3), (H, W, 3) for an image of rays (camera_rays), or one (3,) ray
             broadcast against the other argument; any real dtype, read as float64. Directions
-            need not be unit length: t is measured in units of the direction given.
+            need not be unit length: t is measured in units of the direction given. Dask arrays
+            (with tmin and tmax numbers, or arrays of the rays' shape) give dask arrays of the
+            same answers, cast a chunk a task when computed (daskcast.py).
         tmin : float or (N,) array_like, default 0
             The start of the interval of t in which a hit counts (tmin <= t <= tmax): one
             number for every ray, or one per ray.
@@ -92,6 +96,9 @@ class RayScene:
     naming the argument. After each query, `last_stats` holds the counters of that query
     (``rays.cast``, ``tests.triangle``, ``bounds.tests``, ``cells.visited``, ...) and its
     ``time.trace`` in seconds.
+
+    The queries but intersect_all also take dask arrays and answer with dask arrays, lazily
+    (daskcast.py).
 
     Any number of Python threads may query one RayScene at once; `last_stats` is the calling
     thread's own last query. Lazy structures (lazyoctree, rc) refine between passes of one
@@ -220,14 +227,14 @@ class RayScene:
 
     @classmethod
     def from_trimesh(cls, mesh, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
-                     max_memory=None) -> "RayScene":
+                     max_memory=None, precision: str = "double") -> "RayScene":
         """A RayScene of a trimesh.Trimesh, or of any object with ``.vertices`` and ``.faces``.
 
         Parameters
         ----------
         mesh : trimesh.Trimesh or object
             ``mesh.vertices``: (V, 3) real array; ``mesh.faces``: (F, 3) integer array.
-        accel, edges, quality, max_memory
+        accel, edges, quality, max_memory, precision
             As for `from_mesh`.
 
         Returns
@@ -239,11 +246,11 @@ class RayScene:
         RayInputError
             `mesh` has no ``.vertices`` and ``.faces``, or they are not valid.
         """
-        return raybuild.from_trimesh(cls, mesh, accel, edges, quality, max_memory)
+        return raybuild.from_trimesh(cls, mesh, accel, edges, quality, max_memory, precision)
 
     @classmethod
     def from_file(cls, path, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
-                  max_memory=None) -> "RayScene":
+                  max_memory=None, precision: str = "double") -> "RayScene":
         """A RayScene of the triangles of a model file, every mesh of it in one.
 
         Parameters
@@ -251,7 +258,7 @@ class RayScene:
         path : str or path-like
             An OBJ, PLY, STL, OFF, glTF or GLB file, read by trimesh (the ``mesh`` extra); its
             meshes are placed by the file's transforms (scene/meshfile.py).
-        accel, edges, quality, max_memory
+        accel, edges, quality, max_memory, precision
             As for `from_mesh`.
 
         Returns
@@ -265,17 +272,19 @@ class RayScene:
         OptionError
             trimesh is not installed.
         """
-        return raybuild.from_file(cls, path, accel, edges, quality, max_memory)
+        return raybuild.from_file(cls, path, accel, edges, quality, max_memory, precision)
 
     @classmethod
     def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None, edges: str = "watertight",
-                  quality: str = "medium", max_memory=None, threads: int | None = None) -> "RayScene":
+                  quality: str = "medium", max_memory=None, threads: int | None = None,
+                  precision: str = "double") -> "RayScene":
         """A RayScene of a triangle mesh.
 
         Unless `accel` is given (or there are no faces), the tree is built straight into the
-        mesh kernel's arrays: the triangles' corners once, in float64 blocks of four, the
-        4-wide nodes and a triangle index a lane (``stats["bytes_per_triangle"]``); float64
-        vertices and int64 faces are read, not copied.
+        mesh kernel's arrays: the triangles' corners once, in float64 blocks of four (float32
+        with ``precision="single"``), the 4-wide nodes and a triangle index a lane
+        (``stats["bytes_per_triangle"]``); float64 vertices and int64 faces are read, not
+        copied (``precision="single"`` keeps a rounded copy of the vertices).
 
         Parameters
         ----------
@@ -298,6 +307,13 @@ class RayScene:
             The budget of the build, in bytes or as ``"8G"``.
         threads : int, optional
             The build's threads (default: all).
+        precision : {"double", "single"}
+            ``"double"`` (the default) keeps the vertices as given. ``"single"`` rounds each
+            coordinate to the nearest float32 number, as Embree stores a mesh, and stores the
+            triangle blocks in float32: about 40% fewer bytes a triangle. Every answer is then
+            exact for the rounded mesh (the same watertight test, in float64, on the rounded
+            corners), so it equals ``precision="double"`` on
+            ``vertices.astype(np.float32)``, bit for bit.
 
         Returns
         -------
@@ -307,11 +323,13 @@ class RayScene:
         ------
         RayInputError
             The arrays do not have these shapes and types, vertices or normals are not finite,
-            a face refers to a vertex that does not exist, or `quality` is not one of the three.
+            a face refers to a vertex that does not exist, `quality` or `precision` is not one
+            of its values, or with ``precision="single"`` a triangle's corners round to one
+            point (a triangle smaller than float32 resolves where it lies).
         MemoryBudgetError
             The build would need more than `max_memory`.
         """
-        return raybuild.from_mesh(cls, vertices, faces, normals, accel, edges, quality, max_memory, threads)
+        return raybuild.from_mesh(cls, vertices, faces, normals, accel, edges, quality, max_memory, threads, precision)
 
     @classmethod
     def from_spheres(cls, centers, radii, accel: str = "bvh") -> "RayScene":
@@ -395,6 +413,8 @@ class RayScene:
         A ray that is not finite or has a zero direction raises RayInputError naming it, after
         the other rays were cast: `out`'s arrays then hold their hits.
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.intersect(self, origins, directions, tmin, tmax, threads, fields, dtype, out)
         return rayqueries.closest_hits(self, origins, directions, tmin, tmax, threads, fields, dtype, out)
 
     @_ray_query_doc
@@ -414,6 +434,8 @@ class RayScene:
 
         {raises}
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.ray_query(self, "occluded", origins, directions, tmin, tmax, bool, threads=threads)
         return rayqueries.occluded(self, origins, directions, tmin, tmax, threads)
 
     @_ray_query_doc
@@ -449,6 +471,9 @@ class RayScene:
 
         {raises}
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            raise RayInputError("intersect_all takes numpy arrays: its hits are not shaped as the rays (count_hits "
+                                "takes dask arrays)")
         return rayqueries.intersect_all(self, origins, directions, tmin, tmax, ids, threads)
 
     @_ray_query_doc
@@ -468,6 +493,8 @@ class RayScene:
 
         {raises}
         """
+        if daskcast.is_dask(origins, directions, tmin, tmax):
+            return daskcast.ray_query(self, "count_hits", origins, directions, tmin, tmax, np.int64, threads=threads)
         return rayqueries.count_hits(self, origins, directions, tmin, tmax, threads)
 
     # ------------------------------------------------------------- point queries (proximity.py)
@@ -498,6 +525,8 @@ class RayScene:
         RayInputError
             The points are not valid, or the scene has instances or cones.
         """
+        if daskcast.is_dask(points):
+            return daskcast.closest_points(self, points, threads)
         return proximity.closest_points(self, points, threads)
 
     def distance(self, points, threads: int | None = None) -> np.ndarray:
@@ -515,6 +544,8 @@ class RayScene:
         (N,) float64 array
             Shaped as the points.
         """
+        if daskcast.is_dask(points):
+            return daskcast.point_query(self, "distance", points, np.float64, threads=threads)
         return self.closest_points(points, threads).distance
 
     def contains(self, points, threads: int | None = None, method: str = "auto") -> np.ndarray:
@@ -546,6 +577,8 @@ class RayScene:
             The points or `method` are not valid, parity or winding is asked of a scene that
             is not triangle meshes, or the scene has instances or cones.
         """
+        if daskcast.is_dask(points):
+            return daskcast.point_query(self, "contains", points, bool, threads=threads, method=method)
         return proximity.contains(self, points, threads, method)
 
     def signed_distance(self, points, threads: int | None = None) -> np.ndarray:

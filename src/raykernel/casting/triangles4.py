@@ -1,6 +1,7 @@
 """A leaf's triangles in blocks of four, tested against a ray four at a time.
 
     blocks, lane_prims, start = leaf_blocks(verts, faces, prims, leaf_first, leaf_count)   # the 4-wide tree's leaves
+    blocks, lane_prims, start = leaf_blocks(..., dtype=np.float32)     # precision="single": half the bytes
     mask = hit4(blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, tmin, tmax, t4)
     x = corner(blocks, b * 4 + lane, i)     # coordinate i (v0x, v0y, ... v2z) of a block's triangle
 
@@ -11,12 +12,15 @@ triangle, so one corner's coordinate along one axis for all four triangles
 is one <4 x double> load. A leaf of k references takes ceil(k / 4) blocks,
 from lane start[leaf] = 4 * its first block on, its references in order
 (lane start + i is reference first + i); unused lanes hold zeros and are
-masked off by the caller. 288 bytes a block, and `lane_prims` names the
-triangle of each lane (4 bytes a lane).
+masked off by the caller. 288 bytes a block (144 in float32, for meshes of
+precision "single", whose corners are float32 numbers: raybuild.py), and
+`lane_prims` names the triangle of each lane (4 bytes a lane).
 
 `hit4` is primitives.hit_sheared for four triangles in one pass of
 <4 x double> arithmetic, the same operations in the same order, so a lane's
-t is bit for bit the scalar test's. Lanes where an edge function is exactly
+t is bit for bit the scalar test's. float32 blocks are widened to double as
+they are loaded (exactly), so a lane's t is still the scalar test's on the
+same corners. Lanes where an edge function is exactly
 zero (a ray through an edge or vertex) are left to the scalar test and its
 tie rule: the returned mask has bit i set when lane i hits in [tmin, tmax]
 (its t in t4[i]) and bit 4 + i when lane i needs the scalar test.
@@ -36,18 +40,20 @@ BLOCK = 4           # triangles in a block
 COLUMNS = 36        # 3 corners x 3 axes x 4 lanes
 
 
-def leaf_blocks(verts, faces, prims, first, count, threads=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def leaf_blocks(verts, faces, prims, first, count, threads=None,
+                dtype=np.float64) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The blocks of the leaves (first reference, count) whose references are the triangles `prims`
     (faces (T, 3) into verts (V, 3), float64): (blocks, the triangle in each lane (-1 where
     unused), each leaf's first lane). A leaf's lanes start a block: leaf i takes lanes
-    start[i] .. start[i] + count[i] - 1."""
+    start[i] .. start[i] + count[i] - 1. dtype: the blocks' (float32 where every corner is a
+    float32 number, which it then holds exactly)."""
     first = np.ascontiguousarray(first, np.int64)
     count = np.ascontiguousarray(count, np.int64)
     per_leaf = (count + BLOCK - 1) // BLOCK
     start = np.zeros(len(first) + 1, np.int64)
     np.cumsum(per_leaf, out=start[1:])
     # every lane is written on the threads (unused ones too), so nothing is cleared first on this one
-    blocks = np.empty((int(start[-1]), COLUMNS))
+    blocks = np.empty((int(start[-1]), COLUMNS), dtype)
     lane_prims = np.empty(BLOCK * len(blocks), np.int32)
     start *= BLOCK
     for_ranges(lambda i0, i1: _fill_blocks(verts, faces, prims, first, count, start, blocks, lane_prims, i0, i1),
@@ -79,11 +85,11 @@ def _fill_blocks(verts, faces, prims, first, count, start, blocks, lane_prims, i
 
 @njit(inline="always")
 def corner(src, row, i):
-    """Coordinate i (v0x, v0y, v0z, v1x, ... v2z) of a triangle: row `row` of a corners array
+    """Coordinate i (v0x, v0y, v0z, v1x, ... v2z) of a triangle, as float64: row `row` of a corners array
     ((R, 9 or more): v0, v1, v2), or lane row % 4 of block row // 4 of a blocks array (B, 36)."""
-    if src.shape[1] == COLUMNS:
-        return src[row >> 2, i * BLOCK + (row & 3)]
-    return src[row, i]
+    if src.shape[1] == COLUMNS:     # (float32 blocks: widened here, so that arithmetic on corners stays double)
+        return np.float64(src[row >> 2, i * BLOCK + (row & 3)])
+    return np.float64(src[row, i])
 
 
 @intrinsic
@@ -97,8 +103,10 @@ def hit4(typingctx, blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, tmin, tmax
         rows = context.make_array(signature.args[0])(context, builder, args[0])
         out = context.make_array(signature.args[13])(context, builder, args[13])
         d4 = ir.VectorType(ir.DoubleType(), BLOCK)
+        single = signature.args[0].dtype == types.float32
+        stored = ir.VectorType(ir.FloatType(), BLOCK) if single else d4
         i64 = ir.IntType(64)
-        data = builder.bitcast(rows.data, ir.DoubleType().as_pointer())
+        data = builder.bitcast(rows.data, stored.element.as_pointer())
         base = builder.mul(args[1], ir.Constant(i64, COLUMNS))
 
         def splat(x):
@@ -110,7 +118,8 @@ def hit4(typingctx, blocks, b, kx, ky, kz, okx, oky, okz, sx, sy, sz, tmin, tmax
         def coordinate(corner, axis):       # <4 x double> of corner's coordinate along `axis` (an i64)
             column = builder.add(ir.Constant(i64, 3 * BLOCK * corner), builder.mul(axis, ir.Constant(i64, BLOCK)))
             p = builder.gep(data, [builder.add(base, column)])
-            return builder.load(builder.bitcast(p, d4.as_pointer()), align=8)
+            x = builder.load(builder.bitcast(p, stored.as_pointer()), align=4 if single else 8)
+            return builder.fpext(x, d4) if single else x
 
         o = [splat(args[5]), splat(args[6]), splat(args[7])]
         shear_x, shear_y, shear_z = splat(args[8]), splat(args[9]), splat(args[10])

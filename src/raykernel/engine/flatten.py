@@ -18,7 +18,7 @@ Geometry is one named tuple of arrays: the primitives' and the aggregates'
 fields below, then the fields each walk kind declares in its module
 (Walk.fields: grid_*, node_*, oct_*, rc_*, after the driver's keyed lists), in code order, then, for a
 scene that is one BVH over primitives, that BVH collapsed 4-wide (wide_*),
-which the driver hands to its fast walk (widewalk.py).
+which the driver hands to the walk of a whole scene its kind declares (registry.SCENE_WALK).
 
 With lazy structures in the scene (lazy octrees, lazy ray classification),
 build["lazy"] holds them as a LazySet (aggregates/lazyset.py): whoever traces
@@ -38,7 +38,7 @@ from numba.extending import typeof_impl
 
 from ..aggregates.lazyset import LazySet
 from ..aggregates.memory import memory_limit
-from ..aggregates.registry import EMPTY, FIELDS, KINDS, LAZY_KINDS, format_spec, parse_spec
+from ..aggregates.registry import DEFAULT, EMPTY, FIELDS, KINDS, LAZY_KINDS, SCENE_WALK, format_spec, parse_spec
 from ..aggregates.spec import AUTO
 from ..aggregates.walk import MAX_NESTING, MAX_TREE_DEPTH, STACK_SIZE, Field
 from ..errors import OptionError, SceneError
@@ -60,7 +60,6 @@ from ..geometry.primitives import (
     make_ref,
 )
 from ..scene.model import Group, Instance, Scene
-from . import widewalk
 from .transforms import transform_class
 
 __all__ = ["Geometry", "flatten", "transform_box", "MAX_NESTING", "MAX_TREE_DEPTH", "STACK_SIZE"]
@@ -105,11 +104,7 @@ AGGREGATE_FIELDS = (
     Field("inst_class", np.int64),        # (I,) the map's class (transform_class): what mapping a ray needs
 ) + FIELDS     # the keyed lists and the walks' own fields (aggregates/registry.py)
 
-WIDE_FIELDS = (         # a scene that is one BVH over primitives: that BVH collapsed 4-wide (widebvh.py), which
-    "wide_nodes",       # engine/widewalk.py walks; a (0, 32) array otherwise
-    "wide_center",      # read-only when the scene is that BVH: kernels then compile no general driver (widewalk.py)
-    "wide_prims",       # its leaves' primitives in leaf order, an 80-byte record each (widewalk.py)
-)
+WIDE_FIELDS = tuple(SCENE_WALK.NO_WALK)      # the arrays of the walk of a whole scene (its module says what they hold)
 Geometry = NamedTuple("Geometry", [(name, np.ndarray) for name in PRIMITIVE_FIELDS] +
                       [(f.name, np.ndarray) for f in AGGREGATE_FIELDS] +
                       [(name, np.ndarray) for name in WIDE_FIELDS] + [("root", int)])
@@ -506,7 +501,7 @@ def _polygon_planes(verts, start, count):
     return n, np.einsum("ij,ij->i", n, v0), np.argmax(np.abs(n), axis=1).astype(np.int64)
 
 
-def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None, builder=None) -> tuple[Geometry, dict]:
+def flatten(scene: Scene, default_accel: str = DEFAULT, max_memory=None, builder=None) -> tuple[Geometry, dict]:
     """Build every aggregate of `scene` and return the flat arrays and the build statistics.
     max_memory: the memory budget of every build and refinement, in bytes or as "8G"
     (default: memory.memory_limit()); a structure that would need more is a MemoryBudgetError.
@@ -574,9 +569,9 @@ def flatten(scene: Scene, default_accel: str = "bvh", max_memory=None, builder=N
         tri_mat=_concat([m.material for m, _ in arr.mesh], (0,), np.int32),
         tri_edges=np.zeros(1, np.int64),
         mat_clear=np.array([m.t > 0.0 for m in scene.materials] or [False], np.bool_),
-        root=int(root), **fields, **widewalk.NO_WALK,
+        root=int(root), **fields, **SCENE_WALK.NO_WALK,
     )
-    geo = widewalk.prepare(geo, b.agg_stats)
+    geo = SCENE_WALK.prepare(geo, b.agg_stats)
     # lazy structures take over the arrays they grow between passes (aggregates/lazyset.py)
     geo, lazy = LazySet.attach(geo, LAZY_KINDS, arr.lazy)
     n_materials = max(1, len(scene.materials))

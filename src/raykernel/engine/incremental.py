@@ -35,7 +35,7 @@ import time
 
 import numpy as np
 
-from ..aggregates.registry import EMPTY, KINDS
+from ..aggregates.registry import DEFAULT, EMPTY, KINDS
 from .flatten import AGGREGATE_FIELDS, Builder, flatten
 
 __all__ = ["Hierarchy"]
@@ -170,7 +170,7 @@ class Hierarchy:
         self.state = None
         self.frames = 0
 
-    def flatten(self, scene, default_accel="bvh", max_memory=None):
+    def flatten(self, scene, default_accel=DEFAULT, max_memory=None):
         t0 = time.perf_counter()
         key = (default_accel, max_memory)
         replay = None

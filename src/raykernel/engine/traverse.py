@@ -15,16 +15,16 @@ into its space for an instance) and the child's START entry pushed above. A
 frame ends when the stack falls to its base. Instance maps are affine and
 the direction is not renormalised, so t means the same in every frame and
 one closest t shrinks through all. A scene that is one 4-wide BVH over
-primitives skips all of that: `intersect` hands it to widewalk.py, and
-kernels given its geometry compile no general driver at all (its type says
-so: widewalk.wide_only).
+primitives skips all of that: `intersect` hands it to the walk of a whole
+scene that a kind declares (registry.SCENE_WALK: the BVH's, aggregates/widewalk.py),
+and kernels given its geometry compile no general driver at all (its type says so).
 """
 
 import numpy as np
 from numba.extending import overload
 
 from ..aggregates import collect
-from ..aggregates.registry import CROSSINGS, walk_resolve, walk_step
+from ..aggregates.registry import CROSSINGS, SCENE_WALK, walk_resolve, walk_step
 from ..aggregates.walk import (
     DRIVER,
     F_DIR,
@@ -65,7 +65,7 @@ from ..geometry.primitives import (
     SPHERE,
     sphere_roots,
 )
-from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, for intersect's callers)
+from ..geometry.hitrule import (  # noqa: F401  (the modes and the hit record's layout, for intersect's callers)
     ALL_HITS,
     ANY_HIT,
     ANY_OPAQUE,
@@ -82,19 +82,19 @@ from .hitrule import (  # noqa: F401  (the modes and the hit record's layout, fo
 )
 from ..geometry.parallel import for_ranges
 from .transforms import compose_map, map_ray
-from .widewalk import intersect_wide
-from .work import ENTER, STEP, TEST, level_charge, level_mark, note, note_found, note_search
+from ..geometry.work import ENTER, STEP, TEST, level_charge, level_mark, note, note_found, note_search
 
 # stack entry: go on with the frame's keyed list at stack_a (py_func: calling the kernel would load it at import)
 KEYED = entry_tag.py_func(DRIVER, KEYED_STEP)
 DONE = np.int64(-2)          # _finish's sink when an ANY_HIT query is answered
+scene_walks, scene_intersect = SCENE_WALK.walks, SCENE_WALK.intersect
 
 
 @njit
 def workspace(hits=0, work=None):
     """Scratch arrays for one thread, allocated once per tile or chunk (walk.Workspace); `hits`:
     room in the hit record for as many hits of an ALL_HITS query (hitrule.take); `work`: a
-    render's per-sample work (engine/work.py), None without work layers."""
+    render's per-sample work (geometry/work.py), None without work layers."""
     buf_t, buf_i, buf_m, buf_n = collect.buffers()
     return Workspace(np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE, np.int64), np.zeros(STACK_SIZE),
                      np.zeros(STACK_SIZE), np.zeros((MAX_NESTING + 1, FRAME_F)),
@@ -165,14 +165,11 @@ def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     scene in [tmin, tmax]. On a hit returns True and fills hit_f (t, world-to-local map
     of the hit's frame) and hit_i (kind, index, innermost instance, flip). Counts tests,
     bounds tests and steps into cnt. ALL_HITS records every hit instead (see take).
-    A scene that is one BVH over primitives goes to its fast walk (widewalk.py), which
-    takes only the arrays it reads; every other to the general one, `walk`."""
+    A scene that is one BVH over primitives goes to its kind's walk of a whole scene
+    (registry.SCENE_WALK), which takes only the arrays it reads; every other to the general one, `walk`."""
     note_search(ws.work, mode, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)     # nothing unless one sample is probed
-    if geo.wide_nodes.shape[0] and mode != CLOSEST_EAGER:
-        found = intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs,
-                               geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges, ox, oy,
-                               oz, dx, dy, dz, tmin, tmax, mode, ws.stack_a, ws.stack_t, ws.frame_f, ws.hit_f, ws.hit_i,
-                               ws.t4, cnt, ws.work)
+    if scene_walks(geo) and mode != CLOSEST_EAGER:
+        found = scene_intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
     else:
         found = _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
     note_found(ws.work, found, ws.hit_f, ws.hit_i, cnt)
@@ -185,11 +182,11 @@ def _driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
 
 @overload(_driver, inline="always")
 def _driver_for_type(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
-    if not geo.types[geo.fields.index("wide_center")].mutable:
-        # one 4-wide BVH (widewalk.wide_only): intersect gets here only for eager normals, and
-        # RenderJob gives renders with tricks a geometry typed with the driver (widewalk.with_driver)
+    if SCENE_WALK.alone(geo):
+        # intersect gets here only for eager normals, and RenderJob gives renders with tricks a
+        # geometry typed with the driver (SCENE_WALK.with_driver)
         def no_driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
-            raise ValueError("CLOSEST_EAGER on a wide-only geometry: pass widewalk.with_driver(geo)")
+            raise ValueError("CLOSEST_EAGER on a geometry typed for its scene walk alone: pass with_driver(geo)")
         return no_driver
 
     def driver(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
@@ -230,7 +227,7 @@ def walk(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
     sp = _enter(geo.agg_bounds, geo.agg_kind, geo.agg_start, geo.root, ox, oy, oz, ix, iy, iz, tmin, best_t, stack_a,
                 stack_b, stack_t, base, cnt)
     note(ws.work, ENTER, 0, geo.root, -1, 1 if sp > base else 0, 0, 0, 0, 0, 0)
-    level_mark(ws.work, cnt)        # work layers by nesting level (engine/work.py); nothing without them
+    level_mark(ws.work, cnt)        # work layers by nesting level (geometry/work.py); nothing without them
     while True:
         if sp == base:
             if frame_i[f, FI_SINK] == f:

@@ -36,8 +36,8 @@ from ..aggregates.memory import check, memory_limit
 from ..aggregates.registry import parse_spec
 from ..aggregates.spec import is_auto
 from ..analysis.workimages import WorkImages
-from ..engine.widewalk import with_driver
-from ..engine.work import TESTS, VISITS
+from ..aggregates.widewalk import with_driver
+from ..geometry.work import TESTS, VISITS
 from ..errors import OptionError
 from ..options import number
 from ..rendering.render import TILE, RenderJob

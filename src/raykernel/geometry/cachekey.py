@@ -37,6 +37,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import os
+import pickle
 import threading
 import types
 from pathlib import Path
@@ -226,6 +227,28 @@ class _CodeLocator(_CacheLocator):
         return locator
 
 
+# what unpickling an entry raises when it names a module or class that has moved or gone since it was written
+_STALE = (ImportError, AttributeError, EOFError, TypeError, pickle.UnpicklingError)
+
+
+class _TolerantIndex(IndexDataCacheFile):
+    """numba's index and data files of one kernel, where an entry that no longer unpickles is a miss,
+    compiled again and written over: the code it was compiled from is unchanged (the stamp matches),
+    but a type it names now lives in another module. numba's own raises, and the kernel fails."""
+
+    def _load_index(self):
+        try:
+            return super()._load_index()
+        except _STALE:
+            return {}
+
+    def _load_data(self, name):
+        try:
+            return super()._load_data(name)
+        except _STALE:
+            return None
+
+
 class _CodeCacheImpl(CompileResultCacheImpl):
     _locator_classes = [_CodeLocator]
 
@@ -252,7 +275,7 @@ class KernelCache(FunctionCache):
                     self._impl = None
                 else:
                     self._cache_path = self._impl.locator.get_cache_path()
-                    self._cache_file = IndexDataCacheFile(cache_path=self._cache_path,
+                    self._cache_file = _TolerantIndex(cache_path=self._cache_path,
                                                           filename_base=self._impl.filename_base,
                                                           source_stamp=self._impl.locator.get_source_stamp())
                 self._usable = self._impl is not None

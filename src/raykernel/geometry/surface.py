@@ -130,7 +130,7 @@ def triangle_surface(geo, idx, px, py, pz):
     return gx, gy, gz, sx, sy, sz, geo.tri_mat[idx]
 
 
-@njit(inline="always")
+@njit(private=True)     # a call per hit, not inlined: inlined into trace it tripled trace's compile time
 def hit_normals(geo, hit_f, hit_i, px, py, pz):
     """Unit geometric and shading normals in world space, and the material, of the hit that
     traverse.intersect recorded in hit_f, hit_i (workspace entries 5 and 6), at world point p;

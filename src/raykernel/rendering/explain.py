@@ -8,7 +8,7 @@
 The render is the one `render(scene, ..., work=True)` makes with the same options: the pixel's
 tile is traced alone (every tile starts from the same state), or, for lazy structures, which
 refine between passes, the whole render. While it traces, the kernels log the pixel's events
-(engine/work.py, Probe): each search (traverse.intersect: origin, direction, mode), the root
+(geometry/work.py, Probe): each search (traverse.intersect: origin, direction, mode), the root
 and child aggregates it entered, each step of each walk (the nodes or cells visited and the
 bounds tested on the way, the references reached), each primitive tested (and its t), the
 search's answer and what it counted; the shading loop says which ray type each search was.
@@ -27,7 +27,7 @@ import numpy as np
 
 from ..aggregates.registry import KINDS
 from ..atomicfile import write_text
-from ..engine.work import CULLED, ENTER, FIGURES, FOUND, OVERFLOW, SEARCH, STEP, TEST, TYPE, RAY_TYPES, probe
+from ..geometry.work import CULLED, ENTER, FIGURES, FOUND, OVERFLOW, SEARCH, STEP, TEST, TYPE, RAY_TYPES, probe
 from ..errors import OptionError
 from ..geometry.primitives import PRIMITIVE_KINDS as KIND_NAMES
 from .render import TILE, RenderJob

@@ -33,7 +33,7 @@ from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
 from ..geometry.surface import dot, hit_normals
-from ..engine.work import SHADOW, charge_type, work_figures
+from ..geometry.work import SHADOW, charge_type, work_figures
 from .shadows import filter_by_distance, light_through
 from .tricks import ORIGIN, closest, hold_origin, shadow_slot
 from .whitted import pop, seen_side, shadow_reach, spawn

@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from ..engine.traverse import ANY_HIT, CLOSEST, intersect
-from ..engine.work import SHADOW, charge_type, work_figures
+from ..geometry.work import SHADOW, charge_type, work_figures
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.surface import dot, hit_normals

@@ -43,10 +43,10 @@ from ..geometry.compiletime import OTHER_RENDERS, CompileClock, compile_notice, 
 from ..engine.flatten import flatten
 from ..geometry.parallel import claim, default_threads, finished, on_threads
 from ..engine.traverse import workspace
-from ..engine.widewalk import count_misses, with_driver
+from ..aggregates.widewalk import count_misses, with_driver
 from ..aggregates.memory import check, describe_bytes, memory_limit
-from ..engine.work import CULLED, charge_type, note, record_sample, sample_work, start_samples, work_figures
-from ..engine.work import columns as work_columns
+from ..geometry.work import CULLED, charge_type, note, record_sample, sample_work, start_samples, work_figures
+from ..geometry.work import columns as work_columns
 from ..errors import OptionError
 from ..options import choice, number
 from ..geometry import counters as C
@@ -81,7 +81,7 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
     less those on the coarser lattice of `coarse` (0: none) traced before.
     passes[tile - row0]: the tile's pass counts of lazy structures (aggregates/lazyoctree.py).
     cull: a tile none of whose eye rays can enter the scene's box is not traced (_culled).
-    layer: None, or each sample's record of its work (engine/work.py), `levels` nesting levels split;
+    layer: None, or each sample's record of its work (geometry/work.py), `levels` nesting levels split;
     probe: None, or the event log of one sample (rendering/explain.py)."""
     eyes = np.zeros((TILE * TILE, 5))      # direction, then the sample's row and column
     colors = np.zeros((TILE * TILE, 3))
@@ -125,7 +125,7 @@ def _skipped(i, j, x0, y0, coarse):
 @njit(inline="always")
 def _culled(geo, cam, samples_w, samples_h, x0, y0):
     """No eye ray of the tile at (x0, y0) can enter the scene's box, and the scene is one 4-wide
-    BVH, whose walk of a ray that misses its box is that box test alone (widewalk.py)."""
+    BVH, whose walk of a ray that misses its box is that box test alone (aggregates/widewalk.py)."""
     return geo.wide_nodes.shape[0] > 0 and tile_misses_box(
         cam, x0, min(x0 + TILE, samples_w) - 1, y0, min(y0 + TILE, samples_h) - 1, geo.agg_bounds, geo.root)
 
@@ -135,7 +135,7 @@ def _missed_tile(background, samples_w, samples_h, x0, y0, step, coarse, out, wo
     """What tracing a culled tile's eye rays would have given: each sample the background as
     trace adds it for a missed eye ray (0.0 + 1.0 * background), and each ray the counts of an
     eye ray that missed the scene's box; frustum.culled counts them too (they cost less).
-    work: the samples' records (engine/work.py), None without work layers."""
+    work: the samples' records (geometry/work.py), None without work layers."""
     one = np.int64(1)
     start_samples(work, cnt)
     for j in range(y0, min(y0 + TILE, samples_h), step):
@@ -425,7 +425,7 @@ class RenderJob:
         self.tile_y = np.repeat(tiles_y, len(tiles_x)).astype(np.int64)
         self.n_tiles = n_tiles = len(self.tile_x)
         t0 = time.perf_counter()
-        # the samples' records of their work (engine/work.py), by nesting level where aggregates nest
+        # the samples' records of their work (geometry/work.py), by nesting level where aggregates nest
         self.levels = int(self.build.get("build.nesting", 1))
         layer_shape = (self.sh, self.sw, work_columns(self.levels)) if o["work"] else (0, 0, 0)
         self._check_memory(layer_shape, n_tiles)

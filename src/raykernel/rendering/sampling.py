@@ -24,7 +24,7 @@ import numpy as np
 
 from ..geometry.parallel import claim, finished
 from ..engine.traverse import workspace
-from ..engine.work import record_sample, sample_work, start_samples
+from ..geometry.work import record_sample, sample_work, start_samples
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize
@@ -90,7 +90,7 @@ def render_pixels(geo, mats, lights, background, cam, width, height, tile_x, til
     """render._render_tiles over pixels (tiles of tile_size), each from `sampler`'s samples
     under the model whose argument (whitted_on, heckbert_on or medium) is not None
     (model_arguments); filtered shadows or not. layer: None, or each pixel's record of the work
-    of all its samples (engine/work.py), `levels` nesting levels split; probe: None, or the
+    of all its samples (geometry/work.py), `levels` nesting levels split; probe: None, or the
     event log of one pixel (rendering/explain.py)."""
     cells = tile_size << aa_depth if sampler == ADAPTIVE else 0
     eye = np.zeros((1, 3))      # whitted.trace's batch of one ray

@@ -22,7 +22,7 @@ walk's code (aggregates/walk.py). The PLY file (binary, written through trimesh,
 carries each as a property of every face, so MeshLab, ParaView, Open3D and trimesh colour by it.
 
 How rays used them (structure_use): the scene rendered with render's options on one thread, its
-walks counting, box by box (engine/work.py, Use), `visits`, the times a ray entered it (they sum
+walks counting, box by box (geometry/work.py, Use), `visits`, the times a ray entered it (they sum
 to the render's cells.visited); `tests`, the primitive tests made in its references (they sum to
 its tests.total, less the tests Haines's tricks make outside any search); `futile`, the visits
 whose tests hit nothing (an empty cell's every visit); and `refined`, 1 for a lazy octree's cells
@@ -30,7 +30,7 @@ this render made. A box that holds no references of its own (an inner node) has 
 as tests those made in it while it was a leaf (a lazy octree's cell this render split), else 0. A list, an operator and ray classification (drawn as their box) count their walk's visits on
 it, and as futile the times their references were reached and nothing hit. An aggregate drawn
 once for each instance shows the use of all its instances on each. A BVH that renders 4-wide
-(widewalk.py) is walked in its binary form here, node by node as drawn.
+(aggregates/widewalk.py) is walked in its binary form here, node by node as drawn.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ import numpy as np
 from ..aggregates.octree import CODE as OCTREE
 from ..aggregates.registry import WALKS
 from ..aggregates.walk import MAX_NESTING, one_cell
-from ..engine.work import AGGREGATES, COUNTS, ENTRIES, FRAMES, HITS, PAUSED, TESTS, VISITS, Use
+from ..geometry.work import AGGREGATES, COUNTS, ENTRIES, FRAMES, HITS, PAUSED, TESTS, VISITS, Use
 from ..errors import OptionError
 from ..geometry.primitives import AGGREGATE, INDEX_MASK, INSTANCE, KIND_SHIFT
 
@@ -159,7 +159,7 @@ def structure_use(scene, accel: str = "bvh", **options):
     (render's: resolution, spd, shading, aa, tricks, ...) used them (a dict of USE's values, one
     a box: see the module's docstring), and the render (its image and statistics). The render
     runs on one thread."""
-    from ..engine.widewalk import with_driver
+    from ..aggregates.widewalk import with_driver
     from .render import RenderJob
     job = RenderJob(scene, accel=accel, **dict(options, work=True, threads=1))
     job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])     # walked node by node

@@ -34,9 +34,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..engine.hitrule import hit_primitive
+from ..geometry.hitrule import hit_primitive
 from ..engine.traverse import ALL_HITS, ANY_OPAQUE, CLOSEST, CLOSEST_EAGER, OPERATOR_SURFACE, clear_material, intersect
-from ..engine.work import pause_use
+from ..geometry.work import pause_use
 from ..errors import OptionError
 from ..geometry import counters as C
 from ..geometry.boxes import INF

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from ..engine.traverse import ANY_HIT, CLOSEST, intersect
-from ..engine.work import SHADOW, charge_type, record_sample, start_samples, work_figures
+from ..geometry.work import SHADOW, charge_type, record_sample, start_samples, work_figures
 from ..geometry import counters as C
 from ..geometry.config import njit
 from ..geometry.primitives import normalize

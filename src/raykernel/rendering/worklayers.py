@@ -27,8 +27,8 @@ import numpy as np
 
 from ..aggregates.registry import COUNTER_NAMES
 from ..atomicfile import write_bytes
-from ..engine.work import FIGURES, RAY_TYPES, SPLIT
-from ..engine.work import names as split_names
+from ..geometry.work import FIGURES, RAY_TYPES, SPLIT
+from ..geometry.work import names as split_names
 from ..errors import OptionError
 from ..geometry import counters as C
 
@@ -40,7 +40,7 @@ UNITS = {"tests": "ray/object tests", "hits": "tests that hit", "bounds": "bound
 
 
 def work_layers(layer: np.ndarray, levels: int) -> dict:
-    """The named layers of a render's sample records (engine/work.py): views of `layer` for the
+    """The named layers of a render's sample records (geometry/work.py): views of `layer` for the
     counters it counted, int64 arrays for the totals."""
     out = {}
     for column, name in sorted(COUNTER_NAMES.items()):

@@ -19,10 +19,10 @@ import numpy as np
 from numba.core import types
 from numba.extending import overload
 
-from ..geometry import counters as C
-from ..geometry.boxes import INF
-from ..geometry.config import njit
-from ..geometry.primitives import (
+from . import counters as C
+from .boxes import INF
+from .config import njit
+from .primitives import (
     CONE,
     KIND_SHIFT,
     PATCH,
@@ -35,7 +35,7 @@ from ..geometry.primitives import (
     hit_triangle,
     normalize,
 )
-from ..geometry.surface import surface
+from .surface import surface
 
 # intersect's mode: the closest hit, any hit, every hit. numpy integers, not Python ints: numba
 # compiles a function again for each literal int value it is passed

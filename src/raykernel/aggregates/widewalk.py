@@ -1,11 +1,12 @@
-"""The fast walk of a scene that is one BVH over primitives (every SPD scene at its default).
+"""The BVH kind's walk of a whole scene that is one BVH over primitives (every SPD scene at its default).
 
     geo = prepare(Geometry(..., **NO_WALK), agg_stats)   # flatten: collapse the root BVH 4-wide, lay out its primitives
-    if geo.wide_nodes.shape[0]:          # traverse.intersect then hands each query here
-        found = intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root,
-                               geo.refs, geo.wide_prims, geo.poly_verts, geo.poly_band_f, geo.poly_band_i,
-                               geo.tri_edges, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, stack, stack_t, frame_f, hit_f,
-                               hit_i, t4, cnt, ws.work)
+    if walks(geo):                       # traverse.intersect then hands each query here
+        found = intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt)
+
+The BVH kind declares it (bvh.KIND.scene_walk) and the registry names it to the engine
+(registry.SCENE_WALK), so the engine names no kind: flatten calls prepare, the driver hands
+over what walks() accepts, and a kernel whose geometry's type says `alone` compiles no driver.
 
 Why a walk of its own: the general driver carries frames, instances, mailboxes and CSG, and
 every call that takes the scene's Geometry (dozens of arrays, each passed by numba as several
@@ -33,17 +34,20 @@ root's box; `cells.leaves` per leaf; all of it the BVH walk's (`walk.bvh.*`).
 
 import numpy as np
 
-from ..aggregates.bvhwalk import CODE as BVH
-from ..aggregates.walk import F_MAP
-from ..aggregates.widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, next_leaf, wide_ray
 from ..geometry import counters as C
 from ..geometry.boxes import INF, box_entry, inverse
 from ..geometry.config import njit
+from ..geometry.hitrule import ANY_HIT, ANY_OPAQUE, CLEAR, RECORD_COLUMNS, hit, take
 from ..geometry.primitives import CONE, INDEX_MASK, KIND_SHIFT, PATCH, POLYGON, SPHERE, TRIANGLE
-from .hitrule import ANY_HIT, ANY_OPAQUE, CLEAR, RECORD_COLUMNS, hit, take
-from .work import ENTER, STEP, TEST, note
+from ..geometry.work import ENTER, STEP, TEST, note
+from .bvhwalk import CODE as BVH
+from .walk import F_MAP
+from .widebvh import NO_CHILD, NO_WIDE, collapse, leaf_range, next_leaf, wide_ray
 
-# the wide_* fields of every other scene: nothing to walk
+# the Geometry fields of this walk (engine/flatten.py appends them), as every other scene has them:
+# nothing to walk. wide_nodes: the BVH collapsed 4-wide (widebvh.py); wide_center: read-only when the
+# scene is that BVH, so that kernels compile no general driver (wide_only); wide_prims: the leaves'
+# primitives in leaf order, one record each (see above)
 NO_WALK = dict(wide_nodes=NO_WIDE.nodes, wide_center=NO_WIDE.center,
                wide_prims=np.zeros((0, RECORD_COLUMNS)))
 
@@ -116,6 +120,26 @@ def _flush(cnt, n_bounds, n_nodes, n_leaves):
     cnt[C.CELLS_LEAVES] += n_leaves
 
 
+def alone(geo_type) -> bool:
+    """At compile time, from the numba type of a Geometry: its kernels need this walk alone (wide_only)."""
+    return not geo_type.types[geo_type.fields.index("wide_center")].mutable
+
+
+@njit(inline="always")
+def walks(geo):
+    """geo is a scene this walk takes (prepare filled its fields)."""
+    return geo.wide_nodes.shape[0] > 0
+
+
+@njit(inline="always")
+def intersect(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, mode, ws, cnt):
+    """traverse.intersect of a scene walks() takes, with the workspace ws (traverse.workspace)."""
+    return intersect_wide(geo.wide_nodes, geo.wide_center, geo.agg_bounds, geo.root, geo.refs, geo.wide_prims,
+                          geo.poly_verts, geo.poly_band_f, geo.poly_band_i, geo.tri_edges, ox, oy, oz, dx, dy, dz,
+                          tmin, tmax, mode, ws.stack_a, ws.stack_t, ws.frame_f, ws.hit_f, ws.hit_i, ws.t4, cnt,
+                          ws.work)
+
+
 @njit(inline="always")
 def count_misses(cnt, n):
     """The counts of n rays that miss the scene's box, intersect_wide's first test (render.py
@@ -145,7 +169,7 @@ def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox,
                te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt, root, work):
     """intersect_wide below the scene's box, which the ray enters at te. Stack entries as
     widebvh.visit pushes them: v >= 0 a wide node to visit, v < 0 a leaf. work: the render's
-    per-sample work (engine/work.py), for a probed sample's log; None otherwise."""
+    per-sample work (geometry/work.py), for a probed sample's log; None otherwise."""
     for k in range(12):     # the hit's frame is the world: an identity map for take
         frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
     found = np.bool_(False)      # typed, not literal: numba compiles a private callee once per literal

@@ -31,8 +31,8 @@ from numba.core import types
 from numba.core.types import NamedTuple as NamedTupleType
 from numba.extending import overload
 
-from ..geometry import counters as C
-from ..geometry.config import njit
+from . import counters as C
+from .config import njit
 
 SPLIT = C.N_COUNTERS                 # the first column of the splits
 RAY_TYPES = ("eye", "reflect", "refract", "shadow")
@@ -105,7 +105,7 @@ def _is_use(probe) -> bool:
 
 def sample_work(layer, levels, probe, x0, y0, size):
     """A tile's per-sample work over `layer` (None: no layers, and so None), `levels` nesting
-    levels split (engine/work.columns); `probe` (None or a Probe) logs the events of its sample
+    levels split (geometry/work.columns); `probe` (None or a Probe) logs the events of its sample
     if the tile at column x0, row y0, `size` samples square, holds it; a Use in its place counts
     how every sample's rays use the structures."""
 
