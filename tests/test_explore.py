@@ -357,7 +357,7 @@ def test_the_time_panel_is_time_on_its_own_scale(scene):
     assert "(log)" in figures.time_figure(ex).layout.coloraxis.colorbar.title.text
 
 
-def test_an_orbit_of_the_3d_view_becomes_the_camera(server):
+def test_an_orbit_of_the_3d_view_becomes_the_camera_and_renders_from_there(server):
     from raykernel.explore import figures
     _, shown, _, _ = server.renderer.snapshot()
     run = next(iter(shown.runs.values()))
@@ -367,11 +367,21 @@ def test_an_orbit_of_the_3d_view_becomes_the_camera(server):
     assert np.allclose(lo, corners.min(axis=0)) and np.isclose(side, (corners.max(axis=0) - lo).max())
     view = {"eye": {"x": 0.0, "y": -2.0, "z": 0.5}, "center": {"x": 0.1, "y": 0.0, "z": 0.0},
             "up": {"x": 0, "y": 0, "z": 1}}
-    out = call(server, "eye.value", [{"scene.camera": view}], [run.accel])
+    page = [run.accel, "\n".join(ACCELS), RES, None, "tests.total"]      # the 3D view's structure, the controls
+    before = server.renderer.generation
+    out = call(server, "eye.value", [{"scene.camera": view}], page)
     assert np.allclose([float(v) for v in out["eye"]["value"].split(",")], mid + np.array([0.0, -2.0, 0.5]) * side)
     assert np.allclose([float(v) for v in out["look-at"]["value"].split(",")], mid + np.array([0.1, 0, 0]) * side)
     assert out["up"]["value"] == "0.0,0.0,1.0"
-    assert call(server, "eye.value", [{"xaxis.range": [0, 1]}], [run.accel]) == {}     # not an orbit: nothing
+    # and renders from there, without a press of the render button
+    assert server.renderer.generation == before + 1
+    assert server.renderer.wait(before + 1) == "full"
+    _, orbited, _, _ = server.renderer.snapshot()
+    assert orbited.settings.eye == tuple(float(v) for v in out["eye"]["value"].split(","))
+    assert orbited.settings.accels == shown.settings.accels and orbited.shape == shown.shape
+    assert call(server, "eye.value", [{"xaxis.range": [0, 1]}], page) == {}     # not an orbit: nothing
+    assert server.renderer.generation == before + 1
+    assert server.renderer.wait(server.renderer.submit(shown.settings)) == "full"     # as the other tests left it
 
 
 def test_a_request_renders_coarse_then_full_and_the_memory_budget_holds(scene):

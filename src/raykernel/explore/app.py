@@ -326,14 +326,22 @@ def _structure(app, renderer, explained) -> None:
     from dash import Input, Output, State, no_update
 
     @app.callback(Output("eye", "value"), Output("look-at", "value"), Output("up", "value"),
-                  Input("structure", "relayoutData"), State("accel", "value"), prevent_initial_call=True)
-    def orbit(view, accel):
-        # an orbit or a pan of the 3D view: its camera into the camera fields (render applies it)
+                  Input("structure", "relayoutData"), State("accel", "value"), State("accels", "value"),
+                  State("resolution", "value"), State("angle", "value"), State("counter", "value"),
+                  prevent_initial_call=True)
+    def orbit(view, accel, accels, resolution, angle, counter):
+        # an orbit or a pan of the 3D view (plotly reports it when the drag ends): its camera into
+        # the camera fields, and a render from there, which cancels the one in progress
         _, ex, _, _ = renderer.snapshot()
         if not view or "scene.camera" not in view or ex is None or accel not in ex.runs:
             return no_update, no_update, no_update
-        eye, look_at, up = figures.camera_from_view(view["scene.camera"], figures.view_frame(ex.runs[accel]))
-        return _vector_text(eye), _vector_text(look_at), _vector_text(up)
+        eye, look_at, up = (_vector_text(v) for v in
+                            figures.camera_from_view(view["scene.camera"], figures.view_frame(ex.runs[accel])))
+        try:
+            renderer.submit(settings_from_page(accels, resolution, eye, look_at, up, angle, counter))
+        except RayKernelError as e:
+            renderer.reject(f"{type(e).__name__}: {e}")
+        return eye, look_at, up
 
     @app.callback(Output("accel", "options"), Input("version", "data"))
     def structures(_):
