@@ -231,6 +231,27 @@ def test_hover_reads_every_structure_count(server, ex):
     assert v >= 1
 
 
+def test_two_tabs_at_once_each_get_their_answers(server, ex):
+    # two pages polling and hovering at the same time: each call answers its own pixel
+    from concurrent.futures import ThreadPoolExecutor
+    pixels = [(x, y) for x in range(0, 24, 5) for y in range(0, 24, 7)]
+
+    def tab(pixels):
+        seen = []
+        for x, y in pixels:
+            call(server, "status.children", [1], [None])                # the page's poll
+            table = call(server, "hover.children", [{"points": [{"x": x, "y": y}]}, None])["hover"]["children"]
+            seen.append((table["props"]["data-x"], table["props"]["data-y"], json.loads(table["props"]["data-counts"])))
+        return seen
+
+    with ThreadPoolExecutor(2) as pool:
+        tabs = list(pool.map(tab, [pixels, pixels[::-1]]))
+    for seen, asked in zip(tabs, [pixels, pixels[::-1]]):
+        assert [(x, y) for x, y, _ in seen] == asked
+        for x, y, counts in seen:
+            assert counts == {a: {k: int(val[y, x]) for k, val in ex.runs[a].layers.items()} for a in ACCELS}
+
+
 def test_the_views_draw_on_one_scale_and_light_a_selection(server, ex):
     v = _version(server)
     out = call(server, "layers.figure", [v, "tests.total", "auto", None])
