@@ -19,8 +19,8 @@ import pytest
 pytest.importorskip("dash")
 
 from raykernel.errors import OptionError  # noqa: E402
-from raykernel.explore import quality as q  # noqa: E402
-from raykernel.explore.model import Exploration, Run, explore_scene, read_settings, settings  # noqa: E402
+from raykernel.explorer import quality as q  # noqa: E402
+from raykernel.explorer.model import Exploration, Run, explore_scene, read_settings, settings  # noqa: E402
 from raykernel.rendering.explain import explain, text  # noqa: E402
 from raykernel.rendering.render import TILE, render  # noqa: E402
 from raykernel.rendering.structure import structure_use  # noqa: E402
@@ -167,7 +167,7 @@ def test_node_quality_against_hand_counts(ex):
 
 @pytest.fixture(scope="module")
 def server(scene):
-    from raykernel.explore.server import start
+    from raykernel.explorer.server import start
     srv = start(scene, SCENE, settings(ACCELS, RES), port=0, timed=False)
     assert srv.renderer.wait(srv.renderer.generation) == "full"
     yield srv
@@ -305,7 +305,7 @@ def test_a_bad_spec_is_an_error_in_the_page_and_the_next_good_one_renders(server
 
 
 def test_a_newer_request_cancels_the_older(scene):
-    from raykernel.explore.jobs import Renderer
+    from raykernel.explorer.jobs import Renderer
     r = Renderer(scene, SCENE, timed=False)
     first = r.submit(settings(["octree"], 160))
     while f"request {first}: rendering" not in r.snapshot()[3] and r.outcome(first) is None:
@@ -349,7 +349,7 @@ def test_explore_command_prints_its_address_and_serves(tmp_path):
 
 
 def test_export_writes_the_report_and_settings_that_reopen(server, tmp_path):
-    from raykernel.explore.server import initial_settings
+    from raykernel.explorer.server import initial_settings
     _, shown, _, _ = server.renderer.snapshot()
     out = call(server, "download-report.data", [1], ["tests.total"])["download-report"]["data"]
     assert out["filename"] == "explore-report.html"
@@ -365,7 +365,7 @@ def test_export_writes_the_report_and_settings_that_reopen(server, tmp_path):
 
 
 def test_the_time_panel_is_time_on_its_own_scale(scene):
-    from raykernel.explore import figures
+    from raykernel.explorer import figures
     ex = explore_scene(scene, settings(["octree", "grid"], 20), SCENE)
     for run in ex.runs.values():
         assert run.tile_seconds.shape == (2, 2) and (run.tile_seconds > 0).all()
@@ -379,7 +379,7 @@ def test_the_time_panel_is_time_on_its_own_scale(scene):
 
 
 def test_an_orbit_of_the_3d_view_becomes_the_camera_and_renders_from_there(server):
-    from raykernel.explore import figures
+    from raykernel.explorer import figures
     _, shown, _, _ = server.renderer.snapshot()
     run = next(iter(shown.runs.values()))
     frame = figures.view_frame(run)
@@ -388,7 +388,7 @@ def test_an_orbit_of_the_3d_view_becomes_the_camera_and_renders_from_there(serve
     assert np.allclose(lo, corners.min(axis=0)) and np.isclose(side, (corners.max(axis=0) - lo).max())
     view = {"eye": {"x": 0.0, "y": -2.0, "z": 0.5}, "center": {"x": 0.1, "y": 0.0, "z": 0.0},
             "up": {"x": 0, "y": 0, "z": 1}}
-    page = [run.accel, "\n".join(ACCELS), RES, None, "tests.total"]      # the 3D view's structure, the controls
+    page = [run.accel, "\n".join(shown.settings.accels), shown.settings.resolution, None, "tests.total"]   # the controls
     before = server.renderer.generation
     out = call(server, "eye.value", [{"scene.camera": view}], page)
     assert np.allclose([float(v) for v in out["eye"]["value"].split(",")], mid + np.array([0.0, -2.0, 0.5]) * side)
@@ -406,7 +406,7 @@ def test_an_orbit_of_the_3d_view_becomes_the_camera_and_renders_from_there(serve
 
 
 def test_a_request_renders_coarse_then_full_and_the_memory_budget_holds(scene):
-    from raykernel.explore.jobs import Renderer
+    from raykernel.explorer.jobs import Renderer
     r = Renderer(scene, SCENE, timed=False)
     assert r.wait(r.submit(settings(["octree"], 32))) == "full"
     version, shown, error, _ = r.snapshot()
@@ -417,3 +417,11 @@ def test_a_request_renders_coarse_then_full_and_the_memory_budget_holds(scene):
     _, shown, error, _ = tight.snapshot()
     assert shown is None and "memory budget" in error[1]
     tight.close()
+
+
+def test_raykernel_explore_is_the_function_whatever_was_imported_before():
+    # the explorer's modules live in raykernel.explorer: importing them must not put a module where
+    # raykernel.explore, the function, is (a package named explore did, in a process that had imported it)
+    import raykernel
+    import raykernel.explorer.server
+    assert callable(raykernel.explore) and raykernel.explore is raykernel.explorer.server.explore

@@ -15,7 +15,7 @@ import pytest
 
 pytest.importorskip("dash")
 
-from raykernel.explore.model import settings  # noqa: E402
+from raykernel.explorer.model import settings  # noqa: E402
 from raykernel.rendering.explain import explain, text  # noqa: E402
 from raykernel.rendering.render import render  # noqa: E402
 from raykernel.scene.loading import load  # noqa: E402
@@ -68,7 +68,7 @@ def _emit(driver, graph: str, event: str, x: int, y: int, curve: int) -> None:
 
 @pytest.fixture(scope="module")
 def page(browser):
-    from raykernel.explore.server import start
+    from raykernel.explorer.server import start
     scene = load("spd:tetra:2")
     server = start(scene, "spd:tetra:2", settings(ACCELS, 24), port=0, timed=False)
     assert server.renderer.wait(server.renderer.generation) == "full"
@@ -164,7 +164,7 @@ def test_no_console_error_and_nothing_from_another_host(page):
 @pytest.mark.slow
 def test_screenshots_of_the_stadium_for_the_docs(browser):
     """docs/guide/explorer.md's pictures: the stadium with the octree, the BVH and the grid."""
-    from raykernel.explore.server import start
+    from raykernel.explorer.server import start
     scene = load("scene:stadium")
     server = start(scene, "scene:stadium", settings(["octree", "bvh", "grid"], 64), port=0)
     try:

@@ -24,7 +24,7 @@ _HOMES = {
     "Hits": "casting.rayscene", "RayInputError": "casting.rayscene", "RayScene": "casting.rayscene",
     "OptionError": "errors", "RayKernelError": "errors", "SceneError": "errors",
     "RenderResult": "rendering.render",
-    "explore": "explore.server",
+    "explore": "explorer.server",
     "read_json": "scene.jsonscene", "write_json": "scene.jsonscene",
     "load": "scene.loading",
     **{name: "scene.model" for name in ("Camera", "Cones", "Group", "Instance", "Light", "Material", "Polygons",
@@ -58,7 +58,7 @@ if TYPE_CHECKING:
     from .casting.camera import camera_rays
     from .casting.rayscene import Hits, RayInputError, RayScene
     from .errors import OptionError, RayKernelError, SceneError
-    from .explore.server import explore
+    from .explorer.server import explore
     from .rendering.render import RenderResult
     from .scene.jsonscene import read_json, write_json
     from .scene.loading import load

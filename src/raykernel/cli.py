@@ -580,7 +580,7 @@ def cmd_anneal(args, console) -> int:
 
 
 def cmd_explore(args, console) -> int:
-    from .explore.server import initial_settings, start
+    from .explorer.server import initial_settings, start
     from .scene.loading import load
     s = initial_settings(args.accel, args.resolution, args.settings)    # bad settings fail before the load
     scene = load(args.scene)

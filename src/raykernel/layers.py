@@ -26,7 +26,7 @@ LAYERS = (
     ("rendering, casting", ("rendering", "casting", "trimesh"),
      "shading, sampling, statistics, images; RayScene's ray casting and point queries"),
     ("analysis, cluster", ("analysis", "cluster"), "comparisons, the cost model, annealing, auto; Dask"),
-    ("explore", ("explore",), "the work explorer: a local web app (Dash) linking every view of the work"),
+    ("explorer", ("explorer",), "the work explorer: a local web app (Dash) linking every view of the work"),
     ("cli", ("cli", "__main__"), "the command line (and python -m raykernel)"),
     ("package", ("",), "raykernel's public names (raykernel/__init__.py)"),
 )
