@@ -9,18 +9,24 @@ PYTHON ?= python3
 TEST_WORKERS ?= 2
 VENV := .venv
 PY := $(VENV)/bin/python
+CORE := $(VENV)/.core
 STAMP := $(VENV)/.installed
 
 .PHONY: demo test test-all docs test-docs clean
 
-$(STAMP): pyproject.toml
+# the demo needs only the core install; the suite and the site every extra they exercise
+$(CORE): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,distributed,cast,video,docs,explore]'
+	$(PY) -m pip install --quiet -e .
 	$(PY) -m compileall -q src/raykernel    # bytecode, as pip writes for an installed package (not for -e)
+	touch $(CORE)
+
+$(STAMP): $(CORE)
+	$(PY) -m pip install --quiet -e '.[test,distributed,cast,video,docs,explore]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+demo: $(CORE)
 	$(VENV)/bin/raykernel render spd:balls -o balls.png --resolution 512
 
 test: $(STAMP)
