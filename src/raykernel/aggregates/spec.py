@@ -95,8 +95,9 @@ class Kind:
     [items], ...}} for each of operand_lists, its operands their items in order, its group's spec
     operand_spec(the lists' lengths) (None: the kind's name), at most max_operands of them (0: no
     limit). scene_walk: a module that walks a whole scene that is one aggregate of this kind over
-    primitives faster than the driver can (aggregates/widewalk.py: NO_WALK, prepare, walks, intersect,
-    alone, with_driver, count_misses); one kind declares one (the registry holds it to that), and the engine hands it such scenes."""
+    primitives faster than the driver can (aggregates/widewalk.py: NO_WALK, prepare, walks,
+    intersect, alone, with_driver, count_misses); one kind declares one (the registry holds it to
+    that), and the engine hands it such scenes."""
     name: str
     help: str
     params: tuple = ()
