@@ -804,18 +804,10 @@ def entered_masks(scene, accel, resolution, boxes_wanted):
     """The explorer's brute-force check: which samples' walks entered each box, every sample
     traced alone into zeroed box counters; and the visits of a whole TILE x TILE tile traced as
     a render traces it, for the tile sums. (bool masks (boxes, h, w), first tile's visits)"""
-    from raykernel.aggregates.widewalk import with_driver
-    from raykernel.rendering.render import TILE, RenderJob
-    from raykernel.rendering.structure import box_rows, boxes_of, use_of
-    job = RenderJob(scene, accel=accel, resolution=resolution, work=True, threads=1)
-    job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])
-    tiles_x, tiles_y = job.tile_x.copy(), job.tile_y.copy()
-    ys, xs = np.mgrid[0:job.sh, 0:job.sw]
-    job.tile_x, job.tile_y = xs.ravel().astype(np.int64), ys.ravel().astype(np.int64)
+    from raykernel.explorer.model import sample_job
+    from raykernel.rendering.structure import box_rows, boxes_of
+    job, (tiles_x, tiles_y) = sample_job(scene, accel, resolution)
     n = len(job.tile_x)
-    job.counts = np.zeros((n, job.counts.shape[1]), np.int64)
-    job.passes, job.work, job.pass_counts = [(TILE, 0, 0, n)], [n], [None]
-    job.probe = use_of(job.geo)
     rows = box_rows(boxes_of(job.geo), job.probe)[boxes_wanted]
     masks = np.zeros((len(boxes_wanted), n), bool)
     for k in range(n):
@@ -829,3 +821,22 @@ def entered_masks(scene, accel, resolution, boxes_wanted):
     job.probe.counts[:] = 0
     job.trace(0, 0, 1, 1)
     return masks.reshape(len(boxes_wanted), job.sh, job.sw), job.probe.counts[rows, 0]
+
+
+# ---------------------------------------------------------------- headless Chromium
+
+def headless_chromium(window: str, logs: tuple = ("browser",)):
+    """A selenium driver of headless Chromium with a window of `window` ("W,H") that keeps the
+    log types `logs`; the test is skipped where chromium, chromium-driver or selenium are missing."""
+    import shutil
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    driver = shutil.which("chromedriver")
+    if not (chromium and driver):
+        pytest.skip("headless Chromium needs the chromium and chromium-driver packages")
+    webdriver = pytest.importorskip("selenium.webdriver")
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", f"--window-size={window}"):
+        options.add_argument(arg)
+    options.set_capability("goog:loggingPrefs", {kind: "ALL" for kind in logs})
+    return webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=driver))

@@ -6,12 +6,12 @@ host and no console error. The slow test makes the documentation's screenshots o
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from support import headless_chromium
 
 pytest.importorskip("dash")
 
@@ -21,22 +21,12 @@ from raykernel.rendering.render import render  # noqa: E402
 from raykernel.scene.loading import load  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-DRIVER = shutil.which("chromedriver")
 ACCELS = ["octree", "grid"]
 
 
 @pytest.fixture(scope="module")
 def browser():
-    if not (CHROMIUM and DRIVER):
-        pytest.skip("headless Chromium needs the chromium and chromium-driver packages")
-    webdriver = pytest.importorskip("selenium.webdriver")
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,1000"):
-        options.add_argument(arg)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
-    driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=DRIVER))
+    driver = headless_chromium("1400,1000", ("browser", "performance"))
     yield driver
     driver.quit()
 

@@ -308,18 +308,27 @@ def _render(scene, accel, resolution, cancelled, max_memory):
     return job.result(time.perf_counter() - t0, 0.0), job.lazy_columns is not None
 
 
-def _sample_use(scene, accel, resolution, cancelled, max_memory):
-    """The boxes, their use (as structure_use gives it), each box's Use row and each sample's
-    use (SampleUse): the image traced one sample at a time, a "tile" placed at each sample and
-    traced on the lattice of every TILE-th sample, so that it holds that sample alone."""
+def sample_job(scene, accel, resolution, max_memory=None):
+    """A render of `accel` that traces one sample a "tile": a tile placed at each sample, traced on the
+    lattice of every TILE-th sample so that it holds that sample alone, walked node by node with
+    structure_use's box counters on (job.probe); with the render's own tiles (tile_x, tile_y)."""
     job = RenderJob(scene, accel=accel, resolution=resolution, work=True, threads=1, max_memory=max_memory)
     job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])     # walked node by node, as drawn
+    tiles = job.tile_x.copy(), job.tile_y.copy()
     ys, xs = np.mgrid[0:job.sh, 0:job.sw]
     job.tile_x, job.tile_y = xs.ravel().astype(np.int64), ys.ravel().astype(np.int64)
     n = len(job.tile_x)
     job.counts = np.zeros((n, job.counts.shape[1]), np.int64)
     job.passes, job.work, job.pass_counts = [(TILE, 0, 0, n)], [n], [None]
     job.probe = use_of(job.geo)
+    return job, tiles
+
+
+def _sample_use(scene, accel, resolution, cancelled, max_memory):
+    """The boxes, their use (as structure_use gives it), each box's Use row and each sample's
+    use (SampleUse): the image traced one sample at a time (sample_job)."""
+    job, _ = sample_job(scene, accel, resolution, max_memory)
+    n = len(job.tile_x)
     counts = job.probe.counts
     budget = memory_limit(max_memory)
     before = counts[:, [VISITS, TESTS]].copy()
