@@ -220,6 +220,7 @@ def worker(data_path, threads):
             stats = rs.last_stats
             single.intersect(o[:1000], d[:1000], fields=PEER_FIELDS, dtype="float32")
             sec_single, h_single = best_of(lambda: single.intersect(o, d, fields=PEER_FIELDS, dtype="float32"))
+            rays_single = single.last_stats.get("rays.cast", 0)
             rs.intersect(o[:1000], d[:1000])
             sec_every, h = best_of(lambda: rs.intersect(o, d))      # the default: every field in float64
             # what the mesh kernel brings: the same rays through the generic traversal
@@ -259,6 +260,7 @@ def worker(data_path, threads):
                              rk=len(o) / sec_rk / 1e6, em=len(o) / sec_em / 1e6, agree=float(same.mean()),
                              every=len(o) / sec_every / 1e6, single=len(o) / sec_single / 1e6,
                              agree_single=float(same_single.mean()),
+                             cast=f"{stats.get('rays.cast', 0)}, {rays_single}, {len(t_em)}",
                              bytes=rs.build_stats["bytes_per_triangle"],
                              bytes_single=single.build_stats["bytes_per_triangle"],
                              generic=len(o) / sec_generic / 1e6, binary=len(o) / sec_binary / 1e6,
@@ -348,16 +350,18 @@ def main():
              "single: the same call on `RayScene.from_mesh(v, f, precision=\"single\")` (vertices rounded to "
              "float32, float32 triangle blocks; the same watertight test in float64 on the rounded corners), its "
              "ratio against embreex and its agreement with embreex; bytes/tri: the kernel's arrays a triangle "
-             "(double, single). per core: incoherent Mrays/s of one thread (threads = 1 rows), beside tinybvh's "
+             "(double, single). rays cast: the rays each side answered (raykernel's rays.cast counter, double "
+             "and single, and embreex's answers). per core: incoherent Mrays/s of one thread (threads = 1 rows), beside tinybvh's "
              "published 4.7 (BVH8, float32) and 4.0 (double) Mrays/s a core for incoherent rays, measured on "
              "its author's machine (not this one).",
              "",
              "| mesh | triangles | rays | threads | raykernel Mrays/s | every field Mrays/s | embreex Mrays/s | "
              "ratio | agree | single Mrays/s | single ratio | single agree | bytes/tri | "
              "mitsuba Mrays/s | ratio | agree | open3d Mrays/s | ratio | agree | "
-             "width 2 Mrays/s | generic Mrays/s | tests/ray | boxes/ray | nodes/ray | nodes/ray width 2 | ns/node |",
+             "width 2 Mrays/s | generic Mrays/s | tests/ray | boxes/ray | nodes/ray | nodes/ray width 2 | ns/node | "
+             "rays cast |",
              "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
-             "---:|---:|---:|---:|"]
+             "---:|---:|---:|---:|---|"]
     for r in rows:
         cells = []
         for peer in ("mitsuba", "open3d"):
@@ -369,7 +373,7 @@ def main():
                      f"{r['agree_single']:.4f} | {r['bytes']:.0f}, {r['bytes_single']:.0f} | "
                      f"{' | '.join(cells)} | {r['binary']:.2f} | "
                      f"{r['generic']:.2f} | {r['tests']:.1f} | {r['bounds']:.1f} | {r['nodes']:.1f} | "
-                     f"{r['nodes_binary']:.1f} | {r['threads'] * 1e3 / r['rk'] / max(r['nodes'], 1e-9):.0f} |")
+                     f"{r['nodes_binary']:.1f} | {r['threads'] * 1e3 / r['rk'] / max(r['nodes'], 1e-9):.0f} | {r['cast']} |")
     for peer, why in (rows[0]["missing"] if rows else {}).items():
         lines += ["", f"{peer} is not in this table: it does not run here ({why})."]
     per_core = [r for r in rows if r["threads"] == 1 and r["kind"] == "incoherent"]
