@@ -26,6 +26,7 @@ import dask  # noqa: E402
 
 from raykernel.casting import daskcast  # noqa: E402
 from raykernel.casting.castfile import cast_file  # noqa: E402
+from raykernel.casting.rayfiles import Buffers, open_rays  # noqa: E402
 from raykernel.casting.rayinput import RayInputError  # noqa: E402
 from raykernel.casting.rayscene import RayScene  # noqa: E402
 from raykernel.cli import main  # noqa: E402
@@ -184,6 +185,20 @@ def _write_rays(folder: Path, n: int, fmt: str = "npz") -> Path:
                                  **{c: d[:, i] for i, c in enumerate(("dx", "dy", "dz"))}, "tmax": tmax}),
                        folder / "rays.parquet", row_group_size=70)
     return folder / f"rays.{fmt}"
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64", ">f8", "int16"])
+def test_a_npy_reads_into_kept_buffers_as_numpy_converts_it(tmp_path, dtype):
+    rows = np.random.default_rng(3).uniform(-50, 50, (1000, 6)).astype(dtype)
+    np.save(tmp_path / "rays.npy", rows)
+    source, buffers = open_rays(tmp_path / "rays.npy"), Buffers()
+    for a, b in ((0, 400), (400, 800), (800, 1000), (0, 1000)):     # the last chunk smaller, then a larger one
+        want = rows[a:b].astype(np.float64)
+        for into in (buffers, None):
+            o, d, lo, hi = source.read(a, b, into)
+            assert o.dtype == d.dtype == np.float64 and lo is None and hi is None
+            _same(o, want[:, :3])
+            _same(d, want[:, 3:])
 
 
 def _read(out: Path, names) -> dict:

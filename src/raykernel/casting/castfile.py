@@ -10,8 +10,8 @@ written (rayfiles.py: the formats, and why every chunk is written whole or not a
 chunk already in the results is not cast again, so the same command after a kill goes on
 where it stopped and ends with the same bytes as a run never stopped.
 
-Here, IN_FLIGHT chunks are at work at once, so that one's reading and writing overlap
-another's casting (the kernels share one pool of threads); on a cluster (cluster.Cluster,
+Here, the chunks are a pipeline: one is read and another written while a third is cast, each
+into buffers kept from chunk to chunk; on a cluster (cluster.Cluster,
 passed in by the command line: this layer does not import it) every missing chunk is a task,
 and each worker reads and writes its chunks itself. Either way, each place that casts first
 casts one ray (`warm_up`), so the time it spends compiling or loading the kernels is reported
@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import os
 import socket
-import threading
 import time
 import warnings
 from collections import deque
@@ -37,14 +36,14 @@ import numpy as np
 
 from ..aggregates.memory import MemoryBudgetError, describe_bytes, memory_limit
 from . import daskcast
-from .rayfiles import RayFileError, open_results, open_rays, recorded
+from .rayfiles import Buffers, RayFileError, open_results, open_rays, recorded
 from .rayinput import RayInputError, check_ray_values
 from .rayqueries import DTYPES, FIELD_COLUMNS, FLOAT_FIELDS, Hits, field_names
 
 DEFAULT_CHUNK = 1 << 20     # rays a chunk: a few tenths of a second of casting, and tens of MB
 PIECE = 1 << 18             # rays a kernel call within a chunk: how soon Ctrl-C is answered (fewer calls, fewer
                             # ends of a call where one thread waits for the other)
-IN_FLIGHT = 2               # chunks at work at once in this process
+IN_FLIGHT = 2               # chunks whose rays (and whose results) are held at once in this process
 READ_BYTES = 2 * 64         # a ray's bytes as read and as converted (origin, direction, tmin, tmax)
 DEFAULT_FIELDS = ("t", "prim_id")
 
@@ -102,17 +101,30 @@ def _here() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def cast_chunk(rs, source, out, k: int, names, dtype: str, threads=None, stop=None) -> dict:
-    """Read, cast and write chunk k of `source` into `out`; its figures (rays, seconds of casting,
-    compiling and loading). `stop`: an Event that leaves the chunk unwritten (_Stopped) when set."""
+def read_chunk(source, out, k: int, buffers: Buffers | None = None):
+    """Chunk k's rays: origins, directions, tmin and tmax (rayfiles.RaySource.read), into `buffers`
+    where given; RayFileError naming the chunk where it cannot be read."""
     a, b = out.rows(k)
     try:
-        o, d, lo, hi = source.read(a, b)
+        return source.read(a, b, buffers)
     except (OSError, ValueError) as e:
         if isinstance(e, RayFileError):
             raise
         raise RayFileError(f"cannot be read ({type(e).__name__}: {e})", source.name, k, (a, b)) from None
-    arrays = {name: np.empty((b - a,) + cols, dt) for name, (dt, cols) in result_fields(names, dtype).items()}
+
+
+def result_arrays(names, dtype: str, n: int, buffers: Buffers | None = None) -> dict:
+    """A chunk's results, not cleared (every ray's are written): name -> array, in `buffers` where given."""
+    get = (lambda name, shape, dt: np.empty(shape, dt)) if buffers is None else buffers.get   # noqa: E731
+    return {name: get(name, (n,) + cols, dt) for name, (dt, cols) in result_fields(names, dtype).items()}
+
+
+def cast_rays(rs, source, out, k: int, rays, arrays: dict, names, dtype: str, threads=None, stop=None) -> dict:
+    """Cast chunk k's rays (read_chunk's) into `arrays`, PIECE rays a kernel call; its figures (rays,
+    seconds of casting, compiling and loading). `stop`: an Event that leaves the chunk unwritten
+    (_Stopped) when set."""
+    a, b = out.rows(k)
+    o, d, lo, hi = rays
     figures = {"worker": _here(), "rays": b - a, "cast": 0.0, "compile": 0.0, "load": 0.0}
     for p in range(0, b - a, PIECE):
         if stop is not None and stop.is_set():
@@ -135,6 +147,14 @@ def cast_chunk(rs, source, out, k: int, names, dtype: str, threads=None, stop=No
         figures["cast"] += stats.get("time.trace", 0.0)
     if stop is not None and stop.is_set():
         raise _Stopped
+    return figures
+
+
+def cast_chunk(rs, source, out, k: int, names, dtype: str, threads=None, stop=None) -> dict:
+    """Read, cast and write chunk k of `source` into `out` (a task of its own); cast_rays' figures."""
+    rays = read_chunk(source, out, k)
+    arrays = result_arrays(names, dtype, out.rows(k)[1] - out.rows(k)[0])
+    figures = cast_rays(rs, source, out, k, rays, arrays, names, dtype, threads, stop)
     out.write(k, arrays)
     return figures
 
@@ -218,24 +238,41 @@ def cast_file(rs, rays, out_path, fields=None, dtype: str = "float64", threads=N
 
 
 def _here_in_threads(rs, source, out, todo, names, dtype, threads, finished, report, cluster) -> None:
-    """The chunks in this process, IN_FLIGHT at once, their results taken in order."""
+    """The chunks in this process, in order, as a pipeline: a thread reads the next chunk and
+    another writes the last while this one casts (so two casts never share the cores); each of
+    the IN_FLIGHT sets of buffers holds a chunk's rays and results."""
     finished(warm_up(rs, names, dtype, threads))
     start = time.perf_counter()
-    stop = threading.Event()
-    pending: deque = deque()
-    left = iter(todo)
-    with ThreadPoolExecutor(IN_FLIGHT, thread_name_prefix="raykernel-cast") as pool:
+    rays_in = [Buffers() for _ in range(IN_FLIGHT)]     # a chunk's rays, one being read while one is cast
+    results_in = [Buffers() for _ in range(IN_FLIGHT)]  # its results, one being written while one is cast
+    writes: deque = deque()
+
+    def written(block: bool) -> None:
+        while writes and (block or writes[0].done()):
+            finished(_result(writes.popleft()))
+
+    def write(k, arrays, figures):
+        out.write(k, arrays)
+        return figures
+
+    with ThreadPoolExecutor(1, thread_name_prefix="raykernel-read") as reader, \
+            ThreadPoolExecutor(1, thread_name_prefix="raykernel-write") as writer:
         try:
-            while True:
-                while len(pending) < IN_FLIGHT and (k := next(left, None)) is not None:
-                    pending.append((k, pool.submit(cast_chunk, rs, source, out, k, names, dtype, threads, stop)))
-                if not pending:
-                    break
-                k, future = pending.popleft()
-                finished(_result(future))
+            reading = reader.submit(read_chunk, source, out, todo[0], rays_in[0])
+            for i, k in enumerate(todo):
+                rays = _result(reading)
+                if i + 1 < len(todo):       # into the buffers the chunk cast before this one is done with
+                    reading = reader.submit(read_chunk, source, out, todo[i + 1], rays_in[(i + 1) % IN_FLIGHT])
+                while len(writes) >= IN_FLIGHT:     # these results' buffers written before they are cast into
+                    finished(_result(writes.popleft()))
+                a, b = out.rows(k)
+                arrays = result_arrays(names, dtype, b - a, results_in[i % IN_FLIGHT])
+                figures = cast_rays(rs, source, out, k, rays, arrays, names, dtype, threads)
+                writes.append(writer.submit(write, k, arrays, figures))
+                written(block=False)
+            written(block=True)
         except BaseException as e:
-            stop.set()      # the chunks at work stop between kernel calls, unwritten
-            wait_all([f for _, f in pending])
+            wait_all(writes)        # the chunks cast whole are written; the one at work is left unwritten
             if isinstance(e, RayFileError) and e.chunk is not None:
                 out.remove_after(e.chunk)
             raise

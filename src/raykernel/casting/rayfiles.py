@@ -2,6 +2,7 @@
 
     rays = open_rays("rays.npz")                # RayFileError now if its arrays' shapes or dtypes are wrong
     o, d, lo, hi = rays.read(a, b)              # rays a..b-1: float64 (n, 3), (n, 3), and (n,) or None
+    o, d, lo, hi = rays.read(a, b, buffers)     # the same, into a Buffers' arrays kept from chunk to chunk
     out = open_results("hits.zarr", rays.count, chunk, fields, fields_dtype, about)   # made, or checked to resume
     out.write(k, {"t": t, "prim_id": prim})     # chunk k, each array of it written atomically
     out.done()                                  # the chunks already written (a set of k)
@@ -38,6 +39,7 @@ import numpy as np
 
 from ..atomicfile import atomic_write, check_output_directory
 from ..errors import OptionError
+from ..geometry.config import njit
 from .rayinput import RayInputError
 
 PARQUET_COLUMNS = ("ox", "oy", "oz", "dx", "dy", "dz")
@@ -72,6 +74,36 @@ def _real(dtype, name: str, path) -> None:
 
 # ----------------------------------------------------------------- rays
 
+class Buffers:
+    """Arrays kept from one chunk to the next: new memory each chunk costs the process a page fault
+    every 4 kB (a tenth of a chunk's casting, in the kernel's time)."""
+
+    def __init__(self):
+        self._arrays = {}
+
+    def get(self, name: str, shape: tuple, dtype) -> np.ndarray:
+        """An array of this shape and dtype, not cleared: the one of this name, grown if need be."""
+        dtype, size = np.dtype(dtype), int(np.prod(shape, dtype=np.int64))
+        have = self._arrays.get(name)
+        if have is None or have.dtype != dtype or have.size < size:
+            have = self._arrays[name] = np.empty(size, dtype)
+        return have[:size].reshape(shape)
+
+
+def _new(name: str, shape: tuple, dtype) -> np.ndarray:
+    return np.empty(shape, dtype)
+
+
+@njit
+def _split_rays(block, o, d):
+    # one pass on one thread (numpy's strided, converting copy takes three times as long, and the
+    # cores are the casting's): origins and directions of (n, 6) rows
+    for i in range(block.shape[0]):
+        for j in range(3):
+            o[i, j] = block[i, j]
+            d[i, j] = block[i, 3 + j]
+
+
 class _Npy:
     """A C-ordered array at `offset` bytes into a file (a .npy, or a stored member of a .npz), read a
     block of rows at a time into new memory (no mapping: the process keeps only what it reads)."""
@@ -79,9 +111,9 @@ class _Npy:
     def __init__(self, path, offset: int, shape: tuple, dtype):
         self.path, self.offset, self.shape, self.dtype = str(path), offset, shape, np.dtype(dtype)
 
-    def rows(self, a: int, b: int) -> np.ndarray:
+    def rows(self, a: int, b: int, out: np.ndarray | None = None) -> np.ndarray:
         row = self.dtype.itemsize * int(np.prod(self.shape[1:], dtype=np.int64))
-        out = np.empty((b - a,) + self.shape[1:], self.dtype)
+        out = np.empty((b - a,) + self.shape[1:], self.dtype) if out is None else out
         with open(self.path, "rb") as f:
             f.seek(self.offset + a * row)
             if f.readinto(memoryview(out).cast("B")) != out.nbytes:
@@ -138,12 +170,18 @@ class RaySource:
         return {"rays": str(p.resolve()), "bytes": size, "count": self.count, "tmin": "tmin" in self.parts,
                 "tmax": "tmax" in self.parts}
 
-    def read(self, a: int, b: int):
-        """Rays a..b-1: origins and directions float64 (n, 3), tmin and tmax float64 (n,) or None."""
+    def read(self, a: int, b: int, buffers: Buffers | None = None):
+        """Rays a..b-1: origins and directions float64 (n, 3), tmin and tmax float64 (n,) or None;
+        a .npy's into the arrays of `buffers` where given."""
         if self.kind == "npy":
-            block = self.parts["rays"].rows(a, b)
-            o, d = np.empty((b - a, 3)), np.empty((b - a, 3))
-            o[:], d[:] = block[:, :3], block[:, 3:]     # converted as copied: one pass over the rays
+            rays = self.parts["rays"]
+            get = _new if buffers is None else buffers.get
+            block = rays.rows(a, b, get("rows", (b - a, 6), rays.dtype))
+            o, d = get("origins", (b - a, 3), np.float64), get("directions", (b - a, 3), np.float64)
+            if rays.dtype in (np.float32, np.float64):
+                _split_rays(block, o, d)
+            else:
+                o[:], d[:] = block[:, :3], block[:, 3:]
             return o, d, None, None
         if self.kind == "parquet":
             return self._parquet(a, b)
@@ -279,7 +317,17 @@ class ResultFile:
         a, b = self.rows(k)
         with zarr.config.set({"array.write_empty_chunks": True}):    # a chunk of misses is a chunk, too
             for name, value in arrays.items():
-                zarr.open_array(self.path, path=name, mode="r+")[a:b] = value
+                self._array(name)[a:b] = value
+
+    def _array(self, name: str):
+        """The zarr array of a field, opened once in this process (not pickled with this object)."""
+        opened = self.__dict__.setdefault("_opened", {})
+        if name not in opened:
+            opened[name] = _needs("zarr").open_array(self.path, path=name, mode="r+")
+        return opened[name]
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != "_opened"}
 
     def _chunk_files(self, k: int) -> list[Path]:
         if self.format == "parquet":
