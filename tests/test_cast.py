@@ -310,6 +310,11 @@ def _bad(folder: Path, case: str) -> tuple[Path, str]:
         path = folder / "rays.csv"
         path.write_text("0,0,0,1,0,0\n")
         return path, r"rays\.csv: unknown ray file type '\.csv'"
+    if case == "truncated":     # a .npy cut short after it was written: found at the chunk it cuts
+        path = folder / "rays.npy"
+        np.save(path, np.hstack([o, d]))
+        os.truncate(path, path.stat().st_size - 250 * 48)
+        return path, r"rays\.npy: chunk 7 \(rays 700 to 799\): ends before row 800 of 1,000"
     if case in ("nan", "inf"):
         o[730] = np.nan if case == "nan" else np.inf
         np.savez(path, origins=o, directions=d, tmax=tmax)
@@ -317,7 +322,8 @@ def _bad(folder: Path, case: str) -> tuple[Path, str]:
     raise ValueError(case)
 
 
-@pytest.mark.parametrize("case", ["shape", "dtype", "missing", "length", "compressed", "extension", "nan", "inf"])
+@pytest.mark.parametrize("case", ["shape", "dtype", "missing", "length", "compressed", "extension", "nan", "inf",
+                                  "truncated"])
 def test_a_bad_ray_file_is_one_line_and_nothing_is_written_past_the_last_good_chunk(tmp_path, capsys, case):
     path, message = _bad(tmp_path, case)
     out = tmp_path / "hits.zarr"
@@ -327,7 +333,7 @@ def test_a_bad_ray_file_is_one_line_and_nothing_is_written_past_the_last_good_ch
     assert err.count("\n") == 1 and err.startswith("raykernel: error: "), err
     assert re.search(message, err), err
     written = sorted(int(p.name) for p in (out / "t" / "c").glob("*")) if out.exists() else []
-    if case in ("nan", "inf"):
+    if case in ("nan", "inf", "truncated"):
         assert written == list(range(7))          # the chunks before the bad one, none after
     else:
         assert not out.exists()                   # refused before anything was made

@@ -107,9 +107,11 @@ def read_chunk(source, out, k: int, buffers: Buffers | None = None):
     a, b = out.rows(k)
     try:
         return source.read(a, b, buffers)
-    except (OSError, ValueError) as e:
-        if isinstance(e, RayFileError):
+    except RayFileError as e:
+        if e.chunk is not None:
             raise
+        raise RayFileError(e.message, e.path, k, (a, b)) from None
+    except (OSError, ValueError) as e:
         raise RayFileError(f"cannot be read ({type(e).__name__}: {e})", source.name, k, (a, b)) from None
 
 

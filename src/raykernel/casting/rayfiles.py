@@ -32,6 +32,7 @@ which they must reach at the same paths (as with Dask's own from_zarr and to_zar
 from __future__ import annotations
 
 import json
+import os
 import zipfile
 from pathlib import Path
 
@@ -106,14 +107,22 @@ def _split_rays(block, o, d):
 
 class _Npy:
     """A C-ordered array at `offset` bytes into a file (a .npy, or a stored member of a .npz), read a
-    block of rows at a time into new memory (no mapping: the process keeps only what it reads)."""
+    block of rows at a time (the process keeps only the block it reads: no mapping of the whole)."""
 
     def __init__(self, path, offset: int, shape: tuple, dtype):
         self.path, self.offset, self.shape, self.dtype = str(path), offset, shape, np.dtype(dtype)
 
-    def rows(self, a: int, b: int, out: np.ndarray | None = None) -> np.ndarray:
+    def window(self, a: int, b: int) -> np.ndarray:
+        """Rows a..b-1 mapped, not read: the pages are the file's own (no copy), mapped until the
+        array is dropped."""
         row = self.dtype.itemsize * int(np.prod(self.shape[1:], dtype=np.int64))
-        out = np.empty((b - a,) + self.shape[1:], self.dtype) if out is None else out
+        if os.path.getsize(self.path) < self.offset + b * row:
+            raise RayFileError(f"ends before row {b:,} of {self.shape[0]:,}", self.path)
+        return np.memmap(self.path, self.dtype, "r", self.offset + a * row, (b - a,) + self.shape[1:])
+
+    def rows(self, a: int, b: int) -> np.ndarray:
+        row = self.dtype.itemsize * int(np.prod(self.shape[1:], dtype=np.int64))
+        out = np.empty((b - a,) + self.shape[1:], self.dtype)
         with open(self.path, "rb") as f:
             f.seek(self.offset + a * row)
             if f.readinto(memoryview(out).cast("B")) != out.nbytes:
@@ -176,12 +185,13 @@ class RaySource:
         if self.kind == "npy":
             rays = self.parts["rays"]
             get = _new if buffers is None else buffers.get
-            block = rays.rows(a, b, get("rows", (b - a, 6), rays.dtype))
             o, d = get("origins", (b - a, 3), np.float64), get("directions", (b - a, 3), np.float64)
+            block = rays.window(a, b)       # read once, as converted: no copy of the file's bytes first
             if rays.dtype in (np.float32, np.float64):
-                _split_rays(block, o, d)
+                _split_rays(np.asarray(block), o, d)
             else:
                 o[:], d[:] = block[:, :3], block[:, 3:]
+            del block
             return o, d, None, None
         if self.kind == "parquet":
             return self._parquet(a, b)
