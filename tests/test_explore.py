@@ -96,6 +96,33 @@ def test_node_masks_equal_a_brute_force_check(scene, ex):
         assert masks.any()
 
 
+def test_a_lazy_structure_has_node_masks_and_tile_times_of_itself_as_its_render_left_it(scene):
+    """lazyoctree and rc: the boxes are those structure --use draws after its refining render,
+    and every box's mask equals the brute-force check run on the structure a render of its own
+    (render's job loop, two threads) left."""
+    from raykernel.rendering.render import RenderJob
+    for accel in ("lazyoctree", "rc"):
+        run = explore_scene(scene, settings([accel], RES), SCENE).runs[accel]
+        assert run.samples is not None and run.tile_seconds.shape == (2, 2) and (run.tile_seconds > 0).all()
+        assert "as its render left it" in run.note
+        boxes, use, _ = structure_use(scene, accel, resolution=RES)
+        assert np.array_equal(run.boxes.corners, boxes.corners) and np.array_equal(run.use["refined"], use["refined"])
+        job = RenderJob(scene, accel=accel, resolution=RES, work=True)
+        for p in range(len(job.passes)):
+            job.trace_pass(p, 2)
+            job.end_pass(p)
+        wanted = np.arange(len(run.boxes))
+        masks, tile_visits = entered_masks(scene, accel, RES, wanted, frozen=job)
+        for k, box in enumerate(wanted):
+            got = run.node_mask(int(box))
+            assert np.array_equal(got > 0, masks[k]), (accel, box)
+            assert got[:TILE, :TILE].sum() == tile_visits[k]
+        assert masks.any()
+    assert use["refined"].sum() == 0 and run.use["refined"].sum() == 0      # rc refines no octree cells
+    lazy = explore_scene(scene, settings(["lazyoctree"], RES), SCENE).runs["lazyoctree"]
+    assert lazy.use["refined"].sum() > 0
+
+
 def test_a_pixel_boxes_are_those_its_masks_hold(ex):
     run = ex.runs["octree"]
     y, x = np.unravel_index(np.argmax(run.layers["cells.visited"]), run.shape)
@@ -285,6 +312,46 @@ def test_a_click_explains_the_sample(server, scene):
     names = [t.get("name", "") for t in fig["structure"]["figure"]["data"]]
     assert any(n.startswith("entered (level 0)") for n in names) and any(n.startswith("ray 1: eye") for n in names)
     assert "entered" in fig["node"]["children"]
+
+
+def _array(value):
+    """A plotly array as it comes over the wire: a list, or typed ({"dtype", "bdata"}: base64)."""
+    import base64
+    if isinstance(value, dict):
+        return np.frombuffer(base64.b64decode(value["bdata"]), value["dtype"]).reshape(value.get("shape", -1))
+    return np.asarray([np.nan if v is None else v for v in value], np.float64)
+
+
+def test_a_click_draws_every_item_each_ray_tested(server, scene):
+    """The 3D view of a clicked sample draws, for each ray, every item it tested (hit or not):
+    the set explain's JSON lists, each box that of the scene's polygon (from its corners)."""
+    v = _version(server)
+    sets = list(scene.root.primitive_sets())
+    polys = sets[0]         # spd:tetra: one set of polygons, flattened in order
+    assert list(scene.root.children) == [] and len(sets) == 1
+    for accel, (x, y) in (("octree", (12, 11)), ("bvh(leaf=1,width=2)", (9, 14))):
+        want = json.loads(json.dumps(explain(scene, x, y, accel=accel, resolution=RES)))     # explain --json
+        fig = call(server, "structure.figure", [v, accel, "visits", "", "", {"x": x, "y": y}, None])
+        data = fig["structure"]["figure"]["data"]
+        missed = 0
+        for k, ray in enumerate(want["rays"]):
+            tests = [t for step in ray["steps"] for t in step["tests"]] + ray.get("tests", [])
+            missed += sum(t["t"] is None for t in tests)
+            wires = [t for t in data if t.get("name", "").startswith(f"ray {k + 1}: tested (level")]
+            drawn = {}
+            for t in wires:
+                xyz = np.stack([_array(t[a]) for a in "xyz"], axis=1).reshape(-1, 36, 3)
+                for name, pts in zip(t["text"][::36], xyz):
+                    drawn[name] = (np.nanmin(pts, axis=0), np.nanmax(pts, axis=0))
+            assert set(drawn) == {f"{t['primitive']} {t['index']}" for t in tests}, (accel, k)
+            for name, (lo, hi) in drawn.items():
+                kind, i = name.split()
+                corners = polys.vertices[polys.start[int(i)]:polys.start[int(i)] + polys.count[int(i)]]
+                assert kind == "polygon" and np.allclose(lo, corners.min(axis=0)) and np.allclose(hi, corners.max(axis=0))
+            shapes = [t for t in data if t.get("name", "").startswith(f"ray {k + 1}: tested shapes")]
+            assert sum(len(_array(t["x"])) for t in shapes) == sum(int(polys.count[int(n.split()[1])]) for n in drawn)
+            assert all(t["line"]["color"] == t2["color"] for t in wires for t2 in shapes)
+        assert missed > 0, "the sample's rays tested no item they missed: pick another"
 
 
 def test_a_bad_spec_is_an_error_in_the_page_and_the_next_good_one_renders(server, scene):

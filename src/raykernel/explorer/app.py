@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import OptionError, RayKernelError
 from ..rendering.explain import explain, text
 from . import figures
-from .model import Settings, settings, viewed
+from .model import Settings, settings, tested_items, viewed
 
 POLL_MS = 600
 
@@ -371,6 +371,10 @@ def _structure(app, renderer, explained) -> None:
                 notes.append(str(e))
             notes.append(f"sample ({pixel['x']}, {pixel['y']}): its rays entered {len(visited)} boxes and "
                          f"tested items in {len(tested)}")
+            drawn = [tested_items(r) for r in rays or []]
+            notes.append(f"the items each ray tested drawn in its colour ({sum(len(d) for d, _ in drawn)} in all)"
+                         + (f"; {sum(h for _, h in drawn)} tested inside an instance, in its own space, not drawn"
+                            if any(h for _, h in drawn) else ""))
         selected = None
         if selection and selection.get("kind") == "box" and selection.get("accel") == accel:
             selected = int(selection["box"])
