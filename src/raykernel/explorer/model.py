@@ -44,13 +44,14 @@ from ..geometry.work import TESTS, VISITS
 from ..errors import OptionError
 from ..options import number
 from ..rendering.render import TILE, RenderJob
-from ..rendering.structure import Boxes, box_rows, boxes_of, structure_use, use_of, use_values
+from ..rendering.structure import Boxes, box_rows, boxes_of, use_of, use_values
 from ..rendering.worklayers import check_layer_name
 
 DEFAULT_RESOLUTION = 48
 COARSE = 4              # the coarse pass renders at 1/COARSE of the resolution
 TIME_REPEATS = 3        # each tile timed this often, the fastest kept (the others met interrupts)
 CHUNK = 8               # tiles traced between looks at whether a newer request came
+SAMPLE_CHUNK = 64       # samples traced alone between such looks (each is a call of its own)
 MAX_STRUCTURES = 8
 DECADES = 2.0           # a layer whose values span more than this many decades opens on a log scale
 
@@ -352,7 +353,7 @@ def _sample_use(scene, accel, resolution, cancelled, max_memory, frozen=None):
     before = counts[:, [VISITS, TESTS]].copy()
     parts, indptr, stored = [], [0], 0
     for k in range(n):
-        if k % 64 == 0:
+        if k % SAMPLE_CHUNK == 0:
             _check(cancelled)
             check(stored * 24, budget, "the explorer's per-sample use", "lower the resolution")
         job.trace(0, k, k + 1, 1)
