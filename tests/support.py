@@ -800,13 +800,14 @@ def work_counts(stats) -> dict:
             if isinstance(v, (int, np.integer)) and not k.startswith("time.") and k != "build.seconds"}
 
 
-def entered_masks(scene, accel, resolution, boxes_wanted):
+def entered_masks(scene, accel, resolution, boxes_wanted, frozen=None):
     """The explorer's brute-force check: which samples' walks entered each box, every sample
     traced alone into zeroed box counters; and the visits of a whole TILE x TILE tile traced as
-    a render traces it, for the tile sums. (bool masks (boxes, h, w), first tile's visits)"""
+    a render traces it, for the tile sums. (bool masks (boxes, h, w), first tile's visits).
+    frozen: the render job of a lazy structure, traced as that render left it."""
     from raykernel.explorer.model import sample_job
     from raykernel.rendering.structure import box_rows, boxes_of
-    job, (tiles_x, tiles_y) = sample_job(scene, accel, resolution)
+    job, (tiles_x, tiles_y), _ = sample_job(scene, accel, resolution, frozen=frozen)
     n = len(job.tile_x)
     rows = box_rows(boxes_of(job.geo), job.probe)[boxes_wanted]
     masks = np.zeros((len(boxes_wanted), n), bool)

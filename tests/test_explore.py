@@ -96,6 +96,33 @@ def test_node_masks_equal_a_brute_force_check(scene, ex):
         assert masks.any()
 
 
+def test_a_lazy_structure_has_node_masks_and_tile_times_of_itself_as_its_render_left_it(scene):
+    """lazyoctree and rc: the boxes are those structure --use draws after its refining render,
+    and every box's mask equals the brute-force check run on the structure a render of its own
+    (render's job loop, two threads) left."""
+    from raykernel.rendering.render import RenderJob
+    for accel in ("lazyoctree", "rc"):
+        run = explore_scene(scene, settings([accel], RES), SCENE).runs[accel]
+        assert run.samples is not None and run.tile_seconds.shape == (2, 2) and (run.tile_seconds > 0).all()
+        assert "as its render left it" in run.note
+        boxes, use, _ = structure_use(scene, accel, resolution=RES)
+        assert np.array_equal(run.boxes.corners, boxes.corners) and np.array_equal(run.use["refined"], use["refined"])
+        job = RenderJob(scene, accel=accel, resolution=RES, work=True)
+        for p in range(len(job.passes)):
+            job.trace_pass(p, 2)
+            job.end_pass(p)
+        wanted = np.arange(len(run.boxes))
+        masks, tile_visits = entered_masks(scene, accel, RES, wanted, frozen=job)
+        for k, box in enumerate(wanted):
+            got = run.node_mask(int(box))
+            assert np.array_equal(got > 0, masks[k]), (accel, box)
+            assert got[:TILE, :TILE].sum() == tile_visits[k]
+        assert masks.any()
+    assert use["refined"].sum() == 0 and run.use["refined"].sum() == 0      # rc refines no octree cells
+    lazy = explore_scene(scene, settings(["lazyoctree"], RES), SCENE).runs["lazyoctree"]
+    assert lazy.use["refined"].sum() > 0
+
+
 def test_a_pixel_boxes_are_those_its_masks_hold(ex):
     run = ex.runs["octree"]
     y, x = np.unravel_index(np.argmax(run.layers["cells.visited"]), run.shape)
@@ -169,7 +196,9 @@ def test_node_quality_against_hand_counts(ex):
 def server(scene):
     from raykernel.explorer.server import start
     srv = start(scene, SCENE, settings(ACCELS, RES), port=0, timed=False)
-    assert srv.renderer.wait(srv.renderer.generation) == "full"
+    srv.test_session = _session(srv)          # the page's, as a load of it gives
+    _version(srv)                               # its first request: its renderer begins
+    assert srv.sessions.get(srv.test_session).wait(1) == "full"
     yield srv
     srv.stop()
 
@@ -179,11 +208,30 @@ def _get(url):
         return r.status, r.read().decode("utf-8", "replace")
 
 
-def call(server, output, inputs, state=(), changed=None):
-    """A callback through Dash's own endpoint, as the page calls it; `output` names its key."""
+def _session(server):
+    """A new page load's session id: the data of the layout's store "session"."""
+    def find(node):
+        if isinstance(node, dict):
+            if node.get("props", {}).get("id") == "session":
+                return node["props"]["data"]
+            return next((f for f in map(find, node.values()) if f), None)
+        if isinstance(node, list):
+            return next((f for f in map(find, node) if f), None)
+        return None
+    return find(json.loads(_get(server.url + "_dash-layout")[1]))
+
+
+PAGE = object()     # call's session: the module's page
+
+
+def call(server, output, inputs, state=(), changed=None, session=PAGE):
+    """A callback through Dash's own endpoint, as the page calls it; `output` names its key. The
+    page's session id is sent as the last State, as the page sends it (session: another's)."""
     app = server.app
     key = next(k for k in app.callback_map if k.split("@")[0] == output or f".{output}." in k)
     spec = app.callback_map[key]
+    if len(state) == len(spec["state"]) - 1 and spec["state"][-1]["id"] == "session":
+        state = [*state, server.test_session if session is PAGE else session]
     outs = key.strip(".").split("...") if key.startswith("..") else [key.split("@")[0]]
     outputs = [dict(zip(("id", "property"), o.rsplit(".", 1))) for o in outs]
     body = {"output": key, "outputs": outputs if key.startswith("..") else outputs[0],
@@ -199,8 +247,13 @@ def call(server, output, inputs, state=(), changed=None):
     return json.loads(text)["response"] if text else {}
 
 
-def _version(server):
-    return call(server, "version.data", [1], [-1])["version"]["data"]
+def _mine(server):
+    """The Renderer of the module's page (its session's)."""
+    return server.sessions.get(server.test_session)
+
+
+def _version(server, session=PAGE):
+    return call(server, "version.data", [1], [-1], session=session)["version"]["data"]
 
 
 def test_the_page_needs_its_token_and_fetches_nothing_from_elsewhere(server):
@@ -235,21 +288,88 @@ def test_two_tabs_at_once_each_get_their_answers(server, ex):
     # two pages polling and hovering at the same time: each call answers its own pixel
     from concurrent.futures import ThreadPoolExecutor
     pixels = [(x, y) for x in range(0, 24, 5) for y in range(0, 24, 7)]
+    other = _session(server)
+    _version(server, other)
+    assert server.sessions.get(other).wait(1) == "full"
 
-    def tab(pixels):
+    def tab(job):
+        pixels, sid = job
         seen = []
         for x, y in pixels:
-            call(server, "status.children", [1], [None])                # the page's poll
-            table = call(server, "hover.children", [{"points": [{"x": x, "y": y}]}, None])["hover"]["children"]
+            call(server, "status.children", [1], [None], session=sid)                # the page's poll
+            table = call(server, "hover.children", [{"points": [{"x": x, "y": y}]}, None],
+                         session=sid)["hover"]["children"]
             seen.append((table["props"]["data-x"], table["props"]["data-y"], json.loads(table["props"]["data-counts"])))
         return seen
 
     with ThreadPoolExecutor(2) as pool:
-        tabs = list(pool.map(tab, [pixels, pixels[::-1]]))
+        tabs = list(pool.map(tab, [(pixels, server.test_session), (pixels[::-1], other)]))
     for seen, asked in zip(tabs, [pixels, pixels[::-1]]):
         assert [(x, y) for x, y, _ in seen] == asked
         for x, y, counts in seen:
             assert counts == {a: {k: int(val[y, x]) for k, val in ex.runs[a].layers.items()} for a in ACCELS}
+
+
+def _layer_over_http(server, sid, accel, name="tests.total"):
+    v = _version(server, sid)
+    fig = call(server, "layers.figure", [v, name, "auto", None], session=sid)["layers"]["figure"]
+    heat = {t["name"]: t for t in fig["data"] if t["type"] == "heatmap"}
+    return _array(heat[accel]["customdata"])
+
+
+def test_two_sessions_render_their_own_structures_and_a_forged_id_reads_nothing(scene):
+    """Two page loads, each its own session: different structures and resolutions, both live,
+    each page's layers and hover those of a fresh render of its own settings; the memory budget
+    is split so that together they hold it; a fifth tab closes the least recently used; an id
+    the server did not sign reads nothing and makes no session."""
+    from raykernel.aggregates.memory import memory_limit
+    from raykernel.explorer.jobs import MAX_SESSIONS
+    from raykernel.explorer.server import start
+    total = 4 * 600 * 1024      # each tab's share (600 KiB) is too small for the octree's 640 KiB
+    srv = start(scene, SCENE, settings(ACCELS, RES), port=0, timed=False, max_memory=total)
+    try:
+        a, b = _session(srv), _session(srv)
+        assert a != b
+        for sid in (a, b):      # the first request of each (the server's settings) needs more than its share
+            _version(srv, sid)
+            assert srv.sessions.get(sid).wait(1) == "failed"
+            assert "memory budget" in call(srv, "version.data", [1], [-1], session=sid)["error"]["children"]
+        first = call(srv, "error.children", [1], ["octree(depth=2)", 20, "", "", "", None, "tests.total"], session=a)
+        assert first["error"]["children"] == ""
+        call(srv, "error.children", [1], ["grid\nbvh(leaf=1,width=2)", 16, "", "", "", None, "tests.total"], session=b)
+        ra, rb = srv.sessions.get(a), srv.sessions.get(b)
+        assert ra is not rb and ra.wait(ra.generation) == "full" and rb.wait(rb.generation) == "full"
+        assert explore_scene(scene, settings(["octree"], RES), max_memory=total, timed=False).runs   # fits the whole
+        assert ra.max_memory == rb.max_memory == memory_limit(total) // MAX_SESSIONS
+        wanted = {a: ({"octree(depth=2)": 20}), b: {"grid": 16, "bvh(leaf=1,width=2)": 16}}
+        for sid in (a, b, a):           # both live: b's render did not replace a's view
+            for accel, res in wanted[sid].items():
+                ref = render(scene, accel=accel, resolution=res, work=True).work
+                assert np.array_equal(_layer_over_http(srv, sid, accel).reshape(res, res), ref["tests.total"])
+                table = call(srv, "hover.children", [{"points": [{"x": 3, "y": 5}]}, None], session=sid)
+                counts = json.loads(table["hover"]["children"]["props"]["data-counts"])
+                assert set(counts) == set(wanted[sid]) and counts[accel] == {k: int(v[5, 3]) for k, v in ref.items()}
+        # forged: a's id with its signature changed, one unsigned, none
+        forged = [a[:-1] + ("0" if a[-1] != "0" else "1"), a.split(".")[0], "x.y", "", None]
+        for sid in forged:
+            poll = call(srv, "version.data", [1], [-1], session=sid)
+            assert "reload the page" in poll["error"]["children"] and "version" not in poll
+            assert call(srv, "layers.figure", [1, "tests.total", "auto", None], session=sid) == {}
+            hover = call(srv, "hover.children", [{"points": [{"x": 3, "y": 5}]}, None], session=sid)
+            assert "data-counts" not in json.dumps(hover)
+            assert "rays" not in call(srv, "rays.children", [{"x": 3, "y": 5}, "grid", 1], session=sid) or \
+                "click a sample" in call(srv, "rays.children", [{"x": 3, "y": 5}, "grid", 1], session=sid)["rays"]["children"]
+        assert set(srv.sessions.live()) == {a, b}
+        # MAX_SESSIONS at once: a fifth tab closes the one used least recently (a; b was used since)
+        _version(srv, b)
+        more = [_session(srv) for _ in range(MAX_SESSIONS - 1)]
+        for sid in more:
+            _version(srv, sid)
+        assert set(srv.sessions.live()) == {b, *more}
+        assert "closed to make room" in call(srv, "version.data", [1], [-1], session=a)["error"]["children"]
+        assert set(srv.sessions.live()) == {b, *more}       # its poll did not take a place back
+    finally:
+        srv.stop()
 
 
 def test_the_views_draw_on_one_scale_and_light_a_selection(server, ex):
@@ -287,20 +407,61 @@ def test_a_click_explains_the_sample(server, scene):
     assert "entered" in fig["node"]["children"]
 
 
+def _array(value):
+    """A plotly array as it comes over the wire: a list, or typed ({"dtype", "bdata"}: base64)."""
+    import base64
+    if isinstance(value, dict):
+        shape = [int(n) for n in str(value.get("shape", "-1")).split(",")]
+        return np.frombuffer(base64.b64decode(value["bdata"]), value["dtype"]).reshape(shape)
+    return np.asarray([np.nan if v is None else v for v in value], np.float64)
+
+
+def test_a_click_draws_every_item_each_ray_tested(server, scene):
+    """The 3D view of a clicked sample draws, for each ray, every item it tested (hit or not):
+    the set explain's JSON lists, each box that of the scene's polygon (from its corners)."""
+    v = _version(server)
+    sets = list(scene.root.primitive_sets())
+    polys = sets[0]         # spd:tetra: one set of polygons, flattened in order
+    assert list(scene.root.children) == [] and len(sets) == 1
+    for accel, (x, y) in (("octree", (12, 11)), ("bvh(leaf=1,width=2)", (9, 14))):
+        want = json.loads(json.dumps(explain(scene, x, y, accel=accel, resolution=RES)))     # explain --json
+        fig = call(server, "structure.figure", [v, accel, "visits", "", "", {"x": x, "y": y}, None])
+        data = fig["structure"]["figure"]["data"]
+        missed = 0
+        for k, ray in enumerate(want["rays"]):
+            tests = [t for step in ray["steps"] for t in step["tests"]] + ray.get("tests", [])
+            missed += sum(t["t"] is None for t in tests)
+            wires = [t for t in data if t.get("name", "").startswith(f"ray {k + 1}: tested (level")]
+            drawn = {}
+            for t in wires:
+                xyz = np.stack([_array(t[a]) for a in "xyz"], axis=1).reshape(-1, 36, 3)
+                for name, pts in zip(t["text"][::36], xyz):
+                    drawn[name] = (np.nanmin(pts, axis=0), np.nanmax(pts, axis=0))
+            assert set(drawn) == {f"{t['primitive']} {t['index']}" for t in tests}, (accel, k)
+            for name, (lo, hi) in drawn.items():
+                kind, i = name.split()
+                corners = polys.vertices[polys.start[int(i)]:polys.start[int(i)] + polys.count[int(i)]]
+                assert kind == "polygon" and np.allclose(lo, corners.min(axis=0)) and np.allclose(hi, corners.max(axis=0))
+            shapes = [t for t in data if t.get("name", "").startswith(f"ray {k + 1}: tested shapes")]
+            assert sum(len(_array(t["x"])) for t in shapes) == sum(int(polys.count[int(n.split()[1])]) for n in drawn)
+            assert all(t["line"]["color"] == t2["color"] for t in wires for t2 in shapes)
+        assert missed > 0, "the sample's rays tested no item they missed: pick another"
+
+
 def test_a_bad_spec_is_an_error_in_the_page_and_the_next_good_one_renders(server, scene):
     form = [RES, "", "", "", None, "tests.total"]
     out = call(server, "error.children", [1], ["octree\nnosuch(", *form])
     assert "nosuch" in out["error"]["children"]
     out = call(server, "error.children", [2], ["bvh(leaf=1,width=2)", 20, "", "", "", None, "tests.total"])
     assert out["error"]["children"] == ""
-    assert server.renderer.wait(server.renderer.generation) == "full"
-    _, shown, error, _ = server.renderer.snapshot()
+    assert _mine(server).wait(_mine(server).generation) == "full"
+    _, shown, error, _ = _mine(server).snapshot()
     assert error is None and shown.accels == ["bvh(leaf=1,width=2)"] and shown.shape == (20, 20)
     ref = render(scene, accel="bvh(leaf=1,width=2)", resolution=20, work=True)
     assert all(np.array_equal(shown.runs["bvh(leaf=1,width=2)"].layers[k], ref.work[k]) for k in ref.work)
     # a structure the build refuses is the renderer's error, shown by the poll
     call(server, "error.children", [3], ["bvh", 20, "0,0,0", "0,0,0", "", None, "tests.total"])
-    server.renderer.wait(server.renderer.generation)
+    _mine(server).wait(_mine(server).generation)
     assert "eye and look_at" in call(server, "version.data", [2], [-1])["error"]["children"]
 
 
@@ -317,6 +478,78 @@ def test_a_newer_request_cancels_the_older(scene):
     assert r.snapshot()[1].settings.resolution == 12
     third, fourth = r.submit(settings(["octree"], 10)), r.submit(settings(["octree"], 11))
     assert r.wait(fourth) == "full" and r.wait(third) == "cancelled"
+
+
+def test_the_server_warms_each_structure_kernels_and_a_request_waits_cancellably(scene, server):
+    """As it starts, the server renders each structure 2x2 in a thread (the kernels compiled or
+    loaded), its status in the page; a request made before that ends waits, and a newer one
+    cancels it without its having traced anything."""
+    import threading
+    from raykernel.explorer.jobs import Renderer
+    from raykernel.rendering.render import RenderJob
+    assert server.warm.done.wait(600) and server.warm.warmed == ACCELS
+    assert call(server, "version.data", [1], [-1])["status"]["children"].startswith("kernels: ready | ")
+    ready, traced = threading.Event(), []
+    real = RenderJob.trace
+
+    def trace(self, *args, **kw):
+        traced.append(self.width)
+        return real(self, *args, **kw)
+
+    RenderJob.trace = trace
+    try:
+        r = Renderer(scene, SCENE, timed=False, ready=ready)
+        first = r.submit(settings(["octree"], 16))
+        while "waiting for the kernels" not in r.snapshot()[3]:
+            time.sleep(0.001)
+        second = r.submit(settings(["octree"], 12))
+        assert r.wait(first) == "cancelled" and traced == [] and r.outcome(second) is None
+        ready.set()
+        assert r.wait(second) == "full" and set(traced) == {12}
+        r.close()
+    finally:
+        RenderJob.trace = real
+
+
+@pytest.mark.parametrize("phase", ["render", "samples", "timing"])
+def test_a_newer_request_stops_the_first_after_at_most_one_chunk(scene, phase):
+    """A renderer's first request, cancelled while it renders its layers, traces its samples alone
+    or times its tiles: after the newer request arrived it traces at most one chunk (one
+    call of CHUNK tiles; SAMPLE_CHUNK one-sample calls; CHUNK one-tile calls), counted, not timed."""
+    import threading
+    from raykernel.explorer.jobs import Renderer
+    from raykernel.explorer.model import CHUNK, SAMPLE_CHUNK
+    from raykernel.rendering.render import RenderJob
+    lock, events = threading.Lock(), []
+    real = RenderJob.trace
+
+    def trace(self, p, lo, hi, threads=1, report=None):
+        kind = "samples" if self.probe is not None else ("render" if self.layer is not None else "timing")
+        with lock:
+            events.append(("start", self.width, kind, hi - lo))
+        real(self, p, lo, hi, threads, report)
+        with lock:
+            events.append(("end", self.width, kind, hi - lo))
+
+    RenderJob.trace = trace
+    try:
+        r = Renderer(scene, SCENE, timed=True)
+        first = r.submit(settings(["octree"], 128))         # its coarse pass 32x32, then 128x128
+        # five calls into the phase: inside a chunk of samples or tile times, three chunks of tiles before the end
+        while sum(e[0] == "end" and e[1] == 128 and e[2] == phase for e in list(events)) < 5:
+            assert r.outcome(first) is None
+            time.sleep(0.001)
+        with lock:          # no chunk begins or ends between the newer request and this mark
+            second = r.submit(settings(["octree"], 12))
+            mark = len(events)
+        assert r.wait(second) == "full" and r.wait(first) == "cancelled"
+        after = [e for e in events[mark:] if e[1] == 128 and e[0] == "end"]
+        limit = {"render": 1, "samples": SAMPLE_CHUNK, "timing": CHUNK}[phase]
+        assert len(after) <= limit, after
+        assert all(e[2] == phase for e in after) and all(e[3] <= CHUNK for e in events if e[1] == 128)
+        r.close()
+    finally:
+        RenderJob.trace = real
 
 
 def test_explore_command_prints_its_address_and_serves(tmp_path):
@@ -350,7 +583,7 @@ def test_explore_command_prints_its_address_and_serves(tmp_path):
 
 def test_export_writes_the_report_and_settings_that_reopen(server, tmp_path):
     from raykernel.explorer.server import initial_settings
-    _, shown, _, _ = server.renderer.snapshot()
+    _, shown, _, _ = _mine(server).snapshot()
     out = call(server, "download-report.data", [1], ["tests.total"])["download-report"]["data"]
     assert out["filename"] == "explore-report.html"
     page = out["content"]
@@ -380,7 +613,7 @@ def test_the_time_panel_is_time_on_its_own_scale(scene):
 
 def test_an_orbit_of_the_3d_view_becomes_the_camera_and_renders_from_there(server):
     from raykernel.explorer import figures
-    _, shown, _, _ = server.renderer.snapshot()
+    _, shown, _, _ = _mine(server).snapshot()
     run = next(iter(shown.runs.values()))
     frame = figures.view_frame(run)
     lo, hi, mid, side = frame
@@ -389,20 +622,20 @@ def test_an_orbit_of_the_3d_view_becomes_the_camera_and_renders_from_there(serve
     view = {"eye": {"x": 0.0, "y": -2.0, "z": 0.5}, "center": {"x": 0.1, "y": 0.0, "z": 0.0},
             "up": {"x": 0, "y": 0, "z": 1}}
     page = [run.accel, "\n".join(shown.settings.accels), shown.settings.resolution, None, "tests.total"]   # the controls
-    before = server.renderer.generation
+    before = _mine(server).generation
     out = call(server, "eye.value", [{"scene.camera": view}], page)
     assert np.allclose([float(v) for v in out["eye"]["value"].split(",")], mid + np.array([0.0, -2.0, 0.5]) * side)
     assert np.allclose([float(v) for v in out["look-at"]["value"].split(",")], mid + np.array([0.1, 0, 0]) * side)
     assert out["up"]["value"] == "0.0,0.0,1.0"
     # and renders from there, without a press of the render button
-    assert server.renderer.generation == before + 1
-    assert server.renderer.wait(before + 1) == "full"
-    _, orbited, _, _ = server.renderer.snapshot()
+    assert _mine(server).generation == before + 1
+    assert _mine(server).wait(before + 1) == "full"
+    _, orbited, _, _ = _mine(server).snapshot()
     assert orbited.settings.eye == tuple(float(v) for v in out["eye"]["value"].split(","))
     assert orbited.settings.accels == shown.settings.accels and orbited.shape == shown.shape
     assert call(server, "eye.value", [{"xaxis.range": [0, 1]}], page) == {}     # not an orbit: nothing
-    assert server.renderer.generation == before + 1
-    assert server.renderer.wait(server.renderer.submit(shown.settings)) == "full"     # as the other tests left it
+    assert _mine(server).generation == before + 1
+    assert _mine(server).wait(_mine(server).submit(shown.settings)) == "full"     # as the other tests left it
 
 
 def test_a_request_renders_coarse_then_full_and_the_memory_budget_holds(scene):

@@ -1,10 +1,13 @@
 """The explorer's page (Dash): its layout and the callbacks that link its views.
 
-    renderer = Renderer(scene, "scene:stadium")
-    app = make_app(renderer, settings(["octree", "bvh"]), token="...")   # app.server: a Flask app
+    tabs = Sessions(scene, "scene:stadium", settings(["octree", "bvh"]))
+    app = make_app(tabs, settings(["octree", "bvh"]), token="...")   # app.server: a Flask app
     # server.py serves it; the callbacks are plain functions too (app.callback_map), which tests call
 
-The page polls the renderer (jobs.py) and redraws when something new is shown. Linking: a hover
+Each page load is a session of its own (jobs.Sessions): the layout is made afresh for it, with a
+new session id in the store "session", which every callback sends back (its last State) and
+reads its tab's Renderer by; a request whose id the server did not sign reads nothing. The page
+polls its renderer and redraws when something new is shown. Linking: a hover
 on any image names a sample (every structure's counts there); a click on one explains it (its
 rays, listed and drawn in 3D over the structure with the boxes they entered); a range selected
 on a histogram, or a click on a box in 3D, lights the samples it names on the image.
@@ -20,7 +23,7 @@ import numpy as np
 from ..errors import OptionError, RayKernelError
 from ..rendering.explain import explain, text
 from . import figures
-from .model import Settings, settings, viewed
+from .model import Settings, settings, tested_items, viewed
 
 POLL_MS = 600
 
@@ -50,8 +53,9 @@ def settings_from_page(accels_text, resolution, eye, look_at, up, angle, counter
                     _parse_vector(up, "up"), angle if angle not in ("", None) else None, counter or "tests.total")
 
 
-def layout(s: Settings, scene_label: str, camera=None):
-    """The page; the camera fields hold the settings' camera, else the scene's (`camera`)."""
+def layout(s: Settings, scene_label: str, camera=None, session: str = ""):
+    """The page of session `session`; the camera fields hold the settings' camera, else the
+    scene's (`camera`)."""
     from dash import dcc, html
     if camera is not None:
         s = Settings(s.accels, s.resolution, s.eye or tuple(camera.eye), s.look_at or tuple(camera.look_at),
@@ -107,32 +111,45 @@ def layout(s: Settings, scene_label: str, camera=None):
         dcc.Graph(id="structure"), dcc.Graph(id="quality"),
         dcc.Interval(id="poll", interval=POLL_MS),
         dcc.Store(id="version", data=-1), dcc.Store(id="pixel"), dcc.Store(id="selection"),
+        dcc.Store(id="session", data=session),
     ], style={"fontFamily": "sans-serif", "margin": "12px"})
 
 
-def make_app(renderer, s: Settings, token: str, title: str = ""):
-    """The Dash app under /TOKEN/ (every route: a request without the token finds nothing)."""
+def make_app(tabs, s: Settings, token: str, title: str = "", warm=None):
+    """The Dash app under /TOKEN/ (every route: a request without the token finds nothing), one
+    session of `tabs` (jobs.Sessions) a page load; warm: the jobs.Warmup whose status it shows."""
     from dash import Dash
     app = Dash(__name__, url_base_pathname=f"/{token}/", serve_locally=True, title="raykernel explore",
                update_title=None)
-    app.layout = layout(s, title or renderer.label, renderer.scene.camera)
-    renderer.submit(s)
-    _controls(app, renderer)
-    _views(app, renderer)
-    explained = Explained(renderer)
-    _pixel(app, renderer, explained)
-    _structure(app, renderer, explained)
+    app.layout = lambda: layout(s, title or tabs.label, tabs.scene.camera, tabs.issue())     # each load: a new id
+    _controls(app, tabs, warm)
+    _views(app, tabs)
+    explained = Explained(tabs.scene, tabs.share)
+    _pixel(app, tabs, explained)
+    _structure(app, tabs, explained)
     return app
 
 
-def _controls(app, renderer) -> None:
+def _shown(tabs, sid):
+    """What session `sid` shows (None: nothing yet, or an id not signed here, or closed)."""
+    try:
+        return tabs.get(sid).snapshot()[1]
+    except RayKernelError:
+        return None
+
+
+def _controls(app, tabs, warm) -> None:
     from dash import Input, Output, State, dcc, no_update
 
     @app.callback(Output("error", "children", allow_duplicate=True), Input("render", "n_clicks"),
                   State("accels", "value"), State("resolution", "value"), State("eye", "value"),
                   State("look-at", "value"), State("up", "value"), State("angle", "value"), State("counter", "value"),
-                  prevent_initial_call=True)
-    def submit(_, accels, resolution, eye, look_at, up, angle, counter):
+                  State("session", "data"), prevent_initial_call=True)
+    def submit(_, accels, resolution, eye, look_at, up, angle, counter, sid):
+        try:
+            renderer = tabs.get(sid)
+        except RayKernelError as e:
+            return str(e)
         try:
             renderer.submit(settings_from_page(accels, resolution, eye, look_at, up, angle, counter))
         except RayKernelError as e:
@@ -141,25 +158,30 @@ def _controls(app, renderer) -> None:
         return ""
 
     @app.callback(Output("version", "data"), Output("status", "children"), Output("error", "children"),
-                  Input("poll", "n_intervals"), State("version", "data"))
-    def poll(_, shown):
-        version, ex, error, status = renderer.snapshot()
+                  Input("poll", "n_intervals"), State("version", "data"), State("session", "data"))
+    def poll(_, shown, sid):
+        kernels = "" if warm is None else warm.status + " | "
+        try:
+            version, ex, error, status = tabs.get(sid).snapshot()
+        except RayKernelError as e:
+            return no_update, kernels, str(e)
         message = error[1] if error else ""
         where = "" if ex is None else (f" | shown: {', '.join(ex.accels)} at {ex.shape[1]}x{ex.shape[0]} "
                                        f"({ex.stage}, {ex.seconds:.1f} s)")
-        return (version if version != shown else no_update), status + where, message
+        return (version if version != shown else no_update), kernels + status + where, message
 
-    @app.callback(Output("download", "data"), Input("export", "n_clicks"), prevent_initial_call=True)
-    def export(_):
-        _, ex, _, _ = renderer.snapshot()
+    @app.callback(Output("download", "data"), Input("export", "n_clicks"), State("session", "data"),
+                  prevent_initial_call=True)
+    def export(_, sid):
+        ex = _shown(tabs, sid)
         if ex is None:
             return no_update
         return dcc.send_string(ex.settings.to_json(), "explore-settings.json")
 
     @app.callback(Output("download-report", "data"), Input("export-report", "n_clicks"), State("counter", "value"),
-                  prevent_initial_call=True)
-    def report(_, counter):
-        _, ex, _, _ = renderer.snapshot()
+                  State("session", "data"), prevent_initial_call=True)
+    def report(_, counter, sid):
+        ex = _shown(tabs, sid)
         if ex is None:
             return no_update
         return dcc.send_string(report_html(ex, counter), "explore-report.html")
@@ -187,16 +209,16 @@ def _mask(ex, selection):
         return None, ""
 
 
-def _views(app, renderer) -> None:
+def _views(app, tabs) -> None:
     from dash import Input, Output, State, html, no_update
 
     @app.callback(Output("layers", "figure"), Output("compare", "figure"), Output("histograms", "figure"),
                   Output("hottest", "children"), Output("time", "figure"), Output("time-note", "children"),
                   Output("counter", "options"), Output("lit", "children"),
                   Input("version", "data"), Input("counter", "value"), Input("scale", "value"),
-                  Input("selection", "data"))
-    def draw(_, counter, scale, selection):
-        _, ex, _, _ = renderer.snapshot()
+                  Input("selection", "data"), State("session", "data"))
+    def draw(_, counter, scale, selection, sid):
+        ex = _shown(tabs, sid)
         if ex is None:
             return (no_update,) * 8
         names = ex.layer_names()
@@ -219,10 +241,12 @@ def _views(app, renderer) -> None:
         return (layers, compare, figures.histograms_figure(ex, counter, scale), table,
                 timing if timing is not None else {}, note, names, lit)
 
-    @app.callback(Output("hover", "children"), Input("layers", "hoverData"), Input("compare", "hoverData"))
+    @app.callback(Output("hover", "children"), Input("layers", "hoverData"), Input("compare", "hoverData"),
+                  State("session", "data"))
     def hover(*events):
+        *events, sid = events
         point = next((e["points"][0] for e in events if e and e.get("points")), None)
-        _, ex, _, _ = renderer.snapshot()
+        ex = _shown(tabs, sid)
         if point is None or ex is None:
             return "move the mouse over an image: every structure's counts at that sample"
         x, y = int(point["x"]), int(point["y"])
@@ -238,10 +262,10 @@ def _views(app, renderer) -> None:
 
     @app.callback(Output("selection", "data"), Input("histograms", "selectedData"),
                   Input("structure", "clickData"), Input("clear", "n_clicks"), State("counter", "value"),
-                  State("accel", "value"), prevent_initial_call=True)
-    def select(hist, box, _, counter, accel):
+                  State("accel", "value"), State("session", "data"), prevent_initial_call=True)
+    def select(hist, box, _, counter, accel, sid):
         from dash import ctx
-        _, ex, _, _ = renderer.snapshot()
+        ex = _shown(tabs, sid)
         if ex is None or ctx.triggered_id == "clear":
             return None
         if ctx.triggered_id == "histograms":
@@ -271,23 +295,23 @@ class Explained:
 
     KEEP = 16
 
-    def __init__(self, renderer):
-        self.renderer, self.answers, self.lock = renderer, {}, threading.Lock()
+    def __init__(self, scene, max_memory=None):
+        self.scene, self.max_memory, self.answers, self.lock = scene, max_memory, {}, threading.Lock()
 
     def __call__(self, ex, accel: str, x: int, y: int) -> dict:
         key = (ex.settings, ex.shape, accel, int(x), int(y))     # the same render: the same answer
         with self.lock:         # one explanation at a time: the second asker finds the first's
             if key not in self.answers:
-                scene = viewed(self.renderer.scene, ex.settings)
+                scene = viewed(self.scene, ex.settings)
                 self.answers[key] = explain(scene, int(x), int(y), accel=accel, resolution=ex.shape[0],
-                                            max_memory=self.renderer.max_memory)
+                                            max_memory=self.max_memory)
                 while len(self.answers) > self.KEEP:
                     self.answers.pop(next(iter(self.answers)))
             return self.answers[key]
 
 
-def _pixel(app, renderer, explained) -> None:
-    from dash import Input, Output, no_update
+def _pixel(app, tabs, explained) -> None:
+    from dash import Input, Output, State, no_update
 
     @app.callback(Output("pixel", "data"), Input("layers", "clickData"), Input("compare", "clickData"),
                   prevent_initial_call=True)
@@ -300,9 +324,9 @@ def _pixel(app, renderer, explained) -> None:
         return {"x": int(p["x"]), "y": int(p["y"])}
 
     @app.callback(Output("rays", "children"), Input("pixel", "data"), Input("accel", "value"),
-                  Input("version", "data"))
-    def rays(pixel, accel, _):
-        _, ex, _, _ = renderer.snapshot()
+                  Input("version", "data"), State("session", "data"))
+    def rays(pixel, accel, _, sid):
+        ex = _shown(tabs, sid)
         if not pixel or ex is None or accel not in ex.runs:
             return "click a sample on an image: its rays, as `raykernel explain` gives them"
         try:
@@ -322,38 +346,39 @@ def _range(text_value, name):
     return min(lo, hi), max(lo, hi)
 
 
-def _structure(app, renderer, explained) -> None:
+def _structure(app, tabs, explained) -> None:
     from dash import Input, Output, State, no_update
 
     @app.callback(Output("eye", "value"), Output("look-at", "value"), Output("up", "value"),
                   Input("structure", "relayoutData"), State("accel", "value"), State("accels", "value"),
                   State("resolution", "value"), State("angle", "value"), State("counter", "value"),
-                  prevent_initial_call=True)
-    def orbit(view, accel, accels, resolution, angle, counter):
+                  State("session", "data"), prevent_initial_call=True)
+    def orbit(view, accel, accels, resolution, angle, counter, sid):
         # an orbit or a pan of the 3D view (plotly reports it when the drag ends): its camera into
         # the camera fields, and a render from there, which cancels the one in progress
-        _, ex, _, _ = renderer.snapshot()
+        ex = _shown(tabs, sid)
         if not view or "scene.camera" not in view or ex is None or accel not in ex.runs:
             return no_update, no_update, no_update
         eye, look_at, up = (_vector_text(v) for v in
                             figures.camera_from_view(view["scene.camera"], figures.view_frame(ex.runs[accel])))
+        renderer = tabs.get(sid)        # the one that showed ex
         try:
             renderer.submit(settings_from_page(accels, resolution, eye, look_at, up, angle, counter))
         except RayKernelError as e:
             renderer.reject(f"{type(e).__name__}: {e}")
         return eye, look_at, up
 
-    @app.callback(Output("accel", "options"), Input("version", "data"))
-    def structures(_):
-        _, ex, _, _ = renderer.snapshot()
+    @app.callback(Output("accel", "options"), Input("version", "data"), State("session", "data"))
+    def structures(_, sid):
+        ex = _shown(tabs, sid)
         return no_update if ex is None else ex.accels
 
     @app.callback(Output("structure", "figure"), Output("quality", "figure"), Output("node", "children"),
                   Input("version", "data"), Input("accel", "value"), Input("colour-by", "value"),
                   Input("levels", "value"), Input("depths", "value"), Input("pixel", "data"),
-                  Input("selection", "data"))
-    def draw(_, accel, what, levels, depths, pixel, selection):
-        _, ex, _, _ = renderer.snapshot()
+                  Input("selection", "data"), State("session", "data"))
+    def draw(_, accel, what, levels, depths, pixel, selection, sid):
+        ex = _shown(tabs, sid)
         if ex is None or accel not in ex.runs:
             return no_update, no_update, ""
         run = ex.runs[accel]
@@ -371,6 +396,10 @@ def _structure(app, renderer, explained) -> None:
                 notes.append(str(e))
             notes.append(f"sample ({pixel['x']}, {pixel['y']}): its rays entered {len(visited)} boxes and "
                          f"tested items in {len(tested)}")
+            drawn = [tested_items(r) for r in rays or []]
+            notes.append(f"the items each ray tested drawn in its colour ({sum(len(d) for d, _ in drawn)} in all)"
+                         + (f"; {sum(h for _, h in drawn)} tested inside an instance, in its own space, not drawn"
+                            if any(h for _, h in drawn) else ""))
         selected = None
         if selection and selection.get("kind") == "box" and selection.get("accel") == accel:
             selected = int(selection["box"])

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import DECADES, Exploration, Run
+from ..rendering.structure import CORNERS
+from .model import DECADES, Exploration, Run, primitive_box, primitive_shape, tested_items
 from .quality import depth_histogram, leaf_size_histogram, quality
 
 MAX_DRAWN = 1500        # boxes drawn in 3D at most: those that score highest on the colour
@@ -25,6 +26,7 @@ LEVEL_COLOURS = ("#e41a1c", "#377eb8", "#4daf4a", "#984ea3", "#ff7f00", "#a65628
 RAY_COLOURS = {"eye": "#000000", "reflect": "#1f77b4", "refract": "#17becf", "shadow": "#ff7f0e", None: "#7f7f7f"}
 PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f")
 OPENING_EYE = (0.8, -0.8, 0.6)      # the 3D view's first camera, in units of the structure's longest side
+LEVEL_DASHES = ("solid", "dash", "dot", "longdash", "dashdot", "longdashdot")    # a tested item's level
 COLOUR_BY = ("visits", "tests", "futile", "refined", "sah", "overlap", "depth", "items")
 
 
@@ -240,7 +242,8 @@ def structure_figure(run: Run, what: str = "visits", levels=None, depths=None, v
     """The boxes in 3D coloured by `what`; a marker at each box's centre names it (click: its
     pixel mask). visited/tested: boxes a pixel's rays entered and tested items in, drawn thick
     in the colour of their nesting level; rays: explain's rays of that pixel (one legend entry
-    a ray type). The view opens on the whole structure; camera_from_view reads an orbit."""
+    a ray type), each with every item it tested, hit or not, in its colour (_add_tested).
+    The view opens on the whole structure; camera_from_view reads an orbit."""
     go = _go()
     idx = chosen_boxes(run, what, levels, depths)
     values = box_values(run, what)
@@ -274,6 +277,7 @@ def structure_figure(run: Run, what: str = "visits", levels=None, depths=None, v
     shown = set()
     for k, ray in enumerate(rays or []):
         _add_ray(fig, go, k, ray, run, ray.get("type") not in shown)
+        _add_tested(fig, go, k, ray, run)
         shown.add(ray.get("type"))
     frame = view_frame(run)
     lo, hi, _, side = frame
@@ -309,6 +313,36 @@ def _add_ray(fig, go, k: int, ray: dict, run: Run, legend: bool) -> None:
                                    text=[f"{s['primitive']} {s['index']} t={s['t']:.4g}" for s in tests],
                                    hovertemplate="ray " + str(k + 1) + ": tested %{text}<extra></extra>",
                                    marker={"size": 4, "symbol": "x", "color": RAY_COLOURS.get(ray["type"])}))
+
+
+def _add_tested(fig, go, k: int, ray: dict, run: Run) -> None:
+    """The items ray k tested, hit or not, in the ray's colour: each one's box as a wireframe
+    (its points' text names it, "polygon 3"), polygons and triangles also as their shape; one pair
+    of traces a nesting level, told apart by the box's dash and the shape's opacity."""
+    items, _ = tested_items(ray)
+    if run.geo is None or not items:
+        return
+    colour = RAY_COLOURS.get(ray.get("type"), "#7f7f7f")
+    for level in sorted({lv for _, _, lv in items}):
+        mine = [(kind, i) for kind, i, lv in items if lv == level]
+        box = np.array([primitive_box(run.geo, kind, i) for kind, i in mine])          # (n, 2, 3)
+        x, y, z = _wire(np.where(CORNERS[None], box[:, None, 1], box[:, None, 0]))
+        names = [f"{kind} {i}" for kind, i in mine]
+        group = f"tested-{k}-{level}"
+        fig.add_trace(go.Scatter3d(x=x, y=y, z=z, mode="lines", name=f"ray {k + 1}: tested (level {level})",
+                                   text=np.repeat(names, 3 * len(EDGES)).tolist(), legendgroup=group,
+                                   hovertemplate=f"ray {k + 1} tested %{{text}} (level {level})<extra></extra>",
+                                   line={"color": colour, "width": 3, "dash": LEVEL_DASHES[level % len(LEVEL_DASHES)]}))
+        shapes = [primitive_shape(run.geo, kind, i) for kind, i in mine]
+        shapes = [(np.asarray(p, np.float64), t) for p, t in (sh for sh in shapes if sh is not None)]
+        if not shapes:
+            continue
+        starts = np.cumsum([0] + [len(p) for p, _ in shapes[:-1]])
+        points = np.concatenate([p for p, _ in shapes])
+        tri = np.concatenate([t + a for (_, t), a in zip(shapes, starts)])
+        fig.add_trace(go.Mesh3d(x=points[:, 0], y=points[:, 1], z=points[:, 2], i=tri[:, 0], j=tri[:, 1], k=tri[:, 2],
+                                color=colour, opacity=0.45 / (1 + level), name=f"ray {k + 1}: tested shapes (level {level})",
+                                legendgroup=group, showlegend=False, hoverinfo="name", flatshading=True))
 
 
 def quality_figure(run: Run):

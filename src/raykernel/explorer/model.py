@@ -16,10 +16,13 @@ numbers `compare --work` shows), the structure's boxes with how the render's ray
 (structure --use), and each sample's use of each box. The last comes from tracing the image one
 sample at a time with the box counters on (rendering/structure.py's Use, on one thread): each
 sample's trace is the only one between two reads of the counters, so the rows that changed are
-the boxes its rays entered and the tests made in them, exactly. A lazy structure refines between
-the passes of its render, so its samples do not trace alone; it has no per-sample use (the page
-says so). A Run also holds the seconds each tile took (tile_seconds): time, never mixed with the
-counts.
+the boxes its rays entered and the tests made in them, exactly. A lazy structure (lazyoctree, rc)
+refines between the passes of its render, so its samples cannot trace alone in it as it grew;
+they trace alone in it as the render left it, frozen (its pass counts are kept, never refined
+from): its boxes, their use, its node masks and its tile times are of that structure, while its
+work layers and image are those of the refining render (Run.note says so). A Run also holds the
+seconds each tile took (tile_seconds): time, never mixed with the counts; and the flattened
+arrays it traced (geo), whose primitives the 3D view draws (primitive_box, primitive_shape).
 """
 
 from __future__ import annotations
@@ -41,13 +44,14 @@ from ..geometry.work import TESTS, VISITS
 from ..errors import OptionError
 from ..options import number
 from ..rendering.render import TILE, RenderJob
-from ..rendering.structure import Boxes, box_rows, boxes_of, structure_use, use_of, use_values
+from ..rendering.structure import Boxes, box_rows, boxes_of, use_of, use_values
 from ..rendering.worklayers import check_layer_name
 
 DEFAULT_RESOLUTION = 48
 COARSE = 4              # the coarse pass renders at 1/COARSE of the resolution
 TIME_REPEATS = 3        # each tile timed this often, the fastest kept (the others met interrupts)
 CHUNK = 8               # tiles traced between looks at whether a newer request came
+SAMPLE_CHUNK = 64       # samples traced alone between such looks (each is a call of its own)
 MAX_STRUCTURES = 8
 DECADES = 2.0           # a layer whose values span more than this many decades opens on a log scale
 
@@ -152,9 +156,10 @@ class Run:
     boxes: Boxes
     use: dict                   # USE's values, one a box (structure_use)
     rows: np.ndarray            # each box's Use row
-    samples: SampleUse | None   # None: a lazy structure (the module's docstring)
-    tile_seconds: np.ndarray | None     # (tiles down, tiles across), None: a lazy structure
-    note: str = ""              # why something is missing
+    samples: SampleUse | None   # None: not traced sample by sample
+    tile_seconds: np.ndarray | None     # (tiles down, tiles across), None: not timed
+    note: str = ""              # what is missing, or of another structure (a lazy one's, frozen)
+    geo: object = None          # the flattened arrays traced (engine/flatten.py): the primitives drawn
 
     @property
     def shape(self) -> tuple:
@@ -277,16 +282,16 @@ def explore_scene(scene, s: Settings, label: str = "", resolution: int | None = 
 
 def run_structure(scene, accel: str, resolution: int, cancelled=None, max_memory=None, timed=True) -> Run:
     cancelled = cancelled or (lambda: False)
-    result, lazy = _render(scene, accel, resolution, cancelled, max_memory)
-    if lazy:
-        boxes, use, _ = structure_use(scene, accel, resolution=resolution, max_memory=max_memory)
-        note = "a lazy structure refines between its render's passes: no per-sample use, no tile times"
-        return Run(accel, result.image, result.work, result.stats, boxes, use,
-                   np.zeros(len(boxes), np.int64), None, None, note)
-    boxes, use, rows, samples = _sample_use(scene, accel, resolution, cancelled, max_memory)
-    seconds = _tile_seconds(scene, accel, resolution, cancelled, max_memory) if timed else None
+    result, job = _render(scene, accel, resolution, cancelled, max_memory)
+    # a lazy structure is traced sample by sample and timed as its render left it (job: frozen)
+    frozen = job if job.lazy is not None else None
+    boxes, use, rows, samples = _sample_use(scene, accel, resolution, cancelled, max_memory, frozen)
+    seconds = _tile_seconds(scene, accel, resolution, cancelled, max_memory, frozen) if timed else None
+    notes = ["a lazy structure: its boxes, their use, node masks and tile times are of the structure as its "
+             "render left it, refined no further; its work layers are the refining render's"] if frozen else []
+    notes += [] if timed else ["tile times not measured"]
     return Run(accel, result.image, result.work, result.stats, boxes, use, rows, samples, seconds,
-               "" if timed else "tile times not measured")
+               "; ".join(notes), job.geo)
 
 
 def _check(cancelled) -> None:
@@ -295,8 +300,8 @@ def _check(cancelled) -> None:
 
 
 def _render(scene, accel, resolution, cancelled, max_memory):
-    """render(scene, accel, resolution=..., work=True), tile chunk by tile chunk; and whether
-    the structure is lazy."""
+    """render(scene, accel, resolution=..., work=True), tile chunk by tile chunk; and its job
+    (a lazy structure refined as the render left it)."""
     job = RenderJob(scene, accel=accel, resolution=resolution, work=True, max_memory=max_memory)
     t0 = time.perf_counter()
     for p in range(len(job.passes)):
@@ -305,14 +310,18 @@ def _render(scene, accel, resolution, cancelled, max_memory):
             _check(cancelled)
             job.trace(p, lo, min(n, lo + CHUNK), job.threads)
         job.end_pass(p)
-    return job.result(time.perf_counter() - t0, 0.0), job.lazy_columns is not None
+    return job.result(time.perf_counter() - t0, 0.0), job
 
 
-def sample_job(scene, accel, resolution, max_memory=None):
+def sample_job(scene, accel, resolution, max_memory=None, frozen=None):
     """A render of `accel` that traces one sample a "tile": a tile placed at each sample, traced on the
     lattice of every TILE-th sample so that it holds that sample alone, walked node by node with
-    structure_use's box counters on (job.probe); with the render's own tiles (tile_x, tile_y)."""
+    structure_use's box counters on (job.probe); with the render's own tiles (tile_x, tile_y) and
+    the octree cells there were before any refinement (for use_values). frozen: a render job of a
+    lazy structure, whose structure as that render left it is traced, refined no further."""
     job = RenderJob(scene, accel=accel, resolution=resolution, work=True, threads=1, max_memory=max_memory)
+    built = len(job.geo.oct_count)
+    _freeze(job, frozen)
     job.geo = with_driver(job.geo)._replace(wide_nodes=job.geo.wide_nodes[:0])     # walked node by node, as drawn
     tiles = job.tile_x.copy(), job.tile_y.copy()
     ys, xs = np.mgrid[0:job.sh, 0:job.sw]
@@ -321,20 +330,30 @@ def sample_job(scene, accel, resolution, max_memory=None):
     job.counts = np.zeros((n, job.counts.shape[1]), np.int64)
     job.passes, job.work, job.pass_counts = [(TILE, 0, 0, n)], [n], [None]
     job.probe = use_of(job.geo)
-    return job, tiles
+    return job, tiles, built
 
 
-def _sample_use(scene, accel, resolution, cancelled, max_memory):
+def _freeze(job, frozen) -> None:
+    """Job traces the lazy structures of render job `frozen` as they stand: their arrays and their
+    pass counters (the columns the refined arrays number), in one pass that nothing refines from
+    (end_pass is never called)."""
+    if frozen is None:
+        return
+    job.geo, job.lazy, job.starts = frozen.geo, frozen.lazy, frozen.starts
+    job.passes, job.work, job.pass_counts = [(1, 0, 0, job.n_tiles)], [job.n_tiles * TILE * TILE], [None]
+
+
+def _sample_use(scene, accel, resolution, cancelled, max_memory, frozen=None):
     """The boxes, their use (as structure_use gives it), each box's Use row and each sample's
     use (SampleUse): the image traced one sample at a time (sample_job)."""
-    job, _ = sample_job(scene, accel, resolution, max_memory)
+    job, _, built = sample_job(scene, accel, resolution, max_memory, frozen)
     n = len(job.tile_x)
     counts = job.probe.counts
     budget = memory_limit(max_memory)
     before = counts[:, [VISITS, TESTS]].copy()
     parts, indptr, stored = [], [0], 0
     for k in range(n):
-        if k % 64 == 0:
+        if k % SAMPLE_CHUNK == 0:
             _check(cancelled)
             check(stored * 24, budget, "the explorer's per-sample use", "lower the resolution")
         job.trace(0, k, k + 1, 1)
@@ -347,16 +366,18 @@ def _sample_use(scene, accel, resolution, cancelled, max_memory):
         indptr.append(stored)
     boxes = boxes_of(job.geo)
     rows = box_rows(boxes, job.probe)
-    use = use_values(boxes, job.probe)
+    use = use_values(boxes, job.probe, built if frozen is not None else None)
     cat = [np.concatenate([p[i] for p in parts]) if parts else np.zeros(0, np.int64) for i in range(3)]
     return boxes, use, rows, SampleUse(np.asarray(indptr, np.int64), cat[0].astype(np.int64), cat[1], cat[2])
 
 
-def _tile_seconds(scene, accel, resolution, cancelled, max_memory) -> np.ndarray:
+def _tile_seconds(scene, accel, resolution, cancelled, max_memory, frozen=None) -> np.ndarray:
     """Seconds each tile of the render (without work layers: the kernel a render runs) took on
     one thread, by time.perf_counter_ns around the kernel's call (the finest clock Python reads;
-    numba reads none finer), fastest of TIME_REPEATS, the tiles in order each time."""
+    numba reads none finer), fastest of TIME_REPEATS, the tiles in order each time. frozen: as
+    for sample_job."""
     job = RenderJob(scene, accel=accel, resolution=resolution, threads=1, max_memory=max_memory)
+    _freeze(job, frozen)
     n = job.pass_tiles(0)
     job.trace(0, 0, 1, 1)           # compiles or loads the kernel, untimed
     best = np.full(n, np.inf)
@@ -369,3 +390,50 @@ def _tile_seconds(scene, accel, resolution, cancelled, max_memory) -> np.ndarray
             best[k] = min(best[k], (time.perf_counter_ns() - t) * 1e-9)
     across = -(-job.sw // TILE)
     return best.reshape(-1, across)
+
+
+def tested_items(ray: dict) -> tuple:
+    """The items explain's `ray` tested, each once in the order first tested, as (kind, index,
+    level); and how many it tested inside an instance (in the instance's own space, not drawn)."""
+    instanced = [e["level"] for e in ray.get("entered", []) if e.get("instance", -1) >= 0]
+    below = min(instanced) if instanced else None       # an instance's items: from its level down
+    tests = [t for step in ray.get("steps", []) for t in step["tests"]] + ray.get("tests", [])
+    seen, out, hidden = set(), [], set()
+    for t in tests:
+        key = (t["primitive"], int(t["index"]), int(t["level"]))
+        if key in seen or key in hidden:
+            continue
+        if below is not None and key[2] >= below:
+            hidden.add(key)
+            continue
+        seen.add(key)
+        out.append(key)
+    return out, len(hidden)
+
+
+def primitive_box(geo, kind: str, index: int) -> np.ndarray:
+    """(2, 3): the low and high corners of primitive `index` of `kind` (explain's names) in the
+    flattened arrays' space, as the builders bound it (engine/flatten.py)."""
+    if kind == "sphere":
+        c, r = geo.sph_center[index], abs(float(geo.sph_radius[index]))
+        return np.stack([c - r, c + r])
+    if kind == "cone":
+        base, axis, length = geo.cone_base[index], geo.cone_axis[index], float(geo.cone_length[index])
+        spread = np.sqrt(np.clip(1.0 - axis ** 2, 0.0, 1.0))      # a disc's extent along each axis
+        apex = base + axis * length
+        e0, e1 = abs(float(geo.cone_r0[index])) * spread, abs(float(geo.cone_r1[index])) * spread
+        return np.stack([np.minimum(base - e0, apex - e1), np.maximum(base + e0, apex + e1)])
+    points = primitive_shape(geo, kind, index)[0]
+    return np.stack([points.min(axis=0), points.max(axis=0)])
+
+
+def primitive_shape(geo, kind: str, index: int):
+    """(corners (n, 3), triangles (m, 3)) of a polygon, patch or triangle (a polygon fanned from
+    its first corner); None for a sphere or a cone."""
+    if kind in ("polygon", "patch"):
+        a, n = int(geo.poly_start[index]), int(geo.poly_count[index])
+        fan = np.stack([np.zeros(n - 2, np.int64), np.arange(1, n - 1), np.arange(2, n)], axis=1)
+        return geo.poly_verts[a:a + n], fan
+    if kind == "triangle":
+        return geo.tri_verts[geo.tri_faces[index]], np.array([[0, 1, 2]])
+    return None

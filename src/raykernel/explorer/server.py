@@ -2,6 +2,8 @@
 
     server = start(load("scene:stadium"), "scene:stadium", settings(["octree", "bvh"]), port=0)
     server.url          # http://127.0.0.1:PORT/TOKEN/ : the page; any path without the token is 404
+    server.warm.done.wait()     # the kernels, warmed in a thread as it starts (jobs.Warmup)
+    server.sessions             # one Renderer a browser tab (jobs.Sessions)
     server.stop()
     server = explore(scene, accels=["octree", "bvh"])   # the same; in Jupyter shown inline below the cell
 
@@ -20,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import OptionError
-from .jobs import Renderer
+from .jobs import Renderer, Sessions, Warmup
 from .model import DEFAULT_RESOLUTION, Settings, read_settings, settings
 
 HOST = "127.0.0.1"
@@ -38,23 +40,31 @@ def _framework():
 class Server:
     url: str
     app: object             # the Dash app
-    renderer: Renderer
+    sessions: Sessions      # one Renderer a browser tab
+    warm: Warmup
     http: object            # werkzeug's server
     thread: threading.Thread
 
+    @property
+    def renderer(self) -> Renderer | None:
+        """The Renderer of the tab that asked last (None before any page asked)."""
+        return self.sessions.newest()
+
     def stop(self) -> None:
-        self.renderer.close()
+        self.sessions.close()
         self.http.shutdown()
         self.thread.join()
 
 
 def build(scene, label: str, s: Settings, max_memory=None, token: str | None = None, timed: bool = True):
-    """(app, renderer, token) for `scene` with settings `s`."""
+    """(app, sessions, warm-up, token) for `scene` with settings `s`: the kernels begin warming now."""
     _framework()
     from .app import make_app
     token = token or secrets.token_urlsafe(18)
-    renderer = Renderer(scene, label, max_memory=max_memory, timed=timed)
-    return make_app(renderer, s, token, label), renderer, token
+    sessions = Sessions(scene, label, s, max_memory=max_memory, timed=timed)
+    warm = Warmup(scene, s.accels, sessions.share, timed)     # within one session's budget
+    sessions.ready = warm.done          # a tab's request waits for it (cancellably)
+    return make_app(sessions, s, token, label, warm), sessions, warm, token
 
 
 def start(scene, label: str, s: Settings, port: int = 0, host: str = HOST, max_memory=None,
@@ -63,13 +73,13 @@ def start(scene, label: str, s: Settings, port: int = 0, host: str = HOST, max_m
     from werkzeug.serving import make_server
     if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
         raise OptionError(f"port must be a whole number in 0..65535, got {port!r}")
-    app, renderer, token = build(scene, label, s, max_memory, timed=timed)
+    app, sessions, warm, token = build(scene, label, s, max_memory, timed=timed)
     logging.getLogger("werkzeug").setLevel(logging.WARNING)       # no line per request (Dash's Jupyter mode does the same)
     http = make_server(host, port, app.server, threaded=True)
     thread = threading.Thread(target=http.serve_forever, name="raykernel-explore-http", daemon=True)
     thread.start()
     shown = f"[{host}]" if ":" in host else host
-    return Server(f"http://{shown}:{http.server_port}/{token}/", app, renderer, http, thread)
+    return Server(f"http://{shown}:{http.server_port}/{token}/", app, sessions, warm, http, thread)
 
 
 def initial_settings(accels, resolution=None, settings_file=None) -> Settings:
