@@ -246,6 +246,27 @@ def test_a_cast_on_a_cluster_survives_a_killed_worker(scene, two_workers, tmp_pa
     two_workers.client.wait_for_workers(2, timeout=60)
 
 
+def _forget_scenes():
+    daskcast._kept.clear()
+
+
+def test_a_worker_that_lost_the_scene_gets_its_chunks_again_with_it(scene, two_workers, tmp_path):
+    # as a worker restarted mid-cast: the chunks it finds without the scene go back, sent with it
+    rays = _write_rays(tmp_path, 2000)
+    alone = cast_file(scene, rays, tmp_path / "alone.zarr", fields=("t", "prim_id"), chunk=20)
+    forgot = []
+
+    def forget(done, total):
+        if not forgot:
+            two_workers.client.run(_forget_scenes)
+            forgot.append(done)
+    spread = cast_file(scene, rays, tmp_path / "spread.zarr", fields=("t", "prim_id"), chunk=20, cluster=two_workers,
+                       progress=forget)
+    assert forgot and forgot[0] < 2000
+    assert spread.cast == alone.cast == 2000
+    assert _files(tmp_path / "spread.zarr") == _files(tmp_path / "alone.zarr")
+
+
 def _command(rays: Path, out: Path, *more) -> list:
     return ["cast", "spd:tetra:1", "--rays", str(rays), "--out", str(out), "--fields", "t,prim_id,normal",
             "--chunk", "100", *more]

@@ -23,8 +23,10 @@ removed, so nothing lies past the last good chunk.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
+import threading
 import time
 import warnings
 from collections import deque
@@ -90,11 +92,24 @@ def chunk_size(rs, names, dtype: str, in_flight: int, max_memory=None) -> int:
     return int(min(DEFAULT_CHUNK, fit))
 
 
-def warm_up(rs, names, dtype: str, threads) -> dict:
-    """Cast one ray with these fields: the kernels compiled or loaded now, their seconds returned."""
+def warm_up(rs, names, dtype: str, threads, source=None, out=None, buffers=None) -> dict:
+    """Cast one ray with these fields: the kernels compiled or loaded now, their seconds returned.
+    With `source`, `out` and `buffers` (a (rays, results) pair of Buffers), also read the first
+    chunk's rays into them, make its results' and open the results' arrays: the first chunk then
+    neither loads the reading kernel, nor imports the writer's library, nor meets its buffers'
+    memory for the first time (a few tenths of a second in a fresh worker; counted as load)."""
+    start = time.perf_counter()
     rs.intersect(np.zeros((1, 3)), np.array([[1.0, 0.0, 0.0]]), threads=threads, fields=names, dtype=dtype)
     stats = rs.last_stats
-    return {"worker": _here(), "compile": stats.get("time.compile", 0.0), "load": stats.get("time.load", 0.0)}
+    figures = {"worker": _here(), "compile": stats.get("time.compile", 0.0), "load": stats.get("time.load", 0.0)}
+    if source is not None and source.count:
+        a, b = out.rows(0)
+        read_chunk(source, out, 0, buffers[0])
+        for array in result_arrays(names, dtype, b - a, buffers[1]).values():
+            array.fill(0)
+        out.prepare()
+        figures["load"] = time.perf_counter() - start - figures["compile"]
+    return figures
 
 
 def _here() -> str:
@@ -152,10 +167,12 @@ def cast_rays(rs, source, out, k: int, rays, arrays: dict, names, dtype: str, th
     return figures
 
 
-def cast_chunk(rs, source, out, k: int, names, dtype: str, threads=None, stop=None) -> dict:
-    """Read, cast and write chunk k of `source` into `out` (a task of its own); cast_rays' figures."""
-    rays = read_chunk(source, out, k)
-    arrays = result_arrays(names, dtype, out.rows(k)[1] - out.rows(k)[0])
+def cast_chunk(rs, source, out, k: int, names, dtype: str, threads=None, stop=None, buffers=None) -> dict:
+    """Read, cast and write chunk k of `source` into `out` (a task of its own), into `buffers` (a
+    (rays, results) pair of Buffers) where given; cast_rays' figures."""
+    rays_in, results_in = buffers or (None, None)
+    rays = read_chunk(source, out, k, rays_in)
+    arrays = result_arrays(names, dtype, out.rows(k)[1] - out.rows(k)[0], results_in)
     figures = cast_rays(rs, source, out, k, rays, arrays, names, dtype, threads, stop)
     out.write(k, arrays)
     return figures
@@ -243,10 +260,10 @@ def _here_in_threads(rs, source, out, todo, names, dtype, threads, finished, rep
     """The chunks in this process, in order, as a pipeline: a thread reads the next chunk and
     another writes the last while this one casts (so two casts never share the cores); each of
     the IN_FLIGHT sets of buffers holds a chunk's rays and results."""
-    finished(warm_up(rs, names, dtype, threads))
-    start = time.perf_counter()
     rays_in = [Buffers() for _ in range(IN_FLIGHT)]     # a chunk's rays, one being read while one is cast
     results_in = [Buffers() for _ in range(IN_FLIGHT)]  # its results, one being written while one is cast
+    finished(warm_up(rs, names, dtype, threads, source, out, (rays_in[0], results_in[0])))
+    start = time.perf_counter()
     writes: deque = deque()
 
     def written(block: bool) -> None:
@@ -291,37 +308,80 @@ def _result(future):
             continue
 
 
-def _chunk_task(scene, key, source, out, k, names, dtype, threads):
-    # stopped by the results folder's stop file: a running task cannot be cancelled otherwise
+# A worker's buffers, kept between the chunks of a cast that it casts (fresh memory each chunk
+# costs a page fault every 4 kB), a (rays, results) pair for each task at work at once; those of
+# an earlier cast are dropped as the next one starts, and cast_file drops its own at its end.
+_spare: dict = {}       # results path -> [(Buffers, Buffers), ...]
+_spare_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def _worker_buffers(out):
+    with _spare_lock:
+        for path in [p for p in _spare if p != out.path]:
+            del _spare[path]
+        pool = _spare.setdefault(out.path, [])
+        pair = pool.pop() if pool else (Buffers(), Buffers())
     try:
-        return cast_chunk(daskcast.worker_scene(scene, key), source, out, k, names, dtype, threads, stop=out)
+        yield pair
+    finally:
+        with _spare_lock:
+            _spare.setdefault(out.path, []).append(pair)
+
+
+def _drop_buffers(path) -> None:
+    with _spare_lock:
+        _spare.pop(path, None)
+
+
+def _chunk_task(key, source, out, k, names, dtype, threads, scene=None):
+    # the scene this worker keeps, or the one given (a worker that did not warm up): a chunk that
+    # finds neither is returned unsent, to be sent again with the scene
+    rs = daskcast.kept_scene(key) if scene is None else daskcast.worker_scene(scene, key)
+    if rs is None:
+        return {"worker": _here(), "unsent": k}
+    try:     # stopped by the results folder's stop file: a running task cannot be cancelled otherwise
+        with _worker_buffers(out) as buffers:
+            return cast_chunk(rs, source, out, k, names, dtype, threads, stop=out, buffers=buffers)
     except _Stopped:
         return {"worker": _here()}
 
 
-def _warm_task(scene, key, names, dtype, threads):
-    return warm_up(daskcast.worker_scene(scene, key), names, dtype, threads)
+def _warm_task(scene, key, names, dtype, threads, source, out):
+    with _worker_buffers(out) as buffers:
+        return warm_up(daskcast.worker_scene(scene, key), names, dtype, threads, source, out, buffers)
 
 
 def _on_cluster(rs, source, out, todo, names, dtype, threads, finished, report, cluster) -> None:
-    """The chunks as tasks on the cluster: the scene sent to each worker once (its warm-up task),
-    every missing chunk submitted, the results taken as they come."""
+    """The chunks as tasks on the cluster: the scene sent to each worker once (its warm-up task,
+    which keeps it there), every missing chunk submitted, the results taken as they come."""
     client = cluster.client
     threads = threads or cluster.threads_per_worker
     with warnings.catch_warnings():     # Dask's advice against large graphs: the scene is in it once, on purpose
         warnings.filterwarnings("ignore", message="Sending large graph")
         scene, key = cluster.share(rs)
-    warm = [client.submit(_warm_task, scene, key, names, dtype, threads, workers=[w], allow_other_workers=False,
-                          pure=False) for w in client.scheduler_info()["workers"]]
+    warm = [client.submit(_warm_task, scene, key, names, dtype, threads, source, out, workers=[w],
+                          allow_other_workers=False, pure=False) for w in client.scheduler_info()["workers"]]
     for _, figures in cluster.completed(warm, doing="loading the kernels on the workers"):
         finished(figures)
     start = time.perf_counter()
-    futures = [client.submit(_chunk_task, scene, key, source, out, k, names, dtype, threads, pure=False)
-               for k in todo]
+    # the chunks take the scene's key, not its future: every worker keeps the copy its warm-up met,
+    # and the scheduler hands the chunks to whichever worker is free (daskcast.kept_scene)
+    futures = [client.submit(_chunk_task, key, source, out, k, names, dtype, threads, pure=False) for k in todo]
     doing = "casting rays: the chunks written so far are kept, and the same command goes on from them"
     try:
-        for _, figures in cluster.completed(futures, doing):
-            finished(figures)
+        batch = futures
+        while batch:
+            unsent = []
+            for _, figures in cluster.completed(batch, doing):
+                if "unsent" in figures:
+                    unsent.append(figures["unsent"])
+                else:
+                    finished(figures)
+            batch = [client.submit(_chunk_task, key, source, out, k, names, dtype, threads, scene, pure=False)
+                     for k in unsent]
+            futures += batch
+        client.run(_drop_buffers, out.path, on_error="ignore")    # (a cast that fails leaves them to the next one)
     except BaseException as e:
         bad = e.chunk if isinstance(e, RayFileError) else None
         out.stop(after=bad)         # before the cancel: tasks at work stop between kernel calls, unwritten

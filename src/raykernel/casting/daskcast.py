@@ -80,6 +80,19 @@ def worker_scene(rs, key: str):
     return kept
 
 
+def kept_scene(key: str):
+    """The scene `key` this worker process keeps (worker_scene), or None where it keeps none (a
+    worker that joined or restarted since the scene was sent). Tasks that take the key alone rather
+    than the scene's future leave Dask's scheduler free to send them to any worker: with the
+    future, it sends them all to the one worker that holds its data (it drops the other workers'
+    copies once the tasks that needed them are done)."""
+    with _kept_lock:
+        kept = _kept.get(key)
+        if kept is not None:
+            _kept.move_to_end(key)
+        return kept
+
+
 # ----------------------------------------------------------------- arguments
 
 def _vectors(value, name: str, like=None):

@@ -329,6 +329,14 @@ class ResultFile:
             for name, value in arrays.items():
                 self._array(name)[a:b] = value
 
+    def prepare(self) -> None:
+        """Import the format's library and open the arrays now (a worker's warm-up), not at the first chunk."""
+        if self.format == "parquet":
+            _needs("pyarrow"), _needs("pyarrow.parquet")
+        else:
+            for name in self.fields:
+                self._array(name)
+
     def _array(self, name: str):
         """The zarr array of a field, opened once in this process (not pickled with this object)."""
         opened = self.__dict__.setdefault("_opened", {})
