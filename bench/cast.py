@@ -114,8 +114,10 @@ def command_cast(mesh: Path, rays: Path, out: Path, threads: int) -> dict:
     if child.returncode:
         sys.exit(f"raykernel cast failed:\n{stderr}")
     found = re.search(r"cast ([\d,]+) now .* in ([\d.]+) s", stdout)
+    kernels = re.search(r"chunk\(s\)\) in ([\d.]+) s", stdout)       # the worker line: its kernels' own seconds
     return {"rays": int(found.group(1).replace(",", "")), "seconds": float(found.group(2)), "peak": peak,
-            "wall": time.perf_counter() - start, "command": " ".join(["raykernel"] + cmd[3:])}
+            "kernels": float(kernels.group(1)), "wall": time.perf_counter() - start,
+            "command": " ".join(["raykernel"] + cmd[3:])}
 
 
 def in_process(scene, rays: Path, n: int, threads: int, out: Path) -> dict:
@@ -269,7 +271,12 @@ def section(args, command, alone, one, two, task, per_chunk, send, triangles, th
         f"| `cast_file` on local:2, one thread each | {two.cast:,} | {two.seconds:.2f} | {two_rate:.2f} "
         f"| {two_rate / one_rate:.2f}x | |",
         "",
-        f"The command's wall time, start-up, mesh loading and build included: {command['wall']:.1f} s. Dask's "
+        f"The command's wall time, start-up, mesh loading and build included: {command['wall']:.1f} s. Its kernels "
+        f"cast for {command['kernels']:.1f} s of its {command['seconds']:.1f} s of casting "
+        f"({command['kernels'] / command['seconds']:.0%}; the rest is reading, writing and the ends of kernel calls "
+        f"where one thread waits for the other), at {rate(command['rays'], command['kernels']):.2f} Mrays/s: "
+        f"{rate(command['rays'], command['kernels']) / alone_rate:.2f}x the in-process call's rate, which says how "
+        f"fast this machine ran during the long cast against the short call (the machine is shared). Dask's "
         f"scheduler costs {1e3 * task:.2f} ms a task (tasks that do nothing, two workers); a chunk costs a "
         f"one-thread worker {1e3 * per_chunk:.2f} ms beyond its casting (Dask's hand-over, opening, reading and "
         f"writing; chunks of ten rays on local:1). For {TOTAL:.0e} rays on {WORKERS} one-thread workers of "

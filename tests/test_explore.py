@@ -96,6 +96,16 @@ def test_node_masks_equal_a_brute_force_check(scene, ex):
         assert masks.any()
 
 
+def test_a_4_wide_bvh_says_its_boxes_are_walked_binary_and_its_layers_are_not(scene, ex):
+    """bvh renders 4-wide, its boxes walked binary: the page says so, and its visits summed over the
+    boxes are bvh(width=2)'s cells.visited, not its own layers' (which hold fewer)."""
+    wide = explore_scene(scene, settings(["bvh(leaf=1)"], RES), SCENE).runs["bvh(leaf=1)"]
+    binary = ex.runs["bvh(leaf=1,width=2)"]
+    assert "4-wide BVH" in wide.note and "4-wide" not in binary.note and "4-wide" not in ex.runs["octree"].note
+    assert np.array_equal(wide.use["visits"], binary.use["visits"])
+    assert wide.layers["cells.visited"].sum() < binary.layers["cells.visited"].sum() == binary.use["visits"].sum()
+
+
 def test_a_lazy_structure_has_node_masks_and_tile_times_of_itself_as_its_render_left_it(scene):
     """lazyoctree and rc: the boxes are those structure --use draws after its refining render,
     and every box's mask equals the brute-force check run on the structure a render of its own

@@ -289,6 +289,10 @@ def run_structure(scene, accel: str, resolution: int, cancelled=None, max_memory
     seconds = _tile_seconds(scene, accel, resolution, cancelled, max_memory, frozen) if timed else None
     notes = ["a lazy structure: its boxes, their use, node masks and tile times are of the structure as its "
              "render left it, refined no further; its work layers are the refining render's"] if frozen else []
+    if len(job.geo.wide_nodes):     # the render walked the BVH 4-wide; the boxes are walked as drawn
+        notes.append("a 4-wide BVH: its boxes and their use are its binary tree's, walked box by box as drawn "
+                     "(bvh(width=2)'s visits); its work layers are the 4-wide walk's, which visits about half "
+                     "as many nodes")
     notes += [] if timed else ["tile times not measured"]
     return Run(accel, result.image, result.work, result.stats, boxes, use, rows, samples, seconds,
                "; ".join(notes), job.geo)
