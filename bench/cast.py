@@ -120,11 +120,14 @@ def command_cast(mesh: Path, rays: Path, out: Path, threads: int) -> dict:
             "command": " ".join(["raykernel"] + cmd[3:])}
 
 
-def in_process(scene, rays: Path, n: int, threads: int, out: Path) -> dict:
-    """One RayScene.intersect of the first n rays, in memory as float64; its hits checked against the cast's."""
-    import zarr
+def load_rays(rays: Path, n: int):
+    """The first n rays of the file, in memory as float64 origins and directions."""
     block = np.load(rays, mmap_mode="r")[:n].astype(np.float64)
-    o, d = np.ascontiguousarray(block[:, :3]), np.ascontiguousarray(block[:, 3:])
+    return np.ascontiguousarray(block[:, :3]), np.ascontiguousarray(block[:, 3:])
+
+
+def in_process(scene, o, d, threads: int) -> dict:
+    """One RayScene.intersect of these rays, same fields, dtype and threads as the command: best of 3."""
     scene.intersect(o[:1000], d[:1000], fields=FIELDS, dtype=DTYPE, threads=threads)
     best = None
     for _ in range(3):
@@ -132,11 +135,32 @@ def in_process(scene, rays: Path, n: int, threads: int, out: Path) -> dict:
         hits = scene.intersect(o, d, fields=FIELDS, dtype=DTYPE, threads=threads)
         seconds = time.perf_counter() - start
         best = seconds if best is None else min(best, seconds)
+    return {"rays": len(o), "seconds": best, "hits": hits}
+
+
+def same_hits(hits, out: Path) -> None:
+    import zarr
     written = zarr.open_group(out, mode="r")
-    same = all(np.array_equal(getattr(hits, f), written[f][:n]) for f in FIELDS)
-    if not same:
+    if not all(np.array_equal(getattr(hits, f), written[f][:len(hits.t)]) for f in FIELDS):
         sys.exit("the cast's hits differ from the in-process call's")
-    return {"rays": n, "seconds": best}
+
+
+def alternating(scene, mesh: Path, rays: Path, folder: Path, threads: int, rounds: int = 3) -> list:
+    """The command and the in-process call on the same rays (a file that fits in memory), one after
+    the other, `rounds` times: (command seconds, in-process seconds, rays) a round. Side by side in
+    time, so the machine's drift (this one is shared) meets both alike."""
+    o, d = load_rays(rays, np.load(rays, mmap_mode="r").shape[0])
+    out = folder / "alternating.zarr"
+    pairs = []
+    for _ in range(rounds):
+        command = command_cast(mesh, rays, out, threads)
+        alone = in_process(scene, o, d, threads)
+        same_hits(alone["hits"], out)
+        if command["rays"] != alone["rays"]:
+            sys.exit("the command and the in-process call cast different numbers of rays")
+        pairs.append((command["seconds"], alone["seconds"], alone["rays"]))
+    shutil.rmtree(out, ignore_errors=True)
+    return pairs
 
 
 def on_workers(scene, rays: Path, folder: Path, workers: int, chunk: int) -> dict:
@@ -210,9 +234,15 @@ def main() -> None:
     rays = folder / f"rays-{n}.npy"
     write_rays(rays, n)
     scene = RayScene.from_file(mesh)
+    o, d = load_rays(rays, batch)
+    before = in_process(scene, o, d, threads)
     command = command_cast(mesh, rays, folder / "hits.zarr", threads)
-    alone = in_process(scene, rays, batch, threads, folder / "hits.zarr")
+    alone = in_process(scene, o, d, threads)
+    same_hits(alone["hits"], folder / "hits.zarr")
+    del o, d
+    alone["before"] = before["seconds"]
     few = first_rays(rays, worker_rays, folder / f"rays-{worker_rays}.npy")
+    pairs = alternating(scene, mesh, few, folder, threads)
     chunk = max(1, worker_rays // SHARES)
     one, two = on_workers(scene, few, folder, 1, chunk), on_workers(scene, few, folder, 2, chunk)
     if sorted(_files(one["out"]).items()) != sorted(_files(two["out"]).items()):
@@ -220,7 +250,8 @@ def main() -> None:
     task = dask_cost(2000)
     per_chunk = chunk_cost(scene, rays, folder, 20_000, 10)
     send = sending(scene, vertices, faces)
-    text = section(args, command, alone, one["report"], two["report"], task, per_chunk, send, len(faces), threads)
+    text = section(args, command, alone, pairs, one["report"], two["report"], task, per_chunk, send, len(faces),
+                   threads)
     print(text)
     if not args.no_write:
         replace_section("cast", text)
@@ -241,9 +272,12 @@ def _projection(rate: float, task: float, per_chunk: float) -> tuple[int, float,
     return chunk, total / chunk / workers * seconds_per_chunk, workers * rate / chunk
 
 
-def section(args, command, alone, one, two, task, per_chunk, send, triangles, threads) -> str:
+def section(args, command, alone, pairs, one, two, task, per_chunk, send, triangles, threads) -> str:
     rate = lambda r, s: r / s / 1e6      # noqa: E731
     cast_rate, alone_rate = rate(command["rays"], command["seconds"]), rate(alone["rays"], alone["seconds"])
+    before_rate = rate(alone["rays"], alone["before"])
+    around = (alone_rate + before_rate) / 2         # the in-process rate before and after the long cast
+    ratios = [b / a for a, b, _ in pairs]           # in-process seconds over the command's: its rate over the call's
     one_rate, two_rate = rate(one.cast, one.seconds), rate(two.cast, two.seconds)
     chunk, seconds, asked = _projection(one_rate * 1e6, task, per_chunk)
     compile_lines = [f"| local:{len(r.workers)} | {w} | {f['compile']:.2f} | {f['load']:.2f} | {f['cast']:.2f} "
@@ -263,20 +297,26 @@ def section(args, command, alone, one, two, task, per_chunk, send, triangles, th
         "| run | rays | seconds | Mrays/s | ratio | peak memory |",
         "|---|---:|---:|---:|---:|---:|",
         f"| `{command['command']}` | {command['rays']:,} | {command['seconds']:.1f} | {cast_rate:.2f} "
-        f"| {cast_rate / alone_rate:.2f}x | {command['peak'] / 2 ** 30:.2f} GiB |",
-        f"| one in-process `RayScene.intersect`, rays in memory | {alone['rays']:,} | {alone['seconds']:.2f} "
-        f"| {alone_rate:.2f} | 1.00x | |",
+        f"| {cast_rate / around:.2f}x | {command['peak'] / 2 ** 30:.2f} GiB |",
+        f"| one in-process `RayScene.intersect`, rays in memory, before the command | {alone['rays']:,} "
+        f"| {alone['before']:.2f} | {before_rate:.2f} | | |",
+        f"| the same, after the command | {alone['rays']:,} | {alone['seconds']:.2f} | {alone_rate:.2f} | | |",
+        f"| the command and the in-process call on the same {pairs[0][2]:,} rays, one after the other, "
+        f"{len(pairs)} times (median) | {pairs[0][2]:,} | {np.median([a for a, _, _ in pairs]):.2f} "
+        f"| {rate(pairs[0][2], np.median([a for a, _, _ in pairs])):.2f} | {np.median(ratios):.2f}x | |",
         f"| `cast_file` on local:1, one thread, chunks of {one.chunk:,} | {one.cast:,} | {one.seconds:.2f} "
         f"| {one_rate:.2f} | 1.00x | |",
         f"| `cast_file` on local:2, one thread each | {two.cast:,} | {two.seconds:.2f} | {two_rate:.2f} "
         f"| {two_rate / one_rate:.2f}x | |",
         "",
-        f"The command's wall time, start-up, mesh loading and build included: {command['wall']:.1f} s. Its kernels "
+        f"ratio: the command's rays a second over the in-process call's (the billion rays: over the mean of the "
+        f"calls before and after it; the rounds side by side: {', '.join(f'{r:.2f}x' for r in ratios)}). The "
+        f"command's wall time, start-up, mesh loading and build included: {command['wall']:.1f} s. Its kernels "
         f"cast for {command['kernels']:.1f} s of its {command['seconds']:.1f} s of casting "
         f"({command['kernels'] / command['seconds']:.0%}; the rest is reading, writing and the ends of kernel calls "
         f"where one thread waits for the other), at {rate(command['rays'], command['kernels']):.2f} Mrays/s: "
-        f"{rate(command['rays'], command['kernels']) / alone_rate:.2f}x the in-process call's rate, which says how "
-        f"fast this machine ran during the long cast against the short call (the machine is shared). Dask's "
+        f"{rate(command['rays'], command['kernels']) / around:.2f}x the in-process calls' rate around it, how fast "
+        f"this shared machine ran during the long cast against the short calls. Dask's "
         f"scheduler costs {1e3 * task:.2f} ms a task (tasks that do nothing, two workers); a chunk costs a "
         f"one-thread worker {1e3 * per_chunk:.2f} ms beyond its casting (Dask's hand-over, opening, reading and "
         f"writing; chunks of ten rays on local:1). For {TOTAL:.0e} rays on {WORKERS} one-thread workers of "
