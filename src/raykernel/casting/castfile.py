@@ -11,11 +11,12 @@ chunk already in the results is not cast again, so the same command after a kill
 where it stopped and ends with the same bytes as a run never stopped.
 
 Here, the chunks are a pipeline: one is read and another written while a third is cast, each
-into buffers kept from chunk to chunk; on a cluster (cluster.Cluster,
-passed in by the command line: this layer does not import it) every missing chunk is a task,
-and each worker reads and writes its chunks itself. Either way, each place that casts first
-casts one ray (`warm_up`), so the time it spends compiling or loading the kernels is reported
-apart from the casting. A chunk is cast PIECE rays a kernel call: Ctrl-C stops the chunks at
+into buffers kept from chunk to chunk. On a cluster (cluster.Cluster, passed in by the command
+line: this layer does not import it) every missing chunk is a task that takes the scene's key
+(each worker keeps the copy its warm-up met), and each worker reads and writes its chunks
+itself, into buffers it keeps for the cast. Either way, each place that casts first warms up
+(`warm_up`: one ray cast, the first chunk's rays read, the results opened), so the time it
+spends compiling or loading the kernels is reported apart from the casting. A chunk is cast PIECE rays a kernel call: Ctrl-C stops the chunks at
 work between two calls, unwritten, and nothing else. A bad ray stops the cast with one line
 naming the file, the chunk and the ray; the chunks past that one written meanwhile are
 removed, so nothing lies past the last good chunk.
