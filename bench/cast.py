@@ -147,7 +147,7 @@ def same_hits(hits, out: Path) -> None:
 
 def alternating(scene, mesh: Path, rays: Path, folder: Path, threads: int, rounds: int = 3) -> list:
     """The command and the in-process call on the same rays (a file that fits in memory), one after
-    the other, `rounds` times: (command seconds, in-process seconds, rays) a round. Side by side in
+    the other, `rounds` times: (command seconds, in-process seconds, in-process rays, command rays) a round. Side by side in
     time, so the machine's drift (this one is shared) meets both alike."""
     o, d = load_rays(rays, np.load(rays, mmap_mode="r").shape[0])
     out = folder / "alternating.zarr"
@@ -158,7 +158,7 @@ def alternating(scene, mesh: Path, rays: Path, folder: Path, threads: int, round
         same_hits(alone["hits"], out)
         if command["rays"] != alone["rays"]:
             sys.exit("the command and the in-process call cast different numbers of rays")
-        pairs.append((command["seconds"], alone["seconds"], alone["rays"]))
+        pairs.append((command["seconds"], alone["seconds"], alone["rays"], command["rays"]))
     shutil.rmtree(out, ignore_errors=True)
     return pairs
 
@@ -277,7 +277,7 @@ def section(args, command, alone, pairs, one, two, task, per_chunk, send, triang
     cast_rate, alone_rate = rate(command["rays"], command["seconds"]), rate(alone["rays"], alone["seconds"])
     before_rate = rate(alone["rays"], alone["before"])
     around = (alone_rate + before_rate) / 2         # the in-process rate before and after the long cast
-    ratios = [b / a for a, b, _ in pairs]           # in-process seconds over the command's: its rate over the call's
+    ratios = [b / a for a, b, *_ in pairs]           # in-process seconds over the command's: its rate over the call's
     one_rate, two_rate = rate(one.cast, one.seconds), rate(two.cast, two.seconds)
     chunk, seconds, asked = _projection(one_rate * 1e6, task, per_chunk)
     compile_lines = [f"| local:{len(r.workers)} | {w} | {f['compile']:.2f} | {f['load']:.2f} | {f['cast']:.2f} "
@@ -294,7 +294,7 @@ def section(args, command, alone, pairs, one, two, task, per_chunk, send, triang
         f"{DTYPE}, {threads} threads on both sides of the first rows. The in-process hits equal the cast's first "
         f"{alone['rays']:,} bit for bit; local:1 and local:2 wrote the same bytes.",
         "",
-        "| run | rays | seconds | Mrays/s | ratio | peak memory |",
+        "| run | rays (command / in-process where both) | seconds | Mrays/s | ratio | peak memory |",
         "|---|---:|---:|---:|---:|---:|",
         f"| `{command['command']}` | {command['rays']:,} | {command['seconds']:.1f} | {cast_rate:.2f} "
         f"| {cast_rate / around:.2f}x | {command['peak'] / 2 ** 30:.2f} GiB |",
@@ -302,8 +302,8 @@ def section(args, command, alone, pairs, one, two, task, per_chunk, send, triang
         f"| {alone['before']:.2f} | {before_rate:.2f} | | |",
         f"| the same, after the command | {alone['rays']:,} | {alone['seconds']:.2f} | {alone_rate:.2f} | | |",
         f"| the command and the in-process call on the same {pairs[0][2]:,} rays, one after the other, "
-        f"{len(pairs)} times (median) | {pairs[0][2]:,} | {np.median([a for a, _, _ in pairs]):.2f} "
-        f"| {rate(pairs[0][2], np.median([a for a, _, _ in pairs])):.2f} | {np.median(ratios):.2f}x | |",
+        f"{len(pairs)} times (median) | {pairs[0][3]:,} / {pairs[0][2]:,} | {np.median([a for a, *_ in pairs]):.2f} "
+        f"| {rate(pairs[0][2], np.median([a for a, *_ in pairs])):.2f} | {np.median(ratios):.2f}x | |",
         f"| `cast_file` on local:1, one thread, chunks of {one.chunk:,} | {one.cast:,} | {one.seconds:.2f} "
         f"| {one_rate:.2f} | 1.00x | |",
         f"| `cast_file` on local:2, one thread each | {two.cast:,} | {two.seconds:.2f} | {two_rate:.2f} "

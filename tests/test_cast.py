@@ -199,6 +199,11 @@ def test_a_npy_reads_into_kept_buffers_as_numpy_converts_it(tmp_path, dtype):
             assert o.dtype == d.dtype == np.float64 and lo is None and hi is None
             _same(o, want[:, :3])
             _same(d, want[:, 3:])
+    reserved = Buffers()        # a warm-up's: the arrays the next read fills, made beforehand
+    source.reserve(1000, reserved)
+    made = [reserved.get(name, (1000, 3), np.float64) for name in ("origins", "directions")]
+    o, d, _, _ = source.read(0, 1000, reserved)
+    assert np.shares_memory(o, made[0]) and np.shares_memory(d, made[1])
 
 
 def _read(out: Path, names) -> dict:

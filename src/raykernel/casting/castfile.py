@@ -15,9 +15,10 @@ into buffers kept from chunk to chunk. On a cluster (cluster.Cluster, passed in 
 line: this layer does not import it) every missing chunk is a task that takes the scene's key
 (each worker keeps the copy its warm-up met), and each worker reads and writes its chunks
 itself, into buffers it keeps for the cast. Either way, each place that casts first warms up
-(`warm_up`: one ray cast, the first chunk's rays read, the results opened), so the time it
-spends compiling or loading the kernels is reported apart from the casting. A chunk is cast PIECE rays a kernel call: Ctrl-C stops the chunks at
-work between two calls, unwritten, and nothing else. A bad ray stops the cast with one line
+(`warm_up`: one ray cast and one read, a chunk's buffers made, the results opened), so the
+time it spends compiling or loading the kernels is reported apart from the casting. A chunk is
+cast PIECE rays a kernel call: Ctrl-C stops the chunks at work between two calls, unwritten,
+and nothing else. A bad ray stops the cast with one line
 naming the file, the chunk and the ray; the chunks past that one written meanwhile are
 removed, so nothing lies past the last good chunk.
 """
@@ -39,7 +40,7 @@ import numpy as np
 
 from ..aggregates.memory import MemoryBudgetError, describe_bytes, memory_limit
 from . import daskcast
-from .rayfiles import Buffers, RayFileError, open_results, open_rays, recorded
+from .rayfiles import Buffers, RayFileError, array_in, open_results, open_rays, recorded
 from .rayinput import RayInputError, check_ray_values
 from .rayqueries import DTYPES, FIELD_COLUMNS, FLOAT_FIELDS, Hits, field_names
 
@@ -95,18 +96,18 @@ def chunk_size(rs, names, dtype: str, in_flight: int, max_memory=None) -> int:
 
 def warm_up(rs, names, dtype: str, threads, source=None, out=None, buffers=None) -> dict:
     """Cast one ray with these fields: the kernels compiled or loaded now, their seconds returned.
-    With `source`, `out` and `buffers` (a (rays, results) pair of Buffers), also read the first
-    chunk's rays into them, make its results' and open the results' arrays: the first chunk then
-    neither loads the reading kernel, nor imports the writer's library, nor meets its buffers'
-    memory for the first time (a few tenths of a second in a fresh worker; counted as load)."""
+    With `source`, `out` and `buffers` (a (rays, results) pair of Buffers), also read one ray, make
+    a chunk's buffers and open the results' arrays: the first chunk then neither loads the reading
+    kernel, nor imports the writer's library, nor meets its buffers' memory for the first time (a
+    few tenths of a second in a fresh worker; counted as load)."""
     start = time.perf_counter()
     rs.intersect(np.zeros((1, 3)), np.array([[1.0, 0.0, 0.0]]), threads=threads, fields=names, dtype=dtype)
     stats = rs.last_stats
     figures = {"worker": _here(), "compile": stats.get("time.compile", 0.0), "load": stats.get("time.load", 0.0)}
     if source is not None and source.count:
-        a, b = out.rows(0)
-        read_chunk(source, out, 0, buffers[0])
-        for array in result_arrays(names, dtype, b - a, buffers[1]).values():
+        source.read(0, 1)
+        source.reserve(out.chunk, buffers[0])
+        for array in result_arrays(names, dtype, out.chunk, buffers[1]).values():
             array.fill(0)
         out.prepare()
         figures["load"] = time.perf_counter() - start - figures["compile"]
@@ -133,8 +134,7 @@ def read_chunk(source, out, k: int, buffers: Buffers | None = None):
 
 def result_arrays(names, dtype: str, n: int, buffers: Buffers | None = None) -> dict:
     """A chunk's results, not cleared (every ray's are written): name -> array, in `buffers` where given."""
-    get = (lambda name, shape, dt: np.empty(shape, dt)) if buffers is None else buffers.get   # noqa: E731
-    return {name: get(name, (n,) + cols, dt) for name, (dt, cols) in result_fields(names, dtype).items()}
+    return {name: array_in(buffers, name, (n,) + cols, dt) for name, (dt, cols) in result_fields(names, dtype).items()}
 
 
 def cast_rays(rs, source, out, k: int, rays, arrays: dict, names, dtype: str, threads=None, stop=None) -> dict:

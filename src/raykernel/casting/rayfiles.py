@@ -91,8 +91,9 @@ class Buffers:
         return have[:size].reshape(shape)
 
 
-def _new(name: str, shape: tuple, dtype) -> np.ndarray:
-    return np.empty(shape, dtype)
+def array_in(buffers: Buffers | None, name: str, shape: tuple, dtype) -> np.ndarray:
+    """buffers.get(name, shape, dtype), or a new array where there are no buffers."""
+    return np.empty(shape, dtype) if buffers is None else buffers.get(name, shape, dtype)
 
 
 @njit
@@ -179,13 +180,19 @@ class RaySource:
         return {"rays": str(p.resolve()), "bytes": size, "count": self.count, "tmin": "tmin" in self.parts,
                 "tmax": "tmax" in self.parts}
 
+    def reserve(self, n: int, buffers: Buffers) -> None:
+        """Make and touch the arrays read(a, a + n, buffers) fills, so that its first call meets no
+        fresh memory (only a .npy reads into buffers)."""
+        if self.kind == "npy":
+            for name in ("origins", "directions"):
+                buffers.get(name, (n, 3), np.float64).fill(0.0)
+
     def read(self, a: int, b: int, buffers: Buffers | None = None):
         """Rays a..b-1: origins and directions float64 (n, 3), tmin and tmax float64 (n,) or None;
         a .npy's into the arrays of `buffers` where given."""
         if self.kind == "npy":
             rays = self.parts["rays"]
-            get = _new if buffers is None else buffers.get
-            o, d = get("origins", (b - a, 3), np.float64), get("directions", (b - a, 3), np.float64)
+            o, d = (array_in(buffers, name, (b - a, 3), np.float64) for name in ("origins", "directions"))
             block = rays.window(a, b)       # read once, as converted: no copy of the file's bytes first
             if rays.dtype in (np.float32, np.float64):
                 _split_rays(np.asarray(block), o, d)
