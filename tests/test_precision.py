@@ -92,7 +92,7 @@ def test_single_refuses_triangles_float32_cannot_hold_and_unknown_precisions():
         RayScene.from_mesh(v * 1e-3 + 1e7, f, precision="single")      # float32's step at 1e7 is 1
     assert "\n" not in str(e.value)
     RayScene.from_mesh(v * 1e-3 + 1e7, f)                               # double holds it
-    for bad in ("half", "float32", None):
+    for bad in ("half", "float32", 32):
         with pytest.raises(RayInputError, match="precision must be one of double, single"):
             RayScene.from_mesh(v, f, precision=bad)
 
@@ -112,3 +112,56 @@ def test_mesh_objects_pass_the_precision_on():
     for scene in (RayScene.from_trimesh(Mesh(), precision="single"), RayScene.from_mesh(Mesh(), precision="single")):
         assert scene._mesh.blocks.dtype == np.float32
         assert np.array_equal(scene.scene.root.meshes[0].vertices, rounded(Mesh.vertices))
+
+
+def test_the_bvh_spec_names_the_precision_as_the_argument_does(tmp_path):
+    """accel="bvh(precision=single)" is precision="single": the rounded mesh, float32 blocks, the
+    same answers as double precision on the rounded vertices; without either, double."""
+    trimesh = pytest.importorskip("trimesh")
+    from raykernel.scene.meshfile import mesh_arrays
+
+    v, f = MESHES["lumpy-1"]
+    v = v * 1.7 + 0.3
+    rng = np.random.default_rng(5)
+    o = rng.normal(size=(1500, 3)) * 4
+    d = rng.normal(size=(1500, 3)) * 0.2 - 0.1 * o
+    path = tmp_path / "lumpy.obj"
+    trimesh.Trimesh(v, f, process=False).export(path)
+    for spec, blocks in (("bvh(precision=single)", np.float32), ("bvh(leaf=2, precision=single)", np.float32),
+                         ("bvh(width=2, precision=single)", None)):
+        plain = spec.replace(", precision=single", "").replace("(precision=single)", "")
+        for given, single in ((v, RayScene.from_mesh(v, f, accel=spec)),
+                              (v, RayScene.from_mesh(v, f, accel=spec, precision="single")),
+                              (mesh_arrays(path)[0], RayScene.from_file(path, accel=spec))):
+            want = RayScene.from_mesh(rounded(given), f, accel=plain)
+            assert single.build_stats["precision"] == "single"
+            assert np.array_equal(single.scene.root.meshes[0].vertices, rounded(given))
+            if blocks is not None:
+                assert single._mesh.blocks.dtype == blocks and want._mesh.blocks.dtype == np.float64
+            assert_same_answers(single, want, o, d)
+    double = RayScene.from_mesh(v, f, accel="bvh(precision=double)")
+    assert double.build_stats["precision"] == "double" and double._mesh.blocks.dtype == np.float64
+    assert np.array_equal(double.scene.root.meshes[0].vertices, v)
+    assert RayScene.from_mesh(v, f).build_stats["precision"] == "double"
+
+
+def test_a_precision_given_twice_must_agree_and_single_is_refused_where_it_does_not_apply(tmp_path):
+    import raykernel
+    from raykernel.cli import main
+    from raykernel.errors import OptionError
+
+    v, f = MESHES["cube"]
+    with pytest.raises(RayInputError, match="disagree: give the precision once") as e:
+        RayScene.from_mesh(v, f, accel="bvh(precision=single)", precision="double")
+    assert "\n" not in str(e.value)
+    with pytest.raises(OptionError, match="precision must be one of double, single"):
+        RayScene.from_mesh(v, f, accel="bvh(precision=half)")
+    scene = raykernel.load("spd:tetra")
+    for build in (lambda: RayScene(scene, accel="bvh(precision=single)"),
+                  lambda: raykernel.render(scene, accel="bvh(precision=single)", resolution=4)):
+        with pytest.raises(OptionError, match=r"bvh\(precision=single\) is for the triangle meshes of "
+                                              r"RayScene.from_mesh.*traced in double precision"):
+            build()
+    out = tmp_path / "t.png"
+    assert main(["render", "spd:tetra", "--resolution", "4", "--accel", "bvh(precision=single)", "-o", str(out)]) != 0
+    assert not out.exists()

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import SceneError
+from ..errors import OptionError, SceneError
 from ..geometry.boxes import cull_margin
 from ..geometry.primitives import PRIMITIVE_KINDS
 from .bvhbuild import build_bvh, refit_moved
@@ -32,6 +32,8 @@ from . import widewalk
 from .bvhwalk import CODE, walk_step
 from .spec import Kind, Param, Search
 from .walk import MAX_TREE_DEPTH, Cells, Field, Walk
+
+PRECISIONS = ("double", "single")     # of a mesh's triangles in RayScene's mesh kernel (casting/raybuild.py)
 
 # corners a polygon's inside test walks in the time of one whole primitive test (a corner
 # walked costs a fraction of a whole test; the cost model's calibration measures both:
@@ -147,6 +149,10 @@ def sah_weights(corners) -> np.ndarray | None:
 
 
 def flatten(builder, params, refs, bounds, name, box):
+    if params.get("precision", "double") != "double":
+        raise OptionError(f"group {name or '(unnamed)'}: bvh(precision={params['precision']}) is for the triangle "
+                          "meshes of RayScene.from_mesh, from_trimesh and from_file; renders and other scenes "
+                          "are traced in double precision")
     split = params.get("split", 1)
     sah = params.get("build", "sah") in ("sah", "morton")
     weights = None
@@ -232,4 +238,8 @@ KIND = Kind("bvh", "bounding volume hierarchy: binned surface-area heuristic (bu
           "nodes tested with one vector slab test (widebvh.py), 2 walks the binary tree; RayScene's mesh "
           "kernel and the fast walk of a scene that is one BVH over primitives (aggregates/widewalk.py) use it, "
           "a BVH nested with other aggregates is walked binary", int, choices=(2, 4)),
+    Param("precision", "double", "the numbers RayScene's mesh kernel stores a mesh's triangles in: double (the "
+          "vertices as given) or single (rounded to float32, as Embree stores a mesh); single is for the meshes "
+          "of RayScene.from_mesh, from_trimesh and from_file (their precision argument), and renders trace in "
+          "double", str, choices=PRECISIONS),
 ), flatten=flatten, walk=WALK, refit=refit_aggregate, search=SEARCH, scene_walk=widewalk)

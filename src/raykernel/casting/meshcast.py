@@ -94,9 +94,10 @@ class MeshKernel(NamedTuple):
     blocks: np.ndarray       # (B, 36) float64 the 4-wide tree's leaves in blocks of 4 triangles (triangles4.py)
 
     @classmethod
-    def of(cls, geo: Geometry, geometries: np.ndarray) -> "MeshKernel | None":
+    def of(cls, geo: Geometry, geometries: np.ndarray, dtype=np.float64) -> "MeshKernel | None":
         """The fast-path arrays, or None when geo holds anything but triangles under one BVH.
-        geometries: flatten's (kind, first global index, count) rows, all triangle meshes here.
+        geometries: flatten's (kind, first global index, count) rows, all triangle meshes here;
+        dtype: the 4-wide tree's triangle blocks' (float32 for a mesh of precision "single").
         Walks the BVH collapsed 4-wide (query) where flatten collapsed it (bvh(width=4)), else
         the binary tree as built (query_binary)."""
         if (len(geo.agg_kind) != 1 or geo.agg_kind[0] != BVH or len(geo.inst_agg) or len(geo.sph_radius)
@@ -110,7 +111,7 @@ class MeshKernel(NamedTuple):
             corners = np.ascontiguousarray(geo.tri_verts[geo.tri_faces[prims]].reshape(-1, 9))
             return cls(arrays, corners, prims, geoms, root, WideBVH(geo.wide_nodes, geo.wide_center), NO_BLOCKS)
         wide, blocks, lanes = wide_leaves(WideBVH(geo.wide_nodes.copy(), geo.wide_center), geo.tri_verts,
-                                          geo.tri_faces, prims)
+                                          geo.tri_faces, prims, dtype=dtype)
         return cls(arrays, NO_CORNERS, lanes, geoms, root, wide, blocks)
 
     @property

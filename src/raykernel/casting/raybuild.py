@@ -16,11 +16,14 @@ structures (`_lazy`) and the mesh kernel (`_mesh`, None for other scenes).
 
 from __future__ import annotations
 
+import re
 import threading
 
 import numpy as np
 
+from ..aggregates.bvh import PRECISIONS
 from ..aggregates.memory import check, memory_limit
+from ..aggregates.registry import format_spec, parse_spec
 from ..engine.flatten import flatten
 from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
 from ..scene.model import Scene, TriangleMesh
@@ -29,12 +32,13 @@ from .meshcast import MESH_ACCEL, MeshKernel
 from .rayinput import RayInputError, real_array
 
 EDGE_RULES = {"watertight": WATERTIGHT, "inclusive": INCLUSIVE}
-PRECISIONS = ("double", "single")
 KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone", TRIANGLE: "triangle"}
 
 
-def build(rs, scene: Scene, accel: str = "bvh", max_memory=None, edges: str = "watertight") -> None:
-    """RayScene(scene, accel, max_memory, edges): build the structures of `scene` into `rs`."""
+def build(rs, scene: Scene, accel: str = "bvh", max_memory=None, edges: str = "watertight",
+          blocks=np.float64) -> None:
+    """RayScene(scene, accel, max_memory, edges): build the structures of `scene` into `rs`; blocks:
+    the mesh kernel's triangle blocks' dtype (MeshKernel.of)."""
     if not isinstance(scene, Scene):
         raise RayInputError(f"scene must be a raykernel Scene, got {type(scene).__name__}")
     start(rs, scene, accel, max_memory, edges)
@@ -53,7 +57,7 @@ def build(rs, scene: Scene, accel: str = "bvh", max_memory=None, edges: str = "w
     # lazy octrees refine between passes of rays (aggregates/lazyoctree.py); their leaves share items
     rs._lazy = rs.build_stats.get("lazy")
     rs._may_repeat = rs._may_repeat or rs._lazy is not None or edges == "inclusive"
-    rs._mesh = MeshKernel.of(rs.geo, table)
+    rs._mesh = MeshKernel.of(rs.geo, table, blocks)
 
 
 def start(rs, scene: Scene, accel: str, max_memory, edges: str) -> None:
@@ -68,7 +72,7 @@ def start(rs, scene: Scene, accel: str, max_memory, edges: str) -> None:
 
 
 def from_trimesh(cls, mesh, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
-                 max_memory=None, precision: str = "double"):
+                 max_memory=None, precision: str | None = None):
     """RayScene.from_trimesh: a RayScene of a trimesh.Trimesh, or of any object with ``.vertices`` and ``.faces``."""
     if not (hasattr(mesh, "vertices") and hasattr(mesh, "faces")):
         raise RayInputError(f"expected a mesh with .vertices and .faces, got {type(mesh).__name__}")
@@ -77,7 +81,7 @@ def from_trimesh(cls, mesh, accel: str | None = None, edges: str = "watertight",
 
 
 def from_file(cls, path, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
-              max_memory=None, precision: str = "double"):
+              max_memory=None, precision: str | None = None):
     """RayScene.from_file: a RayScene of the triangles of a model file, every mesh of it in one."""
     from ..scene.meshfile import mesh_arrays
     vertices, faces = mesh_arrays(path)
@@ -86,10 +90,9 @@ def from_file(cls, path, accel: str | None = None, edges: str = "watertight", qu
 
 
 def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None, edges: str = "watertight",
-              quality: str = "medium", max_memory=None, threads: int | None = None, precision: str = "double"):
+              quality: str = "medium", max_memory=None, threads: int | None = None, precision: str | None = None):
     """RayScene.from_mesh: a RayScene of a triangle mesh."""
-    if precision not in PRECISIONS:
-        raise RayInputError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    accel, precision = mesh_precision(accel, precision)
     if faces is None and hasattr(vertices, "vertices") and hasattr(vertices, "faces"):
         return cls.from_trimesh(vertices, accel, edges, quality, max_memory, precision)
     if faces is None:
@@ -125,9 +128,11 @@ def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None,
     n = None if n is None else np.ascontiguousarray(n, np.float64)
     scene = Scene()
     scene.root.add(TriangleMesh(v, f, normals=n))
-    if accel is not None or not len(f):
-        return cls(scene, accel or QUALITY[quality], max_memory, edges=edges)
     rs = cls.__new__(cls)
+    if accel is not None or not len(f):
+        build(rs, scene, accel or QUALITY[quality], max_memory, edges, np.float32 if single else np.float64)
+        rs.build_stats["precision"] = precision
+        return rs
     start(rs, scene, MESH_ACCEL, max_memory, edges)      # the Geometry, if ever built: the medium tree
     check(len(f) * BUILD_BYTES, rs._limit, f"building a BVH over {len(f):,} triangles", "build a smaller mesh")
     rs._geo = None
@@ -138,6 +143,20 @@ def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None,
     rs._may_repeat = edges == "inclusive"
     rs._lazy = None
     return rs
+
+
+def mesh_precision(accel: str | None, precision: str | None) -> tuple[str | None, str]:
+    """(the accel spec without a precision, the mesh's precision) from from_mesh's arguments: the
+    precision argument, else the bvh spec's `precision=` (the two must agree where both are
+    given), else double."""
+    if precision is not None and precision not in PRECISIONS:
+        raise RayInputError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if not isinstance(accel, str) or not re.search(r"\bprecision\s*=", accel):
+        return accel, precision or "double"
+    name, params = parse_spec(accel)
+    if precision is not None and params["precision"] != precision:
+        raise RayInputError(f"precision={precision!r} and accel {accel!r} disagree: give the precision once")
+    return format_spec(name, dict(params, precision="double")), params["precision"]
 
 
 def single_vertices(v: np.ndarray, f: np.ndarray) -> np.ndarray:

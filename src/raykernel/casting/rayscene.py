@@ -227,7 +227,7 @@ class RayScene:
 
     @classmethod
     def from_trimesh(cls, mesh, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
-                     max_memory=None, precision: str = "double") -> "RayScene":
+                     max_memory=None, precision: str | None = None) -> "RayScene":
         """A RayScene of a trimesh.Trimesh, or of any object with ``.vertices`` and ``.faces``.
 
         Parameters
@@ -250,7 +250,7 @@ class RayScene:
 
     @classmethod
     def from_file(cls, path, accel: str | None = None, edges: str = "watertight", quality: str = "medium",
-                  max_memory=None, precision: str = "double") -> "RayScene":
+                  max_memory=None, precision: str | None = None) -> "RayScene":
         """A RayScene of the triangles of a model file, every mesh of it in one.
 
         Parameters
@@ -277,7 +277,7 @@ class RayScene:
     @classmethod
     def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None, edges: str = "watertight",
                   quality: str = "medium", max_memory=None, threads: int | None = None,
-                  precision: str = "double") -> "RayScene":
+                  precision: str | None = None) -> "RayScene":
         """A RayScene of a triangle mesh.
 
         Unless `accel` is given (or there are no faces), the tree is built straight into the
@@ -307,8 +307,9 @@ class RayScene:
             The budget of the build, in bytes or as ``"8G"``.
         threads : int, optional
             The build's threads (default: all).
-        precision : {"double", "single"}
-            ``"double"`` (the default) keeps the vertices as given. ``"single"`` rounds each
+        precision : {"double", "single"}, optional
+            Default: the precision `accel` names (``"bvh(precision=single)"``), else
+            ``"double"``, which keeps the vertices as given. ``"single"`` rounds each
             coordinate to the nearest float32 number, as Embree stores a mesh, and stores the
             triangle blocks in float32: about 40% fewer bytes a triangle. Every answer is then
             exact for the rounded mesh (the same watertight test, in float64, on the rounded
@@ -324,7 +325,7 @@ class RayScene:
         RayInputError
             The arrays do not have these shapes and types, vertices or normals are not finite,
             a face refers to a vertex that does not exist, `quality` or `precision` is not one
-            of its values, or with ``precision="single"`` a triangle's corners round to one
+            of its values or disagrees with the precision `accel` names, or with ``precision="single"`` a triangle's corners round to one
             point (a triangle smaller than float32 resolves where it lies).
         MemoryBudgetError
             The build would need more than `max_memory`.
