@@ -103,14 +103,14 @@ def section(name: str, text: str | None = None) -> str:
     return found.group(1) if found else ""
 
 
-def _ratios(body: str, rows: dict, ratio_after: str) -> list[float]:
-    """The ratios in the column right after the header `ratio_after` of the first table of `body`
-    that has it, over the rows whose cells match `rows` ({header: value})."""
+def _ratios(body: str, rows: dict, ratio_after: str, column: str | None = None) -> list[float]:
+    """The ratios in the column right after the header `ratio_after` (or in the column `column`) of
+    the first table of `body` that has it, over the rows whose cells match `rows` ({header: value})."""
     for table in tables(body.split("\n")):
         header = _cells(table[0])
-        if ratio_after not in header:
+        if (column or ratio_after) not in header:
             continue
-        at = header.index(ratio_after) + 1
+        at = header.index(column) if column else header.index(ratio_after) + 1
         out = []
         for line in table[2:]:
             cells = _cells(line)
@@ -138,12 +138,18 @@ HEADLINES = [
     ("ray casting, incoherent, double precision (the peers: single)", "raycast", "embreex, Mitsuba 3, Open3D",
      lambda b: ", ".join(_span(_ratios(b, {"rays": "incoherent"}, f"{peer} Mrays/s"))
                          for peer in ("embreex", "mitsuba", "open3d"))),
-    ("ray casting, coherent, single precision", "raycast", "embreex", lambda b: _span(
-        _ratios(b, {"rays": "coherent"}, "single Mrays/s"))),
-    ("ray casting, incoherent, single precision", "raycast", "embreex", lambda b: _span(
-        _ratios(b, {"rays": "incoherent"}, "single Mrays/s"))),
-    ("mesh build and first ray, default quality", "meshbuild", "Open3D", lambda b: _span(
-        _ratios(b, {"library": "raykernel medium"}, "build + 1 ray s"))),
+    ("ray casting, coherent, single precision", "raycast", "embreex, Mitsuba 3, Open3D", lambda b: ", ".join(
+        _span(_ratios(b, {"rays": "coherent"}, "single Mrays/s", column))
+        for column in ("single ratio", "single vs mitsuba", "single vs open3d"))),
+    ("ray casting, incoherent, single precision", "raycast", "embreex, Mitsuba 3, Open3D", lambda b: ", ".join(
+        _span(_ratios(b, {"rays": "incoherent"}, "single Mrays/s", column))
+        for column in ("single ratio", "single vs mitsuba", "single vs open3d"))),
+    ("mesh build and first ray, default quality, double precision", "meshbuild", "Open3D", lambda b: _span(
+        _ratios(b, {"library": "raykernel medium", "precision": "double"}, "build + 1 ray s"))),
+    ("mesh build and first ray, default quality, single precision", "meshbuild", "Open3D", lambda b: _span(
+        _ratios(b, {"library": "raykernel medium", "precision": "single"}, "build + 1 ray s"))),
+    ("mesh build and first ray, the first of a fresh process", "meshbuild", "Open3D", lambda b: _span(
+        _ratios(b, {"library": "raykernel medium", "precision": "double"}, "first s"))),
     ("contains, closed meshes", "proximity", "Open3D", lambda b: _span(
         _ratios(b, {"query": "contains (parity)"}, "Open3D s"))),
     ("closest_points", "proximity", "Open3D", lambda b: _span(_ratios(b, {"query": "closest_points"}, "Open3D s"))),

@@ -4,7 +4,8 @@ order could, and a node visit's cost as the rays lose their coherence, one threa
     .venv/bin/python bench/incoherent.py [--rays 300000] [--meshes teapot-sf6,sphere-80k]
 
 For each mesh of bench/raycast.py (the same incoherent rays: origins uniform in the mesh's box,
-uniform random directions):
+uniform random directions), in both precisions of RayScene.from_mesh (double: the vertices as
+given, float64 triangle blocks; single: rounded to float32, float32 blocks, as embreex stores them):
 
 * visited: the 4-wide nodes the kernel visits a ray (its cells.visited counter);
 * needed: the 4-wide nodes whose box the ray enters before its closest hit (or at all, on a
@@ -99,19 +100,20 @@ def against_embree(rs, scene, o, d):
     return rk_ns, em_ns, rk_rays, len(geom), float(same.mean())
 
 
-def measure(name, v, f, n):
+def measure(name, v, f, n, precision):
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
     from raykernel import RayScene
     o, d = random_rays(v, n, np.random.default_rng(1))
-    rs = RayScene.from_mesh(v, f, threads=1)
+    rs = RayScene.from_mesh(v, f, threads=1, precision=precision)
     scene = rtcore_scene.EmbreeScene()
     TriangleMesh(scene, v[f].astype(np.float32))
     ns, visited, hits = timed(rs, o, d)
     needed = np.empty(n, np.int64)
     needed_nodes(*rs._mesh.wide, o, d, np.where(np.isfinite(hits.t), hits.t, np.inf), needed)
-    row = dict(mesh=name, tris=len(f), visited=visited, needed=needed.mean(), incoherent=ns / visited)
+    row = dict(mesh=name, precision=precision, tris=len(f), visited=visited, needed=needed.mean(),
+               incoherent=ns / visited)
     row["rk_ns"], row["em_ns"], row["rk_rays"], row["em_rays"], row["agree"] = against_embree(rs, scene, o, d)
     ro, rd = np.repeat(o[:REPEATED], n // REPEATED, axis=0), np.repeat(d[:REPEATED], n // REPEATED, axis=0)
     row["rk_rep_ns"], row["em_rep_ns"], *_ = against_embree(rs, scene, ro, rd)
@@ -134,8 +136,9 @@ def main():
     names = args.meshes.split(",") if args.meshes else list(MESHES)
     rows = []
     for name, (v, f) in meshes(names).items():
-        rows.append(measure(name, v, f, args.rays))
-        print(rows[-1], flush=True)
+        for precision in ("double", "single"):
+            rows.append(measure(name, v, f, args.rays, precision))
+            print(rows[-1], flush=True)
     command = "`.venv/bin/python bench/incoherent.py" + (f" --rays {args.rays}" if args.rays != 300_000 else "") + \
         (f" --meshes {args.meshes}" if args.meshes else "") + f"` ({date.today().isoformat()})"
     lines = ["## Incoherent rays: where the time goes", "", f"Machine: {machine()}.", "", f"Command: {command}", "",
@@ -147,12 +150,14 @@ def main():
              "in a row (the same paths, in cache and predicted). ns/ray: the incoherent rays and the repeated ones "
              "with the outputs embreex returns (float32), raykernel's and embreex's, the process pinned to one core; "
              "ratio: embreex's time over raykernel's; rays: the incoherent rays each cast (raykernel's rays.cast "
-             "counter / embreex's answers); agree: same hit or miss and t within 1e-5 t.", "",
-             "| mesh | triangles | rays | agree | ns/ray | embreex ns/ray | ratio | repeated ns/ray | embreex | "
-             "ratio | visited | needed | ns/node incoherent | one direction | repeated |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "counter / embreex's answers); agree: same hit or miss and t within 1e-5 t. precision: RayScene's "
+             "(double: the vertices as given; single: rounded to float32, as embreex stores them).", "",
+             "| mesh | triangles | precision | rays | agree | ns/ray | embreex ns/ray | ratio | repeated ns/ray | "
+             "embreex | ratio | visited | needed | ns/node incoherent | one direction | repeated |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        lines.append(f"| {r['mesh']} | {r['tris']:,} | {r['rk_rays']:,} / {r['em_rays']:,} | {r['agree']:.4f} | "
+        lines.append(f"| {r['mesh']} | {r['tris']:,} | {r['precision']} | {r['rk_rays']:,} / {r['em_rays']:,} | "
+                     f"{r['agree']:.4f} | "
                      f"{r['rk_ns']:.0f} | {r['em_ns']:.0f} | "
                      f"{r['em_ns'] / r['rk_ns']:.2f} | {r['rk_rep_ns']:.0f} | {r['em_rep_ns']:.0f} | "
                      f"{r['em_rep_ns'] / r['rk_rep_ns']:.2f} | {r['visited']:.2f} | {r['needed']:.2f} | "

@@ -6,7 +6,15 @@ A user with a scanned mesh builds a structure and casts a ray before anything
 else: each row times that (the build and one ray, best of 3 or of as many as fit in
 a second, up to 30, kernels warm: small builds take milliseconds on noisy machines),
 each library in its own process pinned to `threads` cores (taskset), with
-the mesh's arrays made before the clock starts. held: the process's resident
+the mesh's arrays made before the clock starts. first: the first build and ray
+of a fresh process that has only numpy and the mesh's arrays, the library's
+import included (for raykernel, at medium quality, its kernels loaded from the
+cache), as a user's script meets it: it also pays for the memory the process
+takes from the system for the first time (`first touch` below: this
+machine's cost of that, measured in a fresh process), which the best of
+repeated builds, reusing memory the process already holds, does not. raykernel single: precision "single" (the
+vertices rounded to float32, float32 triangle blocks; the peers store
+float32). held: the process's resident
 memory after the build less before it, a triangle (0 where the build
 reused memory the process already held) (the structure and what the
 library copied: embreex copies the triangles in float32, Open3D its vertices
@@ -41,10 +49,12 @@ MESHES = {"stadium": ("scene", "stadium"), "icosphere(6)": ("ico", 6), "tetra-sf
 BIG = {"icosphere(10)": ("ico", 10)}
 RAYS = 1_000_000
 # the summary in BENCHMARKS.md: the default quality's rows and Open3D's, these columns
-SUMMARY = ("The build and a first ray at the default quality (medium) and in Open3D, on every mesh, seconds (the "
-           "other qualities, embreex, memory and casting speed in the full table); vs Open3D: Open3D's seconds over "
-           "this row's (above 1: faster than Open3D).")
-COLUMNS = ["mesh", "triangles", "library", "build + 1 ray s", "vs Open3D", "own B/tri"]
+SUMMARY = ("The build and a first ray at the default quality (medium), in both precisions, and in Open3D, on every "
+           "mesh, seconds: best of repeated builds, and the first of a fresh process (the other qualities, embreex, "
+           "memory and casting speed in the full table); vs Open3D: Open3D's seconds over this row's (above 1: "
+           "faster than Open3D).")
+COLUMNS = ["mesh", "triangles", "library", "precision", "build + 1 ray s", "vs Open3D", "first s", "first vs Open3D",
+           "own B/tri"]
 
 
 def make(kind, arg):
@@ -81,32 +91,40 @@ def timed(build, cast1, repeat=3, budget=1.0, most=30):
     return best, held, built
 
 
-def worker(lib, name, threads, qualities):
-    import numba
-    numba.set_num_threads(threads)
-    v, f = make(*{**MESHES, **BIG}[name])
+def worker(lib, arrays, threads, qualities):
+    """The rows of library `lib` on the mesh saved in `arrays`, in this process (see the docstring)."""
+    with np.load(arrays) as mesh:
+        name, v, f = str(mesh["name"]), mesh["v"], mesh["f"]
     one_o, one_d = np.array([[0.0, 0.0, 1e3]]), np.array([[0.0, 0.0, -1.0]])
     rows = []
     if lib == "raykernel":
+        t0 = time.perf_counter()
         from raykernel import RayScene
+        RayScene.from_mesh(v, f, threads=threads).intersect(one_o, one_d, threads=threads)
+        first = time.perf_counter() - t0
+        import numba
+        numba.set_num_threads(threads)
         small = make("ico", 2)
-        for q in qualities:
-            RayScene.from_mesh(*small, quality=q).intersect(one_o, one_d)       # warm
-            seconds, held, rs = timed(lambda: RayScene.from_mesh(v, f, quality=q, threads=threads),
+        rays = (("coherent", camera_rays(v, RAYS)), ("incoherent", random_rays(v, RAYS, np.random.default_rng(5))))
+        for q, precision in [(q, "double") for q in qualities] + [("medium", "single")]:
+            RayScene.from_mesh(*small, quality=q, precision=precision).intersect(one_o, one_d)       # warm
+            seconds, held, rs = timed(lambda: RayScene.from_mesh(v, f, quality=q, threads=threads, precision=precision),
                                       lambda s: s.intersect(one_o, one_d, threads=threads),
                                       1 if len(f) > 6e6 or q == "high" else 3)
             st = rs.stats
             rates = {}
-            rays = (("coherent", camera_rays(v, RAYS)), ("incoherent", random_rays(v, RAYS, np.random.default_rng(5))))
             for kind, (o, d) in rays:
                 rs.intersect(o[:1000], d[:1000], threads=threads, fields=("t", "prim_id"))
                 t0 = time.perf_counter()
                 rs.intersect(o, d, threads=threads, fields=("t", "prim_id"))
                 rates[kind] = len(o) / (time.perf_counter() - t0) / 1e6
-            rows.append(dict(lib=f"raykernel {q}", mesh=name, triangles=len(f), seconds=seconds, held=held / len(f),
-                             own=st["bytes_per_triangle"], sah=st["sah_cost"], **rates))
+            rows.append(dict(lib=f"raykernel {q}", precision=precision, mesh=name, triangles=len(f), seconds=seconds,
+                             held=held / len(f), own=st["bytes_per_triangle"], sah=st["sah_cost"], **rates))
+            if (q, precision) == ("medium", "double"):
+                rows[-1]["first"] = first
         rows[-1]["peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 / 2 ** 30
     elif lib == "embreex":
+        t0 = time.perf_counter()
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh as EmbreeMesh
 
@@ -115,9 +133,13 @@ def worker(lib, name, threads, qualities):
             EmbreeMesh(scene, v.astype(np.float32), f.astype(np.int32))
             return scene
         o32, d32 = one_o.astype(np.float32), one_d.astype(np.float32)
+        build().run(o32, d32, output=1)
+        first = time.perf_counter() - t0
         seconds, held, _ = timed(build, lambda s: s.run(o32, d32, output=1))
-        rows.append(dict(lib="embreex", mesh=name, triangles=len(f), seconds=seconds, held=held / len(f)))
+        rows.append(dict(lib="embreex", precision="single", mesh=name, triangles=len(f), seconds=seconds,
+                         held=held / len(f), first=first))
     else:
+        t0 = time.perf_counter()
         import open3d as o3d
 
         def build():
@@ -125,9 +147,24 @@ def worker(lib, name, threads, qualities):
             scene.add_triangles(v.astype(np.float32), f.astype(np.uint32))
             return scene
         ray = o3d.core.Tensor(np.concatenate([one_o, one_d], 1).astype(np.float32))
+        build().cast_rays(ray, nthreads=threads)
+        first = time.perf_counter() - t0
         seconds, held, _ = timed(build, lambda s: s.cast_rays(ray, nthreads=threads))
-        rows.append(dict(lib="open3d", mesh=name, triangles=len(f), seconds=seconds, held=held / len(f)))
+        rows.append(dict(lib="open3d", precision="single", mesh=name, triangles=len(f), seconds=seconds,
+                         held=held / len(f), first=first))
     return rows
+
+
+TOUCH_MB = 512
+
+
+def first_touch() -> tuple[float, float]:
+    """Seconds numpy takes to fill TOUCH_MB of memory in a fresh process: the first time (memory
+    new to the process) and the second (memory it freed and takes again)."""
+    code = ("import time, numpy as np\nfor _ in range(2):\n    t0 = time.perf_counter()\n"
+            f"    a = np.ones({TOUCH_MB} * 2 ** 20 // 8)\n    print(time.perf_counter() - t0)\n    del a\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    return float(out[0]), float(out[1])
 
 
 def main():
@@ -140,44 +177,54 @@ def main():
     ap.add_argument("--qualities", default="fast,medium,high", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
-        lib, name, out = args.worker
-        Path(out).write_text(json.dumps(worker(lib, name, args.threads, args.qualities.split(","))))
+        lib, arrays, out = args.worker
+        Path(out).write_text(json.dumps(worker(lib, arrays, args.threads, args.qualities.split(","))))
         return
     names = args.meshes or list(MESHES) + (list(BIG) if args.big else [])
     rows = []
     for name in names:
+        v, f = make(*{**MESHES, **BIG}[name])
         for lib in ("raykernel", "embreex", "open3d"):
             if name in BIG and lib != "raykernel":
                 continue
             qualities = "medium" if name in BIG else ("fast,medium,high" if "(9)" not in name else "fast,medium")
-            with tempfile.NamedTemporaryFile(suffix=".json") as tmp:
+            with tempfile.TemporaryDirectory() as tmp:      # the worker starts with numpy and the mesh alone
+                arrays, out = Path(tmp) / "mesh.npz", Path(tmp) / "rows.json"
+                np.savez(arrays, name=name, v=v, f=f)
                 cmd = ["taskset", "-c", f"0-{args.threads - 1}", sys.executable, __file__, "--threads",
-                       str(args.threads), "--qualities", qualities, "--worker", lib, name, tmp.name]
+                       str(args.threads), "--qualities", qualities, "--worker", lib, str(arrays), str(out)]
                 subprocess.run(cmd, check=True)
-                got = json.loads(Path(tmp.name).read_text())
+                got = json.loads(out.read_text())
             for r in got:
                 print(r, flush=True)
             rows += got
     lines = ["## Mesh builds (raykernel vs embreex and Open3D)", "",
              f"Machine: {machine()}.", "", f"Command: `.venv/bin/python bench/meshbuild.py --threads {args.threads}"
              f"{' --big' if args.big else ''}` ({time.strftime('%Y-%m-%d')})", ""]
-    table = ["| mesh | triangles | library | build + 1 ray s | vs Open3D | held B/tri | own B/tri | SAH | "
-             "coherent Mrays/s | incoherent Mrays/s |", "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
-    o3d_s = {r["mesh"]: r["seconds"] for r in rows if r["lib"] == "open3d"}
+    table = ["| mesh | triangles | library | precision | build + 1 ray s | vs Open3D | first s | first vs Open3D | "
+             "held B/tri | own B/tri | SAH | coherent Mrays/s | incoherent Mrays/s |",
+             "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    o3d = {r["mesh"]: r for r in rows if r["lib"] == "open3d"}
     peaks = []
+    nan = float("nan")
     for r in rows:
         if "peak_gb" in r:
             peaks.append(f"{r['mesh']} {r['peak_gb']:.1f} GiB")
-        ratio = f"{o3d_s[r['mesh']] / r['seconds']:.2f}" if r["mesh"] in o3d_s else ""
-        table.append(f"| {r['mesh']} | {r['triangles']:,} | {r['lib']} | {r['seconds']:.3f} | {ratio} | "
-                     f"{r['held']:.0f} | {r.get('own', float('nan')):.0f} | {r.get('sah', float('nan')):.1f} | "
-                     f"{r.get('coherent', float('nan')):.2f} | {r.get('incoherent', float('nan')):.2f} |"
-                     .replace("nan", ""))
+        peer = o3d.get(r["mesh"], {})
+        ratio = peer.get("seconds", nan) / r["seconds"]
+        first_ratio = peer.get("first", nan) / r.get("first", nan)
+        table.append(f"| {r['mesh']} | {r['triangles']:,} | {r['lib']} | {r['precision']} | {r['seconds']:.3f} | "
+                     f"{ratio:.2f} | {r.get('first', nan):.3f} | {first_ratio:.2f} | {r['held']:.0f} | "
+                     f"{r.get('own', nan):.0f} | {r.get('sah', nan):.1f} | {r.get('coherent', nan):.2f} | "
+                     f"{r.get('incoherent', nan):.2f} |".replace("nan", ""))
+    touch = first_touch()
     lines += [SUMMARY, "", *subtable(table, COLUMNS, {"library": ["raykernel medium", "open3d"]}), "", DETAILS, "",
               __doc__.split("\n\n")[2].replace("\n", " "), "", *table, ""]
     lines.append("vs Open3D: Open3D's seconds over this row's (above 1: faster than Open3D). Mrays/s at "
                  f"{args.threads} threads, 1,000,000 rays each. Peak resident memory of raykernel's process "
-                 f"(making the mesh, every build and the casts): {', '.join(peaks)}.")
+                 f"(making the mesh, every build and the casts): {', '.join(peaks)}. First touch: numpy filling "
+                 f"{TOUCH_MB} MB in a fresh process took {touch[0]:.2f} s the first time and {touch[1]:.2f} s the "
+                 "second (the same process, the memory reused).")
     text = "\n".join(lines)
     print(text)
     if not args.no_write:

@@ -92,6 +92,11 @@ def test_single_refuses_triangles_float32_cannot_hold_and_unknown_precisions():
         RayScene.from_mesh(v * 1e-3 + 1e7, f, precision="single")      # float32's step at 1e7 is 1
     assert "\n" not in str(e.value)
     RayScene.from_mesh(v * 1e-3 + 1e7, f)                               # double holds it
+    # one such triangle among good ones is named, with the size and place that float32 cannot hold
+    tiny = np.array([[1e7, 0.0, 0.0], [1e7 + 0.25, 0.0, 0.0], [1e7, 0.0, 4.0]])
+    with pytest.raises(RayInputError, match=rf"triangle {len(f) + 1} is .*corners 0.25 apart at 1e\+07 "):
+        RayScene.from_mesh(np.r_[v, tiny], np.r_[f, [[0, 1, 2]], [[len(v), len(v) + 1, len(v) + 2]]],
+                           precision="single")
     for bad in ("half", "float32", 32):
         with pytest.raises(RayInputError, match="precision must be one of double, single"):
             RayScene.from_mesh(v, f, precision=bad)

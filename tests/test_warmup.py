@@ -17,7 +17,8 @@ def test_plans_cover_every_kind_and_query():
     for name, kind in KINDS.items():
         assert (f"render with {name}" in labels) == (not kind.operands), name
     cast = [label for label, _ in plan("cast")]
-    for query in ("intersect", "occluded", "intersect_all", "count_hits", "closest_points", "contains"):
+    for query in ("intersect", "intersect, single precision", "occluded", "intersect_all", "count_hits",
+                  "closest_points", "contains"):
         assert f"cast: {query}" in cast
     assert [label for label, _ in plan("all")] == labels + cast
     with pytest.raises(OptionError, match="one of render, cast, all"):

@@ -60,8 +60,9 @@ def _render_steps() -> list:
 
 @functools.cache
 def _cast_scenes() -> SimpleNamespace:
-    """A closed octahedron, spheres and a scene walked by the general driver, with rays from around
-    them inwards and points: built by the first cast step that runs (in the process that runs it)."""
+    """A closed octahedron (in both precisions), spheres and a scene walked by the general driver,
+    with rays from around them inwards and points: built by the first cast step that runs (in the
+    process that runs it)."""
     from ..casting.rayscene import RayScene
     from ..scene.model import Scene, Spheres
     vertices = np.array([[1.0, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
@@ -72,6 +73,7 @@ def _cast_scenes() -> SimpleNamespace:
     general.root.spheres = Spheres()
     general.root.spheres.add([0.0, 0.0, 0.0], 1.0, 0)
     return SimpleNamespace(mesh=RayScene.from_mesh(vertices, faces), o=origins, d=-origins, points=points,
+                           single=RayScene.from_mesh(vertices, faces, precision="single"),
                            spheres=RayScene.from_spheres(points, np.full(len(points), 0.5)),
                            driven=RayScene.from_scene(general, accel="bvh"))
 
@@ -82,6 +84,7 @@ def _cast_steps() -> list:
     return [("cast: intersect", step(lambda c: c.mesh.intersect(c.o, c.d))),
             ("cast: intersect in float32", step(lambda c: c.mesh.intersect(c.o, c.d, fields=("t", "prim_id"),
                                                                            dtype="float32"))),
+            ("cast: intersect, single precision", step(lambda c: c.single.intersect(c.o, c.d))),
             ("cast: occluded", step(lambda c: c.mesh.occluded(c.o, c.d))),
             ("cast: intersect_all", step(lambda c: c.mesh.intersect_all(c.o, c.d))),
             ("cast: count_hits", step(lambda c: c.mesh.count_hits(c.o, c.d))),

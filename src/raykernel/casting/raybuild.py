@@ -25,6 +25,7 @@ from ..aggregates.bvh import PRECISIONS
 from ..aggregates.memory import check, memory_limit
 from ..aggregates.registry import format_spec, parse_spec
 from ..engine.flatten import flatten
+from ..geometry.config import njit
 from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
 from ..scene.model import Scene, TriangleMesh
 from .meshbuild import BUILD_BYTES, QUALITY, build_mesh
@@ -165,17 +166,27 @@ def single_vertices(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     RayInputError where the rounding makes two different corners of a triangle one point: the
     triangle is smaller than float32 resolves where it lies."""
     r = v.astype(np.float32).astype(np.float64)
-    for i, j in ((0, 1), (1, 2), (2, 0)):
-        a, b = f[:, i], f[:, j]
-        collapsed = np.all(r[a] == r[b], axis=1) & np.any(v[a] != v[b], axis=1)
-        if collapsed.any():
-            t = int(np.flatnonzero(collapsed)[0])
-            size = float(np.max(np.abs(v[a[t]] - v[b[t]])))
-            where = float(np.max(np.abs(v[a[t]])))
-            raise RayInputError(f"precision='single': triangle {t} is smaller than float32 resolves where it lies "
-                                f"(corners {size:.3g} apart at {where:.3g} from the origin round to one point); "
-                                f"use precision='double'")
+    t = _first_collapsed(v, r, f)
+    if t >= 0:
+        a, b = next((a, b) for a, b in zip(f[t], np.roll(f[t], -1)) if np.all(r[a] == r[b]) and np.any(v[a] != v[b]))
+        size = float(np.max(np.abs(v[a] - v[b])))
+        where = float(np.max(np.abs(v[a])))
+        raise RayInputError(f"precision='single': triangle {t} is smaller than float32 resolves where it lies "
+                            f"(corners {size:.3g} apart at {where:.3g} from the origin round to one point); "
+                            f"use precision='double'")
     return r
+
+
+@njit
+def _first_collapsed(v, r, f):
+    """The first triangle of f with two different corners in v that are one point in r, or -1."""
+    for t in range(f.shape[0]):
+        for e in range(3):
+            a, b = f[t, e], f[t, (e + 1) % 3]
+            if (r[a, 0] == r[b, 0] and r[a, 1] == r[b, 1] and r[a, 2] == r[b, 2]
+                    and (v[a, 0] != v[b, 0] or v[a, 1] != v[b, 1] or v[a, 2] != v[b, 2])):
+                return t
+    return -1
 
 
 def from_spheres(cls, centers, radii, accel: str = "bvh"):
