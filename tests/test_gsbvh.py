@@ -225,13 +225,14 @@ def test_curve_order_is_sane():
 
 def test_spec_parameters():
     assert parse_spec("bvh")[1] == {"leaf": 4, "bins": 16, "block": 1, "build": "sah", "order": "file", "seed": 1,
-                                    "optimize": "none", "corners": 1, "split": 1, "width": 4}
+                                    "optimize": "none", "corners": 1, "split": 1, "width": 4, "precision": "double"}
     assert parse_spec("bvh(build=gs, order=curve, seed=9)")[1]["order"] == "curve"
     assert parse_spec("bvh(corners=0)")[1]["corners"] == 0
     assert parse_spec("bvh(width=2)")[1]["width"] == 2
     assert parse_spec("bvh(block=4)")[1]["block"] == 4
     assert parse_spec("bvh(split=16)")[1]["split"] == 16
-    for bad in ("bvh(build=gsx)", "bvh(order=zorder)", "bvh(seed=-1)", "bvh(width=8)", "bvh(width=3)", "bvh(block=0)", "bvh(corners=2)",
+    assert parse_spec("bvh(precision=single)")[1]["precision"] == "single"
+    for bad in ("bvh(precision=float32)", "bvh(build=gsx)", "bvh(order=zorder)", "bvh(seed=-1)", "bvh(width=8)", "bvh(width=3)", "bvh(block=0)", "bvh(corners=2)",
                 "bvh(block=17)"):
         with pytest.raises(OptionError):
             parse_spec(bad)
