@@ -104,6 +104,25 @@ def test_kernels_given_a_wide_geometry_compile_no_general_driver():
     assert first_hit(driven, CLOSEST_EAGER, ws, cnt) == first_hit(driven, CLOSEST, ws, cnt)
 
 
+def test_a_geometry_keeps_what_its_kernels_compile_through_pickle():
+    # Dask sends a scene's Geometry to its workers: they must compile (or load) what the client does
+    import pickle
+
+    from numba import typeof
+
+    from raykernel.aggregates.widewalk import wide_only, with_driver
+
+    rays = scene_rays(np.random.default_rng(3), 300)
+    for geo in (flatten(random_scene(2), "bvh")[0], flatten(random_scene(2), "grid")[0]):
+        for typed in (geo, with_driver(geo)):
+            back = pickle.loads(pickle.dumps(typed))
+            assert typeof(back) == typeof(typed) and wide_only(back) == wide_only(typed)
+            assert all(np.array_equal(a, b) for a, b in zip(back[:-1], typed[:-1])) and back.root == typed.root
+            hits = [cast_rays(g, *rays)[:4] for g in (typed, back)]
+            assert all(np.array_equal(a, b) for a, b in zip(*hits)) and np.isfinite(hits[0][0]).any()
+    assert wide_only(flatten(random_scene(2), "bvh")[0])        # the case pickle used to lose
+
+
 def test_eager_normals_render_one_bvh_with_the_driver_and_the_same_image():
     # tricks without lazy normals take CLOSEST_EAGER queries, which only the general driver answers:
     # a render with tricks gets the geometry typed with it

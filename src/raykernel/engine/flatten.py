@@ -111,6 +111,18 @@ Geometry = NamedTuple("Geometry", [(name, np.ndarray) for name in PRIMITIVE_FIEL
 Geometry.__module__ = __name__
 Geometry.__doc__ = "Flat arrays of a built scene, read by the kernels (see the module docstring)."
 
+
+def _unpickled(fields: list, read_only: list) -> Geometry:
+    """A Geometry as pickled: its read-only arrays made read-only again, since that is part of its
+    numba type (what its kernels compile: aggregates/widewalk.py), and pickle drops it."""
+    for k in read_only:
+        fields[k].flags.writeable = False
+    return Geometry(*fields)
+
+
+Geometry.__reduce__ = lambda geo: (_unpickled, (list(geo), [k for k, a in enumerate(geo[:-1])
+                                                             if not a.flags.writeable]))
+
 _GEOMETRY_TYPES: dict = {}
 
 
