@@ -147,7 +147,7 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0, single):
     smooth = normals is not None
     arrays = MeshArrays(agg_bounds=np.r_[box[:3] - margin, box[3:] + margin].reshape(1, 6), root=0,
                         tri_edges=np.array([edges], np.int64), tri_verts=verts, tri_faces=faces,
-                        tri_smooth=np.full(n, smooth), tri_mat=np.zeros(n if smooth else 0, np.int32),
+                        tri_smooth=np.ones(n if smooth else 0, np.bool_), tri_mat=np.zeros(n if smooth else 0, np.int32),
                         tri_vnormals=normals if smooth else np.zeros((0, 3)),
                         node_bounds=np.zeros((0, 6)), node_first=np.zeros(0, np.int64),
                         node_count=np.zeros(0, np.int64))

@@ -75,7 +75,7 @@ class MeshArrays(NamedTuple):
     tri_edges: np.ndarray
     tri_verts: np.ndarray
     tri_faces: np.ndarray
-    tri_smooth: np.ndarray
+    tri_smooth: np.ndarray      # (a mesh built with no normals has none: every triangle flat)
     tri_mat: np.ndarray
     tri_vnormals: np.ndarray
     node_bounds: np.ndarray
@@ -418,7 +418,7 @@ def _finish(geo, src, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy,
         inst_out[r] = -1
     if with_surface:
         px, py, pz = ox + best * dx, oy + best * dy, oz + best * dz
-        if geo.tri_smooth[prim]:
+        if geo.tri_smooth.shape[0] and geo.tri_smooth[prim]:     # (a mesh without normals: none)
             store_triangle_surface(geo, r, prim, px, py, pz, IDENTITY, uv_out, gn_out, sn_out)
         else:       # from the corners the walk read: the mesh's arrays would be read from memory again
             store_corner_surface(src, best_j, r, px, py, pz, uv_out, gn_out, sn_out)
