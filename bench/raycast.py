@@ -245,7 +245,7 @@ def worker(data_path, threads):
             same_single = hit_single == hit_em
             both = hit_single & hit_em
             same_single[both] = np.abs(h_single.t[both] - t_em[both]) <= 1e-5 * np.maximum(np.abs(t_em[both]), 1e-30)
-            peer_rates = {}
+            peer_rates, answered = {}, {}
             for peer, (_, cast) in others.items():
                 cast(built[peer], o32[:1000], d32[:1000])
                 sec, t_peer = best_of(lambda: cast(built[peer], o32, d32))
@@ -255,12 +255,14 @@ def worker(data_path, threads):
                 both_p = hit_rk & hit_p
                 agree[both_p] = np.abs(h.t[both_p] - t_peer[both_p]) <= 1e-5 * np.maximum(np.abs(h.t[both_p]), 1e-30)
                 peer_rates[peer] = (len(o) / sec / 1e6, float(agree.mean()))
+                answered[peer] = len(t_peer)
             rows.append(dict(mesh=str(name), tris=len(f), kind=kind, rays=len(o), threads=threads, peers=peer_rates,
                              missing=missing,
                              rk=len(o) / sec_rk / 1e6, em=len(o) / sec_em / 1e6, agree=float(same.mean()),
                              every=len(o) / sec_every / 1e6, single=len(o) / sec_single / 1e6,
                              agree_single=float(same_single.mean()),
-                             cast=f"{stats.get('rays.cast', 0)}, {rays_single}, {len(t_em)}",
+                             cast=", ".join(str(n) for n in (stats.get("rays.cast", 0), rays_single, len(t_em),
+                                                              *answered.values())),
                              bytes=rs.build_stats["bytes_per_triangle"],
                              bytes_single=single.build_stats["bytes_per_triangle"],
                              generic=len(o) / sec_generic / 1e6, binary=len(o) / sec_binary / 1e6,
@@ -351,7 +353,7 @@ def main():
              "float32, float32 triangle blocks; the same watertight test in float64 on the rounded corners), its "
              "ratio against embreex (and, single vs mitsuba and open3d, against those) and its agreement with embreex; bytes/tri: the kernel's arrays a triangle "
              "(double, single). rays cast: the rays each side answered (raykernel's rays.cast counter, double "
-             "and single, and embreex's answers). per core: incoherent Mrays/s of one thread (threads = 1 rows), beside tinybvh's "
+             "and single, then embreex's, Mitsuba's and Open3D's answers). per core: incoherent Mrays/s of one thread (threads = 1 rows), beside tinybvh's "
              "published 4.7 (BVH8, float32) and 4.0 (double) Mrays/s a core for incoherent rays, measured on "
              "its author's machine (not this one).",
              "",
