@@ -10,11 +10,10 @@ the mesh's arrays made before the clock starts. first: the first build and ray
 of a fresh process that has only numpy and the mesh's arrays, the library's
 import included (for raykernel, at medium quality, its kernels loaded from the
 cache), as a user's script meets it: it also pays for the memory the process
-takes from the system for the first time (`first touch` below: this
-machine's cost of that, measured in a fresh process), which the best of
-repeated builds, reusing memory the process already holds, does not. raykernel single: precision "single" (the
-vertices rounded to float32, float32 triangle blocks; the peers store
-float32). held: the process's resident
+takes from the system for the first time, which the best of repeated builds,
+reusing memory the process already holds, does not. raykernel single:
+precision "single" (the vertices rounded to float32, float32 triangle blocks;
+the peers store float32). held: the process's resident
 memory after the build less before it, a triangle (0 where the build
 reused memory the process already held) (the structure and what the
 library copied: embreex copies the triangles in float32, Open3D its vertices
@@ -155,18 +154,6 @@ def worker(lib, arrays, threads, qualities):
     return rows
 
 
-TOUCH_MB = 512
-
-
-def first_touch() -> tuple[float, float]:
-    """Seconds numpy takes to fill TOUCH_MB of memory in a fresh process: the first time (memory
-    new to the process) and the second (memory it freed and takes again)."""
-    code = ("import time, numpy as np\nfor _ in range(2):\n    t0 = time.perf_counter()\n"
-            f"    a = np.ones({TOUCH_MB} * 2 ** 20 // 8)\n    print(time.perf_counter() - t0)\n    del a\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
-    return float(out[0]), float(out[1])
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=2)
@@ -217,14 +204,11 @@ def main():
                      f"{ratio:.2f} | {r.get('first', nan):.3f} | {first_ratio:.2f} | {r['held']:.0f} | "
                      f"{r.get('own', nan):.0f} | {r.get('sah', nan):.1f} | {r.get('coherent', nan):.2f} | "
                      f"{r.get('incoherent', nan):.2f} |".replace("nan", ""))
-    touch = first_touch()
     lines += [SUMMARY, "", *subtable(table, COLUMNS, {"library": ["raykernel medium", "open3d"]}), "", DETAILS, "",
               __doc__.split("\n\n")[2].replace("\n", " "), "", *table, ""]
     lines.append("vs Open3D: Open3D's seconds over this row's (above 1: faster than Open3D). Mrays/s at "
                  f"{args.threads} threads, 1,000,000 rays each. Peak resident memory of raykernel's process "
-                 f"(making the mesh, every build and the casts): {', '.join(peaks)}. First touch: numpy filling "
-                 f"{TOUCH_MB} MB in a fresh process took {touch[0]:.2f} s the first time and {touch[1]:.2f} s the "
-                 "second (the same process, the memory reused).")
+                 f"(making the mesh, every build and the casts): {', '.join(peaks)}.")
     text = "\n".join(lines)
     print(text)
     if not args.no_write:

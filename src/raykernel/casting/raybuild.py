@@ -166,9 +166,8 @@ def single_vertices(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     RayInputError where the rounding makes two different corners of a triangle one point: the
     triangle is smaller than float32 resolves where it lies."""
     r = v.astype(np.float32).astype(np.float64)
-    t = _first_collapsed(v, r, f)
+    t, a, b = _first_collapsed(v, r, f)
     if t >= 0:
-        a, b = next((a, b) for a, b in zip(f[t], np.roll(f[t], -1)) if np.all(r[a] == r[b]) and np.any(v[a] != v[b]))
         size = float(np.max(np.abs(v[a] - v[b])))
         where = float(np.max(np.abs(v[a])))
         raise RayInputError(f"precision='single': triangle {t} is smaller than float32 resolves where it lies "
@@ -179,14 +178,15 @@ def single_vertices(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 @njit
 def _first_collapsed(v, r, f):
-    """The first triangle of f with two different corners in v that are one point in r, or -1."""
+    """(triangle, corner, corner): the first triangle of f with two different corners in v that are
+    one point in r, and those corners; (-1, -1, -1) if none."""
     for t in range(f.shape[0]):
         for e in range(3):
             a, b = f[t, e], f[t, (e + 1) % 3]
             if (r[a, 0] == r[b, 0] and r[a, 1] == r[b, 1] and r[a, 2] == r[b, 2]
                     and (v[a, 0] != v[b, 0] or v[a, 1] != v[b, 1] or v[a, 2] != v[b, 2])):
-                return t
-    return -1
+                return t, a, b
+    return -1, -1, -1
 
 
 def from_spheres(cls, centers, radii, accel: str = "bvh"):
