@@ -156,6 +156,59 @@ def test_an_edit_recompiles_the_kernels_that_use_it_and_only_those(tmp_path):
     assert _run_pair(tmp_path, cache) == (44, 4, 0, 1)          # inner changed: outer recompiled, other loaded
 
 
+CACHED_ALLOCATING = """
+import numpy as np
+from numba import prange
+from raykernel.geometry.config import njit
+
+
+@njit
+def squares(n):                     # allocates (numba's runtime) and returns an array (boxing)
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = i * i
+    return out
+
+
+@njit(parallel=True)
+def total(a):                       # the threading layer's symbols
+    s = 0.0
+    for i in prange(a.shape[0]):
+        s += a[i]
+    return s
+
+
+@njit
+def words():                        # hashes strings: the hash secret's symbols
+    d = {"one": 1, "two": 2}
+    return d["one"] + d["two"]
+"""
+RUN_ALLOCATING = """
+import json, sys, numba, probe
+a = probe.squares(5)
+result = [a.tolist(), probe.total(a), probe.words()]
+hits = [sum(k.stats.cache_hits.values()) for k in (probe.squares, probe.total, probe.words)]
+refreshed = "numba.np.linalg" in sys.modules          # imported only by the target context's refresh
+later = numba.njit(lambda x: x + 1)(1)                  # a compile after the loads (numba refreshes then)
+print(json.dumps([result, hits, refreshed, later]))
+"""
+
+
+def test_a_warm_process_loads_kernels_without_numbas_typing_set_up(tmp_path):
+    # loading machine code needs numba's runtime and the symbols it links against, not the typing and
+    # lowering registries a compile needs: a process that only loads never imports them
+    (tmp_path / "probe.py").write_text(CACHED_ALLOCATING)
+    env = dict(os.environ, PYTHONPATH=f"{tmp_path}{os.pathsep}{config.PACKAGE.parent}",
+               NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    runs = [json.loads(subprocess.run([sys.executable, "-c", RUN_ALLOCATING], env=env, capture_output=True,
+                                      text=True, check=True).stdout.strip().splitlines()[-1]) for _ in range(2)]
+    expected = [[0.0, 1.0, 4.0, 9.0, 16.0], 30.0, 3]
+    (first, first_hits, _, _), (again, hits, refreshed, later) = runs
+    assert first == again == expected
+    assert first_hits == [0, 0, 0] and hits == [1, 1, 1]
+    assert not refreshed and later == 2
+
+
 def test_a_cache_entry_naming_a_module_that_moved_is_a_miss(tmp_path):
     # a kernel whose code is unchanged keeps its stamp, but its cached signature may name a type
     # whose module has since moved (engine/work.py became geometry/work.py): that entry is

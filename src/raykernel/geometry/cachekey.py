@@ -43,6 +43,7 @@ import types
 from pathlib import Path
 
 import numpy as np
+from numba.core.runtime import rtsys
 from numba.core.caching import CompileResultCacheImpl, FunctionCache, IndexDataCacheFile, _CacheLocator
 
 PACKAGE = Path(__file__).resolve().parents[1]   # raykernel/
@@ -253,6 +254,15 @@ class _CodeCacheImpl(CompileResultCacheImpl):
     _locator_classes = [_CodeLocator]
 
 
+def _ready_to_load(target_context) -> None:
+    """What machine code loaded from the cache links against: numba's runtime (NRT) and the hash
+    secret's symbols. numba's own load refreshes the whole target context first, importing and
+    registering every typing and lowering module, which only a compile needs (and numba's compiler
+    refreshes before it compiles): a fifth of a second of every process's start."""
+    rtsys.initialize(target_context)
+    import numba.cpython.hashing  # noqa: F401  (defines the _numba_hashsecret_ symbols)
+
+
 class KernelCache(FunctionCache):
     """numba's function cache with the locator above; other numba code keeps numba's own. Made
     when a kernel is decorated, it finds its folder and stamp only when the kernel is first
@@ -295,7 +305,11 @@ class KernelCache(FunctionCache):
             self._cache_file.flush()
 
     def load_overload(self, sig, target_context):
-        return super().load_overload(sig, target_context) if self._open() else None
+        if not self._open():
+            return None
+        _ready_to_load(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
 
     def save_overload(self, sig, data):
         if self._open():
