@@ -251,6 +251,24 @@ def test_a_cast_on_a_cluster_survives_a_killed_worker(scene, two_workers, tmp_pa
     two_workers.client.wait_for_workers(2, timeout=60)
 
 
+def _mapped_scene_files() -> list:
+    with open("/proc/self/maps") as f:
+        return sorted({line.split(None, 5)[5].strip() for line in f if "raykernel-scene-" in line})
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="reads Linux's /proc")
+def test_a_local_clusters_workers_map_one_file_of_the_scene(scene, two_workers, tmp_path):
+    # one copy of the built scene on the machine (sharedscene.py), not one a worker
+    rays = _write_rays(tmp_path, 400)
+    alone = cast_file(scene, rays, tmp_path / "alone.zarr", fields=("t", "prim_id"), chunk=20)
+    spread = cast_file(scene, rays, tmp_path / "spread.zarr", fields=("t", "prim_id"), chunk=20, cluster=two_workers)
+    assert spread.cast == alone.cast == 400 and len(spread.workers) == 2
+    assert _files(tmp_path / "spread.zarr") == _files(tmp_path / "alone.zarr")
+    mapped = list(two_workers.client.run(_mapped_scene_files).values())
+    assert len(mapped) == 2 and set(mapped[0]) & set(mapped[1])
+    assert all(name.endswith("(deleted)") for name in mapped[0]), "the file is removed when the cast ends"
+
+
 def _forget_scenes():
     daskcast._kept.clear()
 

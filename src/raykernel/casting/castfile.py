@@ -13,7 +13,8 @@ where it stopped and ends with the same bytes as a run never stopped.
 Here, the chunks are a pipeline: one is read and another written while a third is cast, each
 into buffers kept from chunk to chunk. On a cluster (cluster.Cluster, passed in by the command
 line: this layer does not import it) every missing chunk is a task that takes the scene's key
-(each worker keeps the copy its warm-up met), and each worker reads and writes its chunks
+(each worker keeps the copy its warm-up met: on a local cluster, the one file of the built
+scene that every worker maps, sharedscene.py), and each worker reads and writes its chunks
 itself, into buffers it keeps for the cast. Either way, each place that casts first warms up
 (`warm_up`: one ray cast and one read, a chunk's buffers made, the results opened), so the
 time it spends compiling or loading the kernels is reported apart from the casting. A chunk is
@@ -43,6 +44,7 @@ from . import daskcast
 from .rayfiles import Buffers, RayFileError, array_in, open_results, open_rays, recorded
 from .rayinput import RayInputError, check_ray_values
 from .rayqueries import DTYPES, FIELD_COLUMNS, FLOAT_FIELDS, Hits, field_names
+from .sharedscene import SharedScene
 
 DEFAULT_CHUNK = 1 << 20     # rays a chunk: a few tenths of a second of casting, and tens of MB
 PIECE = 1 << 18             # rays a kernel call within a chunk: how soon Ctrl-C is answered (fewer calls, fewer
@@ -356,11 +358,17 @@ def _warm_task(scene, key, names, dtype, threads, source, out):
 def _on_cluster(rs, source, out, todo, names, dtype, threads, finished, report, cluster) -> None:
     """The chunks as tasks on the cluster: the scene sent to each worker once (its warm-up task,
     which keeps it there), every missing chunk submitted, the results taken as they come."""
+    # a local cluster's workers map one file of the built scene (sharedscene.py); others get a copy each
+    with SharedScene.write(rs) if cluster.local is not None else contextlib.nullcontext(rs) as given:
+        _cast_on_cluster(given, source, out, todo, names, dtype, threads, finished, report, cluster)
+
+
+def _cast_on_cluster(given, source, out, todo, names, dtype, threads, finished, report, cluster) -> None:
     client = cluster.client
     threads = threads or cluster.threads_per_worker
     with warnings.catch_warnings():     # Dask's advice against large graphs: the scene is in it once, on purpose
         warnings.filterwarnings("ignore", message="Sending large graph")
-        scene, key = cluster.share(rs)
+        scene, key = cluster.share(given)
     warm = [client.submit(_warm_task, scene, key, names, dtype, threads, source, out, workers=[w],
                           allow_other_workers=False, pure=False) for w in client.scheduler_info()["workers"]]
     for _, figures in cluster.completed(warm, doing="loading the kernels on the workers"):

@@ -36,6 +36,7 @@ import numpy as np
 
 from .rayinput import RayInputError, check_ray_values, real_array
 from .rayqueries import DTYPES, FIELD_COLUMNS, FLOAT_FIELDS, HIT_FIELDS, field_names
+from .sharedscene import SharedScene
 
 SCENES_KEPT = 4         # scenes a worker process keeps (the last ones used)
 
@@ -67,13 +68,14 @@ def scene_task(rs):
 
 
 def worker_scene(rs, key: str):
-    """The copy of scene `key` this process met first (kept, with what its queries built), else `rs`."""
+    """The copy of scene `key` this process met first (kept, with what its queries built), else `rs`
+    (a RayScene, or a SharedScene of this machine, opened here)."""
     if _names.get(rs) == key:
         return rs       # the user's own object (a scheduler of threads here): theirs to keep, not ours
     with _kept_lock:
         kept = _kept.get(key)
         if kept is None:
-            kept = _kept[key] = rs
+            kept = _kept[key] = rs.open() if isinstance(rs, SharedScene) else rs
             while len(_kept) > SCENES_KEPT:
                 _kept.popitem(last=False)
         _kept.move_to_end(key)
