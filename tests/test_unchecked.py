@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from raykernel.geometry.unchecked import load, store
+from raykernel.geometry.unchecked import load, prefetch, store
 
 
 @njit
@@ -19,6 +19,15 @@ def _read_all(a):
 def _write_all(a, values):
     for i in range(values.size):
         store(a, i, values[i])
+
+
+@njit
+def _prefetched_sum(a):
+    s = a.dtype.type(0)
+    for i in range(a.size):
+        prefetch(a, min(i + 16, a.size - 1))      # a hint only: what is read is unchanged
+        s += load(a, i)
+    return s
 
 
 @njit
@@ -52,3 +61,11 @@ def test_a_non_contiguous_array_or_a_float_index_is_refused():
         _read_at(np.arange(10.0)[::2], 1)
     with pytest.raises(Exception, match="load"):
         _read_at(np.arange(10.0), 1.0)
+
+
+@pytest.mark.parametrize("dtype", [np.int32, np.float32, np.float64])
+def test_prefetch_is_a_hint_that_changes_nothing(dtype):
+    a = np.arange(1000).astype(dtype).reshape(10, 100)
+    before = a.copy()
+    assert _prefetched_sum(a) == a.sum()
+    assert np.array_equal(a, before)

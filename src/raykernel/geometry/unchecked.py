@@ -48,3 +48,24 @@ def store(typingctx, array, index, value):
         return context.get_dummy_value()
 
     return types.none(array, index, array.dtype), codegen
+
+
+@intrinsic
+def prefetch(typingctx, array, index):
+    """Ask the processor to bring the cache line of array.flat[index] in, without waiting for it
+    (LLVM's prefetch: read, kept in every cache level), for 0 <= index < array.size: a walk names
+    the nodes it will visit next, so their lines come from memory side by side, not one by one."""
+    if not isinstance(array, types.Array) or array.layout != "C" or not isinstance(index, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        from llvmlite import ir
+        address = builder.bitcast(_element(context, builder, signature.args[0], args[0], signature.args[1], args[1]),
+                                  ir.IntType(8).as_pointer())
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [address.type, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [address, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return types.none(array, index), codegen
