@@ -114,7 +114,7 @@ def _ratios(body: str, rows: dict, ratio_after: str, column: str | None = None) 
         out = []
         for line in table[2:]:
             cells = _cells(line)
-            if all(cells[header.index(h)] == v for h, v in rows.items()) and cells[at]:
+            if all(cells[header.index(h)] == v for h, v in rows.items()) and cells[at] not in ("", "-"):  # -: not run
                 out.append(float(cells[at].rstrip("x")))
         return out
     return []

@@ -66,6 +66,16 @@ def test_the_readme_table_reads_each_peer_s_ratios_their_date_and_machine():
     assert not any("renders" in line for line in table)     # no section, no row
 
 
+def test_a_peer_that_did_not_run_leaves_its_cells_out_of_the_ratios():
+    # a peer not installed on the bench's machine writes "-" in its columns
+    rows = SECTION.split("\n")
+    rows = [line.replace("| 4 | 0.50 | 0.75 |", "| - | - | - |") if line.startswith("| a | coherent") else line
+            for line in rows]
+    text = "<!-- bench:raycast -->\n" + report.split_section("raycast", "\n".join(rows))[0] + "\n<!-- /bench:raycast -->\n"
+    coherent = next(line for line in report.readme_table(text).split("\n") if "ray casting, coherent, double" in line)
+    assert "| 1.50-2.00x, 1.00-2.00x, 1.00x |" in coherent
+
+
 def test_the_readme_s_table_is_the_one_the_sections_give():
     readme = (ROOT / "README.md").read_text()
     begin, end = "<!-- bench:readme -->\n", "\n<!-- /bench:readme -->"
