@@ -417,16 +417,11 @@ def _finish(geo, src, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy,
     if inst_out.shape[0]:
         inst_out[r] = -1
     if with_surface:
-        _surface(geo, src, best_j, prim, r, ox + best * dx, oy + best * dy, oz + best * dz, uv_out, gn_out, sn_out)
-
-
-@njit(private=True)     # a call once a hit, not inlined: typing it into the walk took longer than the walk
-def _surface(geo, src, row, prim, r, px, py, pz, uv_out, gn_out, sn_out):
-    """Row r's surface at hit point p on triangle prim, read from row `row` of src (the walk's copy)."""
-    if geo.tri_smooth.shape[0] and geo.tri_smooth[prim]:     # (a mesh without normals: none)
-        store_triangle_surface(geo, r, prim, px, py, pz, IDENTITY, uv_out, gn_out, sn_out)
-    else:       # from the corners the walk read: the mesh's arrays would be read from memory again
-        store_corner_surface(src, row, r, px, py, pz, uv_out, gn_out, sn_out)
+        px, py, pz = ox + best * dx, oy + best * dy, oz + best * dz
+        if geo.tri_smooth.shape[0] and geo.tri_smooth[prim]:     # (a mesh without normals: none)
+            store_triangle_surface(geo, r, prim, px, py, pz, IDENTITY, uv_out, gn_out, sn_out)
+        else:       # from the corners the walk read: the mesh's arrays would be read from memory again
+            store_corner_surface(src, best_j, r, px, py, pz, uv_out, gn_out, sn_out)
 
 
 @njit(inline="always")
