@@ -269,6 +269,19 @@ def test_a_local_clusters_workers_map_one_file_of_the_scene(scene, two_workers, 
     assert all(name.endswith("(deleted)") for name in mapped[0]), "the file is removed when the cast ends"
 
 
+def test_a_local_cluster_without_room_for_the_scenes_file_sends_copies(scene, two_workers, tmp_path, monkeypatch):
+    from raykernel.casting import castfile
+
+    def full(rs, folder=None):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(castfile.SharedScene, "write", full)
+    rays = _write_rays(tmp_path, 200)
+    alone = cast_file(scene, rays, tmp_path / "alone.zarr", fields=("t", "prim_id"), chunk=20)
+    spread = cast_file(scene, rays, tmp_path / "spread.zarr", fields=("t", "prim_id"), chunk=20, cluster=two_workers)
+    assert spread.cast == alone.cast == 200
+    assert _files(tmp_path / "spread.zarr") == _files(tmp_path / "alone.zarr")
+
+
 def _forget_scenes():
     daskcast._kept.clear()
 

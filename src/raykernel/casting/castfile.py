@@ -358,9 +358,14 @@ def _warm_task(scene, key, names, dtype, threads, source, out):
 def _on_cluster(rs, source, out, todo, names, dtype, threads, finished, report, cluster) -> None:
     """The chunks as tasks on the cluster: the scene sent to each worker once (its warm-up task,
     which keeps it there), every missing chunk submitted, the results taken as they come."""
-    # a local cluster's workers map one file of the built scene (sharedscene.py); others get a copy each
-    with SharedScene.write(rs) if cluster.local is not None else contextlib.nullcontext(rs) as given:
-        _cast_on_cluster(given, source, out, todo, names, dtype, threads, finished, report, cluster)
+    # a local cluster's workers map one file of the built scene (sharedscene.py); others get a copy each,
+    # as do a local cluster's where the temporary folder cannot take the file
+    given = contextlib.nullcontext(rs)
+    if cluster.local is not None:
+        with contextlib.suppress(OSError):
+            given = SharedScene.write(rs)
+    with given as scene:
+        _cast_on_cluster(scene, source, out, todo, names, dtype, threads, finished, report, cluster)
 
 
 def _cast_on_cluster(given, source, out, todo, names, dtype, threads, finished, report, cluster) -> None:
