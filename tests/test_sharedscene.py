@@ -101,3 +101,31 @@ def test_a_deleted_or_other_file_is_refused_by_name(tmp_path):
     impostor = SharedScene(str(tmp_path / "elsewhere"), shared.token, shared.spans, shared.inband)
     with pytest.raises(SharedSceneError, match="is not the shared scene this handle names"):
         impostor.open()
+
+
+def test_a_write_that_fails_leaves_no_file(tmp_path, monkeypatch):
+    from raykernel.casting import sharedscene
+    real = sharedscene.os.fdopen
+
+    class Full:             # a disk that fills after the header
+        def __init__(self, f):
+            self.f, self.calls = f, 0
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+        def tell(self):
+            return self.f.tell()
+
+        def write(self, data):
+            self.calls += 1
+            if self.calls > 2:
+                raise OSError(28, "No space left on device")
+            return self.f.write(data)
+    monkeypatch.setattr(sharedscene.os, "fdopen", lambda fd, mode: Full(real(fd, mode)))
+    with pytest.raises(OSError, match="No space"):
+        SharedScene.write(_scene(), tmp_path)
+    assert not list(tmp_path.iterdir())

@@ -46,11 +46,12 @@ class SharedScene:
     @classmethod
     def write(cls, rs, folder=None) -> "SharedScene":
         """Write `rs` to a new file in `folder` (default: the temporary folder) and return its handle,
-        a context manager that deletes the file on exit. Written whole, then renamed into place."""
+        a context manager that deletes the file on exit. (Only this handle names the file, so no
+        process can open it before it is whole.)"""
         buffers = []
         inband = pickle.dumps(rs, protocol=5, buffer_callback=buffers.append)
         token = secrets.token_bytes(16)
-        fd, tmp = tempfile.mkstemp(prefix="raykernel-scene-", suffix=".tmp", dir=folder)
+        fd, path = tempfile.mkstemp(prefix="raykernel-scene-", dir=folder)
         spans = []
         try:
             with os.fdopen(fd, "wb") as f:
@@ -62,10 +63,8 @@ class SharedScene:
                     f.write(raw)
                 where = (f.tell(), len(inband))
                 f.write(inband)
-            path = tmp[:-len(".tmp")]
-            os.replace(tmp, path)
         except BaseException:
-            Path(tmp).unlink(missing_ok=True)
+            Path(path).unlink(missing_ok=True)
             raise
         return cls(path, token, tuple(spans), where)
 

@@ -15,6 +15,7 @@ the nodes it reads (indices the builder wrote). Neither checks bounds, as
 numba's own indexing does not.
 """
 
+from llvmlite import ir
 from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
@@ -59,7 +60,6 @@ def prefetch(typingctx, array, index):
         return None
 
     def codegen(context, builder, signature, args):
-        from llvmlite import ir
         address = builder.bitcast(_element(context, builder, signature.args[0], args[0], signature.args[1], args[1]),
                                   ir.IntType(8).as_pointer())
         i32 = ir.IntType(32)
