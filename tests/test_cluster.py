@@ -137,3 +137,20 @@ def test_work_layers_on_the_cluster_equal_one_process(two_workers):
     for name in alone.work:
         assert np.array_equal(alone.work[name], spread.work[name]), name
     assert int(spread.work["tests.total"].sum()) == spread.stats["tests.total"]
+
+
+def test_a_local_cluster_says_nothing_when_dasks_usual_port_is_taken():
+    # another cluster on the machine may hold 8787 (two commands at once, or two test workers): the
+    # scheduler's HTTP routes go to a free port, with no warning for the command to print
+    import contextlib
+    import socket
+    import warnings
+    held = socket.socket()
+    with contextlib.closing(held), warnings.catch_warnings(record=True) as caught:
+        with contextlib.suppress(OSError):      # (taken already: the same situation)
+            held.bind(("0.0.0.0", 8787))
+            held.listen()
+        warnings.simplefilter("always")
+        with Cluster("local:1") as c:
+            assert c.workers == 1
+    assert not [w for w in caught if "8787" in str(w.message)]

@@ -180,8 +180,11 @@ class Cluster:
                 raise OptionError(f"--dask local:N needs a positive number of workers, got {address!r}")
             # each worker runs one task at a time over its share of the cores (numba's threads)
             self.threads_per_worker = max(1, (os.cpu_count() or 1) // workers)
+            # no dashboard; the scheduler's HTTP routes (health, metrics) on a free port, not 8787, which
+            # another cluster on the machine may hold (Dask then warns that it moved)
             self.local = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                                  dashboard_address=None, silence_logs=40)
+                                                  dashboard_address=None, silence_logs=40,
+                                                  scheduler_kwargs={"dashboard_address": ":0"})
             self.client = distributed.Client(self.local, timeout=timeout)
         elif "://" in text:
             try:
