@@ -52,20 +52,43 @@ def test_inlined_callees_at_many_sites_give_python_results():
     assert inline_closurecall.copy is inlining.copy      # the stand-in is gone after each inlining
 
 
-def test_the_same_kernel_compiles_alike_with_numba_as_shipped():
-    code = ("import json, numpy as np, sys, raykernel.geometry.config; sys.path.insert(0, sys.argv[1]); "
-            "import test_inlining as t; "
+def test_the_same_kernel_compiles_alike_with_numba_as_shipped(tmp_path):
+    # a raykernel kernel on an empty cache: the short inliner is set up by its compile, not by the import
+    code = ("import json, sys, numpy as np, raykernel.geometry.config as config; "
+            "at_import = 'numba.core.inline_closurecall' in sys.modules; "
+            "sys.path.insert(0, sys.argv[1]); import test_inlining as t; "
             "from numba.core import inline_closurecall as m; "
-            "print(json.dumps([t._uses_inlined(np.linspace(-3, 3, 13)), m.InlineWorker.inline_function.__module__]))")
+            "kernel = config.njit(t._uses_inlined.py_func); "
+            "print(json.dumps([kernel(np.linspace(-3, 3, 13)), m.InlineWorker.inline_function.__module__, at_import]))")
     results = []
     for shipped in ("", "1"):
-        env = dict(os.environ, RAYKERNEL_NUMBA_AS_SHIPPED=shipped)
+        env = dict(os.environ, RAYKERNEL_NUMBA_AS_SHIPPED=shipped, NUMBA_CACHE_DIR=str(tmp_path / f"cache{shipped}"))
         out = subprocess.run([sys.executable, "-c", code, os.path.dirname(__file__)], env=env, capture_output=True,
                              text=True, check=True).stdout
         results.append(json.loads(out.splitlines()[-1]))
-    (changed, where_changed), (shipped, where_shipped) = results
+    (changed, where_changed, imported), (shipped, where_shipped, imported_shipped) = results
     assert changed == shipped == list(_reference(np.linspace(-3, 3, 13)))
     assert where_changed == "raykernel.geometry.inlining" and where_shipped == "numba.core.inline_closurecall"
+    assert not imported and not imported_shipped        # importing raykernel leaves numba's inliner unloaded
+
+
+def test_the_short_inliner_is_set_up_by_a_cache_miss_only(monkeypatch, tmp_path):
+    from raykernel.geometry import cachekey, config
+    calls = []
+    monkeypatch.setattr(cachekey, "skip_inline_copies", lambda: calls.append(1))
+    monkeypatch.setattr(config, "CACHE_DIR", str(tmp_path))
+
+    def twice_plus_one(x):
+        return 2.0 * x + 1.0
+
+    assert config.njit(twice_plus_one)(3.0) == 7.0          # a miss: compiled, the inliner set up first
+    assert len(calls) == 1
+    assert config.njit(twice_plus_one)(4.0) == 9.0          # the same code from the cache: nothing to set up
+    assert len(calls) == 1
+    unwritable = config.njit(twice_plus_one)
+    monkeypatch.setattr(unwritable._cache, "_open", lambda: False)     # no cache folder: compiled every time
+    assert unwritable(5.0) == 11.0
+    assert len(calls) == 2
 
 
 def test_an_inliner_of_another_shape_is_left_alone():

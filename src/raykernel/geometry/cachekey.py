@@ -46,6 +46,8 @@ import numpy as np
 from numba.core.runtime import rtsys
 from numba.core.caching import CompileResultCacheImpl, FunctionCache, IndexDataCacheFile, _CacheLocator
 
+from .inlining import skip_inline_copies
+
 PACKAGE = Path(__file__).resolve().parents[1]   # raykernel/
 OURS = PACKAGE.name
 _FUNCTION_FLAGS = inspect.CO_OPTIMIZED | inspect.CO_NEWLOCALS
@@ -306,10 +308,14 @@ class KernelCache(FunctionCache):
 
     def load_overload(self, sig, target_context):
         if not self._open():
+            skip_inline_copies()
             return None
         _ready_to_load(target_context)
         with self._guard_against_spurious_io_errors():
-            return self._load_overload(sig, target_context)
+            found = self._load_overload(sig, target_context)
+        if found is None:       # numba compiles it next (under its compile lock): with the short inliner
+            skip_inline_copies()
+        return found
 
     def save_overload(self, sig, data):
         if self._open():

@@ -24,7 +24,6 @@ from pathlib import Path
 import numba
 
 from . import cachekey
-from .inlining import skip_inline_copies
 
 KERNEL_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
 PACKAGE = cachekey.PACKAGE
@@ -49,7 +48,6 @@ def cache_folders() -> list[Path]:
 
 CACHE_DIR = str(cache_root())
 cachekey._CodeLocator.cache_dir = staticmethod(lambda: CACHE_DIR)
-skip_inline_copies()        # for raykernel's own kernels only (inlining.py)
 
 
 def njit(func=None, *, private=False, borrows=False, **kwargs):

@@ -1,7 +1,7 @@
 """numba's inlining of raykernel's `inline="always"` functions without its two defensive copies.
 
     from .inlining import skip_inline_copies
-    skip_inline_copies()      # config.py, at import: raykernel's callees only; numba as shipped for any other
+    skip_inline_copies()      # cachekey.py, before a kernel compiles: for raykernel's callees only
 
 Why: a kernel that inlines many small functions (the walk's box and triangle
 tests, the shading) spends much of its first compile copying numba IR. For
@@ -15,7 +15,9 @@ hands the fresh IR of a raykernel function over without copying it. The
 compiled code is the same: only copies of objects nothing else holds are
 skipped (bench/startup.py measures the first compiles).
 
-Only raykernel's own callees take this path: any other function, in any
+It is set up when a raykernel kernel is about to compile (a miss in the
+kernel cache), not at import: a process that only loads cached kernels
+never imports numba's inliner module (part of every warm start). Only raykernel's own callees take this path: any other function, in any
 other numba code of the process, is inlined by numba's own method, called
 as it is. The change is made only where numba's code has the shape it was
 written against (checked on its source); anywhere else numba runs as
