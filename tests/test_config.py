@@ -185,12 +185,18 @@ def words():                        # hashes strings: the hash secret's symbols
 """
 RUN_ALLOCATING = """
 import json, sys, numba, probe
+import llvmlite.binding as ll
+parsed = []
+parse_bitcode = ll.parse_bitcode
+ll.parse_bitcode = lambda code, *a: parsed.append(len(code)) or parse_bitcode(code, *a)
 a = probe.squares(5)
 result = [a.tolist(), probe.total(a), probe.words()]
 hits = [sum(k.stats.cache_hits.values()) for k in (probe.squares, probe.total, probe.words)]
 refreshed = "numba.np.linalg" in sys.modules          # imported only by the target context's refresh
+loads_parsed = len(parsed)
 later = numba.njit(lambda x: x + 1)(1)                  # a compile after the loads (numba refreshes then)
-print(json.dumps([result, hits, refreshed, later]))
+linked = numba.njit(lambda n: probe.squares(n).sum() + probe.words())(4)    # links loaded kernels' code
+print(json.dumps([result, hits, refreshed, later, loads_parsed, linked, len(parsed) > loads_parsed]))
 """
 
 
@@ -203,10 +209,29 @@ def test_a_warm_process_loads_kernels_without_numbas_typing_set_up(tmp_path):
     runs = [json.loads(subprocess.run([sys.executable, "-c", RUN_ALLOCATING], env=env, capture_output=True,
                                       text=True, check=True).stdout.strip().splitlines()[-1]) for _ in range(2)]
     expected = [[0.0, 1.0, 4.0, 9.0, 16.0], 30.0, 3]
-    (first, first_hits, _, _), (again, hits, refreshed, later) = runs
+    (first, first_hits, *_), (again, hits, refreshed, later, loads_parsed, linked, parsed_to_link) = runs
     assert first == again == expected
     assert first_hits == [0, 0, 0] and hits == [1, 1, 1]
     assert not refreshed and later == 2
+    # the loaded kernels' LLVM modules are parsed only when a later compile links them (_LinkedOnDemand)
+    assert loads_parsed == 0
+    assert linked == 14 + 3 and parsed_to_link
+
+
+def test_an_entry_in_numbas_own_form_loads_as_numba_loads_it():
+    # entries written before the symbols' names were stored beside the bitcode: parsed at once, as numba does
+    @numba.njit
+    def plus_one(x):
+        return x + 1
+
+    assert plus_one(1) == 2
+    cres = plus_one.overloads[plus_one.signatures[0]]
+    state = cres.library.serialize_using_object_code()
+    assert len(state[2]) == 2           # (machine code, bitcode): no names
+    assert cachekey._linked_on_demand(cres.target_context)
+    library = cachekey._LinkedOnDemand._unserialize(cres.target_context.codegen(), state)
+    assert "_linking_module" in vars(library) and "_bitcode" not in vars(library)
+    assert library.get_pointer_to_function(cres.fndesc.llvm_cpython_wrapper_name) != 0
 
 
 def test_a_cache_entry_naming_a_module_that_moved_is_a_miss(tmp_path):

@@ -42,9 +42,11 @@ import threading
 import types
 from pathlib import Path
 
+import llvmlite.binding as ll
 import numpy as np
 from numba.core.runtime import rtsys
 from numba.core.caching import CompileResultCacheImpl, FunctionCache, IndexDataCacheFile, _CacheLocator
+from numba.core.codegen import JITCodeLibrary
 
 from .inlining import skip_inline_copies
 
@@ -252,8 +254,63 @@ class _TolerantIndex(IndexDataCacheFile):
             return None
 
 
+class _LinkedOnDemand(JITCodeLibrary):
+    """numba's JIT code library, where a kernel loaded from raykernel's cache parses the LLVM module
+    that later compiles link against (the whole kernel, a large part of a load) only when one does.
+    Its machine code and its symbols load at once: the entry stores the symbols' names beside the
+    module's bitcode (_CodeCacheImpl.reduce). Libraries numba compiles or loads otherwise are
+    numba's own in all but the class name."""
+
+    @property
+    def _shared_module(self):
+        bitcode = self.__dict__.pop("_bitcode", None)
+        if bitcode is not None:         # the first link: under numba's compile lock, as every link
+            self.__dict__["_linking_module"] = ll.parse_bitcode(bitcode)
+        return self.__dict__.get("_linking_module")
+
+    @_shared_module.setter
+    def _shared_module(self, module):
+        self.__dict__.pop("_bitcode", None)
+        self.__dict__["_linking_module"] = module
+
+    @classmethod
+    def _unserialize(cls, codegen, state):
+        name, kind, data = state
+        if kind != "object" or len(data) != 3:      # numba's own entries
+            return super()._unserialize(codegen, state)
+        object_code, bitcode, symbols = data
+        library = codegen.create_library(name)
+        library.enable_object_caching()
+        library._set_compiled_object(object_code)
+        library._bitcode = bitcode
+        library._finalize_final_module()
+        codegen._engine._defined_symbols.update(symbols)     # what numba reads off the parsed module
+        return library
+
+
+def _linked_on_demand(target_context) -> bool:
+    """Make target_context's codegen create _LinkedOnDemand libraries (once; where its class is
+    numba's JIT library, as written against). Returns whether they are in effect."""
+    codegen = target_context.codegen()
+    if codegen._library_class is JITCodeLibrary:
+        codegen._library_class = _LinkedOnDemand
+    return codegen._library_class is _LinkedOnDemand
+
+
 class _CodeCacheImpl(CompileResultCacheImpl):
     _locator_classes = [_CodeLocator]
+
+    def reduce(self, cres):
+        """numba's entry, with the names of the symbols the kernel's code defines beside its bitcode
+        where it will load as a _LinkedOnDemand library."""
+        libdata, *rest = super().reduce(cres)
+        name, kind, data = libdata
+        if not (kind == "object" and isinstance(cres.library, _LinkedOnDemand)):
+            return (libdata, *rest)
+        module = cres.library._get_module_for_linking()
+        symbols = sorted(g.name for part in (module.functions, module.global_variables) for g in part
+                         if not g.is_declaration)
+        return ((name, kind, (*data, symbols)), *rest)
 
 
 def _ready_to_load(target_context) -> None:
@@ -263,6 +320,7 @@ def _ready_to_load(target_context) -> None:
     refreshes before it compiles): a fifth of a second of every process's start."""
     rtsys.initialize(target_context)
     import numba.cpython.hashing  # noqa: F401  (defines the _numba_hashsecret_ symbols)
+    _linked_on_demand(target_context)
 
 
 class KernelCache(FunctionCache):
