@@ -321,3 +321,62 @@ def test_wide_counters_are_per_box_and_per_node():
     slots = int((rs._mesh.wide.nodes[0, COUNT:] >= 0).sum())
     assert h.prim_id.tolist() == [0] and len(rs._mesh.wide.nodes) == 1 and slots == 4
     assert s["cells.visited"] == 1 and s["bounds.tests"] == 1 + slots and s["tests.triangle"] == 1
+
+
+
+def _frozen(a):
+    a = np.array(a)
+    a.flags.writeable = False
+    return a
+
+
+def _compiled() -> dict:
+    """Every raykernel kernel of the process and the argument types it has been compiled for."""
+    import gc
+    from numba.core.registry import CPUDispatcher
+    return {k: set(k.overloads) for k in gc.get_objects()
+            if isinstance(k, CPUDispatcher) and k.py_func.__module__.startswith("raykernel")}
+
+
+def _queries(scene, o, d, lo, hi, points):
+    hits = scene.intersect(o, d, lo, hi)
+    methods = ("winding", "parity") if scene._mesh is not None else ("vote",)
+    return (hits.t, hits.prim_id, hits.normal, scene.occluded(o, d, lo, hi), scene.closest_points(points).distance,
+            *(scene.contains(points, method=m) for m in methods))
+
+
+def test_read_only_arrays_take_the_kernels_already_made():
+    """numba compiles a kernel once per argument types, and a read-only array is a type of its own:
+    read-only rays or points (a broadcast origin, a memory-mapped file), a mesh of read-only arrays,
+    and a mesh built from a scene (whose Geometry's center is read-only) would each compile the
+    kernels again, seconds each. Every mix of flags is passed as one type (rayinput.read_only and
+    writable), with the same answers."""
+    rng = np.random.default_rng(5)
+    v, f = MESHES["cube"]
+    o = rng.uniform(-2, 2, (500, 3))
+    d = rng.uniform(-1, 1, (500, 3)) - o
+    lo, hi = np.zeros(500), np.full(500, 10.0)
+    points = rng.uniform(-2, 2, (300, 3))
+    in_scene, other = Scene(), Scene()
+    in_scene.root.add(TriangleMesh(v, f))
+    other.root.add(TriangleMesh(v, f))
+    other.root.spheres.add((3, 0, 0), 1.0)          # the general kernel
+    plain = {name: make(v, f) for name, make in (("mesh", RayScene.from_mesh),
+                                                 ("single", lambda v, f: RayScene.from_mesh(v, f, precision="single")))}
+    plain["other"] = RayScene.from_scene(other)
+    expected = {name: _queries(scene, o, d, lo, hi, points) for name, scene in plain.items()}
+    made = _compiled()
+    scenes = [("mesh", RayScene.from_mesh(_frozen(v), _frozen(f))), ("mesh", RayScene.from_scene(in_scene)),
+              ("single", RayScene.from_mesh(_frozen(v), f, precision="single")), ("other", plain["other"])]
+    assert scenes[1][1]._mesh is not None and plain["other"]._mesh is None
+    for name, scene in scenes:
+        for args in ((_frozen(o), d, lo, hi, _frozen(points)), (o, _frozen(d), _frozen(lo), hi, points),
+                     (o, d, lo, _frozen(hi), np.broadcast_to(points[0], points.shape)),
+                     (np.broadcast_to(o[0], o.shape), d, 0.0, 10.0, points)):
+            answers = _queries(scene, *args)
+            reference = _queries(plain[name], *(np.array(a) for a in args))
+            for a, b in zip(answers, reference, strict=True):
+                np.testing.assert_array_equal(a, b)         # (NaN normals of misses equal)
+        for a, b in zip(_queries(scene, o, d, lo, hi, points), expected[name], strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert _compiled() == made          # nothing compiled for the flags

@@ -110,7 +110,9 @@ class MeshKernel(NamedTuple):
         if not len(geo.wide_nodes):
             corners = np.ascontiguousarray(geo.tri_verts[geo.tri_faces[prims]].reshape(-1, 9))
             return cls(arrays, corners, prims, geoms, root, WideBVH(geo.wide_nodes, geo.wide_center), NO_BLOCKS)
-        wide, blocks, lanes = wide_leaves(WideBVH(geo.wide_nodes.copy(), geo.wide_center), geo.tri_verts,
+        # the center copied: the Geometry's is read-only (widewalk.wide_only), a mesh's own writable, and
+        # numba would compile the kernel once for each
+        wide, blocks, lanes = wide_leaves(WideBVH(geo.wide_nodes.copy(), geo.wide_center.copy()), geo.tri_verts,
                                           geo.tri_faces, prims, dtype=dtype)
         return cls(arrays, NO_CORNERS, lanes, geoms, root, wide, blocks)
 

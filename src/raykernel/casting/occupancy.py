@@ -22,6 +22,7 @@ import numpy as np
 
 from ..geometry.config import njit
 from ..geometry.parallel import for_ranges
+from .rayinput import read_only
 
 CELLS_PER_TRIANGLE = 8
 MIN_CELLS = 32 ** 3
@@ -39,6 +40,7 @@ class OccupancyGrid(NamedTuple):
     def lookup(self, points: np.ndarray, threads=None) -> tuple[np.ndarray, np.ndarray]:
         """(inside, known) of (N, 3) float64 points: the answer where the grid gives one."""
         n = len(points)
+        points = read_only(points)      # one compiled kernel whatever the caller's flags
         inside, known = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
         for_ranges(lambda i0, i1: _lookup(points, self.lo, self.cell, self.res, self.region, self.inside,
                                           inside, known, np.int64(i0), np.int64(i1)),

@@ -46,7 +46,7 @@ from ..geometry.primitives import INDEX_MASK, KIND_SHIFT, PATCH, POLYGON, SPHERE
 from .meshbuild import build_mesh
 from .occupancy import occupancy_grid
 from .raybuild import EDGE_RULES
-from .rayinput import RayInputError, vectors
+from .rayinput import RayInputError, read_only, vectors
 from .winding import dipoles, winding_numbers
 
 CHUNK = 1024
@@ -62,6 +62,7 @@ def parity_directions(points: np.ndarray, box: np.ndarray, threads=None) -> np.n
     (each axis' exit distance is the smaller, so their minimum is). Any direction gives a closed
     mesh's parity, and a short ray crosses fewer nodes than one fixed direction."""
     out = np.empty_like(points)
+    points = read_only(points)
     for_ranges(lambda i0, i1: _toward_nearer_faces(points, np.asarray(box, np.float64), np.abs(INSIDE_DIRECTIONS[0]),
                                                    out, np.int64(i0), np.int64(i1)),
                len(points), threads, kernel=_toward_nearer_faces, min_size=1 << 16)
@@ -263,6 +264,7 @@ class PointIndex:
     def query(self, points: np.ndarray, threads=None):
         """(closest points (N, 3), distances (N,), tagged references (N,)) of points (N, 3)."""
         n = len(points)
+        points = read_only(points)      # one compiled kernel whatever the caller's flags
         out_p, out_d, out_ref = np.empty((n, 3)), np.empty(n), np.empty(n, np.int64)
         b, g = self.bvh, self.geo
         arrays = (g.tri_verts, g.tri_faces, g.sph_center, g.sph_radius, g.poly_normal, g.poly_start, g.poly_count,

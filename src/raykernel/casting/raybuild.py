@@ -30,7 +30,7 @@ from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIAN
 from ..scene.model import Scene, TriangleMesh
 from .meshbuild import BUILD_BYTES, QUALITY, build_mesh
 from .meshcast import MESH_ACCEL, MeshKernel
-from .rayinput import RayInputError, real_array
+from .rayinput import RayInputError, real_array, writable
 
 EDGE_RULES = {"watertight": WATERTIGHT, "inclusive": INCLUSIVE}
 KIND_NAMES = {SPHERE: "sphere", POLYGON: "polygon", PATCH: "patch", CONE: "cone", TRIANGLE: "triangle"}
@@ -121,12 +121,12 @@ def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None,
             raise RayInputError("normals must be finite")
     if quality not in QUALITY:
         raise RayInputError(f"quality must be one of {', '.join(QUALITY)}, got {quality!r}")
-    v = np.ascontiguousarray(v, np.float64)
-    f = np.ascontiguousarray(f, np.int64)
+    v = writable(np.ascontiguousarray(v, np.float64))
+    f = writable(np.ascontiguousarray(f, np.int64))
     single = precision == "single"
     if single:
         v = single_vertices(v, f)
-    n = None if n is None else np.ascontiguousarray(n, np.float64)
+    n = None if n is None else writable(np.ascontiguousarray(n, np.float64))
     scene = Scene()
     scene.root.add(TriangleMesh(v, f, normals=n))
     rs = cls.__new__(cls)

@@ -5,6 +5,8 @@ a bad argument (RayInputError).
     if not valid_ray(ox, oy, oz, dx, dy, dz):       # in a kernel, per ray
         continue            # left out of the chunk's rays.cast
     check_ray_values(o, d)      # RayInputError naming the first ray valid_ray refuses
+    o = read_only(o)            # as the kernels take the rays: one compiled kernel for any caller's flags
+    v = writable(v)             # as the kernels take a mesh's arrays (a copy where v is read-only)
     v = real_array(vertices, "vertices")            # float64, or RayInputError naming the argument
 
 The kernels cast the rays whose origin lies within +-MAX_COORDINATE and whose
@@ -125,6 +127,25 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf, budget=None):
         i = int(np.flatnonzero(bad)[0])
         raise RayInputError(f"tmin > tmax for ray {i}: {lo[i if len(lo) > 1 else 0]} > {hi[i if len(hi) > 1 else 0]}")
     return np.ascontiguousarray(o), np.ascontiguousarray(d), lo, hi, shape
+
+
+def read_only(arr: np.ndarray) -> np.ndarray:
+    """arr, or a read-only view of it. numba compiles a kernel once for each type of its arguments,
+    and a read-only array is a type of its own: the query kernels only read the rays, so they are
+    given them read-only whatever the caller passed (a broadcast origin, a memory-mapped file), and
+    compile once, not once for each mix of flags."""
+    if not arr.flags.writeable:
+        return arr
+    view = arr.view()
+    view.flags.writeable = False
+    return view
+
+
+def writable(arr: np.ndarray) -> np.ndarray:
+    """arr, or a copy of it where it is read-only: a mesh's arrays, which a scene keeps and its
+    kernels read as they read the arrays of a scene raykernel built (writable), so that a mesh read
+    from a memory-mapped or frozen array compiles no kernels of its own (see read_only)."""
+    return arr if arr.flags.writeable else arr.copy()
 
 
 def _plain(origins, directions) -> bool:

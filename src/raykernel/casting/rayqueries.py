@@ -33,7 +33,7 @@ from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..geometry import counters as C
 from ..geometry.config import njit
 from .hitsurface import store_miss, store_surface
-from .rayinput import RayInputError, check_ray_values, check_rays, valid_ray
+from .rayinput import RayInputError, check_ray_values, check_rays, read_only, valid_ray
 
 CHUNK = 1024
 CLOSEST, ANY = 0, 1
@@ -230,6 +230,7 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
     it), the general one kind and global index in idx (see RayScene._identify). All hits: idx holds
     the counts, or with offsets the hits go to all_t / all_i as (kind, global index, instance)."""
     n = len(o)
+    o, d, lo, hi = (read_only(a) for a in (o, d, lo, hi))
     t, kind, geom, idx, inst, uv, gn, sn = (out[k] for k in OUTPUTS)
     with_surface = len(uv) > 0 or len(gn) > 0 or len(sn) > 0
     offsets = np.zeros(0, np.int64) if offsets is None else offsets
@@ -254,7 +255,7 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
             # chunks (lazyset.pass_ranges); the lazy structures refine after each; passes shorter
             # than a chunk add into the first chunk's row. Results go back to the rays' own order.
             order = coarse_to_fine(n)
-            ins = [np.broadcast_to(a, (n,) + a.shape[1:])[order] for a in (o, d, lo, hi)]
+            ins = [read_only(np.broadcast_to(a, (n,) + a.shape[1:])[order]) for a in (o, d, lo, hi)]
             outs = [np.empty_like(a) for a in (t, kind, idx, inst, uv, gn, sn)]
             p_offsets, p_all_t, p_all_i = offsets, all_t, all_i
             if len(offsets):

@@ -27,6 +27,7 @@ from ..aggregates.widebvh import CHILD, COUNT
 from ..geometry.parallel import for_ranges
 from ..geometry.config import njit
 from .meshcast import MeshKernel
+from .rayinput import read_only
 from .triangles4 import corner
 
 BETA = 2.0          # open a subtree nearer than this many of its radii (Barill et al.'s accuracy parameter)
@@ -147,6 +148,7 @@ def dipoles(mesh: MeshKernel) -> np.ndarray:
 def winding_numbers(mesh: MeshKernel, points: np.ndarray, far: np.ndarray, threads=None) -> np.ndarray:
     """The winding number of the mesh at each of points ((N, 3) float64); far: dipoles(mesh)."""
     out = np.empty(len(points))
+    points = read_only(points)      # one compiled kernel whatever the caller's flags
     for_ranges(lambda i0, i1: _winding(mesh.wide.nodes, far, mesh.blocks, points, out, np.int64(i0), np.int64(i1)),
                len(points), threads, kernel=_winding, min_size=256)
     return out
