@@ -189,6 +189,7 @@ from numba.core import types
 from numba.core.registry import CPUDispatcher
 scene = raykernel.load("spd:balls:1")
 raykernel.render(scene, resolution=24)
+raykernel.render(scene, resolution=24, aa="jitter", samples=4)
 raykernel.render(scene, resolution=24, accel="grid")
 raykernel.RayScene(scene).intersect(np.zeros((1, 3)), np.ones((1, 3)))
 raykernel.RayScene.from_mesh(np.eye(3), [(0, 1, 2)]).intersect(np.zeros((1, 3)), np.ones((1, 3)))

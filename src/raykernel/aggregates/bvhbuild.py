@@ -151,7 +151,7 @@ def _best_split(bin_count, bin_box, bin_weight, scale, bins, inv, use_area, bloc
     ties go to the earlier axis and, on one axis, to the right-most boundary."""
     best = np.inf
     split_axis = -1
-    split_bin = 0
+    split_bin = np.int64(0)
     held = bin_box.shape[1]
     for a in range(3):
         if scale[a] == 0.0:
@@ -360,7 +360,7 @@ def _build_loop(data, order, bounds, first, count, st_node, st_start, st_end, st
                     any_axis = True
 
         split_axis = -1
-        split_bin = 0
+        split_bin = np.int64(0)     # (a literal 0, in builds that never bin, had numba compile _partition for it)
         stride = np.int64(1)
         mid = s + cnt // 2
         if cnt == 1 or cnt <= leaf_size and _leaf_is_cheapest(data, s, e, block, traversal_cost, intersection_cost):

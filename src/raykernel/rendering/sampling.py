@@ -77,8 +77,9 @@ def _sample(geo, mats, lights, background, cam, u, v, whitted_on, heckbert_on, m
                              medium, filtered, tricks, state, rays, ws, cnt)
     if whitted_on is not None:
         eye[0, 0], eye[0, 1], eye[0, 2] = dx, dy, dz
-        whitted.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], eye, 1, color, max_depth, cutoff,
-                      filtered, tricks, state, rays, ws, cnt)
+        # n as an int64, the type the tiles' batches give it: a literal 1 had numba compile trace again
+        whitted.trace(geo, mats, lights, background, cam[0], cam[1], cam[2], eye, np.int64(1), color, max_depth,
+                      cutoff, filtered, tricks, state, rays, ws, cnt)
         r, g, b = color[0, 0], color[0, 1], color[0, 2]
     return r, g, b
 

@@ -150,8 +150,8 @@ def test_ref(geo, kind, idx, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax
 @njit(inline="always")
 def test_one(geo, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt):
     """t of the object remembered in table[row, col:col + 15] (kind, index, _, map) for the world ray."""
-    return test_ref(geo, np.int64(table[row, col]), np.int64(table[row, col + 1]), table, row, col, ox, oy, oz,
-                    dx, dy, dz, tmin, tmax, cnt)
+    return test_ref(geo, np.int64(table[row, col]), np.int64(table[row, col + 1]), table, np.int64(row),
+                    np.int64(col), ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
 
 
 @njit(inline="always")
@@ -167,7 +167,8 @@ def _list_row(geo, table, row, col, state, cnt):
 @njit(private=True)
 def list_hint(geo, table, row, col, ox, oy, oz, dx, dy, dz, tmin, tmax, opaque_only, state, cnt):
     """Trick 6: the nearest t in [tmin, tmax] of the start list of the object in table[row, col:]
-    (opaque primitives only if asked), INF when none is hit or there is no list."""
+    (opaque primitives only if asked), INF when none is hit or there is no list. Its callers pass
+    row, col and opaque_only as int64: a constant (a literal) would have numba compile it again."""
     lists = state[3]
     at = _list_row(geo, table, row, col, state, cnt)
     if at < 0:
@@ -211,7 +212,8 @@ def closest(geo, ox, oy, oz, dx, dy, dz, tmin, tmax, node, tricks, state, rays, 
         hint = test_one(geo, memory, node, 0, ox, oy, oz, dx, dy, dz, tmin, tmax, cnt)
         from_tree = hint < INF
     if tricks & STARTLISTS:
-        t = list_hint(geo, rays, top, ORIGIN, ox, oy, oz, dx, dy, dz, tmin, min(tmax, hint), False, state, cnt)
+        t = list_hint(geo, rays, np.int64(top), np.int64(ORIGIN), ox, oy, oz, dx, dy, dz, tmin, min(tmax, hint),
+                      np.int64(False), state, cnt)
         if t < hint:
             hint, from_tree = t, False
     if hint < INF and intersect(geo, ox, oy, oz, dx, dy, dz, tmin, min(tmax, hint + MARGIN * abs(hint)), mode, ws,
@@ -244,8 +246,8 @@ def cached_block(geo, ox, oy, oz, tx, ty, tz, reach, slot, opaque_only, tricks, 
             cnt[C.SHADOW_CACHE_HITS] += 1
             return True
     if tricks & STARTLISTS:
-        t = list_hint(geo, state[4], 0, 0, ox, oy, oz, tx, ty, tz, MARGIN * reach, reach * (1.0 - MARGIN),
-                      opaque_only, state, cnt)
+        t = list_hint(geo, state[4], np.int64(0), np.int64(0), ox, oy, oz, tx, ty, tz, MARGIN * reach,
+                      reach * (1.0 - MARGIN), np.int64(opaque_only), state, cnt)
         if MARGIN * reach < t < reach * (1.0 - MARGIN):
             cnt[C.START_LISTS_HITS] += 1
             return True
