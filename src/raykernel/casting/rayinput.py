@@ -6,8 +6,8 @@ a bad argument (RayInputError).
         continue            # left out of the chunk's rays.cast
     check_ray_values(o, d)      # RayInputError naming the first ray valid_ray refuses
     o = read_only(o)            # as the kernels take the rays: one compiled kernel for any caller's flags
-    v = writable(v)             # as the kernels take a mesh's arrays (a copy where v is read-only)
     v = real_array(vertices, "vertices")            # float64, or RayInputError naming the argument
+    v = writable(v)             # as the kernels take a mesh's arrays (a copy where v is read-only)
 
 The kernels cast the rays whose origin lies within +-MAX_COORDINATE and whose
 direction's largest component lies between MIN_SIZE and MAX_COORDINATE
