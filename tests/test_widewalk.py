@@ -80,7 +80,7 @@ def test_kernels_given_a_wide_geometry_compile_no_general_driver():
 
     from raykernel.engine.flatten import Geometry
     from raykernel.engine.traverse import CLOSEST, CLOSEST_EAGER
-    from raykernel.aggregates.widewalk import wide_only, with_driver
+    from raykernel.aggregates.widewalk import _walk_wide, wide_only, with_driver
 
     wide, _ = flatten(random_scene(1), "bvh")
     general, _ = flatten(random_scene(1), "bvh(width=2)")
@@ -99,9 +99,11 @@ def test_kernels_given_a_wide_geometry_compile_no_general_driver():
     first_hit(wide, CLOSEST, ws, cnt)
     code = first_hit.inspect_llvm(first_hit.signatures[0])
     assert "_walk_wide" in code and "traverse4walk" not in code
+    walks = set(_walk_wide.overloads)
     with pytest.raises(ValueError, match="with_driver"):
         first_hit(wide, CLOSEST_EAGER, ws, cnt)     # eager normals need the driver: given with_driver(geo)
     assert first_hit(driven, CLOSEST_EAGER, ws, cnt) == first_hit(driven, CLOSEST, ws, cnt)
+    assert set(_walk_wide.overloads) == walks       # the walk itself, compiled apart, serves both types
 
 
 def test_a_geometry_keeps_what_its_kernels_compile_through_pickle():
@@ -110,7 +112,7 @@ def test_a_geometry_keeps_what_its_kernels_compile_through_pickle():
 
     from numba import typeof
 
-    from raykernel.aggregates.widewalk import wide_only, with_driver
+    from raykernel.aggregates.widewalk import _walk_wide, wide_only, with_driver
 
     rays = scene_rays(np.random.default_rng(3), 300)
     for geo in (flatten(random_scene(2), "bvh")[0], flatten(random_scene(2), "grid")[0]):

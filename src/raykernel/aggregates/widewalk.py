@@ -160,16 +160,20 @@ def intersect_wide(nodes, center, agg_bounds, root, refs, prims, verts, band_f, 
     if te == INF:
         count_misses(cnt, np.int64(1))
         return False
-    return _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz,
-                      ix, iy, iz, te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt, root, work)
+    # the center as three numbers: the array is read-only or not by what the scene is (wide_only), and
+    # the walk, compiled apart, would be compiled once for each
+    return _walk_wide(nodes, (center[0], center[1], center[2]), refs, prims, verts, band_f, band_i, tri_edges, ox,
+                      oy, oz, dx, dy, dz, ix, iy, iz, te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4,
+                      cnt, root, work)
 
 
 @njit(private=True)
 def _walk_wide(nodes, center, refs, prims, verts, band_f, band_i, tri_edges, ox, oy, oz, dx, dy, dz, ix, iy, iz,
                te, tmin, tmax, mode, stack, stack_t, frame_f, hit_f, hit_i, t4, cnt, root, work):
-    """intersect_wide below the scene's box, which the ray enters at te. Stack entries as
-    widebvh.visit pushes them: v >= 0 a wide node to visit, v < 0 a leaf. work: the render's
-    per-sample work (geometry/work.py), for a probed sample's log; None otherwise."""
+    """intersect_wide below the scene's box, which the ray enters at te; center: the tree's center
+    (x, y, z). Stack entries as widebvh.visit pushes them: v >= 0 a wide node to visit, v < 0 a
+    leaf. work: the render's per-sample work (geometry/work.py), for a probed sample's log; None
+    otherwise."""
     for k in range(12):     # the hit's frame is the world: an identity map for take
         frame_f[0, F_MAP + k] = 1.0 if k == 0 or k == 5 or k == 10 else 0.0
     found = np.bool_(False)      # typed, not literal: numba compiles a private callee once per literal
