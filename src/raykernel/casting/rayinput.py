@@ -133,11 +133,9 @@ def read_only(arr: np.ndarray) -> np.ndarray:
     """arr, or a read-only view of it. numba compiles a kernel once for each type of its arguments,
     and a read-only array is a type of its own: the query kernels only read the rays, so they are
     given them read-only whatever the caller passed (a broadcast origin, a memory-mapped file), and
-    compile once, not once for each mix of flags."""
-    if not arr.flags.writeable:
-        return arr
+    compile once, not once for each mix of flags. (A fraction of a microsecond: no flags object.)"""
     view = arr.view()
-    view.flags.writeable = False
+    view.setflags(write=False)
     return view
 
 

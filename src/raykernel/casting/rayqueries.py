@@ -230,7 +230,7 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
     it), the general one kind and global index in idx (see RayScene._identify). All hits: idx holds
     the counts, or with offsets the hits go to all_t / all_i as (kind, global index, instance)."""
     n = len(o)
-    o, d, lo, hi = (read_only(a) for a in (o, d, lo, hi))
+    o, d, lo, hi = read_only(o), read_only(d), read_only(lo), read_only(hi)
     t, kind, geom, idx, inst, uv, gn, sn = (out[k] for k in OUTPUTS)
     with_surface = len(uv) > 0 or len(gn) > 0 or len(sn) > 0
     offsets = np.zeros(0, np.int64) if offsets is None else offsets
