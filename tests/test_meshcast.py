@@ -334,8 +334,8 @@ def _compiled() -> dict:
     """Every raykernel kernel of the process and the argument types it has been compiled for."""
     import gc
     from numba.core.registry import CPUDispatcher
-    return {k: set(k.overloads) for k in gc.get_objects()
-            if isinstance(k, CPUDispatcher) and k.py_func.__module__.startswith("raykernel")}
+    return {k: set(k.overloads) for k in gc.get_objects()     # (type, not isinstance: a dead weak proxy raises)
+            if type(k) is CPUDispatcher and k.py_func.__module__.startswith("raykernel")}
 
 
 def _queries(scene, o, d, lo, hi, points):
@@ -366,6 +366,8 @@ def test_read_only_arrays_take_the_kernels_already_made():
     plain["other"] = RayScene.from_scene(other)
     expected = {name: _queries(scene, o, d, lo, hi, points) for name, scene in plain.items()}
     made = _compiled()
+    from raykernel.casting import meshcast, rayqueries
+    assert {meshcast.query, rayqueries._query} <= set(made)
     scenes = [("mesh", RayScene.from_mesh(_frozen(v), _frozen(f))), ("mesh", RayScene.from_scene(in_scene)),
               ("single", RayScene.from_mesh(_frozen(v), f, precision="single")), ("other", plain["other"])]
     assert scenes[1][1]._mesh is not None and plain["other"]._mesh is None

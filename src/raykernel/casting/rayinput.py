@@ -130,10 +130,10 @@ def check_rays(origins, directions, tmin=0.0, tmax=np.inf, budget=None):
 
 
 def read_only(arr: np.ndarray) -> np.ndarray:
-    """arr, or a read-only view of it. numba compiles a kernel once for each type of its arguments,
-    and a read-only array is a type of its own: the query kernels only read the rays, so they are
-    given them read-only whatever the caller passed (a broadcast origin, a memory-mapped file), and
-    compile once, not once for each mix of flags. (A fraction of a microsecond: no flags object.)"""
+    """A read-only view of arr. numba compiles a kernel once for each type of its arguments, and a
+    read-only array is a type of its own: the query kernels only read the rays, so they are given
+    them read-only whatever the caller passed (a broadcast origin, a memory-mapped file), and
+    compile once, not once for each mix of flags. (setflags: numpy's flags object is slower.)"""
     view = arr.view()
     view.setflags(write=False)
     return view

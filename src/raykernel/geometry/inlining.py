@@ -17,9 +17,10 @@ skipped (bench/startup.py measures the first compiles).
 
 It is set up when a raykernel kernel is about to compile (a miss in the
 kernel cache), not at import: a process that only loads cached kernels
-never imports numba's inliner module (part of every warm start). Only raykernel's own callees take this path: any other function, in any
-other numba code of the process, is inlined by numba's own method, called
-as it is. The change is made only where numba's code has the shape it was
+never imports numba's inliner module (part of every warm start). Only
+raykernel's own callees take this path: any other function, in any other
+numba code of the process, is inlined by numba's own method, called as it
+is. The change is made only where numba's code has the shape it was
 written against (checked on its source); anywhere else numba runs as
 shipped. RAYKERNEL_NUMBA_AS_SHIPPED=1 leaves numba alone as well.
 """
