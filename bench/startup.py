@@ -45,6 +45,10 @@ ENTRY_POINTS = {
                      "v = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = np.array([[0, 1, 2]])\n"
                      "s = raykernel.RayScene.from_mesh(v, f)\n"
                      "s.intersect(np.array([[0.2, 0.2, -1.]]), np.array([[0., 0, 1]]))",
+    "rayscene-mesh-ids": "import numpy as np, raykernel\n"
+                         "v = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0]]); f = np.array([[0, 1, 2]])\n"
+                         "s = raykernel.RayScene.from_mesh(v, f)\n"
+                         "s.intersect(np.array([[0.2, 0.2, -1.]]), np.array([[0., 0, 1]]), fields=('t', 'prim_id'))",
     "rayscene-scene": "import numpy as np, raykernel\nfrom raykernel.scene.loading import load\n"
                       "s = raykernel.RayScene(load('spd:balls'))\n"
                       "s.intersect(np.array([[0., 0, 5]]), np.array([[0., 0, -1]]))",

@@ -11,6 +11,7 @@ closest hit so far depends on the order) differ.
 from __future__ import annotations
 
 import copy
+import json
 
 import numpy as np
 import pytest
@@ -382,3 +383,54 @@ def test_read_only_arrays_take_the_kernels_already_made():
         for a, b in zip(_queries(scene, o, d, lo, hi, points), expected[name], strict=True):
             np.testing.assert_array_equal(a, b)
     assert _compiled() == made          # nothing compiled for the flags
+
+
+@pytest.mark.parametrize("accel", ["4-wide", "binary"])
+def test_each_field_alone_equals_the_same_field_of_every_field(accel):
+    """The mesh kernel makes surfaces after each chunk's walk, and only when a surface field
+    is asked for: any subset of fields, in either dtype, gives exactly those columns of the
+    call that asks for every field (misses NaN), on a smooth mesh and a flat one."""
+    rng = np.random.default_rng(29)
+    v, f = MESHES["lumpy-0"]
+    o = rng.normal(size=(700, 3)) * 3
+    d = rng.normal(size=(700, 3)) * 0.1 - 0.1 * o
+    smooth = RayScene.from_mesh(v, f, normals=v / np.linalg.norm(v, axis=1)[:, None])
+    for scene in (smooth, RayScene.from_mesh(v, f)):
+        if accel == "binary":
+            scene = binary(scene)
+            assert not len(scene._mesh.wide.nodes)
+        for dtype in ("float64", "float32"):
+            every = scene.intersect(o, d, dtype=dtype)
+            assert 0 < np.isfinite(every.t).sum() < len(o)          # hits and misses both
+            assert np.isnan(every.normal[~np.isfinite(every.t)]).all()
+            for fields in (("t",), ("t", "prim_id"), ("uv",), ("normal",), ("shading_normal",),
+                           ("geom_id", "uv", "shading_normal")):
+                some = scene.intersect(o, d, fields=fields, dtype=dtype)
+                for name in ("t",) + fields:
+                    assert np.array_equal(getattr(some, name), getattr(every, name), equal_nan=True), (fields, name)
+
+
+@pytest.mark.slow
+def test_a_query_without_surfaces_compiles_no_surface_code(tmp_path):
+    """numba drops the surface pass from the mesh kernel when no surface field is asked for
+    (surface_out None): in a fresh process on an empty cache, a query of t and ids compiles
+    no surface kernel, and one of normals then does."""
+    import os
+    import subprocess
+    import sys
+    code = """
+import json, numpy as np, raykernel
+from raykernel.casting import meshcast
+scene = raykernel.RayScene.from_mesh(np.eye(3), [(0, 1, 2)])
+o, d = np.zeros((2, 3)), np.array([[1.0, 1, 1], [-1, -1, -1]])
+scene.intersect(o, d, fields=("t", "prim_id"))
+without = [len(meshcast.query.signatures), len(meshcast._surfaces.signatures)]
+h = scene.intersect(o, d, fields="normal")
+print(json.dumps([without, [len(meshcast.query.signatures), len(meshcast._surfaces.signatures)], h.normal.tolist()]))
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    without, with_normals, normal = json.loads(out)
+    assert without == [1, 0]
+    assert with_normals == [2, 1]
+    assert np.allclose(np.abs(normal[0]), 1 / np.sqrt(3)) and np.isnan(normal[1]).all()   # a hit, a miss

@@ -2,6 +2,7 @@
 
     store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip=0)
     store_triangle_surface(geo, r, idx, px, py, pz, m, uv_out, gn_out, sn_out)  # kernels that meet only triangles
+    store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)     # a miss (store_no_surface: its surface)
 
 `m` is the world-to-local 3x4 map (row-major, 12 numbers) of the frame the
 hit was found in; p is the world hit point; flip (hit_i[3]) reverses the
@@ -122,10 +123,16 @@ def store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface):
     if idx_out.shape[0]:
         idx_out[r] = -1
     if with_surface:
-        if uv_out.shape[0]:
-            uv_out[r, 0] = uv_out[r, 1] = np.nan
-        for k in range(3):
-            if gn_out.shape[0]:
-                gn_out[r, k] = np.nan
-            if sn_out.shape[0]:
-                sn_out[r, k] = np.nan
+        store_no_surface(r, uv_out, gn_out, sn_out)
+
+
+@njit(inline="always")
+def store_no_surface(r, uv_out, gn_out, sn_out):
+    """A miss's surface, NaN, in row r of the outputs asked for."""
+    if uv_out.shape[0]:
+        uv_out[r, 0] = uv_out[r, 1] = np.nan
+    for k in range(3):
+        if gn_out.shape[0]:
+            gn_out[r, k] = np.nan
+        if sn_out.shape[0]:
+            sn_out[r, k] = np.nan

@@ -2,6 +2,7 @@
 
     mesh = MeshKernel.of(geo, geometries)   # None unless geo is triangles under a single BVH, no instances
     mesh.kernel(*mesh, origins, directions, tmin, tmax, mode, ...)   # the outputs of rayqueries' generic kernel
+                                                                     # (surfaces: None or (uv, gn, sn))
 
 The generic intersection routine (traverse.py) carries every aggregate kind,
 nesting frames, instances and mailboxes through one loop; for the common
@@ -29,6 +30,12 @@ that make it fast:
   copied here for the binary one;
 * the loop knows only BVH nodes and triangles.
 
+The surfaces of the closest hits (uv, normals) are made after each chunk's
+walk, from the lane and t it left, by `_surfaces`: compiled apart and only
+for a query that asks for a surface field (numba drops the call when
+surface_out is None), so a first query of t and ids compiles no surface code
+and the walk is compiled once for both (BENCHMARKS.md, "Start-up").
+
 Meshes (RayScene.from_mesh, from_trimesh) are built straight into these
 arrays (meshbuild.py), at medium quality with MESH_ACCEL's tree: a BVH whose
 SAH prices leaves in blocks of four triangles (bvh(block=4), as Embree
@@ -55,7 +62,7 @@ from ..geometry import counters as C
 from ..geometry.boxes import CONSERVATIVE, box_entry, inverse
 from ..geometry.config import njit
 from ..geometry.primitives import INDEX_MASK, TRIANGLE, hit_sheared, ray_shear
-from .hitsurface import IDENTITY, store_corner_surface, store_miss, store_triangle_surface
+from .hitsurface import IDENTITY, store_corner_surface, store_no_surface, store_triangle_surface
 from .rayinput import valid_ray
 from ..errors import SceneError
 from .triangles4 import BLOCK, COLUMNS, corner, hit4, leaf_blocks
@@ -163,48 +170,58 @@ def _hit(c, j, o, kx, ky, kz, sx, sy, sz, tmin, tmax, edges):
 
 @njit
 def query(geo, corners, prims, geoms, root, wide, blocks, origins, directions, tmin, tmax, mode,
-          chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
-          all_i, counters, c0, c1):
+          chunk, t_out, kind_out, geom_out, idx_out, inst_out, surface_out, offsets, all_t, all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray, with the
     outputs of rayqueries._query, identities as the user sees them: geometry and
     index within it (-1 on a miss). All hits: with len(offsets) == 0 counts them
     into idx_out, else writes ray r's hits to rows offsets[r] .. offsets[r + 1]
     of all_t / all_i as (kind, global index, instance), like the generic kernel.
+    surface_out: None, or (uv, gn, sn) to fill with the closest hits' surfaces, a chunk's after its
+    walk (_surfaces): without them numba compiles no surface code (it drops the branch for None).
     Chunks c0..c1-1 of `chunk` rays, counting into counters[c]. Walks the 4-wide tree."""
     n = origins.shape[0]
+    hit_j, hit_t = np.empty(chunk, np.int64), np.empty(chunk)
     for c in range(c0, c1):
         stack = np.empty(STACK4, np.int64)
         stack_t = np.empty(STACK4)
         o = np.empty(3)
         t4 = np.empty(4)
+        r0, r1 = c * chunk, min(n, (c + 1) * chunk)
         _chunk4(geo, prims, geoms, wide, blocks, origins, directions, tmin, tmax, mode,
-                t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t,
-                all_i, counters, c, c * chunk, min(n, (c + 1) * chunk), stack, stack_t, o, t4)
+                t_out, kind_out, geom_out, idx_out, inst_out, offsets, all_t, all_i, counters, c, r0, r1,
+                stack, stack_t, o, t4, hit_j, hit_t)
+        if surface_out is not None and mode != ALL_HITS:
+            _surfaces(geo, blocks, prims, origins, directions, hit_j, hit_t, r0, r1, surface_out)
 
 
 @njit
 def query_binary(geo, corners, prims, geoms, root, wide, blocks, origins, directions, tmin, tmax,
-                 mode, chunk, t_out, kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface,
-                 offsets, all_t, all_i, counters, c0, c1):
+                 mode, chunk, t_out, kind_out, geom_out, idx_out, inst_out, surface_out, offsets, all_t, all_i,
+                 counters, c0, c1):
     """query on the binary tree as built (bvh(width=2)), with the general kernel's binary walk."""
     n = origins.shape[0]
+    hit_j, hit_t = np.empty(chunk, np.int64), np.empty(chunk)
     for c in range(c0, c1):
         stack_a = np.empty(STACK, np.int64)
         stack_b = np.empty(STACK, np.int64)
         stack_t = np.empty(STACK)
         o = np.empty(3)
         cnt = np.zeros(C.N_COUNTERS, np.int64)
+        r0, r1 = c * chunk, min(n, (c + 1) * chunk)
         _chunk(geo, corners, prims, geoms, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
-               idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c,
-               c * chunk, min(n, (c + 1) * chunk), stack_a, stack_b, stack_t, o, cnt)
+               idx_out, inst_out, offsets, all_t, all_i, counters, c, r0, r1, stack_a, stack_b, stack_t, o, cnt,
+               hit_j, hit_t)
+        if surface_out is not None and mode != ALL_HITS:
+            _surfaces(geo, corners, prims, origins, directions, hit_j, hit_t, r0, r1, surface_out)
 
 
-@njit(private=True)     # one call per chunk; without reference counting: the surfaces read geo's arrays per hit
+@njit(private=True)     # one call per chunk, without reference counting
 def _chunk(geo, corners, prims, geoms, root, origins, directions, tmin, tmax, mode, t_out, kind_out, geom_out,
-           idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c, r0, r1,
-           stack_a, stack_b, stack_t, o, cnt):
-    """Rays r0..r1-1 of query, counting into counters[c], with the chunk's stack, origin scratch
-    and counter row for the binary walk's visits (bvhwalk.descend counts them)."""
+           idx_out, inst_out, offsets, all_t, all_i, counters, c, r0, r1, stack_a, stack_b, stack_t, o, cnt,
+           hit_j, hit_t):
+    """Rays r0..r1-1 of query but their surfaces, counting into counters[c], with the chunk's stack,
+    origin scratch and counter row for the binary walk's visits (bvhwalk.descend counts them); ray
+    r0 + i's closest hit into hit_j[i] (its row of corners; -1 a miss, -2 a ray not cast) and hit_t[i]."""
     store = offsets.shape[0] > 0
     edges = geo.tri_edges[0]
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
@@ -215,6 +232,7 @@ def _chunk(geo, corners, prims, geoms, root, origins, directions, tmin, tmax, mo
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
         if not valid_ray(ox, oy, oz, dx, dy, dz):
             n_invalid += 1      # not cast: RayScene names it (rayinput.py)
+            hit_j[r - r0] = -2
             continue
         o[0], o[1], o[2] = ox, oy, oz
         ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
@@ -247,17 +265,17 @@ def _chunk(geo, corners, prims, geoms, root, origins, directions, tmin, tmax, mo
             n_hits += hits
             if done:
                 sp = 0
-        _finish(geo, corners, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
-                kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
+        hit_j[r - r0], hit_t[r - r0] = best_j, best
+        _finish(prims, geoms, mode, r, best, best_j, n_all, store, t_out, kind_out, geom_out, idx_out, inst_out)
     _count(counters, c, r1 - r0 - n_invalid, n_bounds + cnt[C.BOUNDS_TESTS], cnt[C.CELLS_VISITED], n_entries,
            cnt[C.CELLS_LEAVES], n_tests, n_hits)
 
 
 @njit(private=True)
 def _chunk4(geo, prims, geoms, wide, blocks, origins, directions, tmin, tmax, mode, t_out,
-            kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i,
-            counters, c, r0, r1, stack, stack_t, o, t4):
-    """_chunk on the 4-wide tree. Stack entries: v >= 0 a wide node to visit, v < 0 the leaf in
+            kind_out, geom_out, idx_out, inst_out, offsets, all_t, all_i, counters, c, r0, r1, stack, stack_t, o, t4,
+            hit_j, hit_t):
+    """_chunk on the 4-wide tree (hit_j the hit's lane). Stack entries: v >= 0 a wide node to visit, v < 0 the leaf in
     child slot -v - 1 (node * 4 + slot); of a node's children the ray enters, the nearest is
     taken next and the others go on the stack nearest on top (widebvh.visit)."""
     store = offsets.shape[0] > 0
@@ -270,6 +288,7 @@ def _chunk4(geo, prims, geoms, wide, blocks, origins, directions, tmin, tmax, mo
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
         if not valid_ray(ox, oy, oz, dx, dy, dz):
             n_invalid += 1      # not cast: RayScene names it (rayinput.py)
+            hit_j[r - r0] = -2
             continue
         o[0], o[1], o[2] = ox, oy, oz
         ix, iy, iz = inverse(dx), inverse(dy), inverse(dz)
@@ -302,8 +321,8 @@ def _chunk4(geo, prims, geoms, wide, blocks, origins, directions, tmin, tmax, mo
             n_hits += hits
             if done:
                 sp = 0
-        _finish(geo, blocks, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
-                kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface)
+        hit_j[r - r0], hit_t[r - r0] = best_j, best
+        _finish(prims, geoms, mode, r, best, best_j, n_all, store, t_out, kind_out, geom_out, idx_out, inst_out)
     _count(counters, c, r1 - r0 - n_invalid, n_bounds, n_nodes, n_entries, n_leaves, n_tests, n_hits)
 
 
@@ -389,26 +408,26 @@ def _mesh_of(geoms, prim):
 
 
 @njit(inline="always")
-def _finish(geo, src, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy, oz, dx, dy, dz, t_out,
-            kind_out, geom_out, idx_out, inst_out, uv_out, gn_out, sn_out, with_surface):
-    """Ray r's outputs: its hit count (all hits), its miss, or its closest hit's identity and surface;
-    the hit triangle's corners are row best_j of src (corners, or lane best_j of blocks: triangles4.corner)."""
+def _finish(prims, geoms, mode, r, best, best_j, n_all, store, t_out, kind_out, geom_out, idx_out, inst_out):
+    """Ray r's outputs but its surface: its hit count (all hits), its miss, or its closest hit's identity."""
     if mode == ALL_HITS:
         if not store:
             idx_out[r] = n_all
         return
     if best_j < 0:
-        store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
-        if kind_out.shape[0]:
+        t_out[r] = INF
+        if kind_out.shape[0]:       # (outputs not asked for have no rows)
             kind_out[r] = -1
         if geom_out.shape[0]:
             geom_out[r] = -1
+        if idx_out.shape[0]:
+            idx_out[r] = -1
         if inst_out.shape[0]:
             inst_out[r] = -1
         return
     prim = np.int64(prims[best_j])
     t_out[r] = best
-    if kind_out.shape[0]:           # (outputs not asked for have no rows)
+    if kind_out.shape[0]:
         kind_out[r] = TRIANGLE
     if geom_out.shape[0] or idx_out.shape[0]:
         g = _mesh_of(geoms, prim)
@@ -418,12 +437,29 @@ def _finish(geo, src, prims, geoms, mode, r, best, best_j, n_all, store, ox, oy,
             idx_out[r] = prim - geoms[g]
     if inst_out.shape[0]:
         inst_out[r] = -1
-    if with_surface:
-        px, py, pz = ox + best * dx, oy + best * dy, oz + best * dz
+
+
+@njit(private=True)     # one call per chunk, after its walk: compiled once, apart from the walks
+def _surfaces(geo, src, prims, origins, directions, hit_j, hit_t, r0, r1, surface_out):
+    """The surfaces of rays r0..r1-1 as the walk left them (hit_j, hit_t: _chunk's): NaN for a miss;
+    a hit on triangle prims[j] at t, its corners row j of src (corners, or lane j of blocks:
+    triangles4.corner), the numbers the walk read, where the mesh's own arrays would be read again."""
+    uv_out, gn_out, sn_out = surface_out
+    for r in range(r0, r1):
+        j = hit_j[r - r0]
+        if j == -2:
+            continue            # not cast
+        if j < 0:
+            store_no_surface(r, uv_out, gn_out, sn_out)
+            continue
+        t = hit_t[r - r0]
+        px, py, pz = (origins[r, 0] + t * directions[r, 0], origins[r, 1] + t * directions[r, 1],
+                      origins[r, 2] + t * directions[r, 2])
+        prim = np.int64(prims[j])
         if geo.tri_smooth.shape[0] and geo.tri_smooth[prim]:     # (a mesh without normals: none)
             store_triangle_surface(geo, r, prim, px, py, pz, IDENTITY, uv_out, gn_out, sn_out)
-        else:       # from the corners the walk read: the mesh's arrays would be read from memory again
-            store_corner_surface(src, best_j, r, px, py, pz, uv_out, gn_out, sn_out)
+        else:
+            store_corner_surface(src, j, r, px, py, pz, uv_out, gn_out, sn_out)
 
 
 @njit(inline="always")

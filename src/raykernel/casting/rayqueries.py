@@ -247,9 +247,10 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
         start = time.perf_counter()         # (after waiting for the lock)
         if n and rs._mesh is not None:
             mesh = rs._mesh
+            surface = (uv, gn, sn) if with_surface and mode != ALL_HITS else None
             for_ranges(lambda c0, c1: kernel(*mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom,
-                                             idx, inst, uv, gn, sn, with_surface, offsets, all_t, all_i, counters,
-                                             c0, c1), len(counters), threads, kernel=kernel)
+                                             idx, inst, surface, offsets, all_t, all_i, counters, c0, c1),
+                       len(counters), threads, kernel=kernel)
         elif n and rs._lazy is not None:
             # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
             # chunks (lazyset.pass_ranges); the lazy structures refine after each; passes shorter
