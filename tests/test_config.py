@@ -428,3 +428,19 @@ def test_a_default_argument_is_part_of_the_stamp(tmp_path):
     three = _module(tmp_path, "three", "K = 4\ndef f(x, k=2):\n    return x * k + K\n")
     stamps = {cachekey.kernel_stamp(m.f) for m in (one, two, three)}
     assert len(stamps) == 3
+
+
+def test_a_kernel_numba_cannot_cache_warns_and_runs(tmp_path):
+    """numba refuses to cache a kernel that holds dynamic globals (with NUMBA_OPT=0 the NFF
+    scanner's constant tables stay globals) and says so in a warning that points at the
+    kernel's file; raykernel's cache locator gives it that file, so the kernel warns and
+    runs instead of failing on numba's warning."""
+    code = ("from raykernel.scene.tokens import scan\n"
+            "values, kinds = scan(b'v 1 -2.5e1 x')\n"
+            "print(values.tolist(), kinds.tolist())")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), NUMBA_OPT="0")
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "Cannot cache" in run.stderr and "tokens.py" in run.stderr
+    values, kinds = run.stdout.split("] [")
+    assert "-25.0" in values and "1.0" in values

@@ -209,6 +209,7 @@ class _CodeLocator(_CacheLocator):
 
     def __init__(self, py_func, py_file):
         self._py_func = py_func
+        self._py_file = py_file     # where numba's "cannot cache" warning points (NUMBA_OPT=0 meets it)
         self._cache_path = os.path.join(self.cache_dir(), self.get_suitable_cache_subpath(py_file))
 
     def get_cache_path(self):
