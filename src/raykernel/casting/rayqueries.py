@@ -151,7 +151,9 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
         cnt[C.RAYS_CAST] += 1
         if mode == ALL_HITS:
             hit_i[0] = 0
-            intersect(geo, ox, oy, oz, dx, dy, dz, lo, hi, mode, ws, cnt)
+        # one call for every mode: numba inlines the whole walk at each call
+        found = intersect(geo, ox, oy, oz, dx, dy, dz, lo, hi, mode, ws, cnt)
+        if mode == ALL_HITS:
             k = hit_i[0]
             if store:
                 base = offsets[r]
@@ -163,7 +165,7 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
             else:
                 idx_out[r] = k
             continue
-        if not intersect(geo, ox, oy, oz, dx, dy, dz, lo, hi, mode, ws, cnt):
+        if not found:
             store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
             if kind_out.shape[0]:
                 kind_out[r] = -1
