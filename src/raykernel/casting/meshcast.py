@@ -275,9 +275,9 @@ def _chunk(geo, corners, prims, geoms, root, origins, directions, tmin, tmax, mo
 def _chunk4(geo, prims, geoms, wide, blocks, origins, directions, tmin, tmax, mode, t_out,
             kind_out, geom_out, idx_out, inst_out, offsets, all_t, all_i, counters, c, r0, r1, stack, stack_t, o, t4,
             hit_j, hit_t):
-    """_chunk on the 4-wide tree (hit_j the hit's lane). Stack entries: v >= 0 a wide node to visit, v < 0 the leaf in
-    child slot -v - 1 (node * 4 + slot); of a node's children the ray enters, the nearest is
-    taken next and the others go on the stack nearest on top (widebvh.visit)."""
+    """_chunk on the 4-wide tree (hit_j the hit's lane). Stack entries: v >= 0 a wide node to
+    visit, v < 0 the leaf in child slot -v - 1 (node * 4 + slot); of a node's children the ray
+    enters, the nearest is taken next and the others go on the stack nearest on top (widebvh.visit)."""
     store = offsets.shape[0] > 0
     nodes, center = wide
     edges = geo.tri_edges[0]

@@ -249,7 +249,7 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
         start = time.perf_counter()         # (after waiting for the lock)
         if n and rs._mesh is not None:
             mesh = rs._mesh
-            surface = (uv, gn, sn) if with_surface and mode != ALL_HITS else None
+            surface = (uv, gn, sn) if with_surface else None     # None: numba compiles no surface code
             for_ranges(lambda c0, c1: kernel(*mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom,
                                              idx, inst, surface, offsets, all_t, all_i, counters, c0, c1),
                        len(counters), threads, kernel=kernel)
