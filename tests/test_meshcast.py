@@ -385,19 +385,37 @@ def test_read_only_arrays_take_the_kernels_already_made():
     assert _compiled() == made          # nothing compiled for the flags
 
 
-@pytest.mark.parametrize("accel", ["4-wide", "binary"])
-def test_each_field_alone_equals_the_same_field_of_every_field(accel):
-    """The mesh kernel makes surfaces after each chunk's walk, and only when a surface field
-    is asked for: any subset of fields, in either dtype, gives exactly those columns of the
-    call that asks for every field (misses NaN), on a smooth mesh and a flat one."""
-    rng = np.random.default_rng(29)
+def _field_scenes(walk: str) -> list:
+    """Scenes for test_each_field_alone...: a smooth and a flat mesh through the walk named; for
+    the general kernel also spheres, and a rotated, scaled instance of the smooth mesh."""
     v, f = MESHES["lumpy-0"]
+    smooth = RayScene.from_mesh(v, f, normals=v / np.linalg.norm(v, axis=1)[:, None])
+    scenes = [smooth, RayScene.from_mesh(v, f)]
+    if walk == "binary":
+        return [binary(scene) for scene in scenes]
+    if walk == "4-wide":
+        return scenes
+    inst = Scene()
+    g = Group(name="g", accel="bvh")
+    g.add(TriangleMesh(v, f, normals=v / np.linalg.norm(v, axis=1)[:, None]))
+    turn = np.array([[0.0, -1.5, 0, 0.2], [1.5, 0, 0, 0], [0, 0, 1.5, -0.1], [0, 0, 0, 1]])
+    inst.root.add(Instance(g, turn))
+    rng = np.random.default_rng(3)
+    return [generic(scene) for scene in scenes] + [
+        RayScene.from_spheres(rng.normal(size=(40, 3)), rng.uniform(0.1, 0.4, 40)), RayScene.from_scene(inst)]
+
+
+@pytest.mark.parametrize("walk", ["4-wide", "binary", "general"])
+def test_each_field_alone_equals_the_same_field_of_every_field(walk):
+    """The kernels make surfaces after each chunk's walk, and only when a surface field is
+    asked for: any subset of fields, in either dtype, gives exactly those columns of the call
+    that asks for every field (misses NaN), on the mesh kernel's walks and the general kernel."""
+    rng = np.random.default_rng(29)
     o = rng.normal(size=(700, 3)) * 3
     d = rng.normal(size=(700, 3)) * 0.1 - 0.1 * o
-    smooth = RayScene.from_mesh(v, f, normals=v / np.linalg.norm(v, axis=1)[:, None])
-    for scene in (smooth, RayScene.from_mesh(v, f)):
-        if accel == "binary":
-            scene = binary(scene)
+    for scene in _field_scenes(walk):
+        assert (scene._mesh is None) == (walk == "general")
+        if walk == "binary":
             assert not len(scene._mesh.wide.nodes)
         for dtype in ("float64", "float32"):
             every = scene.intersect(o, d, dtype=dtype)
@@ -412,25 +430,30 @@ def test_each_field_alone_equals_the_same_field_of_every_field(accel):
 
 @pytest.mark.slow
 def test_a_query_without_surfaces_compiles_no_surface_code(tmp_path):
-    """numba drops the surface pass from the mesh kernel when no surface field is asked for
-    (surface_out None): in a fresh process on an empty cache, a query of t and ids compiles
-    no surface kernel, and one of normals then does."""
+    """numba drops the surface pass from the mesh kernel and the general one when no surface
+    field is asked for (surface_out None): in a fresh process on an empty cache, a query of t
+    and ids compiles no surface kernel, and one of normals then does."""
     import os
     import subprocess
     import sys
     code = """
 import json, numpy as np, raykernel
-from raykernel.casting import meshcast
-scene = raykernel.RayScene.from_mesh(np.eye(3), [(0, 1, 2)])
+from raykernel.casting import meshcast, rayqueries
 o, d = np.zeros((2, 3)), np.array([[1.0, 1, 1], [-1, -1, -1]])
-scene.intersect(o, d, fields=("t", "prim_id"))
-without = [len(meshcast.query.signatures), len(meshcast._surfaces.signatures)]
-h = scene.intersect(o, d, fields="normal")
-print(json.dumps([without, [len(meshcast.query.signatures), len(meshcast._surfaces.signatures)], h.normal.tolist()]))
+for scene, kernels in ((raykernel.RayScene.from_mesh(np.eye(3), [(0, 1, 2)]), meshcast),
+                       (raykernel.RayScene.from_spheres([(1.0, 1, 1)], 0.5), rayqueries)):
+    walk = kernels.query if kernels is meshcast else kernels._query
+    scene.intersect(o, d, fields=("t", "prim_id"))
+    without = [len(walk.signatures), len(kernels._surfaces.signatures)]
+    h = scene.intersect(o, d, fields="normal")
+    print(json.dumps([without, [len(walk.signatures), len(kernels._surfaces.signatures)], h.normal.tolist()]))
 """
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
-    without, with_normals, normal = json.loads(out)
-    assert without == [1, 0]
-    assert with_normals == [2, 1]
-    assert np.allclose(np.abs(normal[0]), 1 / np.sqrt(3)) and np.isnan(normal[1]).all()   # a hit, a miss
+    mesh, spheres = (json.loads(line) for line in out.splitlines())
+    for without, with_normals, normal in (mesh, spheres):
+        assert without == [1, 0]
+        assert with_normals == [2, 1]
+        assert np.isnan(normal[1]).all()            # a miss
+    assert np.allclose(np.abs(mesh[2][0]), 1 / np.sqrt(3))          # the triangle's normal
+    assert np.allclose(spheres[2][0], -1 / np.sqrt(3))              # the sphere's, towards the ray

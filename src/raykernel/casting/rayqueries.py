@@ -32,7 +32,7 @@ from ..geometry.parallel import for_ranges
 from ..engine.traverse import ALL_HITS, HIT_F, HIT_I, intersect, workspace
 from ..geometry import counters as C
 from ..geometry.config import njit
-from .hitsurface import store_miss, store_surface
+from .hitsurface import store_no_surface, store_surface
 from .rayinput import RayInputError, check_ray_values, check_rays, read_only, valid_ray
 
 CHUNK = 1024
@@ -112,14 +112,17 @@ class Hits:
 
 @njit
 def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, idx_out, inst_out,
-           uv_out, gn_out, sn_out, with_surface, offsets, all_t, all_i, counters, c0, c1):
+           surface_out, offsets, all_t, all_i, counters, c0, c1):
     """Closest (mode 0), any (mode 1) or all hits (ALL_HITS) of every ray.
-    Closest/any fill t/kind/idx/inst (and uv, normals when with_surface).
+    Closest/any fill t/kind/idx/inst, and with surface_out (None, or (uv, gn, sn)) the
+    surfaces, a chunk's after its walk (_surfaces): without them numba compiles no surface
+    code (it drops the branch for None), and the walk is compiled once for both.
     All hits: with len(offsets) == 0 only counts them into idx_out; else
     writes ray r's hits to rows offsets[r] .. offsets[r + 1] of all_t/all_i.
     Chunks c0..c1-1 of `chunk` rays, counting into counters[c]."""
     n = origins.shape[0]
     store = offsets.shape[0] > 0
+    hits_f, hits_i = np.empty((chunk, HIT_F)), np.empty((chunk, HIT_I), np.int64)
     for c in range(c0, c1):
         r0 = c * chunk
         r1 = min(n, (c + 1) * chunk)
@@ -129,16 +132,20 @@ def _query(geo, origins, directions, tmin, tmax, mode, chunk, t_out, kind_out, i
                 cap = max(cap, offsets[r + 1] - offsets[r])
         ws = workspace(cap)
         cnt = np.zeros(counters.shape[1], np.int64)     # columns past N_COUNTERS: lazy octree passes
-        _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, uv_out, gn_out, sn_out,
-              with_surface, offsets, all_t, all_i, r0, r1, ws, cnt)
+        _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, offsets, all_t, all_i,
+              r0, r1, ws, cnt, hits_f, hits_i)
+        if surface_out is not None and mode != ALL_HITS:
+            _surfaces(geo, origins, directions, hits_f, hits_i, r0, r1, surface_out)
         for k in range(counters.shape[1]):
             counters[c, k] = cnt[k]
 
 
 @njit(private=True)     # one call per chunk: the rays' calls into intersect count no references
-def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, uv_out, gn_out, sn_out,
-          with_surface, offsets, all_t, all_i, r0, r1, ws, cnt):
-    """Rays r0..r1-1 of _query, with the chunk's workspace and counters."""
+def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, inst_out, offsets, all_t, all_i,
+          r0, r1, ws, cnt, hits_f, hits_i):
+    """Rays r0..r1-1 of _query but their surfaces, with the chunk's workspace and counters; ray
+    r0 + i's closest or any hit record (workspace hit_f, hit_i) into hits_f[i], hits_i[i]
+    (kind -1: a miss, -2: a ray not cast)."""
     hit_f, hit_i = ws.hit_f, ws.hit_i
     store = offsets.shape[0] > 0
     per_lo, per_hi = tmin.shape[0] > 1, tmax.shape[0] > 1     # else one bound for every ray
@@ -147,6 +154,7 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
         ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
         dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
         if not valid_ray(ox, oy, oz, dx, dy, dz):
+            hits_i[r - r0, 0] = -2
             continue            # not cast: RayScene names it (rayinput.py)
         cnt[C.RAYS_CAST] += 1
         if mode == ALL_HITS:
@@ -166,12 +174,19 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
                 idx_out[r] = k
             continue
         if not found:
-            store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)
+            hits_i[r - r0, 0] = -1
+            t_out[r] = np.inf
+            if idx_out.shape[0]:        # (outputs not asked for have no rows)
+                idx_out[r] = -1
             if kind_out.shape[0]:
                 kind_out[r] = -1
             if inst_out.shape[0]:
                 inst_out[r] = -1
             continue
+        for k in range(HIT_F):
+            hits_f[r - r0, k] = hit_f[k]
+        for k in range(HIT_I):
+            hits_i[r - r0, k] = hit_i[k]
         t = hit_f[0]
         kind = hit_i[0]
         idx = hit_i[1]
@@ -182,9 +197,23 @@ def _cast(geo, origins, directions, tmin, tmax, mode, t_out, kind_out, idx_out, 
             idx_out[r] = idx
         if inst_out.shape[0]:
             inst_out[r] = hit_i[2]
-        if with_surface:
-            store_surface(geo, r, kind, idx, ox + t * dx, oy + t * dy, oz + t * dz, hit_f[1:13],
-                          uv_out, gn_out, sn_out, hit_i[3])
+
+
+@njit(private=True)     # one call per chunk, after its walk: compiled once, apart from the walk
+def _surfaces(geo, origins, directions, hits_f, hits_i, r0, r1, surface_out):
+    """The surfaces of rays r0..r1-1 from the hit records _cast left: NaN for a miss."""
+    uv_out, gn_out, sn_out = surface_out
+    for r in range(r0, r1):
+        kind = hits_i[r - r0, 0]
+        if kind == -2:
+            continue            # not cast
+        if kind == -1:
+            store_no_surface(r, uv_out, gn_out, sn_out)
+            continue
+        t = hits_f[r - r0, 0]
+        store_surface(geo, r, kind, hits_i[r - r0, 1], origins[r, 0] + t * directions[r, 0],
+                      origins[r, 1] + t * directions[r, 1], origins[r, 2] + t * directions[r, 2],
+                      hits_f[r - r0, 1:13], uv_out, gn_out, sn_out, hits_i[r - r0, 3])
 
 
 def field_names(fields) -> tuple:
@@ -235,6 +264,7 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
     o, d, lo, hi = read_only(o), read_only(d), read_only(lo), read_only(hi)
     t, kind, geom, idx, inst, uv, gn, sn = (out[k] for k in OUTPUTS)
     with_surface = len(uv) > 0 or len(gn) > 0 or len(sn) > 0
+    surface = (uv, gn, sn) if with_surface else None     # None: numba compiles no surface code
     offsets = np.zeros(0, np.int64) if offsets is None else offsets
     all_t = np.zeros(0) if all_t is None else all_t
     all_i = np.zeros((0, 3), np.int64) if all_i is None else all_i
@@ -249,7 +279,6 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
         start = time.perf_counter()         # (after waiting for the lock)
         if n and rs._mesh is not None:
             mesh = rs._mesh
-            surface = (uv, gn, sn) if with_surface else None     # None: numba compiles no surface code
             for_ranges(lambda c0, c1: kernel(*mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom,
                                              idx, inst, surface, offsets, all_t, all_i, counters, c0, c1),
                        len(counters), threads, kernel=kernel)
@@ -268,8 +297,10 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
                 p_all_t, p_all_i = np.empty_like(all_t), np.empty_like(all_i)
             for a, b in rs._lazy.ranges(n, CHUNK):
                 rows = np.zeros(((b - a + CHUNK - 1) // CHUNK, C.N_COUNTERS + rs._lazy.columns), np.int64)
-                args = (rs.geo, *(x[a:b] for x in ins), np.int64(mode), CHUNK, *(x[a:b] for x in outs),
-                        with_surface, p_offsets[a:b + 1] if len(offsets) else offsets, p_all_t, p_all_i, rows)
+                p_t, p_kind, p_idx, p_inst, p_uv, p_gn, p_sn = (x[a:b] for x in outs)
+                args = (rs.geo, *(x[a:b] for x in ins), np.int64(mode), CHUNK, p_t, p_kind, p_idx, p_inst,
+                        (p_uv, p_gn, p_sn) if with_surface else None,
+                        p_offsets[a:b + 1] if len(offsets) else offsets, p_all_t, p_all_i, rows)
                 for_ranges(lambda c0, c1, args=args: _query(*args, c0, c1), len(rows), threads, kernel=_query)
                 counters[a // CHUNK:a // CHUNK + len(rows)] += rows[:, :C.N_COUNTERS]
                 rs.geo = rs._lazy.refine(rs.geo, rows[:, C.N_COUNTERS:])
@@ -285,8 +316,8 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
                 all_i[:] = p_all_i[src]
             rs._lazy.update_stats(rs.build_stats, rs.geo)
         elif n:
-            for_ranges(lambda c0, c1: _query(rs.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst, uv,
-                                             gn, sn, with_surface, offsets, all_t, all_i, counters, c0, c1),
+            for_ranges(lambda c0, c1: _query(rs.geo, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, idx, inst,
+                                             surface, offsets, all_t, all_i, counters, c0, c1),
                        len(counters), threads, kernel=_query)
     seconds = time.perf_counter() - start - clock.seconds - clock.loading
     totals = counters.sum(axis=0)
