@@ -34,7 +34,8 @@ The surfaces of the closest hits (uv, normals) are made after each chunk's
 walk, from the lane and t it left, by `_surfaces`: compiled apart and only
 for a query that asks for a surface field (numba drops the call when
 surface_out is None), so a first query of t and ids compiles no surface code
-and the walk is compiled once for both (BENCHMARKS.md, "Start-up").
+and the walk is compiled once for both (BENCHMARKS.md, "Start-up"); the
+general kernel (rayqueries._query) does the same.
 
 Meshes (RayScene.from_mesh, from_trimesh) are built straight into these
 arrays (meshbuild.py), at medium quality with MESH_ACCEL's tree: a BVH whose
