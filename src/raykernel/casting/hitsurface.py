@@ -2,7 +2,7 @@
 
     store_surface(geo, r, kind, idx, px, py, pz, m, uv_out, gn_out, sn_out, flip=0)
     store_triangle_surface(geo, r, idx, px, py, pz, m, uv_out, gn_out, sn_out)  # kernels that meet only triangles
-    store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface)     # a miss (store_no_surface: its surface)
+    store_no_surface(r, uv_out, gn_out, sn_out)                           # a miss's: NaN
 
 `m` is the world-to-local 3x4 map (row-major, 12 numbers) of the frame the
 hit was found in; p is the world hit point; flip (hit_i[3]) reverses the
@@ -114,16 +114,6 @@ def _store_normals(r, m, gx, gy, gz, sx, sy, sz, flip, gn_out, sn_out):
         gn_out[r, 0], gn_out[r, 1], gn_out[r, 2] = gx, gy, gz
     if sn_out.shape[0]:
         sn_out[r, 0], sn_out[r, 1], sn_out[r, 2] = sx, sy, sz
-
-
-@njit(inline="always")
-def store_miss(r, t_out, idx_out, uv_out, gn_out, sn_out, with_surface):
-    """A miss in row r of the outputs asked for (the others have no rows)."""
-    t_out[r] = np.inf
-    if idx_out.shape[0]:
-        idx_out[r] = -1
-    if with_surface:
-        store_no_surface(r, uv_out, gn_out, sn_out)
 
 
 @njit(inline="always")
