@@ -324,7 +324,6 @@ def test_wide_counters_are_per_box_and_per_node():
     assert s["cells.visited"] == 1 and s["bounds.tests"] == 1 + slots and s["tests.triangle"] == 1
 
 
-
 def _frozen(a):
     a = np.array(a)
     a.flags.writeable = False
@@ -440,13 +439,13 @@ def test_a_query_without_surfaces_compiles_no_surface_code(tmp_path):
 import json, numpy as np, raykernel
 from raykernel.casting import meshcast, rayqueries
 o, d = np.zeros((2, 3)), np.array([[1.0, 1, 1], [-1, -1, -1]])
-for scene, kernels in ((raykernel.RayScene.from_mesh(np.eye(3), [(0, 1, 2)]), meshcast),
-                       (raykernel.RayScene.from_spheres([(1.0, 1, 1)], 0.5), rayqueries)):
-    walk = kernels.query if kernels is meshcast else kernels._query
+for scene, query, surfaces in (
+        (raykernel.RayScene.from_mesh(np.eye(3), [(0, 1, 2)]), meshcast.query, meshcast._surfaces),
+        (raykernel.RayScene.from_spheres([(1.0, 1, 1)], 0.5), rayqueries._query, rayqueries._surfaces)):
     scene.intersect(o, d, fields=("t", "prim_id"))
-    without = [len(walk.signatures), len(kernels._surfaces.signatures)]
+    without = [len(query.signatures), len(surfaces.signatures)]
     h = scene.intersect(o, d, fields="normal")
-    print(json.dumps([without, [len(walk.signatures), len(kernels._surfaces.signatures)], h.normal.tolist()]))
+    print(json.dumps([without, [len(query.signatures), len(surfaces.signatures)], h.normal.tolist()]))
 """
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout

@@ -112,7 +112,7 @@ def test_a_geometry_keeps_what_its_kernels_compile_through_pickle():
 
     from numba import typeof
 
-    from raykernel.aggregates.widewalk import _walk_wide, wide_only, with_driver
+    from raykernel.aggregates.widewalk import wide_only, with_driver
 
     rays = scene_rays(np.random.default_rng(3), 300)
     for geo in (flatten(random_scene(2), "bvh")[0], flatten(random_scene(2), "grid")[0]):

@@ -316,9 +316,10 @@ class _CodeCacheImpl(CompileResultCacheImpl):
 
 def _ready_to_load(target_context) -> None:
     """What machine code loaded from the cache links against: numba's runtime (NRT) and the hash
-    secret's symbols; and loaded libraries that parse their LLVM module on demand (_LinkedOnDemand). numba's own load refreshes the whole target context first, importing and
-    registering every typing and lowering module, which only a compile needs (and numba's compiler
-    refreshes before it compiles): a fifth of a second of every process's start."""
+    secret's symbols; and loaded libraries that parse their LLVM module on demand (_LinkedOnDemand).
+    numba's own load refreshes the whole target context first, importing and registering every
+    typing and lowering module, which only a compile needs (and numba's compiler refreshes before
+    it compiles): a fifth of a second of every process's start."""
     rtsys.initialize(target_context)
     import numba.cpython.hashing  # noqa: F401  (defines the _numba_hashsecret_ symbols)
     _linked_on_demand(target_context)
