@@ -25,7 +25,10 @@ import numba
 
 from . import cachekey
 
-KERNEL_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy")
+# no_cfunc_wrapper: nothing calls a kernel through a C function pointer, and numba otherwise builds one
+# for every kernel, converting each argument; for a kernel given the scene's Geometry that wrapper is
+# a large part of the module LLVM optimises and turns into machine code on a first compile
+KERNEL_OPTIONS = dict(cache=True, nogil=True, fastmath=False, error_model="numpy", no_cfunc_wrapper=True)
 PACKAGE = cachekey.PACKAGE
 
 
@@ -64,7 +67,7 @@ def njit(func=None, *, private=False, borrows=False, **kwargs):
     for small functions that kernels call in their inner loops with arrays."""
     options = dict(KERNEL_OPTIONS, **kwargs)
     if private:
-        options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True, _nrt=False)
+        options.update(no_cpython_wrapper=True, _nrt=False)
     elif borrows:
         options.update(_nrt=False)
     caching = options.pop("cache")
