@@ -179,7 +179,8 @@ def test_no_kernel_is_compiled_for_a_literal_argument(tmp_path):
     same call elsewhere passes an int64 compiles the callee twice (trace was, for the literal
     0 its counter of eye rays started at: 8 s of a first render). In a fresh process on an
     empty cache (kernels loaded from a cache bring their callees inside them), a render or
-    query of each kind compiles no kernel for a literal."""
+    query of each kind compiles no kernel for a literal (every kernel here: no helper compiles the
+    builder, rendering/ahead.py)."""
     import os
     import subprocess
     import sys
@@ -201,7 +202,7 @@ for f in kernels:
             print(f.py_func.__module__, f.py_func.__name__, literal)
 print("checked", sum(len(f.overloads) for f in kernels))
 """
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), RAYKERNEL_COMPILE_AHEAD="0")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
     *literal, checked = out.strip().splitlines()
     assert int(checked.split()[1]) > 30          # the kernels of all four calls, callees included

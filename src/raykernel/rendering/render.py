@@ -54,6 +54,7 @@ from ..geometry.config import cached, compiled, njit
 from ..geometry.primitives import normalize
 from ..scene.model import Scene
 from . import heckbert
+from .ahead import compile_ahead
 from .frustum import tile_misses_box
 from .sampling import MAX_AA_DEPTH, SAMPLERS, SHADINGS, render_pixels, model_arguments
 from .startlists import prepare as prepare_starts
@@ -110,6 +111,12 @@ def _render_tiles(geo, mats, lights, background, cam, samples_w, samples_h, tile
             passes[tile - row0, k] = cnt[C.N_COUNTERS + k]
         finished(counter)
 
+
+
+def tile_kernel(shading: str, aa: str | None):
+    """The kernel that traces a render's tiles: this module's own for Whitted shading without a
+    sampler (the fastest), sampling.py's for everything else."""
+    return _render_tiles if shading == "whitted" and aa in (None, "none") else render_pixels
 
 
 def first_run() -> bool:
@@ -390,8 +397,8 @@ class RenderJob:
         if o["threads"] is not None:
             numba.set_num_threads(min(o["threads"], numba.config.NUMBA_NUM_THREADS))
         self.scene = scene
-        self.plain = o["shading"] == "whitted" and o["aa"] == "none"      # the renderer's own kernel, the fastest
-        self.kernel = _render_tiles if self.plain else render_pixels
+        self.kernel = tile_kernel(o["shading"], o["aa"])
+        self.plain = self.kernel is _render_tiles
         self.width = self.height = o["resolution"]
         if o["resolution"] is None:
             self.width, self.height = scene.camera.width, scene.camera.height
@@ -490,10 +497,9 @@ class RenderJob:
         step, coarse, first, last = self.passes[p]
         return last - first
 
-    def trace(self, p: int, lo: int, hi: int, threads: int = 1, report=None) -> None:
-        """Trace tiles lo..hi-1 of pass p (counted from the pass's first tile) on `threads` threads,
-        which claim them one at a time; report(k), if given, is called every tenth of a second
-        or so with the number of tiles finished."""
+    def arguments(self, p: int, counter, limit) -> tuple:
+        """The arguments of this job's kernel for the tiles of pass p that a call claims from
+        counter (next tile, tiles finished) below `limit`."""
         o = self.options
         step, coarse, first, last = self.passes[p]
         if self.pass_counts[p] is None:
@@ -502,23 +508,33 @@ class RenderJob:
                     columns = 0 if self.lazy is None else self.lazy.columns     # (lazy structures change them)
                     self.pass_counts[p] = np.zeros((last - first, columns), np.int64)
         if self.plain:
-            def run(counter, limit):
-                _render_tiles(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
-                              self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
-                              True if self.filtered else None, self.trick_bits,
-                              None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
-                              self.pass_counts[p], step, coarse, self.frustum_culling, self.layer, self.levels,
-                              self.probe)
-        else:
-            whitted_on, heckbert_on, medium = model_arguments(o["shading"], self.medium)
+            return (self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh, self.tile_x,
+                    self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"], True if self.filtered else None,
+                    self.trick_bits, None if self.trick_bits == LEAN else self.starts, self.values, self.counts,
+                    self.pass_counts[p], step, coarse, self.frustum_culling, self.layer, self.levels, self.probe)
+        whitted_on, heckbert_on, medium = model_arguments(o["shading"], self.medium)
+        return (self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh, self.tile_x,
+                self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"], self.values, self.counts,
+                self.pass_counts[p], step, coarse, TILE, whitted_on, heckbert_on, self.filtered, self.trick_bits,
+                self.starts, medium, SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"],
+                self.layer, self.levels, self.probe)
 
-            def run(counter, limit):
-                render_pixels(self.geo, self.mats, self.lights, self.background, self.cam, self.sw, self.sh,
-                               self.tile_x, self.tile_y, counter, limit, first, o["max_depth"], o["cutoff"],
-                               self.values, self.counts, self.pass_counts[p], step, coarse, TILE,
-                               whitted_on, heckbert_on, self.filtered, self.trick_bits, self.starts, medium,
-                               SAMPLERS[o["aa"]], o["samples"], o["seed"], o["aa_threshold"], o["aa_depth"],
-                               self.layer, self.levels, self.probe)
+    def _runner(self, p: int):
+        """run(counter, limit): this job's kernel over the tiles of pass p it claims (arguments)."""
+        return lambda counter, limit: self.kernel(*self.arguments(p, counter, limit))
+
+    def compile_kernel(self) -> None:
+        """Compile (or load) the kernel this job traces with, for its arguments' types, tracing
+        nothing: a call that finds no tile to claim."""
+        first = self.passes[0][2]
+        self._runner(0)(np.array([first, 0], np.int64), first)
+
+    def trace(self, p: int, lo: int, hi: int, threads: int = 1, report=None) -> None:
+        """Trace tiles lo..hi-1 of pass p (counted from the pass's first tile) on `threads` threads,
+        which claim them one at a time; report(k), if given, is called every tenth of a second
+        or so with the number of tiles finished."""
+        step, coarse, first, last = self.passes[p]
+        run = self._runner(p)
         start = first + lo
         samples = self.work[p] * (hi - lo) // max(1, last - first)
         threads = max(1, min(threads, hi - lo, -(-samples // THREAD_SAMPLES)))
@@ -718,11 +734,14 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
         The scene cannot be built (a group cycle, aggregates nested too deep, coordinates
         beyond the range raykernel answers exactly).
     """
-    job = RenderJob(scene, builder=builder, annealed=annealed, accel=accel, resolution=resolution, spd=spd,
-                    max_depth=max_depth, threads=threads, max_memory=max_memory, shading=shading, aa=aa,
-                    samples=samples, seed=seed,
-                    aa_threshold=aa_threshold, aa_depth=aa_depth, cutoff=cutoff, shadows=shadows,
-                    eye_light=eye_light, eye_light_shadows=eye_light_shadows, tricks=tricks, work=work)
+    options = dict(accel=accel, resolution=resolution, spd=spd, max_depth=max_depth, threads=threads,
+                   max_memory=max_memory, shading=shading, aa=aa, samples=samples, seed=seed,
+                   aa_threshold=aa_threshold, aa_depth=aa_depth, cutoff=cutoff, shadows=shadows,
+                   eye_light=eye_light, eye_light_shadows=eye_light_shadows, tricks=tricks, work=work)
+    with CompileClock(notice=tell_compiling) as ahead:
+        if builder is None:     # a first render: the renderer compiles here while a helper builds (ahead.py)
+            compile_ahead(scene, options, tile_kernel(shading, aa))
+    job = RenderJob(scene, builder=builder, annealed=annealed, **options)
     n_threads = job.threads
     t1 = time.perf_counter()
     done, total = 0, sum(job.work)
@@ -736,4 +755,4 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
             job.end_pass(p)
             done += part
     trace = time.perf_counter() - t1 - clock.seconds - clock.loading
-    return job.result(trace, clock.seconds, load=clock.loading)
+    return job.result(trace, ahead.seconds + clock.seconds, load=ahead.loading + clock.loading)
