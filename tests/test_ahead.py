@@ -57,21 +57,18 @@ def test_the_stand_in_is_typed_as_the_real_build(name, options):
     if name == "csg" and options.get("accel", "bvh") != "bvh":
         pytest.skip("the CSG example names its own structures")
     scene = SCENES[name]()
-    options = dict(dict(resolution=8), **options)
-    real = RenderJob(scene, **options)
-    stand_in = RenderJob(scene, builder=ahead.StandIn, **options)
-    assert argument_types(stand_in) == argument_types(real)
+    options = dict(dict(resolution=24), **options)
+    assert argument_types(ahead.stand_in_job(scene, options)) == argument_types(RenderJob(scene, **options))
 
 
 def test_the_stand_in_marks_a_scene_of_one_wide_bvh_and_no_other():
+    def marked(scene, accel="bvh"):
+        return not ahead.stand_in_job(scene, dict(accel=accel)).geo.wide_center.flags.writeable
     balls = raykernel.load("spd:balls:1")
-    assert not RenderJob(balls, builder=ahead.StandIn, resolution=8).geo.wide_center.flags.writeable
-    for accel in ("grid", "bvh(width=2)", "list"):
-        assert RenderJob(balls, builder=ahead.StandIn, resolution=8, accel=accel).geo.wide_center.flags.writeable
-    empty = raykernel.Scene()
-    assert RenderJob(empty, builder=ahead.StandIn, resolution=8).geo.wide_center.flags.writeable
-    instanced = nested_scene(np.random.default_rng(4), "bvh", "bvh", instanced=True)
-    assert RenderJob(instanced, builder=ahead.StandIn, resolution=8).geo.wide_center.flags.writeable
+    assert marked(balls)
+    assert not any(marked(balls, accel) for accel in ("grid", "bvh(width=2)", "list"))
+    assert not marked(raykernel.Scene())
+    assert not marked(nested_scene(np.random.default_rng(4), "bvh", "bvh", instanced=True))
 
 
 class Recorder:

@@ -72,14 +72,19 @@ def _wide_alone(scene, accel, geo) -> bool:
     return name == "bvh" and params.get("width", 4) == 4
 
 
+def stand_in_job(scene, options: dict):
+    """A RenderJob of `scene` with `options` (its keywords) on the stand-in, one pixel in size:
+    its kernel's arguments have the real job's types (sizes are not part of a type)."""
+    from .render import RenderJob
+    return RenderJob(scene, builder=StandIn, **dict(options, resolution=1))
+
+
 def compile_ahead(scene, options: dict, kernel) -> bool:
     """Compile `kernel`, the renderer's, for a render of `scene` with `options` (RenderJob's
     keywords) against a stand-in, while a helper process builds the scene with the same
     structures; wait for the helper. Does nothing, and returns False, unless the kernel is
     neither compiled in this process nor cached, compiling ahead is enabled and the scene is
     small enough for the helper to copy."""
-    from .render import RenderJob
-
     if compiled(kernel) or cached(kernel) or not enabled() or is_auto(options["accel"]):
         return False
     if scene.count_primitives() > MAX_HELPER_PRIMITIVES:
@@ -93,7 +98,7 @@ def compile_ahead(scene, options: dict, kernel) -> bool:
         helper = subprocess.Popen([sys.executable, "-m", __name__, str(task)], stdin=subprocess.DEVNULL,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=_helper_env())
         try:
-            RenderJob(scene, builder=StandIn, **options).compile_kernel()
+            stand_in_job(scene, options).compile_kernel()
             while helper.poll() is None:
                 time.sleep(WAIT_POLL)
         finally:
