@@ -112,6 +112,28 @@ def test_a_helper_that_fails_costs_the_render_nothing(monkeypatch):
     assert np.array_equal(raykernel.render(scene, resolution=8).image, raykernel.render(scene, resolution=8).image)
 
 
+def test_ctrl_c_while_compiling_ahead_stops_the_helper(monkeypatch):
+    """Interrupted while it compiles against the stand-in, compile_ahead ends its helper (a
+    process that would otherwise sleep on) and leaves no task file behind."""
+    rec = Recorder(monkeypatch, command=[sys.executable, "-c", "import time; time.sleep(60)"])
+    started = []
+    real_popen = ahead.subprocess.Popen
+
+    def popen(args, **kw):
+        started.append(real_popen(args, **kw))
+        return started[-1]
+    monkeypatch.setattr(ahead.subprocess, "Popen", popen)
+
+    def interrupted(job):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(RenderJob, "compile_kernel", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        ahead.compile_ahead(raykernel.load("spd:balls:1"), dict(accel="bvh"), raykernel.rendering.render._render_tiles)
+    (helper,) = started
+    assert helper.returncode is not None and helper.returncode != 0       # killed, not left to sleep
+    assert not os.path.exists(rec.helpers[0][3])
+
+
 def test_no_helper_where_the_kernel_is_ready_or_the_scene_too_big_or_it_is_off(monkeypatch):
     scene = raykernel.load("spd:balls:1")
     kernel = raykernel.rendering.render._render_tiles

@@ -51,3 +51,18 @@ def test_warm_up_shares_the_steps_among_processes():
     out = subprocess.run([sys.executable, "-m", "raykernel.cli", "warmup", "cast", "--processes", "1"],
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0 and "in 1 process(es) (compiling 0.0 s" in out.stdout, out.stdout + out.stderr
+
+
+def test_the_warm_up_processes_start_no_render_helpers(monkeypatch):
+    """warm_up's processes fill the cores already: their first renders start no helper process
+    each (rendering/ahead.py)."""
+    import raykernel.analysis.warmup as warmup
+    envs = []
+    real_popen = subprocess.Popen
+
+    def popen(args, **kw):
+        envs.append(kw["env"])
+        return real_popen([sys.executable, "-c", ""], stdout=kw["stdout"], stderr=kw["stderr"], text=True)
+    monkeypatch.setattr(warmup.subprocess, "Popen", popen)
+    assert warmup._in_processes("render", plan("render"), 2, None) == (0.0, 0.0)
+    assert len(envs) == 2 and all(env["RAYKERNEL_COMPILE_AHEAD"] == "0" for env in envs)

@@ -152,8 +152,10 @@ def _in_processes(target: str, steps, processes: int, progress) -> tuple[float, 
         children = []
         for share in _shares(len(steps), processes):
             said = stack.enter_context(tempfile.TemporaryFile())
+            # the processes fill the cores already: no render of theirs starts a helper of its own (rendering/ahead.py)
             child = stack.enter_context(subprocess.Popen([sys.executable, "-m", __name__, target, *map(str, share)],
-                                                         stdout=subprocess.PIPE, stderr=said, text=True))
+                                                         stdout=subprocess.PIPE, stderr=said, text=True,
+                                                         env=dict(os.environ, RAYKERNEL_COMPILE_AHEAD="0")))
             stack.callback(lambda c=child: c.poll() is None and c.kill())      # runs before the Popen's exit
             children.append((child, said))
         readers = [threading.Thread(target=follow, args=pair, daemon=True) for pair in children]
