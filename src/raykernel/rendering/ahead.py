@@ -1,8 +1,8 @@
 """A first render's two compiles side by side: the renderer here, the builder in a helper process.
 
     with CompileClock(notice=say) as clock:
-        went = compile_ahead(scene, options)    # render() does this before its RenderJob
-    job = RenderJob(scene, **options)           # the build and the render load what compiled
+        went = compile_ahead(scene, options, tile_kernel(shading, aa))   # render() does this first
+    job = RenderJob(scene, **options)       # its build and its trace load what compiled
 
 A render's first run compiles two sets of kernels that do not depend on each other: the
 builder of its structures (a few seconds) and the renderer (most of the wait). numba compiles
@@ -11,7 +11,7 @@ built geometry, not the geometry. So when the renderer's kernel is in neither th
 the kernel cache, and a second core is free, a helper process (`python -m
 raykernel.rendering.ahead FILE`) builds the scene, compiling the builder's kernels into the
 shared cache, while this process compiles the renderer against a stand-in: the scene laid out
-as a plain list (which no kernel builds), typed as the real build will be (`stand_in`). The
+as a plain list (which no kernel builds), typed as the real build will be (`StandIn`). The
 real build then loads the builder's kernels the helper left; if the helper failed, it compiles
 them as it would have. The stand-in's type is a forecast: where it misses, the real render
 compiles its own kernel too (time lost, not a wrong image); tests hold it on the usual scenes.
