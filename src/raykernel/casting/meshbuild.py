@@ -113,6 +113,18 @@ def build_mesh(verts: np.ndarray, faces: np.ndarray, normals: np.ndarray | None,
     return mesh, stats
 
 
+def mesh_arrays(verts, faces, normals, edges: int, box: np.ndarray) -> MeshArrays:
+    """What the mesh kernel reads of the mesh beside its tree: the vertices and faces as given,
+    the edge rule, smooth shading where normals are given, and `box` (6,), the culling box."""
+    n = len(faces)
+    smooth = normals is not None
+    return MeshArrays(agg_bounds=box.reshape(1, 6), root=0, tri_edges=np.array([edges], np.int64), tri_verts=verts,
+                      tri_faces=faces, tri_smooth=np.ones(n if smooth else 0, np.bool_),
+                      tri_mat=np.zeros(n if smooth else 0, np.int32),
+                      tri_vnormals=normals if smooth else np.zeros((0, 3)), node_bounds=np.zeros((0, 6)),
+                      node_first=np.zeros(0, np.int64), node_count=np.zeros(0, np.int64))
+
+
 def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0, single):
     with CompileClock(notice=compile_notice("meshbuild", _COMPILING), after=0.0):
         data = np.empty((n, ROW_COLUMNS))
@@ -144,13 +156,7 @@ def _build_mesh(verts, faces, normals, quality, edges, threads, n, t0, single):
         del bounds, first, count
         wide, blocks, lanes = wide_leaves(wide, verts, faces, order, threads, np.float32 if single else np.float64)
     del order
-    smooth = normals is not None
-    arrays = MeshArrays(agg_bounds=np.r_[box[:3] - margin, box[3:] + margin].reshape(1, 6), root=0,
-                        tri_edges=np.array([edges], np.int64), tri_verts=verts, tri_faces=faces,
-                        tri_smooth=np.ones(n if smooth else 0, np.bool_), tri_mat=np.zeros(n if smooth else 0, np.int32),
-                        tri_vnormals=normals if smooth else np.zeros((0, 3)),
-                        node_bounds=np.zeros((0, 6)), node_first=np.zeros(0, np.int64),
-                        node_count=np.zeros(0, np.int64))
+    arrays = mesh_arrays(verts, faces, normals, edges, np.r_[box[:3] - margin, box[3:] + margin])
     mesh = MeshKernel(arrays, NO_CORNERS, lanes, np.array([0, n], np.int64), 0, wide, blocks)
     seconds = time.perf_counter() - t0
     stats = {"quality": quality, "precision": "single" if single else "double", "triangles": n, "seconds": seconds, "wide_nodes": len(wide.nodes),

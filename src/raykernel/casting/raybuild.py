@@ -28,6 +28,7 @@ from ..engine.flatten import flatten
 from ..geometry.config import njit
 from ..geometry.primitives import CONE, INCLUSIVE, PATCH, POLYGON, SPHERE, TRIANGLE, WATERTIGHT
 from ..scene.model import Scene, TriangleMesh
+from .meshahead import compile_query_ahead
 from .meshbuild import BUILD_BYTES, QUALITY, build_mesh
 from .meshcast import MESH_ACCEL, MeshKernel
 from .rayinput import RayInputError, real_array, writable
@@ -137,7 +138,10 @@ def from_mesh(cls, vertices, faces=None, normals=None, accel: str | None = None,
     start(rs, scene, MESH_ACCEL, max_memory, edges)      # the Geometry, if ever built: the medium tree
     check(len(f) * BUILD_BYTES, rs._limit, f"building a BVH over {len(f):,} triangles", "build a smaller mesh")
     rs._geo = None
+    # a first query's kernel compiled here while a helper compiles the builder (meshahead.py)
+    ahead = compile_query_ahead(v, f, n, quality, EDGE_RULES[edges], threads, single)
     rs._mesh, rs.build_stats = build_mesh(v, f, n, quality, EDGE_RULES[edges], threads, single)
+    rs.build_stats["query_compile_seconds"] = ahead
     rs.build_stats["aggregates"] = [dict(rs.build_stats, kind="bvh", spec=QUALITY[quality])]
     rs.geometries = [{"kind": "triangle", "count": len(f)}]
     rs._geom_of = {TRIANGLE: (np.array([0]), np.array([0]))}

@@ -254,12 +254,14 @@ def _turn(rs):
     return rs._lock if rs._lazy is not None else nullcontext()
 
 
-def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None, threads=None) -> dict:
+def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None, threads=None,
+         compile_only=False) -> dict:
     """One query kernel over all rays, filling the arrays of `out` (t, kind, geom, idx, inst, uv,
     gn, sn; those not wanted have no rows) in place; returns the query's statistics. Closest
     and any hits: the mesh kernel writes identities as the user sees them (geom, index within
     it), the general one kind and global index in idx (see RayScene._identify). All hits: idx holds
-    the counts, or with offsets the hits go to all_t / all_i as (kind, global index, instance)."""
+    the counts, or with offsets the hits go to all_t / all_i as (kind, global index, instance).
+    compile_only: the mesh kernel called for no chunk (compile_query)."""
     n = len(o)
     o, d, lo, hi = read_only(o), read_only(d), read_only(lo), read_only(hi)
     t, kind, geom, idx, inst, uv, gn, sn = (out[k] for k in OUTPUTS)
@@ -277,11 +279,16 @@ def _run(rs, mode, o, d, lo, hi, out: dict, offsets=None, all_t=None, all_i=None
                                   f"{about}; cached for later processes)")
     with _turn(rs), CompileClock(notice=notice) as clock:
         start = time.perf_counter()         # (after waiting for the lock)
-        if n and rs._mesh is not None:
+        if (n or compile_only) and rs._mesh is not None:
             mesh = rs._mesh
-            for_ranges(lambda c0, c1: kernel(*mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom,
-                                             idx, inst, surface, offsets, all_t, all_i, counters, c0, c1),
-                       len(counters), threads, kernel=kernel)
+
+            def cast(c0, c1):
+                kernel(*mesh, o, d, lo, hi, np.int64(mode), CHUNK, t, kind, geom, idx, inst, surface, offsets, all_t,
+                       all_i, counters, c0, c1)
+            if compile_only:
+                cast(0, 0)
+            else:
+                for_ranges(cast, len(counters), threads, kernel=kernel)
         elif n and rs._lazy is not None:
             # the rays coarse to fine (every 2^k-th first), in passes from a few rays up to PASS_CHUNKS
             # chunks (lazyset.pass_ranges); the lazy structures refine after each; passes shorter
@@ -405,6 +412,15 @@ def closest_hits(rs, origins, directions, tmin=0.0, tmax=np.inf, threads: int | 
         return out
     return Hits(**{name: (hits[name].reshape(shape + FIELD_COLUMNS.get(name, ())) if name in hits else None)
                    for name in HIT_FIELDS}, origins=o.reshape(shape + (3,)), directions=d.reshape(shape + (3,)))
+
+
+def compile_query(rs, fields=("t",)) -> None:
+    """Compile (or load) the mesh kernel of rs (a RayScene, or anything with its _mesh and
+    _lazy) for a closest-hit query of `fields` in float64, casting no ray: its arguments typed
+    as any such query's (occluded's too, and those of every field set without surface fields)."""
+    o, d, lo, hi, shape = check_rays(np.zeros((0, 3)), np.zeros((0, 3)))
+    arrays, _ = _outputs(rs, shape, fields)
+    _run(rs, CLOSEST, o, d, lo, hi, arrays, compile_only=True)
 
 
 def occluded(rs, origins, directions, tmin=0.0, tmax=np.inf, threads: int | None = None) -> np.ndarray:

@@ -740,7 +740,7 @@ def render(scene: Scene, accel: str = "bvh", resolution: int | None = None, spd:
                    eye_light=eye_light, eye_light_shadows=eye_light_shadows, tricks=tricks, work=work)
     with CompileClock(notice=tell_compiling) as ahead:
         if builder is None:     # a first render: the renderer compiles here while a helper builds (ahead.py)
-            compile_ahead(scene, options, tile_kernel(shading, aa))
+            compile_ahead(RenderJob, scene, options, tile_kernel(shading, aa))
     job = RenderJob(scene, builder=builder, annealed=annealed, **options)
     n_threads = job.threads
     t1 = time.perf_counter()
