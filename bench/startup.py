@@ -155,8 +155,10 @@ def main() -> int:
              "",
              f"`{latest['command']}` ({latest['date']}). Each entry point runs in a fresh process on an "
              "empty numba cache (cold), then again on the cache it left (warm). Seconds of the whole process "
-             "after interpreter start; `compile` is the time inside numba's compile events (the full table also "
-             "names the functions whose compiles took longest, callees included). Targets: "
+             "after interpreter start; `compile` is the time inside numba's compile events in that process (the "
+             "full table also names the functions whose compiles took longest, callees included); where a first "
+             "render or mesh query compiles its builder in a helper process beside it (geometry/ahead.py), that "
+             "compile shows in the total only. Targets: "
              "`import raykernel` at most 0.3 s; the command `raykernel render spd:tetra --resolution 64` "
              "(cli-render-tetra) at most 1.0 s warm; render-balls cold compile at most 10 s, a mesh query's "
              "(rayscene-mesh) at most 4 s.",

@@ -52,20 +52,22 @@ SCENES = {
     "instanced": lambda: nested_scene(np.random.default_rng(4), "bvh", "bvh", instanced=True),
     "random": lambda: random_scene(5),
 }
-# every structure that takes no operands, by name (auto anneals first: it compiles nothing ahead)
-OPTIONS = [dict(), dict(spd=True), dict(accel="bvh(width=2)"),
-           *(dict(accel=name) for name, kind in KINDS.items() if not kind.operands and name != "auto"),
-           dict(tricks="all"), dict(tricks="none"),
-           dict(shading="hall"), dict(aa="jitter", samples=4), dict(shadows="filtered"), dict(work=True)]
+# every scene with the options that change the kernel's types most; every structure that takes no
+# operands, by name (auto anneals first: it compiles nothing ahead), on a flat and a nested scene;
+# the other options on spheres and on a mesh
+STRUCTURES = ["bvh(width=2)", *(name for name, kind in KINDS.items() if not kind.operands and name != "auto")]
+CASES = [*((name, options) for name in SCENES for options in (dict(), dict(tricks="all"), dict(work=True))),
+         *((name, dict(accel=accel)) for name in ("balls", "nested") for accel in STRUCTURES),
+         *((name, options) for name in ("balls", "mesh")
+           for options in (dict(spd=True), dict(tricks="none"), dict(shading="hall"), dict(aa="jitter", samples=4),
+                           dict(shadows="filtered")))]
 
 
-@pytest.mark.parametrize("name", SCENES)
-@pytest.mark.parametrize("options", OPTIONS, ids=lambda o: ",".join(f"{k}={v}" for k, v in o.items()) or "default")
+@pytest.mark.parametrize("name,options", CASES,
+                         ids=[f"{n}-" + (",".join(f"{k}={v}" for k, v in o.items()) or "default") for n, o in CASES])
 def test_the_stand_in_is_typed_as_the_real_build(name, options):
     """The kernel compiled against the stand-in is the one the real render calls: every argument
     of the same numba type (the scene walk's mark included), so the real render compiles nothing."""
-    if name == "csg" and options.get("accel", "bvh") != "bvh":
-        pytest.skip("the CSG example names its own structures")
     scene = SCENES[name]()
     options = dict(dict(resolution=24), **options)
     assert argument_types(ahead.stand_in_job(RenderJob, scene, options)) == argument_types(RenderJob(scene, **options))
