@@ -198,21 +198,26 @@ def test_the_helper_makes_the_call_it_is_given(tmp_path, monkeypatch):
         helpers._main([str(task)])
 
 
-@pytest.mark.slow
-def test_on_an_empty_cache_the_builder_compiles_in_the_helper(tmp_path):
-    """In a fresh process on an empty cache, a first render compiles the renderer's kernel once,
-    against the stand-in, and not the builder's (the helper's, loaded from the cache); its image
-    and counts are those of a process that compiled both itself."""
-    code = """
+# a child process's first lines: `compiled` lists the kernels it compiles, by name, in order
+COMPILES = """
 import json, sys, numpy as np, raykernel
 from numba.core import event
-from raykernel.rendering import render as R
 compiled = []
 class Listen(event.Listener):
     def on_start(self, ev):
         compiled.append(ev.data["dispatcher"].py_func.__qualname__)
     def on_end(self, ev):
         pass
+"""
+
+
+@pytest.mark.slow
+def test_on_an_empty_cache_the_builder_compiles_in_the_helper(tmp_path):
+    """In a fresh process on an empty cache, a first render compiles the renderer's kernel once,
+    against the stand-in, and not the builder's (the helper's, loaded from the cache); its image
+    and counts are those of a process that compiled both itself."""
+    code = COMPILES + """
+from raykernel.rendering import render as R
 scene = raykernel.load("spd:balls:1")
 with event.install_listener("numba:compile", Listen()):
     r = raykernel.render(scene, resolution=16)
@@ -313,15 +318,7 @@ def test_on_an_empty_cache_a_first_mesh_query_compiles_beside_the_builder(tmp_pa
     """In a fresh process on an empty cache, from_mesh compiles the query kernel and not the
     builder's (the helper's, loaded from the cache); the query's answers are those of a process
     that compiled both itself, and a later query of every field compiles no walk again."""
-    code = """
-import json, sys, numpy as np, raykernel
-from numba.core import event
-compiled = []
-class Listen(event.Listener):
-    def on_start(self, ev):
-        compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-    def on_end(self, ev):
-        pass
+    code = COMPILES + """
 sys.path.insert(0, sys.argv[2])
 from support import icosphere
 v, f = icosphere(3)
